@@ -1,0 +1,69 @@
+#pragma once
+// The 64-byte octree cell of seed 003 §4.1.1, stored depth-first in the
+// octree-cell-array. Traverse processes load only an array of these.
+#include <cstdint>
+#include <limits>
+#include <type_traits>
+
+namespace pointillist {
+
+inline constexpr std::uint32_t kNoIndex = std::numeric_limits<std::uint32_t>::max();
+
+struct OctreeCell {
+  float boundsMin[3];
+  float boundsMax[3];
+  // Normal cone: mean normal (snorm16) and cosine of the half angle (snorm16),
+  // quantized conservatively (the stored cone contains the true one).
+  // coneCos == -32767 means "no cone" (never back-face cull).
+  std::int16_t coneAxis[3];
+  std::int16_t coneCos;
+  // Depth-first index of the next sibling, or of the nearest ancestor's next
+  // sibling; kNoIndex when the walk ends after this subtree.
+  std::uint32_t nextSibling;
+  // Index into the top-level table; kNoIndex above the top-level depth.
+  std::uint32_t topLevel;
+  // All original points of this subtree, in splats, relative to the first
+  // splat of its top-level cell (seed 003 fig. 3: "added start index").
+  std::uint32_t pointsOffset;
+  std::uint32_t pointsCount;
+  // This cell's own level-splats, same relative addressing.
+  std::uint32_t splatsOffset;
+  std::uint32_t splatsCount;
+  // Largest radius among this cell's level-splats (leaves: among its points);
+  // used for conservative culling and level of detail.
+  float maxSplatRadius;
+  // Seed 003 §4.1.2: points 0, leaves 1, others 1 + max(children).
+  std::uint8_t level;
+  std::uint8_t depth;
+  std::uint8_t childCount;
+  std::uint8_t flags;  // bit 0: leaf
+
+  bool isLeaf() const { return (flags & 1u) != 0; }
+};
+
+inline constexpr std::uint8_t kCellFlagLeaf = 1;
+
+static_assert(sizeof(OctreeCell) == 64, "seed 003: octree cells are aligned in 64 bytes");
+static_assert(std::is_trivially_copyable_v<OctreeCell>);
+
+}  // namespace pointillist
+
+namespace pointillist {
+
+// One entry of the top-level table: where a top-level cell's data packet lives
+// in the point-array file. The packet holds the cell's original points first
+// (pointCount splats, depth-first leaf order), then the level-splats of every
+// cell beneath it (levelSplatCount splats).
+struct TopLevelCell {
+  std::uint32_t cellIndex;  // index in the octree-cell-array
+  std::uint32_t pointCount;
+  std::uint32_t levelSplatCount;
+  std::uint32_t reserved;
+  std::uint64_t byteOffset;  // in the point-array file
+  std::uint64_t byteSize;    // (pointCount + levelSplatCount) * sizeof(Splat)
+};
+
+static_assert(sizeof(TopLevelCell) == 32);
+static_assert(std::is_trivially_copyable_v<TopLevelCell>);
+
+}  // namespace pointillist
