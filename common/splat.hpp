@@ -7,8 +7,8 @@ namespace pointillist {
 
 struct Splat {
   float position[3];
-  float normal[3];  // unit length; (0,0,0) when unknown
-  float radius;     // world-space disk radius
+  float normal[3];        // unit length; (0,0,0) when unknown
+  float radius;           // world-space disk radius
   std::uint8_t color[4];  // RGBA8
 };
 

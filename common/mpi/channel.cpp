@@ -1,0 +1,292 @@
+#include "common/mpi/channel.hpp"
+
+#include <algorithm>
+#include <climits>
+#include <cstdlib>
+#include <cstring>
+#include <thread>
+#include <utility>
+
+namespace pointillist {
+namespace {
+
+constexpr std::uint32_t kFrameMagic = 0x504E5431;  // "PNT1"
+constexpr std::size_t kPrefixBytes = 16;           // magic, reserved, payload bytes
+constexpr int kPayloadTagOffset = 1000;
+
+void putU32(char* out, std::uint32_t value) {
+  for (int i = 0; i < 4; ++i) out[i] = static_cast<char>((value >> (8 * i)) & 0xFFu);
+}
+void putU64(char* out, std::uint64_t value) {
+  for (int i = 0; i < 8; ++i) out[i] = static_cast<char>((value >> (8 * i)) & 0xFFu);
+}
+std::uint64_t getLE(const char* in, int bytes) {
+  std::uint64_t value = 0;
+  for (int i = 0; i < bytes; ++i) {
+    value |= static_cast<std::uint64_t>(static_cast<unsigned char>(in[i])) << (8 * i);
+  }
+  return value;
+}
+
+std::chrono::microseconds envMicros(const char* name, std::chrono::microseconds fallback) {
+  if (const char* text = std::getenv(name)) {
+    char* end = nullptr;
+    const long value = std::strtol(text, &end, 10);
+    if (end != text && value > 0) return std::chrono::microseconds(value);
+  }
+  return fallback;
+}
+
+}  // namespace
+
+const char* messageKindName(MessageKind kind) {
+  switch (kind) {
+    case MessageKind::Handshake:
+      return "Handshake";
+    case MessageKind::HandshakeReply:
+      return "HandshakeReply";
+    case MessageKind::Ready:
+      return "Ready";
+    case MessageKind::Shutdown:
+      return "Shutdown";
+    case MessageKind::ShutdownAck:
+      return "ShutdownAck";
+    case MessageKind::ErrorReport:
+      return "ErrorReport";
+    case MessageKind::WorkRequest:
+      return "WorkRequest";
+    case MessageKind::TileTask:
+      return "TileTask";
+    case MessageKind::NoWork:
+      return "NoWork";
+    case MessageKind::RenderPacket:
+      return "RenderPacket";
+    case MessageKind::SendOrder:
+      return "SendOrder";
+    case MessageKind::DataPacket:
+      return "DataPacket";
+    case MessageKind::TileImage:
+      return "TileImage";
+    case MessageKind::RenderReport:
+      return "RenderReport";
+    case MessageKind::Test:
+      return "Test";
+  }
+  return "unknown";
+}
+
+void checkMpi(int code, const char* call) {
+  if (code == MPI_SUCCESS) return;
+  char text[MPI_MAX_ERROR_STRING] = {};
+  int length = 0;
+  if (MPI_Error_string(code, text, &length) != MPI_SUCCESS) {
+    throw TransportError(std::string(call) + " failed with MPI error code " + std::to_string(code));
+  }
+  throw TransportError(std::string(call) +
+                       " failed: " + std::string(text, static_cast<std::size_t>(length)));
+}
+
+Backoff::Backoff()
+    : minSleep_(envMicros("POINTILLIST_POLL_MIN_US", std::chrono::microseconds(20))),
+      maxSleep_(envMicros("POINTILLIST_POLL_MAX_US", std::chrono::microseconds(2000))),
+      sleep_(minSleep_) {}
+
+void Backoff::wait() {
+  std::this_thread::sleep_for(sleep_);
+  sleep_ = std::min(maxSleep_, sleep_ * 2);
+}
+
+SendHandle::SendHandle(SendHandle&& other) noexcept
+    : requests_(std::move(other.requests_)),
+      header_(std::move(other.header_)),
+      ownedPayload_(std::move(other.ownedPayload_)) {
+  other.requests_.clear();
+}
+
+SendHandle& SendHandle::operator=(SendHandle&& other) noexcept {
+  if (this != &other) {
+    try {
+      wait();
+    } catch (...) {
+      // A failed send surfaces on the peer; here we must not throw from a move.
+    }
+    requests_ = std::move(other.requests_);
+    header_ = std::move(other.header_);
+    ownedPayload_ = std::move(other.ownedPayload_);
+    other.requests_.clear();
+  }
+  return *this;
+}
+
+SendHandle::~SendHandle() {
+  try {
+    wait();
+  } catch (...) {
+    // Destructors must not throw; the job's error path reports transport failures.
+  }
+}
+
+bool SendHandle::test() {
+  if (requests_.empty()) return true;
+  int done = 0;
+  checkMpi(
+      MPI_Testall(static_cast<int>(requests_.size()), requests_.data(), &done, MPI_STATUSES_IGNORE),
+      "MPI_Testall");
+  if (done != 0) {
+    requests_.clear();
+    header_.reset();
+    ownedPayload_.reset();
+  }
+  return done != 0;
+}
+
+void SendHandle::wait() {
+  Backoff backoff;
+  while (!test()) backoff.wait();
+}
+
+Channel::Channel(MPI_Comm comm, std::size_t maxChunkBytes)
+    : comm_(comm), maxChunkBytes_(std::clamp<std::size_t>(maxChunkBytes, 1, INT_MAX)) {
+  checkMpi(MPI_Comm_rank(comm_, &rank_), "MPI_Comm_rank");
+  checkMpi(MPI_Comm_size(comm_, &size_), "MPI_Comm_size");
+}
+
+int Channel::payloadTag(MessageKind kind) {
+  return static_cast<int>(kind) + kPayloadTagOffset;
+}
+
+SendHandle Channel::post(int dest, MessageKind kind, const google::protobuf::MessageLite& header,
+                         std::span<const std::byte> payload) {
+  SendHandle handle;
+  handle.header_ = std::make_unique<std::string>(kPrefixBytes, '\0');
+  putU32(handle.header_->data(), kFrameMagic);
+  putU32(handle.header_->data() + 4, 0);
+  putU64(handle.header_->data() + 8, payload.size());
+  if (!header.AppendToString(handle.header_.get())) {
+    throw ProtocolError(std::string("cannot serialize ") + messageKindName(kind) + " message");
+  }
+  if (handle.header_->size() > static_cast<std::size_t>(INT_MAX)) {
+    throw ProtocolError(std::string(messageKindName(kind)) + " header exceeds 2 GiB");
+  }
+  handle.requests_.reserve(1 + payload.size() / maxChunkBytes_ + 1);
+  MPI_Request request = MPI_REQUEST_NULL;
+  checkMpi(MPI_Isend(handle.header_->data(), static_cast<int>(handle.header_->size()), MPI_BYTE,
+                     dest, static_cast<int>(kind), comm_, &request),
+           "MPI_Isend(header)");
+  handle.requests_.push_back(request);
+  for (std::size_t offset = 0; offset < payload.size(); offset += maxChunkBytes_) {
+    const std::size_t chunk = std::min(maxChunkBytes_, payload.size() - offset);
+    checkMpi(MPI_Isend(payload.data() + offset, static_cast<int>(chunk), MPI_BYTE, dest,
+                       payloadTag(kind), comm_, &request),
+             "MPI_Isend(payload)");
+    handle.requests_.push_back(request);
+  }
+  return handle;
+}
+
+SendHandle Channel::post(int dest, MessageKind kind, const google::protobuf::MessageLite& header,
+                         std::shared_ptr<const std::vector<std::byte>> payload) {
+  std::span<const std::byte> view;
+  if (payload) view = std::span<const std::byte>(payload->data(), payload->size());
+  SendHandle handle = post(dest, kind, header, view);
+  handle.ownedPayload_ = std::move(payload);
+  return handle;
+}
+
+void Channel::send(int dest, MessageKind kind, const google::protobuf::MessageLite& header,
+                   std::span<const std::byte> payload) {
+  SendHandle handle = post(dest, kind, header, payload);
+  handle.wait();
+}
+
+Envelope Channel::receiveMatched(MPI_Message& message, MPI_Status& status) {
+  int count = 0;
+  checkMpi(MPI_Get_count(&status, MPI_BYTE, &count), "MPI_Get_count");
+  std::string frame(static_cast<std::size_t>(count), '\0');
+  checkMpi(MPI_Mrecv(frame.data(), count, MPI_BYTE, &message, MPI_STATUS_IGNORE), "MPI_Mrecv");
+
+  Envelope envelope;
+  envelope.source = status.MPI_SOURCE;
+  envelope.kind = static_cast<MessageKind>(status.MPI_TAG);
+  if (frame.size() < kPrefixBytes || getLE(frame.data(), 4) != kFrameMagic) {
+    throw ProtocolError("rank " + std::to_string(status.MPI_SOURCE) + " sent a " +
+                        std::to_string(frame.size()) + "-byte message on tag " +
+                        std::to_string(status.MPI_TAG) + " without the Pointillist frame prefix");
+  }
+  const std::uint64_t payloadBytes = getLE(frame.data() + 8, 8);
+  envelope.header = frame.substr(kPrefixBytes);
+
+  envelope.payload.resize(payloadBytes);
+  std::vector<MPI_Request> requests;
+  for (std::size_t offset = 0; offset < payloadBytes; offset += maxChunkBytes_) {
+    const std::size_t chunk = std::min<std::size_t>(maxChunkBytes_, payloadBytes - offset);
+    MPI_Request request = MPI_REQUEST_NULL;
+    checkMpi(MPI_Irecv(envelope.payload.data() + offset, static_cast<int>(chunk), MPI_BYTE,
+                       envelope.source, payloadTag(envelope.kind), comm_, &request),
+             "MPI_Irecv(payload)");
+    requests.push_back(request);
+  }
+  // The sender posted every chunk with the header, so these complete promptly;
+  // the time-out only guards against a peer that died mid-message.
+  for (MPI_Request& request : requests) {
+    waitFor(request, std::chrono::minutes(5), "message payload");
+  }
+  return envelope;
+}
+
+std::optional<Envelope> Channel::tryReceive(int source, std::optional<MessageKind> kind) {
+  int flag = 0;
+  MPI_Message message = MPI_MESSAGE_NULL;
+  MPI_Status status;
+  const int tag = kind ? static_cast<int>(*kind) : MPI_ANY_TAG;
+  checkMpi(MPI_Improbe(source, tag, comm_, &flag, &message, &status), "MPI_Improbe");
+  if (flag == 0) return std::nullopt;
+  if (status.MPI_TAG >= kPayloadTagOffset) {
+    throw ProtocolError("payload chunk from rank " + std::to_string(status.MPI_SOURCE) +
+                        " arrived without its header");
+  }
+  return receiveMatched(message, status);
+}
+
+std::optional<Envelope> Channel::receive(int source, std::optional<MessageKind> kind,
+                                         std::chrono::milliseconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  Backoff backoff;
+  while (true) {
+    if (auto envelope = tryReceive(source, kind)) return envelope;
+    if (std::chrono::steady_clock::now() >= deadline) return std::nullopt;
+    backoff.wait();
+  }
+}
+
+Envelope Channel::receiveOrThrow(int source, std::optional<MessageKind> kind,
+                                 std::chrono::milliseconds timeout) {
+  if (auto envelope = receive(source, kind, timeout)) return std::move(*envelope);
+  throw TimeoutError(
+      "no " + std::string(kind ? messageKindName(*kind) : "message") + " from " +
+      (source == MPI_ANY_SOURCE ? std::string("any rank") : "rank " + std::to_string(source)) +
+      " within " + std::to_string(timeout.count()) + " ms");
+}
+
+void Channel::barrier(std::chrono::milliseconds timeout) {
+  MPI_Request request = MPI_REQUEST_NULL;
+  checkMpi(MPI_Ibarrier(comm_, &request), "MPI_Ibarrier");
+  waitFor(request, timeout, "barrier");
+}
+
+void Channel::waitFor(MPI_Request& request, std::chrono::milliseconds timeout, const char* what) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  Backoff backoff;
+  while (true) {
+    int done = 0;
+    checkMpi(MPI_Test(&request, &done, MPI_STATUS_IGNORE), "MPI_Test");
+    if (done != 0) return;
+    if (std::chrono::steady_clock::now() >= deadline) {
+      throw TimeoutError(std::string(what) + " did not complete within " +
+                         std::to_string(timeout.count()) + " ms");
+    }
+    backoff.wait();
+  }
+}
+
+}  // namespace pointillist

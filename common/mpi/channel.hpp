@@ -1,0 +1,157 @@
+#pragma once
+// The typed channel: the only code in Pointillist that calls MPI.
+//
+// A message is a protobuf header on its kind's tag, optionally followed by a raw
+// byte payload (points, pixels) on the kind's payload tag, sent straight from the
+// caller's memory in chunks of at most maxChunkBytes (MPI counts are int).
+// MPI's non-overtaking rule per (source, tag) keeps header and chunks in order.
+//
+// Waiting never sits in a blocking MPI call: Open MPI busy-polls inside
+// MPI_Recv/MPI_Wait (a full core per idle rank, even with mpi_yield_when_idle),
+// so every wait here polls with MPI_Test/MPI_Iprobe and sleeps with back-off.
+#include <mpi.h>
+
+#include <chrono>
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include <google/protobuf/message_lite.h>
+
+#include "common/errors.hpp"
+
+namespace pointillist {
+
+// One tag per message kind. Values are part of the protocol: never renumber.
+enum class MessageKind : int {
+  Handshake = 1,
+  HandshakeReply = 2,
+  Ready = 3,
+  Shutdown = 4,
+  ShutdownAck = 5,
+  ErrorReport = 6,
+  WorkRequest = 10,
+  TileTask = 11,
+  NoWork = 12,
+  RenderPacket = 13,
+  SendOrder = 14,
+  DataPacket = 15,
+  TileImage = 16,
+  RenderReport = 17,
+  Test = 100,
+};
+
+const char* messageKindName(MessageKind kind);
+
+// Throws TransportError with MPI_Error_string's text when code != MPI_SUCCESS.
+void checkMpi(int code, const char* call);
+
+// Sleeps between polls, growing from minSleep to maxSleep while nothing happens.
+class Backoff {
+ public:
+  Backoff();
+  void wait();
+  void reset() { sleep_ = minSleep_; }
+
+ private:
+  std::chrono::microseconds minSleep_;
+  std::chrono::microseconds maxSleep_;
+  std::chrono::microseconds sleep_;
+};
+
+// A received message: protobuf header bytes and the raw payload, if any.
+struct Envelope {
+  int source = -1;
+  MessageKind kind = MessageKind::Test;
+  std::string header;
+  std::vector<std::byte> payload;
+
+  // Parses the header as M; a malformed header is a ProtocolError.
+  template <class M>
+  M as() const {
+    M message;
+    if (!message.ParseFromString(header)) {
+      throw ProtocolError(std::string("malformed ") + messageKindName(kind) +
+                          " message from rank " + std::to_string(source) + " (" +
+                          std::to_string(header.size()) + " bytes)");
+    }
+    return message;
+  }
+};
+
+// A send in flight. Owns the header bytes (and the payload, when given by value)
+// until MPI is done with them; the destructor waits, so a SendHandle can never
+// leave MPI reading freed memory.
+class SendHandle {
+ public:
+  SendHandle() = default;
+  SendHandle(SendHandle&&) noexcept;
+  SendHandle& operator=(SendHandle&&) noexcept;
+  SendHandle(const SendHandle&) = delete;
+  SendHandle& operator=(const SendHandle&) = delete;
+  ~SendHandle();
+
+  bool test();  // true when complete
+  void wait();
+  bool empty() const { return requests_.empty(); }
+
+ private:
+  friend class Channel;
+  std::vector<MPI_Request> requests_;
+  std::unique_ptr<std::string> header_;
+  std::shared_ptr<const std::vector<std::byte>> ownedPayload_;
+};
+
+class Channel {
+ public:
+  static constexpr std::size_t kDefaultMaxChunkBytes = std::size_t{1} << 30;
+
+  // Does not take ownership of the communicator.
+  explicit Channel(MPI_Comm comm, std::size_t maxChunkBytes = kDefaultMaxChunkBytes);
+
+  int rank() const { return rank_; }
+  int size() const { return size_; }
+  MPI_Comm comm() const { return comm_; }
+  std::size_t maxChunkBytes() const { return maxChunkBytes_; }
+
+  // Starts a send; the payload must stay alive until the handle completes.
+  SendHandle post(int dest, MessageKind kind, const google::protobuf::MessageLite& header,
+                  std::span<const std::byte> payload = {});
+  // Starts a send that keeps the payload alive itself.
+  SendHandle post(int dest, MessageKind kind, const google::protobuf::MessageLite& header,
+                  std::shared_ptr<const std::vector<std::byte>> payload);
+  // Sends and waits for local completion (buffers reusable).
+  void send(int dest, MessageKind kind, const google::protobuf::MessageLite& header,
+            std::span<const std::byte> payload = {});
+
+  // Receives one message if a header is waiting (any kind when kind is empty).
+  std::optional<Envelope> tryReceive(int source = MPI_ANY_SOURCE,
+                                     std::optional<MessageKind> kind = std::nullopt);
+  // Waits (polling, not spinning) until a message arrives or the timeout passes.
+  std::optional<Envelope> receive(int source, std::optional<MessageKind> kind,
+                                  std::chrono::milliseconds timeout);
+  // Like receive, but a timeout is a TimeoutError naming what was awaited.
+  Envelope receiveOrThrow(int source, std::optional<MessageKind> kind,
+                          std::chrono::milliseconds timeout);
+
+  // A barrier that sleeps while it waits.
+  void barrier(std::chrono::milliseconds timeout);
+
+  // Polls a request to completion without spinning.
+  static void waitFor(MPI_Request& request, std::chrono::milliseconds timeout, const char* what);
+
+ private:
+  static int payloadTag(MessageKind kind);
+  Envelope receiveMatched(MPI_Message& message, MPI_Status& status);
+
+  MPI_Comm comm_;
+  int rank_ = 0;
+  int size_ = 0;
+  std::size_t maxChunkBytes_;
+};
+
+}  // namespace pointillist

@@ -1,0 +1,323 @@
+#include "common/mpi/job.hpp"
+
+#include <sys/resource.h>
+#include <unistd.h>
+
+#include <array>
+#include <iostream>
+#include <sstream>
+
+namespace pointillist {
+namespace {
+
+constexpr int kBootstrapMagic = 0x504E5442;  // "PNTB"
+constexpr int kRoleCount = 5;                // v1::Role values 0..4
+
+// An error every process of the job has detected or been told about, so the
+// job can end with a plain non-zero exit instead of MPI_Abort.
+class CoordinatedError : public ProtocolError {
+ public:
+  using ProtocolError::ProtocolError;
+};
+
+std::string hostName() {
+  std::array<char, 256> name{};
+  if (gethostname(name.data(), name.size() - 1) != 0) return "unknown-host";
+  return name.data();
+}
+
+std::vector<std::uint32_t> layoutVector(const JobLayout& layout) {
+  return {layout.display, layout.traverse, layout.datasend, layout.render};
+}
+
+}  // namespace
+
+const char* roleName(v1::Role role) {
+  switch (role) {
+    case v1::ROLE_DISPLAY:
+      return "display";
+    case v1::ROLE_TRAVERSE:
+      return "traverse";
+    case v1::ROLE_DATASEND:
+      return "datasend";
+    case v1::ROLE_RENDER:
+      return "render";
+    default:
+      return "unknown";
+  }
+}
+
+std::string executableName(v1::Role role) {
+  return std::string("pointillist-") + roleName(role);
+}
+
+double processCpuSeconds() {
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  const auto seconds = [](const timeval& value) {
+    return static_cast<double>(value.tv_sec) + static_cast<double>(value.tv_usec) * 1e-6;
+  };
+  return seconds(usage.ru_utime) + seconds(usage.ru_stime);
+}
+
+Job::Job(int& argc, char**& argv, v1::Role role) : role_(role) {
+  int provided = 0;
+  checkMpi(MPI_Init_thread(&argc, &argv, MPI_THREAD_FUNNELED, &provided), "MPI_Init_thread");
+  // Return codes instead of MPI's default abort, so every failure gets our message.
+  checkMpi(MPI_Comm_set_errhandler(MPI_COMM_WORLD, MPI_ERRORS_RETURN), "MPI_Comm_set_errhandler");
+  checkMpi(MPI_Comm_rank(MPI_COMM_WORLD, &worldRank_), "MPI_Comm_rank");
+  checkMpi(MPI_Comm_size(MPI_COMM_WORLD, &worldSize_), "MPI_Comm_size");
+  channel_ = std::make_unique<Channel>(MPI_COMM_WORLD);
+
+  int* appAttribute = nullptr;
+  int found = 0;
+  checkMpi(MPI_Comm_get_attr(MPI_COMM_WORLD, MPI_APPNUM, &appAttribute, &found),
+           "MPI_Comm_get_attr(MPI_APPNUM)");
+  appNumber_ = found != 0 && appAttribute != nullptr ? *appAttribute : -1;
+
+  // Exchange roles without a blocking collective (those spin in Open MPI).
+  std::array<int, 4> mine{kBootstrapMagic, static_cast<int>(role_), appNumber_, 0};
+  std::vector<int> all(static_cast<std::size_t>(worldSize_) * mine.size());
+  MPI_Request request = MPI_REQUEST_NULL;
+  checkMpi(MPI_Iallgather(mine.data(), static_cast<int>(mine.size()), MPI_INT, all.data(),
+                          static_cast<int>(mine.size()), MPI_INT, MPI_COMM_WORLD, &request),
+           "MPI_Iallgather(roles)");
+  Channel::waitFor(request, std::chrono::seconds(120), "role discovery");
+
+  ranksByRole_.assign(kRoleCount, {});
+  for (int rank = 0; rank < worldSize_; ++rank) {
+    const int* entry = all.data() + static_cast<std::size_t>(rank) * mine.size();
+    if (entry[0] != kBootstrapMagic || entry[1] <= 0 || entry[1] >= kRoleCount) {
+      throw CoordinatedError("rank " + std::to_string(rank) +
+                             " is not a Pointillist process (bad start-up record); every rank "
+                             "must be one of the pointillist-* role executables");
+    }
+    ranksByRole_[static_cast<std::size_t>(entry[1])].push_back(rank);
+  }
+  const auto& sameRole = ranksByRole_[static_cast<std::size_t>(role_)];
+  for (std::size_t i = 0; i < sameRole.size(); ++i) {
+    if (sameRole[i] == worldRank_) indexInRole_ = static_cast<int>(i);
+  }
+  layout_ = JobLayout{static_cast<std::uint32_t>(ranksByRole_[v1::ROLE_DISPLAY].size()),
+                      static_cast<std::uint32_t>(ranksByRole_[v1::ROLE_TRAVERSE].size()),
+                      static_cast<std::uint32_t>(ranksByRole_[v1::ROLE_DATASEND].size()),
+                      static_cast<std::uint32_t>(ranksByRole_[v1::ROLE_RENDER].size())};
+  try {
+    layout_.validate();
+  } catch (const ProtocolError& error) {
+    throw CoordinatedError(std::string(error.what()) + " (started: " + layout_.toString() + ")");
+  }
+  checkMpi(MPI_Comm_split(MPI_COMM_WORLD, static_cast<int>(role_), worldRank_, &roleComm_),
+           "MPI_Comm_split(role)");
+}
+
+Job::~Job() {
+  try {
+    finalize();
+  } catch (...) {
+    // Nothing sensible is left to do while unwinding.
+  }
+}
+
+void Job::finalize() {
+  if (finalized_) return;
+  finalized_ = true;
+  if (roleComm_ != MPI_COMM_NULL) MPI_Comm_free(&roleComm_);
+  channel_.reset();
+  MPI_Finalize();
+}
+
+const std::vector<int>& Job::ranksOf(v1::Role role) const {
+  return ranksByRole_.at(static_cast<std::size_t>(role));
+}
+
+std::string Job::describe() const {
+  return executableName(role_) + " rank " + std::to_string(worldRank_);
+}
+
+void Job::handshake(const HandshakeOptions& options) {
+  Channel& channel = *channel_;
+  if (role_ != v1::ROLE_DISPLAY) {
+    v1::Handshake hello;
+    hello.set_protocol_version(options.protocolVersion);
+    hello.set_role(role_);
+    hello.set_world_rank(worldRank_);
+    hello.set_app_number(appNumber_);
+    hello.set_hostname(hostName());
+    hello.set_pid(static_cast<std::int64_t>(getpid()));
+    for (std::uint32_t count : layoutVector(layout_)) hello.add_layout(count);
+    channel.send(displayRank(), MessageKind::Handshake, hello);
+    const auto reply =
+        channel.receiveOrThrow(displayRank(), MessageKind::HandshakeReply, options.timeout)
+            .as<v1::HandshakeReply>();
+    if (!reply.accepted()) {
+      throw CoordinatedError("the display refused this job: " + reply.reason());
+    }
+    return;
+  }
+
+  // Display: collect one handshake per peer, then answer all with one verdict.
+  std::vector<std::string> problems;
+  if (options.expectedLayout && !(*options.expectedLayout == layout_)) {
+    problems.push_back("launcher asked for layout " + options.expectedLayout->toString() +
+                       " but the job started " + layout_.toString());
+  }
+  std::vector<int> peers;
+  for (int rank = 0; rank < worldSize_; ++rank) {
+    if (rank != worldRank_) peers.push_back(rank);
+  }
+  const auto deadline = std::chrono::steady_clock::now() + options.timeout;
+  std::size_t received = 0;
+  while (received < peers.size()) {
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
+        deadline - std::chrono::steady_clock::now());
+    auto envelope = channel.receive(MPI_ANY_SOURCE, MessageKind::Handshake,
+                                    std::max(left, std::chrono::milliseconds(0)));
+    if (!envelope) {
+      problems.push_back("only " + std::to_string(received) + " of " +
+                         std::to_string(peers.size()) +
+                         " processes completed the handshake within " +
+                         std::to_string(options.timeout.count()) + " ms");
+      break;
+    }
+    ++received;
+    v1::Handshake hello;
+    if (!hello.ParseFromString(envelope->header)) {
+      problems.push_back("rank " + std::to_string(envelope->source) +
+                         " sent a handshake that does not parse (different protocol?)");
+      continue;
+    }
+    const std::string who = executableName(hello.role()) + " rank " +
+                            std::to_string(envelope->source) + " on " + hello.hostname();
+    if (hello.protocol_version() != options.protocolVersion) {
+      problems.push_back(who + " speaks protocol version " +
+                         std::to_string(hello.protocol_version()) + ", the display speaks " +
+                         std::to_string(options.protocolVersion));
+    }
+    const auto expected = layoutVector(layout_);
+    if (!std::equal(hello.layout().begin(), hello.layout().end(), expected.begin(),
+                    expected.end())) {
+      problems.push_back(who + " sees a different job layout");
+    }
+  }
+  v1::HandshakeReply reply;
+  reply.set_accepted(problems.empty());
+  reply.set_protocol_version(options.protocolVersion);
+  for (std::uint32_t count : layoutVector(layout_)) reply.add_layout(count);
+  std::string reason;
+  for (const auto& problem : problems) reason += (reason.empty() ? "" : "; ") + problem;
+  reply.set_reason(reason);
+  std::vector<SendHandle> sends;
+  for (int peer : peers) sends.push_back(channel.post(peer, MessageKind::HandshakeReply, reply));
+  for (auto& send : sends) send.wait();
+  if (!problems.empty()) throw CoordinatedError("handshake failed: " + reason);
+}
+
+void Job::markReady() {
+  readyCpuSeconds_ = processCpuSeconds();
+  readyWall_ = std::chrono::steady_clock::now();
+}
+
+void Job::reportReady(const std::string& detail) {
+  v1::Ready ready;
+  ready.set_role(role_);
+  ready.set_world_rank(worldRank_);
+  ready.set_detail(detail);
+  channel_->send(displayRank(), MessageKind::Ready, ready);
+  markReady();
+}
+
+std::vector<v1::Ready> Job::awaitReady(std::chrono::milliseconds timeout) {
+  std::vector<v1::Ready> ready;
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (ready.size() + 1 < static_cast<std::size_t>(worldSize_)) {
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
+        deadline - std::chrono::steady_clock::now());
+    auto envelope = channel_->receive(MPI_ANY_SOURCE, MessageKind::Ready,
+                                      std::max(left, std::chrono::milliseconds(0)));
+    if (!envelope) {
+      throw TimeoutError("only " + std::to_string(ready.size()) + " of " +
+                         std::to_string(worldSize_ - 1) + " processes reported ready within " +
+                         std::to_string(timeout.count()) + " ms");
+    }
+    ready.push_back(envelope->as<v1::Ready>());
+  }
+  markReady();
+  return ready;
+}
+
+void Job::acknowledgeShutdown(const std::string& summary) {
+  v1::ShutdownAck ack;
+  ack.set_role(role_);
+  ack.set_world_rank(worldRank_);
+  ack.set_summary(summary);
+  ack.set_cpu_seconds_since_ready(processCpuSeconds() - readyCpuSeconds_);
+  ack.set_wall_seconds_since_ready(
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - readyWall_).count());
+  channel_->send(displayRank(), MessageKind::ShutdownAck, ack);
+}
+
+void Job::shutdownAll(const std::string& reason, std::chrono::milliseconds timeout) {
+  v1::Shutdown shutdown;
+  shutdown.set_reason(reason);
+  std::vector<SendHandle> sends;
+  for (int rank = 0; rank < worldSize_; ++rank) {
+    if (rank != worldRank_) sends.push_back(channel_->post(rank, MessageKind::Shutdown, shutdown));
+  }
+  for (auto& send : sends) send.wait();
+  acks_.clear();
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (acks_.size() + 1 < static_cast<std::size_t>(worldSize_)) {
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
+        deadline - std::chrono::steady_clock::now());
+    auto envelope = channel_->receive(MPI_ANY_SOURCE, MessageKind::ShutdownAck,
+                                      std::max(left, std::chrono::milliseconds(0)));
+    if (!envelope) {
+      throw TimeoutError(
+          "only " + std::to_string(acks_.size()) + " of " + std::to_string(worldSize_ - 1) +
+          " processes acknowledged shutdown within " + std::to_string(timeout.count()) + " ms");
+    }
+    acks_.push_back(envelope->as<v1::ShutdownAck>());
+  }
+}
+
+int runRoleMain(int argc, char** argv, v1::Role role,
+                const std::function<int(Job&, int, char**)>& body) {
+  std::unique_ptr<Job> job;
+  const auto report = [&](const char* kind, const std::string& message) {
+    std::ostringstream line;
+    line << executableName(role);
+    if (job) line << " rank " << job->worldRank();
+    line << ": " << kind << ": " << message << '\n';
+    std::cerr << line.str() << std::flush;
+  };
+  try {
+    job = std::make_unique<Job>(argc, argv, role);
+    const int code = body(*job, argc, argv);
+    job->finalize();
+    return code;
+  } catch (const CoordinatedError& error) {
+    report(error.kind(), error.what());
+    if (job) {
+      job->finalize();
+    } else {
+      int finalized = 0;
+      MPI_Finalized(&finalized);
+      if (finalized == 0) MPI_Finalize();
+    }
+    return 3;
+  } catch (const Error& error) {
+    report(error.kind(), error.what());
+  } catch (const std::exception& error) {
+    report("unexpected error", error.what());
+  }
+  // Peers may be waiting on this process: end the whole job.
+  int initialized = 0;
+  MPI_Initialized(&initialized);
+  int finalized = 0;
+  MPI_Finalized(&finalized);
+  if (initialized != 0 && finalized == 0) MPI_Abort(MPI_COMM_WORLD, 2);
+  return 2;
+}
+
+}  // namespace pointillist

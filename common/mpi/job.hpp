@@ -1,0 +1,100 @@
+#pragma once
+// The MPMD job: MPI start-up, role discovery, handshake and shutdown.
+//
+// Each role is its own executable started as one MPMD job
+// (mpirun -np 1 pointillist-display : -np T pointillist-traverse : ...). Every
+// process knows its own role; the roles of all ranks are exchanged once at
+// start-up, so each process learns the layout and its peers without relying on
+// the order of the mpirun command line.
+#include <mpi.h>
+
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "common/job_layout.hpp"
+#include "common/mpi/channel.hpp"
+#include "pointillist.pb.h"
+
+namespace pointillist {
+
+struct HandshakeOptions {
+  std::uint32_t protocolVersion = v1::PROTOCOL_VERSION_CURRENT;
+  // Checked by the display when set: the counts the launcher asked for.
+  std::optional<JobLayout> expectedLayout;
+  std::chrono::milliseconds timeout{60'000};
+};
+
+class Job {
+ public:
+  // Initializes MPI (funneled threading: only the main thread calls MPI) and
+  // discovers the layout. Throws ProtocolError when the layout is unusable.
+  Job(int& argc, char**& argv, v1::Role role);
+  ~Job();
+  Job(const Job&) = delete;
+  Job& operator=(const Job&) = delete;
+
+  v1::Role role() const { return role_; }
+  int worldRank() const { return worldRank_; }
+  int worldSize() const { return worldSize_; }
+  int appNumber() const { return appNumber_; }
+  const JobLayout& layout() const { return layout_; }
+  // World ranks holding a role, in rank order.
+  const std::vector<int>& ranksOf(v1::Role role) const;
+  int displayRank() const { return ranksOf(v1::ROLE_DISPLAY).front(); }
+  // This process's position among the ranks of its role (0-based).
+  int indexInRole() const { return indexInRole_; }
+  // A communicator holding only the ranks of this process's role.
+  MPI_Comm roleComm() const { return roleComm_; }
+  Channel& channel() { return *channel_; }
+  std::string describe() const;  // "pointillist-render rank 5"
+
+  // Every process reports to the display, which checks protocol versions and
+  // role counts and answers each one; a mismatch is a ProtocolError everywhere.
+  void handshake(const HandshakeOptions& options);
+  // Non-display: report Ready, then wait for Shutdown while calling onMessage
+  // for every other message (the role's work loop).
+  // Display: send Shutdown to every other rank and collect their acks.
+  void shutdownAll(const std::string& reason, std::chrono::milliseconds timeout);
+  void reportReady(const std::string& detail);
+  std::vector<v1::Ready> awaitReady(std::chrono::milliseconds timeout);
+  std::vector<v1::ShutdownAck> lastAcks() const { return acks_; }
+  // Answers a Shutdown message (non-display roles).
+  void acknowledgeShutdown(const std::string& summary);
+  // Marks the start of the idle/work period measured in ShutdownAck.
+  void markReady();
+
+  // True once MPI_Finalize may be skipped because peers were told to abort.
+  void finalize();
+
+ private:
+  v1::Role role_;
+  int worldRank_ = 0;
+  int worldSize_ = 0;
+  int appNumber_ = -1;
+  int indexInRole_ = 0;
+  JobLayout layout_;
+  std::vector<std::vector<int>> ranksByRole_;
+  MPI_Comm roleComm_ = MPI_COMM_NULL;
+  std::unique_ptr<Channel> channel_;
+  std::vector<v1::ShutdownAck> acks_;
+  double readyCpuSeconds_ = 0.0;
+  std::chrono::steady_clock::time_point readyWall_;
+  bool finalized_ = false;
+};
+
+const char* roleName(v1::Role role);        // "display"
+std::string executableName(v1::Role role);  // "pointillist-display"
+double processCpuSeconds();
+
+// Runs a role's main: sets up the Job, calls body, and turns any exception into
+// a message naming role and rank. Errors every peer already knows about end the
+// job with a non-zero exit; any other error aborts the whole MPI job so no peer
+// waits forever.
+int runRoleMain(int argc, char** argv, v1::Role role,
+                const std::function<int(Job&, int, char**)>& body);
+
+}  // namespace pointillist

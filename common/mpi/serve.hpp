@@ -1,0 +1,23 @@
+#pragma once
+// The event loop of a non-display role: handle messages until the display says
+// Shutdown, doing background work in between, and sleeping when there is none.
+#include <functional>
+#include <string>
+
+#include "common/mpi/job.hpp"
+
+namespace pointillist {
+
+struct ServeHandlers {
+  // Called for every message except Shutdown.
+  std::function<void(Envelope&)> onMessage;
+  // Called when no message is waiting; returns true if it did useful work
+  // (then the loop polls again at once instead of sleeping).
+  std::function<bool()> onIdle;
+  // Summary line sent back with the ShutdownAck.
+  std::function<std::string()> summary;
+};
+
+void serveUntilShutdown(Job& job, const ServeHandlers& handlers);
+
+}  // namespace pointillist

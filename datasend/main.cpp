@@ -1,0 +1,6 @@
+#include "datasend/datasend_role.hpp"
+
+int main(int argc, char** argv) {
+  return pointillist::runRoleMain(argc, argv, pointillist::v1::ROLE_DATASEND,
+                                  pointillist::datasend::runDatasendRole);
+}

@@ -1,0 +1,65 @@
+#!/usr/bin/env bash
+# Starts a Pointillist MPMD job: one display, T traverse, S data-send and R
+# render processes. Options this script does not know are passed to every role.
+#
+#   deploy/run.sh [--layout D,T,S,R] [--hostfile FILE] [--mpirun-arg ARG]... [ROLE OPTIONS]
+#
+# On one machine (no --hostfile) ranks are oversubscribed and unbound, so more
+# ranks than cores share them; idle ranks sleep instead of spinning.
+# With --hostfile, Open MPI places ranks on the listed hosts (see deploy/README.md).
+set -euo pipefail
+source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
+
+layout="1,2,1,4"
+hostfile=""
+mpirun_args=()
+role_args=()
+dry_run=0
+usage() { sed -n '2,10p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+while (($#)); do
+  case "$1" in
+    --layout) layout="$2"; shift 2 ;;
+    --layout=*) layout="${1#*=}"; shift ;;
+    --hostfile) hostfile="$2"; shift 2 ;;
+    --hostfile=*) hostfile="${1#*=}"; shift ;;
+    --mpirun-arg) mpirun_args+=("$2"); shift 2 ;;
+    --dry-run) dry_run=1; shift ;;
+    -h|--help) usage; exit 0 ;;
+    *) role_args+=("$1"); shift ;;
+  esac
+done
+
+if ! [[ "$layout" =~ ^[0-9]+,[0-9]+,[0-9]+,[0-9]+$ ]]; then
+  echo "run.sh: --layout '$layout' is not D,T,S,R (four counts)" >&2
+  exit 2
+fi
+IFS=, read -r n_display n_traverse n_datasend n_render <<<"$layout"
+
+for exe in display traverse datasend render; do
+  if [[ ! -x "$POINTILLIST_BIN/pointillist-$exe" ]]; then
+    echo "run.sh: $POINTILLIST_BIN/pointillist-$exe is missing; build first (deploy/demo.sh builds)" >&2
+    exit 2
+  fi
+done
+
+launch=(mpirun --mca btl_vader_single_copy_mechanism none)
+if [[ -n "$hostfile" ]]; then
+  [[ -r "$hostfile" ]] || { echo "run.sh: cannot read hostfile '$hostfile'" >&2; exit 2; }
+  launch+=(--hostfile "$hostfile")
+else
+  launch+=(--oversubscribe --bind-to none)
+fi
+launch+=("${mpirun_args[@]}")
+
+common_args=(--expect-layout "$layout" "${role_args[@]}")
+launch+=(-np "$n_display" "$POINTILLIST_BIN/pointillist-display" "${common_args[@]}")
+launch+=(: -np "$n_traverse" "$POINTILLIST_BIN/pointillist-traverse" "${common_args[@]}")
+launch+=(: -np "$n_datasend" "$POINTILLIST_BIN/pointillist-datasend" "${common_args[@]}")
+launch+=(: -np "$n_render" "$POINTILLIST_BIN/pointillist-render" "${common_args[@]}")
+
+if ((dry_run)); then
+  printf '%q ' "${launch[@]}"
+  echo
+  exit 0
+fi
+exec "${launch[@]}"

@@ -1,0 +1,6 @@
+#include "render/render_role.hpp"
+
+int main(int argc, char** argv) {
+  return pointillist::runRoleMain(argc, argv, pointillist::v1::ROLE_RENDER,
+                                  pointillist::render::runRenderRole);
+}
