@@ -10,11 +10,16 @@ namespace pointillist {
 inline constexpr std::uint32_t kNoIndex = std::numeric_limits<std::uint32_t>::max();
 
 struct OctreeCell {
+  // Tight bounds of the centres of every splat in the subtree (points and
+  // level-splats); expand by maxSplatRadius for conservative culling.
   float boundsMin[3];
   float boundsMax[3];
   // Normal cone: mean normal (snorm16) and cosine of the half angle (snorm16),
-  // quantized conservatively (the stored cone contains the true one).
-  // coneCos == -32767 means "no cone" (never back-face cull).
+  // quantized conservatively (the stored cone contains the true one) and
+  // covering every normal in the subtree, points and level-splats.
+  // coneCos == -32767 means "no cone" (never back-face cull); it is also
+  // stored when any normal in the subtree is unknown. Decode with
+  // decodeNormalCone() in common/geometry.hpp (the axis is renormalized).
   std::int16_t coneAxis[3];
   std::int16_t coneCos;
   // Depth-first index of the next sibling, or of the nearest ancestor's next
@@ -26,11 +31,14 @@ struct OctreeCell {
   // splat of its top-level cell (seed 003 fig. 3: "added start index").
   std::uint32_t pointsOffset;
   std::uint32_t pointsCount;
-  // This cell's own level-splats, same relative addressing.
+  // This cell's own level-splats, same relative addressing (they follow the
+  // packet's points, so splatsOffset >= the packet's pointCount). Cells above
+  // the top-level depth have all four fields zero.
   std::uint32_t splatsOffset;
   std::uint32_t splatsCount;
-  // Largest radius among this cell's level-splats (leaves: among its points);
-  // used for conservative culling and level of detail.
+  // Largest radius of any splat in the subtree (points and level-splats);
+  // never larger than the parent's. Used for conservative culling and for the
+  // level of detail rule documented in common/dataset.hpp.
   float maxSplatRadius;
   // Seed 003 §4.1.2: points 0, leaves 1, others 1 + max(children).
   std::uint8_t level;
@@ -52,8 +60,10 @@ namespace pointillist {
 
 // One entry of the top-level table: where a top-level cell's data packet lives
 // in the point-array file. The packet holds the cell's original points first
-// (pointCount splats, depth-first leaf order), then the level-splats of every
-// cell beneath it (levelSplatCount splats).
+// (pointCount splats, depth-first leaf order), then the level-splats of the
+// cell itself and every cell beneath it (levelSplatCount splats, cells in
+// depth-first order, so a subtree's level-splats are contiguous too).
+// Its FNV-1a 64 checksum is in the dataset (Dataset::packetChecksum).
 struct TopLevelCell {
   std::uint32_t cellIndex;  // index in the octree-cell-array
   std::uint32_t pointCount;

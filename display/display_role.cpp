@@ -2,20 +2,285 @@
 
 #include <chrono>
 #include <cstdio>
+#include <deque>
+#include <filesystem>
 #include <thread>
 
+#include "common/camera_path.hpp"
+#include "common/dataset.hpp"
+#include "common/image.hpp"
 #include "common/mpi/role_options.hpp"
+#include "common/view_options.hpp"
+#include "display/frame_scheduler.hpp"
+#include "display/frame_stats.hpp"
+#include "display/tiling.hpp"
 
 namespace pointillist::display {
 namespace {
+
+using Clock = std::chrono::steady_clock;
+constexpr Rgba8 kBackground{0, 0, 0, 255};
+constexpr Rgba8 kFailedTile{255, 0, 255, 255};  // a tile that never came back
 
 struct DisplayOptions {
   CommonRoleOptions common;
   double idleSeconds = 0.0;
   double shutdownTimeoutSeconds = 60.0;
+  std::string datasetPath;
+  ViewOptions view;
+  std::string outDir;
+  std::string statsFile;
+  std::uint32_t framesInFlight = 3;
+  double tilesPerRender = 2.0;
+  std::uint32_t minTileSize = 32;
+  double tileTimeoutSeconds = 10.0;
+  std::uint32_t maxAttempts = 3;
+  bool quiet = false;
 };
 
-// Holds the job idle for a while; used to check that idle ranks sleep.
+double since(Clock::time_point start, Clock::time_point now) {
+  return std::chrono::duration<double>(now - start).count();
+}
+
+class DisplayProcess {
+ public:
+  DisplayProcess(Job& job, const DisplayOptions& options)
+      : job_(job),
+        options_(options),
+        dataset_(Dataset::open(options.datasetPath, DatasetParts::Cells)),
+        scheduler_(
+            options.framesInFlight,
+            std::chrono::milliseconds(static_cast<long>(options.tileTimeoutSeconds * 1000.0)),
+            options.maxAttempts),
+        mode_(parseRenderMode(options.view.mode)) {
+    bounds_ = datasetBounds(dataset_.manifest());
+    // The root holds the largest splat radius of the whole tree.
+    maxRadius_ = dataset_.cells().empty() ? 0.0f : dataset_.cells()[0].maxSplatRadius;
+    cameras_ = viewCameras(options.view, bounds_);
+    const auto [width, height] = parseImageSize(options.view.size);
+    width_ = width;
+    height_ = height;
+    if (!options.outDir.empty()) std::filesystem::create_directories(options.outDir);
+    stats_.layout = job.layout().toString();
+    stats_.dataset = options.datasetPath;
+    stats_.cameraPath = options.view.cameraPath;
+    stats_.width = width_;
+    stats_.height = height_;
+    stats_.mode = options.view.mode;
+  }
+
+  void run() {
+    start_ = Clock::now();
+    for (std::uint64_t index = 0; index < cameras_.size(); ++index) addFrame(index);
+    Backoff backoff;
+    while (!scheduler_.finished()) {
+      bool worked = false;
+      while (auto envelope = job_.channel().tryReceive()) {
+        handle(*envelope);
+        worked = true;
+      }
+      worked = dispatch() || worked;
+      const auto requeued = scheduler_.checkTimeouts(Clock::now());
+      if (requeued > 0) {
+        std::fprintf(stderr, "display: %u tile(s) did not come back in %.1f s; re-issued\n",
+                     requeued, options_.tileTimeoutSeconds);
+        worked = true;
+      }
+      worked = emitFrames() || worked;
+      if (worked) {
+        backoff.reset();
+      } else {
+        backoff.wait();
+      }
+    }
+    stats_.totalSeconds = since(start_, Clock::now());
+    std::printf("%s", stats_.summary().c_str());
+    const std::string statsFile = !options_.statsFile.empty() ? options_.statsFile
+                                  : !options_.outDir.empty()  ? options_.outDir + "/stats.json"
+                                                              : std::string();
+    if (!statsFile.empty()) {
+      stats_.writeJson(statsFile);
+      std::printf("display: statistics in %s\n", statsFile.c_str());
+    }
+    std::fflush(stdout);
+  }
+
+ private:
+  void addFrame(std::uint64_t index) {
+    const Camera& camera = cameras_[index];
+    std::vector<TileRect> tiles;
+    const float margin = maxRadius_ * options_.view.sizeScale;
+    if (const auto area = boxOfInterest(camera, bounds_.min, bounds_.max, margin)) {
+      const auto target = static_cast<std::uint32_t>(
+          std::max(1.0, options_.tilesPerRender * static_cast<double>(job_.layout().render)));
+      tiles = splitIntoTiles(*area, target, options_.minTileSize);
+    }
+    scheduler_.addFrame(index, camera, std::move(tiles), Image(width_, height_, kBackground));
+  }
+
+  void handle(Envelope& envelope) {
+    switch (envelope.kind) {
+      case MessageKind::WorkRequest:
+        idleTraverses_.push_back(envelope.source);
+        break;
+      case MessageKind::TileImage:
+        handleTile(envelope);
+        break;
+      case MessageKind::ErrorReport: {
+        const auto report = envelope.as<v1::ErrorReport>();
+        throw ProtocolError(executableName(report.origin_role()) + " rank " +
+                            std::to_string(report.origin_rank()) + " failed: " + report.message());
+      }
+      default:
+        throw ProtocolError(std::string("display got an unexpected ") +
+                            messageKindName(envelope.kind) + " from rank " +
+                            std::to_string(envelope.source));
+    }
+  }
+
+  bool dispatch() {
+    bool worked = false;
+    while (!idleTraverses_.empty()) {
+      const auto task = scheduler_.nextTask(Clock::now());
+      if (!task) break;
+      const FrameState* state = scheduler_.frame(task->frame);
+      v1::TileTask message;
+      message.set_frame_id(task->frame);
+      message.set_tile_id(task->tile);
+      *message.mutable_camera() = state->camera;
+      *message.mutable_rect() = state->tiles.at(task->tile).rect;
+      message.set_timestamp_ns(
+          std::chrono::duration_cast<std::chrono::nanoseconds>(Clock::now().time_since_epoch())
+              .count());
+      message.set_attempt(task->attempt);
+      message.set_mode(mode_);
+      message.set_lod_pixels(options_.view.lodPixels);
+      message.set_size_scale(options_.view.sizeScale);
+      message.set_backface_cull(!options_.view.noBackfaceCull);
+      const int traverse = idleTraverses_.front();
+      idleTraverses_.pop_front();
+      sends_.push_back(job_.channel().post(traverse, MessageKind::TileTask, message));
+      worked = true;
+    }
+    while (!sends_.empty() && sends_.front().test()) sends_.pop_front();
+    return worked;
+  }
+
+  void handleTile(const Envelope& envelope) {
+    const auto header = envelope.as<v1::TileImageHeader>();
+    const auto now = Clock::now();
+    RenderSample sample;
+    sample.seconds = since(start_, now);
+    sample.frame = header.frame_id();
+    sample.workloadSplats = header.workload_splats();
+    sample.cacheBytes = header.cache_bytes();
+    sample.peakCacheBytes = header.peak_cache_bytes();
+    sample.cacheHits = header.cache_hits();
+    sample.cacheMisses = header.cache_misses();
+    sample.evictions = header.evictions();
+    sample.dataBytesReceived = header.data_bytes_received();
+    stats_.renders[header.render_rank()].push_back(sample);
+
+    const std::uint64_t expectedBytes =
+        static_cast<std::uint64_t>(header.rect().width()) * header.rect().height() * 4;
+    if (header.format() != v1::PIXEL_FORMAT_RGBA8 || envelope.payload.size() != expectedBytes) {
+      throw ProtocolError("tile image from rank " + std::to_string(envelope.source) + " has " +
+                          std::to_string(envelope.payload.size()) + " bytes, expected " +
+                          std::to_string(expectedBytes));
+    }
+    if (!scheduler_.tileArrived(header.frame_id(), header.tile_id(), header.rect())) {
+      ++stats_.lateTiles;
+      return;
+    }
+    FrameState* state = scheduler_.frame(header.frame_id());
+    blit(std::span<const std::uint8_t>(
+             reinterpret_cast<const std::uint8_t*>(envelope.payload.data()),
+             envelope.payload.size()),
+         header.rect().width(), header.rect().height(), state->image, header.rect().x(),
+         header.rect().y());
+    FrameRecord& record = pending_[header.frame_id()];
+    record.splats += header.splats_rendered();
+    record.bytesOrdered += header.ordered_bytes();
+    record.splatsPerRender[header.render_rank()] += header.splats_rendered();
+    record.busySecondsPerRender[header.render_rank()] +=
+        static_cast<double>(header.render_time_us()) * 1e-6;
+  }
+
+  bool emitFrames() {
+    bool worked = false;
+    while (auto state = scheduler_.popCompleteFrame()) {
+      worked = true;
+      const auto now = Clock::now();
+      FrameRecord record = std::move(pending_[state->index]);
+      pending_.erase(state->index);
+      record.frame = state->index;
+      record.startSeconds = state->hasStarted ? since(start_, state->started) : since(start_, now);
+      record.endSeconds = since(start_, now);
+      record.tiles = static_cast<std::uint32_t>(state->tiles.size());
+      record.reissuedTiles = scheduler_.reissued(state->index);
+      record.failedTiles = scheduler_.failed(state->index);
+      for (const auto& [rank, samples] : stats_.renders) {
+        record.splatsPerRender.try_emplace(rank, 0);
+        record.busySecondsPerRender.try_emplace(rank, 0.0);
+      }
+      for (const TileState& tile : state->tiles) {
+        if (!tile.failed) continue;
+        for (std::uint32_t y = 0; y < tile.rect.height(); ++y) {
+          for (std::uint32_t x = 0; x < tile.rect.width(); ++x) {
+            state->image.set(tile.rect.x() + x, tile.rect.y() + y, kFailedTile);
+          }
+        }
+      }
+      if (!options_.outDir.empty()) {
+        char name[64];
+        std::snprintf(name, sizeof name, "frame_%05llu.png",
+                      static_cast<unsigned long long>(state->index));
+        writePng(state->image, std::filesystem::path(options_.outDir) / name, true);
+      }
+      if (!options_.quiet) {
+        std::printf(
+            "frame %4llu: %7.1f ms (done at %.2f s), %6.2f M splats, %3u tiles, %8.1f KiB "
+            "data%s%s\n",
+            static_cast<unsigned long long>(record.frame),
+            (record.endSeconds - record.startSeconds) * 1000.0, record.endSeconds,
+            static_cast<double>(record.splats) / 1e6, record.tiles,
+            static_cast<double>(record.bytesOrdered) / 1024.0,
+            record.reissuedTiles
+                ? (", " + std::to_string(record.reissuedTiles) + " re-issued").c_str()
+                : "",
+            record.failedTiles ? (", " + std::to_string(record.failedTiles) + " FAILED").c_str()
+                               : "");
+        std::fflush(stdout);
+      }
+      if (record.failedTiles > 0) {
+        std::fprintf(
+            stderr,
+            "display: frame %llu: %u tile(s) never arrived after %u attempts (drawn magenta)\n",
+            static_cast<unsigned long long>(record.frame), record.failedTiles,
+            options_.maxAttempts);
+      }
+      stats_.frames.push_back(std::move(record));
+    }
+    return worked;
+  }
+
+  Job& job_;
+  DisplayOptions options_;
+  Dataset dataset_;
+  FrameScheduler scheduler_;
+  v1::RenderMode mode_;
+  SceneBounds bounds_;
+  float maxRadius_ = 0.0f;
+  std::uint32_t width_ = 0;
+  std::uint32_t height_ = 0;
+  std::vector<Camera> cameras_;
+  std::deque<int> idleTraverses_;
+  std::deque<SendHandle> sends_;
+  std::map<std::uint64_t, FrameRecord> pending_;
+  RunStats stats_;
+  Clock::time_point start_;
+};
+
 void stayIdle(double seconds) {
   if (seconds <= 0.0) return;
   std::this_thread::sleep_for(std::chrono::duration<double>(seconds));
@@ -31,20 +296,43 @@ int runDisplayRole(Job& job, int argc, char** argv) {
                  "Keep the job up and idle this long before shutting down");
   app.add_option("--shutdown-timeout", options.shutdownTimeoutSeconds,
                  "Seconds to wait for every process to acknowledge shutdown");
+  app.add_option("--dataset", options.datasetPath, "Dataset directory (pointillist-preprocess)");
+  addViewOptions(app, options.view);
+  app.add_option("--out", options.outDir, "Directory for PNG frames and stats.json");
+  app.add_option("--stats", options.statsFile, "Statistics JSON file (default OUT/stats.json)");
+  app.add_option("--frames-in-flight", options.framesInFlight, "Frames handed out at once");
+  app.add_option("--tiles-per-render", options.tilesPerRender,
+                 "Mini frusta per frame per render process");
+  app.add_option("--min-tile", options.minTileSize, "Smallest tile side in pixels");
+  app.add_option("--tile-timeout", options.tileTimeoutSeconds,
+                 "Seconds before a missing tile is handed out again");
+  app.add_option("--max-attempts", options.maxAttempts,
+                 "Times a tile is handed out before it is given up");
+  app.add_flag("--quiet", options.quiet, "No per-frame lines");
   if (!parseRoleOptions(app, job, argc, argv)) return 0;
 
-  const auto start = std::chrono::steady_clock::now();
+  const auto start = Clock::now();
+  std::unique_ptr<DisplayProcess> process;
+  if (!options.datasetPath.empty()) process = std::make_unique<DisplayProcess>(job, options);
   job.handshake(handshakeOptions(options.common));
   const auto ready = job.awaitReady(std::chrono::milliseconds(
       static_cast<long>(options.common.handshakeTimeoutSeconds * 1000.0)));
-  const double startupSeconds =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   std::printf("display: job %s ready (%zu peers) in %.2f s\n", job.layout().toString().c_str(),
-              ready.size(), startupSeconds);
+              ready.size(), since(start, Clock::now()));
+  for (const auto& peer : ready) {
+    if (!peer.detail().empty() && !options.quiet) {
+      std::printf("  %s rank %d: %s\n", executableName(peer.role()).c_str(), peer.world_rank(),
+                  peer.detail().c_str());
+    }
+  }
   std::fflush(stdout);
 
   const double displayCpuBefore = processCpuSeconds();
-  stayIdle(options.idleSeconds);
+  if (process) {
+    process->run();
+  } else {
+    stayIdle(options.idleSeconds);
+  }
   const double displayCpu = processCpuSeconds() - displayCpuBefore;
 
   job.shutdownAll("job complete", std::chrono::milliseconds(
@@ -54,6 +342,10 @@ int runDisplayRole(Job& job, int argc, char** argv) {
   for (const auto& ack : job.lastAcks()) {
     peerCpu += ack.cpu_seconds_since_ready();
     peerWall = std::max(peerWall, ack.wall_seconds_since_ready());
+    if (process && !options.quiet && !ack.summary().empty()) {
+      std::printf("  %s rank %d: %s\n", executableName(ack.role()).c_str(), ack.world_rank(),
+                  ack.summary().c_str());
+    }
   }
   std::printf(
       "display: shutdown complete; cpu since ready: %.3f core-seconds over %.2f s across %d "

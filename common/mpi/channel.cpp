@@ -120,10 +120,29 @@ SendHandle& SendHandle::operator=(SendHandle&& other) noexcept {
 
 SendHandle::~SendHandle() {
   try {
-    wait();
+    // A peer that has already shut down never receives a late message; give up
+    // on it after a while instead of hanging the process on exit.
+    if (!waitFor(std::chrono::seconds(5))) {
+      for (MPI_Request& request : requests_) {
+        if (request != MPI_REQUEST_NULL) {
+          MPI_Cancel(&request);
+          MPI_Request_free(&request);
+        }
+      }
+    }
   } catch (...) {
     // Destructors must not throw; the job's error path reports transport failures.
   }
+}
+
+bool SendHandle::waitFor(std::chrono::milliseconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  Backoff backoff;
+  while (!test()) {
+    if (std::chrono::steady_clock::now() >= deadline) return false;
+    backoff.wait();
+  }
+  return true;
 }
 
 bool SendHandle::test() {

@@ -97,6 +97,7 @@ class SendHandle {
 
   bool test();  // true when complete
   void wait();
+  bool waitFor(std::chrono::milliseconds timeout);  // false when still pending
   bool empty() const { return requests_.empty(); }
 
  private:

@@ -258,26 +258,37 @@ void Job::acknowledgeShutdown(const std::string& summary) {
 }
 
 void Job::shutdownAll(const std::string& reason, std::chrono::milliseconds timeout) {
+  // Role by role, producers of work first: traverse processes stop ordering and
+  // packing, data-send processes stop sending, render processes drain last.
   v1::Shutdown shutdown;
   shutdown.set_reason(reason);
-  std::vector<SendHandle> sends;
-  for (int rank = 0; rank < worldSize_; ++rank) {
-    if (rank != worldRank_) sends.push_back(channel_->post(rank, MessageKind::Shutdown, shutdown));
-  }
-  for (auto& send : sends) send.wait();
   acks_.clear();
   const auto deadline = std::chrono::steady_clock::now() + timeout;
-  while (acks_.size() + 1 < static_cast<std::size_t>(worldSize_)) {
-    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
-        deadline - std::chrono::steady_clock::now());
-    auto envelope = channel_->receive(MPI_ANY_SOURCE, MessageKind::ShutdownAck,
-                                      std::max(left, std::chrono::milliseconds(0)));
-    if (!envelope) {
-      throw TimeoutError(
-          "only " + std::to_string(acks_.size()) + " of " + std::to_string(worldSize_ - 1) +
-          " processes acknowledged shutdown within " + std::to_string(timeout.count()) + " ms");
+  for (v1::Role role : {v1::ROLE_TRAVERSE, v1::ROLE_DATASEND, v1::ROLE_RENDER}) {
+    std::vector<SendHandle> sends;
+    for (int rank : ranksOf(role)) {
+      sends.push_back(channel_->post(rank, MessageKind::Shutdown, shutdown));
     }
-    acks_.push_back(envelope->as<v1::ShutdownAck>());
+    std::size_t acked = 0;
+    while (acked < ranksOf(role).size()) {
+      const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
+          deadline - std::chrono::steady_clock::now());
+      // Late messages (a re-issued tile, a work request) are received and
+      // dropped so that their senders can finish.
+      auto envelope = channel_->receive(MPI_ANY_SOURCE, std::nullopt,
+                                        std::max(left, std::chrono::milliseconds(0)));
+      if (!envelope) {
+        throw TimeoutError("only " + std::to_string(acked) + " of " +
+                           std::to_string(ranksOf(role).size()) + " " + roleName(role) +
+                           " processes acknowledged shutdown within " +
+                           std::to_string(timeout.count()) + " ms");
+      }
+      if (envelope->kind == MessageKind::ShutdownAck) {
+        acks_.push_back(envelope->as<v1::ShutdownAck>());
+        ++acked;
+      }
+    }
+    for (auto& send : sends) send.wait();
   }
 }
 

@@ -1,0 +1,187 @@
+#pragma once
+// The dataset directory written by pointillist-preprocess (SPEC "Dataset"):
+//
+//   manifest.txt          key = value lines: version, bounds, counts, options,
+//                         and one `file.<key> = <name> <bytes> <fnv1a64|->` line per file
+//   cells.bin             octree-cell-array: OctreeCell[cell_count], depth-first (seed 003 §4.1.1)
+//   top-level.bin         TopLevelCell[top_level_count], in depth-first order of their cells
+//   packet-checksums.bin  uint64 FNV-1a 64 of each top-level cell's packet, same order
+//   points.bin            point-array: the packets back to back; a packet is the
+//                         top-level cell's original points (depth-first leaf order)
+//                         followed by the level-splats of every cell beneath it
+//                         (cells in depth-first order, each cell's own splats
+//                         contiguous), so one packet is one contiguous byte range.
+//
+// All binary files are little-endian raw records (Splat 32 B, OctreeCell 64 B,
+// TopLevelCell 32 B). points.bin has no whole-file checksum: the per-packet
+// checksums cover it completely, so a data-send process verifies only its part.
+//
+// Level of detail (the contract with traverse): a cell's level-splats stand for
+// its whole subtree with about 1/4 of the splats of the level below (leaves:
+// 1/4 of their points); each level-splat's sphere contains the spheres of the
+// splats it replaces, so coarser levels have no holes where finer ones had
+// none. OctreeCell::maxSplatRadius is the largest radius of any splat in the
+// subtree (points and level-splats; it never grows going down the tree; for a
+// cell with level-splats it is their largest radius), so
+//   - culling: a cell's splats lie inside [boundsMin - r, boundsMax + r] with
+//     r = maxSplatRadius (bounds are the tight bounds of the splat centres);
+//   - LOD: draw the cell's level-splats (splatsOffset/splatsCount) when
+//     maxSplatRadius projects to at most `lod_pixels` (about 1-2) on screen at
+//     the cell's nearest point; otherwise descend (index + 1), or at a leaf draw
+//     its points (pointsOffset/pointsCount). Cells above the top-level depth
+//     (topLevel == kNoIndex) have no data: always descend.
+#include <cstddef>
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <map>
+#include <optional>
+#include <span>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "common/octree_cell.hpp"
+#include "common/splat.hpp"
+
+namespace pointillist {
+
+inline constexpr std::uint32_t kDatasetFormatVersion = 1;
+inline constexpr std::uint64_t kFnv1a64Offset = 0xcbf29ce484222325ull;
+
+// FNV-1a 64 over bytes; pass the previous result as `state` to hash in pieces.
+std::uint64_t fnv1a64(const void* data, std::size_t size, std::uint64_t state = kFnv1a64Offset);
+
+struct DatasetFile {
+  std::string key;   // cells, top_level, packet_checksums, points, or a later stage's key
+  std::string name;  // file name inside the dataset directory
+  std::uint64_t size = 0;
+  std::optional<std::uint64_t> checksum;  // FNV-1a 64 of the whole file; none for points
+};
+
+struct DatasetManifest {
+  std::uint32_t formatVersion = kDatasetFormatVersion;
+  std::string source;              // input files or generator, for humans
+  std::string createdBy;           // tool and version
+  float boundsMin[3] = {0, 0, 0};  // tight bounds of all splat centres
+  float boundsMax[3] = {0, 0, 0};
+  std::uint64_t pointCount = 0;
+  std::uint64_t levelSplatCount = 0;
+  std::uint64_t cellCount = 0;
+  std::uint64_t topLevelCount = 0;
+  std::uint32_t topLevelDepth = 0;
+  std::uint32_t treeDepth = 0;  // deepest cell
+  std::uint32_t maxLevel = 0;   // level of the root
+  // Build options, recorded so a dataset can be reproduced.
+  std::uint32_t maxDepth = 0;
+  std::uint32_t leafPoints = 0;
+  double levelSplatReduction = 0;
+  std::uint32_t recordSize = sizeof(Splat);
+  std::uint32_t cellSize = sizeof(OctreeCell);
+  std::uint32_t topLevelEntrySize = sizeof(TopLevelCell);
+  std::vector<DatasetFile> files;
+  // Keys this version does not know; kept so later stages can add their own.
+  std::map<std::string, std::string> extra;
+
+  const DatasetFile* file(std::string_view key) const;
+  std::string toText() const;
+  // Throws InputError naming `where` and the line for malformed text, unknown
+  // format or version, and missing required keys.
+  static DatasetManifest parse(std::string_view text, const std::string& where);
+};
+
+// Which parts Dataset::open loads into memory. The manifest is always read and
+// every listed file is checked for presence and size.
+enum class DatasetParts : unsigned {
+  Manifest = 0,
+  TopLevel = 1,    // top-level table + packet checksums (data-send)
+  Cells = 2 | 1,   // + octree-cell-array, validated (traverse)
+  Points = 4 | 1,  // + the whole point-array, every packet verified (render, reference)
+  All = 7,
+};
+constexpr DatasetParts operator|(DatasetParts a, DatasetParts b) {
+  return static_cast<DatasetParts>(static_cast<unsigned>(a) | static_cast<unsigned>(b));
+}
+constexpr bool hasParts(DatasetParts set, DatasetParts wanted) {
+  return (static_cast<unsigned>(set) & static_cast<unsigned>(wanted)) ==
+         static_cast<unsigned>(wanted);
+}
+
+class Dataset {
+ public:
+  // Throws InputError naming the file and the problem: missing files, wrong
+  // format version, size or checksum mismatch, inconsistent cell array.
+  static Dataset open(const std::filesystem::path& dir, DatasetParts parts = DatasetParts::All);
+
+  const std::filesystem::path& path() const { return dir_; }
+  const DatasetManifest& manifest() const { return manifest_; }
+  std::span<const OctreeCell> cells() const { return cells_; }               // needs Cells
+  std::span<const TopLevelCell> topLevelCells() const { return topLevel_; }  // needs TopLevel
+  std::uint64_t packetChecksum(std::uint32_t topLevel) const;                // needs TopLevel
+
+  // Reads one top-level cell's packet from points.bin and verifies its
+  // checksum (throws InputError on a short read or mismatch). Thread-safe.
+  std::vector<Splat> readTopLevel(std::uint32_t topLevel) const;  // needs TopLevel
+
+  // The whole point-array and one packet of it in memory (needs Points).
+  std::span<const Splat> points() const { return points_; }
+  std::span<const Splat> packet(std::uint32_t topLevel) const;
+
+  // Reads any listed file whole (e.g. a later stage's extra file) and verifies
+  // its checksum. Throws InputError when the key is not in the manifest.
+  std::vector<std::byte> readFile(std::string_view key) const;
+
+ private:
+  std::filesystem::path dir_;
+  DatasetManifest manifest_;
+  std::vector<OctreeCell> cells_;
+  std::vector<TopLevelCell> topLevel_;
+  std::vector<std::uint64_t> packetChecksums_;
+  std::vector<Splat> points_;
+};
+
+// Checks the top-level table against the manifest (contiguous packets that
+// cover the point-array, sizes) and, when `cells` is not empty, the cell array
+// (depth-first structure, nextSibling, levels, leaf flags, top-level
+// membership, data ranges inside their packet, finite bounds). Throws
+// InputError prefixed with `where`.
+void validateDatasetStructure(const DatasetManifest& manifest, std::span<const OctreeCell> cells,
+                              std::span<const TopLevelCell> topLevel, const std::string& where);
+
+// What the preprocess hands to the writer. Packets are not materialized: top-
+// level cell k's packet is its pointCount splats from `points` followed by its
+// levelSplatCount splats from `levelSplats`, both taken in table order.
+struct DatasetContent {
+  DatasetManifest manifest;  // descriptive fields; counts, files, checksums are filled in
+  std::vector<OctreeCell> cells;
+  std::vector<TopLevelCell> topLevel;  // byteOffset/byteSize are filled in
+  std::vector<Splat> points;
+  std::vector<Splat> levelSplats;
+  // Files of later stages (statistical hierarchy, transformation streams),
+  // written verbatim with a checksum and listed as file.<key>.
+  struct ExtraFile {
+    std::string key;
+    std::string name;
+    std::vector<std::byte> bytes;
+  };
+  std::vector<ExtraFile> extraFiles;
+};
+
+// Fills the manifest counts, bounds and file list (sizes; checksums are left
+// to the writer) and the table's byteOffset/byteSize, then validates the
+// structure. Throws Error("internal error: ...") when content is inconsistent.
+// writeDataset calls it; tests and in-memory users may call it directly.
+void finalizeDatasetContent(DatasetContent& content);
+
+// (bytes done, bytes total)
+using DatasetProgressFn = std::function<void(std::uint64_t, std::uint64_t)>;
+
+// Validates `content`, writes it into `<dir>.tmp-XXXXXX` next to `dir` and
+// renames that to `dir` at the end; on any failure the temporary directory is
+// removed. An existing `dir` is replaced only when `overwrite` is set (else
+// UsageError). Completes content.manifest and content.topLevel in place and
+// returns the bytes written.
+std::uint64_t writeDataset(const std::filesystem::path& dir, DatasetContent& content,
+                           bool overwrite = false, const DatasetProgressFn& progress = {});
+
+}  // namespace pointillist

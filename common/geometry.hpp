@@ -1,0 +1,93 @@
+#pragma once
+// Small double-precision geometry shared by the preprocess stages: a 3x3
+// symmetric eigen solver (covariance analysis for normals and level-splats)
+// and running covariance sums.
+#include <array>
+#include <cstddef>
+#include <cstdint>
+
+#include "common/octree_cell.hpp"
+
+namespace pointillist {
+
+using Vec3d = std::array<double, 3>;
+
+// Symmetric 3x3 matrix stored as its upper triangle: xx, xy, xz, yy, yz, zz.
+using Sym3 = std::array<double, 6>;
+
+struct Eigen3 {
+  std::array<double, 3> values;  // ascending
+  std::array<Vec3d, 3> vectors;  // unit, orthonormal, vectors[i] belongs to values[i]
+};
+
+// Cyclic Jacobi rotations: robust for the (near-)degenerate covariances of
+// planar or collinear point sets, accurate to a few ulps of the largest value.
+Eigen3 eigenSymmetric3(const Sym3& m);
+
+// Eigenvalues (ascending) and the eigenvector of the smallest one, in closed
+// form (Smith 1961: trigonometric roots, cross product of rows) -- several
+// times faster than Jacobi; falls back to Jacobi when the smallest eigenvalue
+// is (nearly) repeated and the closed-form vector would be unreliable.
+struct SmallestEigen3 {
+  std::array<double, 3> values;
+  Vec3d vector;  // unit
+};
+SmallestEigen3 smallestEigen3(const Sym3& m);
+
+// Accumulates mean and covariance of weighted 3D samples in one pass. Sums are
+// taken relative to the first sample so large coordinates lose no precision.
+class CovarianceAccumulator {
+ public:
+  void add(const Vec3d& p, double weight = 1.0);
+  double weight() const { return weight_; }
+  std::size_t count() const { return count_; }
+  Vec3d mean() const;
+  // Population covariance (divides by the total weight); zero when empty.
+  Sym3 covariance() const;
+
+ private:
+  Vec3d origin_{};
+  Vec3d sum_{};
+  Sym3 sumSq_{};
+  double weight_ = 0.0;
+  std::size_t count_ = 0;
+};
+
+inline double dot(const Vec3d& a, const Vec3d& b) {
+  return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+inline Vec3d sub(const Vec3d& a, const Vec3d& b) {
+  return {a[0] - b[0], a[1] - b[1], a[2] - b[2]};
+}
+inline Vec3d add(const Vec3d& a, const Vec3d& b) {
+  return {a[0] + b[0], a[1] + b[1], a[2] + b[2]};
+}
+inline Vec3d scale(const Vec3d& a, double s) {
+  return {a[0] * s, a[1] * s, a[2] * s};
+}
+double length(const Vec3d& a);
+// Unit vector along a; {0,0,0} when a is (nearly) zero.
+Vec3d normalized(const Vec3d& a);
+
+// Normal cones of OctreeCell: axis and cosine of the half angle as snorm16
+// (value / 32767). The axis is normalized after decoding; the stored cosine is
+// rounded down so the decoded cone contains every normal the encoder saw.
+inline constexpr std::int16_t kNoNormalCone = -32767;
+
+struct NormalCone {
+  Vec3d axis{};                // unit
+  double cosHalfAngle = -1.0;  // -1: the whole sphere
+  bool valid = false;          // false: never back-face cull
+};
+
+using ConeAxisQ = std::array<std::int16_t, 3>;
+
+ConeAxisQ quantizeConeAxis(const Vec3d& axis);
+Vec3d decodeConeAxis(const ConeAxisQ& q);  // unit (normalized after decoding)
+NormalCone decodeNormalCone(const OctreeCell& cell);
+// Stores axis `q` and a cosine rounded down from `minDot`, the smallest
+// dot(decodeConeAxis(q), n) over the unit normals n the cone must contain.
+void encodeNormalCone(OctreeCell& cell, const ConeAxisQ& q, double minDot);
+void clearNormalCone(OctreeCell& cell);
+
+}  // namespace pointillist

@@ -1,0 +1,208 @@
+#include "common/image.hpp"
+
+#include <png.h>
+
+#include <algorithm>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <iterator>
+#include <memory>
+#include <string>
+#include <system_error>
+
+#include "common/errors.hpp"
+
+namespace pointillist {
+
+namespace {
+
+std::size_t rgbaBytes(std::uint32_t width, std::uint32_t height) {
+  return static_cast<std::size_t>(width) * height * 4;
+}
+
+// libpng's simplified API takes a signed stride; a negative one walks the rows
+// bottom-up, which is exactly our storage order.
+png_int_32 bottomUpStride(std::uint32_t width, unsigned channels) {
+  return -static_cast<png_int_32>(width * channels);
+}
+
+}  // namespace
+
+Image::Image(std::uint32_t width, std::uint32_t height, Rgba8 fill)
+    : width_(width), height_(height), pixels_(rgbaBytes(width, height)) {
+  this->fill(fill);
+}
+
+Image::Image(std::uint32_t width, std::uint32_t height, std::span<const std::uint8_t> rgbaBottomUp)
+    : width_(width), height_(height) {
+  if (rgbaBottomUp.size() != rgbaBytes(width, height)) {
+    throw UsageError("Image: " + std::to_string(rgbaBottomUp.size()) + " bytes for " +
+                     std::to_string(width) + "x" + std::to_string(height) + " RGBA8");
+  }
+  pixels_.assign(rgbaBottomUp.begin(), rgbaBottomUp.end());
+}
+
+Rgba8 Image::at(std::uint32_t x, std::uint32_t y) const {
+  const std::uint8_t* p = pixel(x, y);
+  return {p[0], p[1], p[2], p[3]};
+}
+
+void Image::set(std::uint32_t x, std::uint32_t y, Rgba8 value) {
+  std::memcpy(pixel(x, y), value.data(), 4);
+}
+
+void Image::fill(Rgba8 value) {
+  for (std::size_t i = 0; i < pixels_.size(); i += 4) std::memcpy(&pixels_[i], value.data(), 4);
+}
+
+std::vector<std::uint8_t> encodePng(const Image& image, bool dropAlpha) {
+  if (image.empty()) throw UsageError("encodePng: empty image");
+  std::vector<std::uint8_t> rgb;
+  const void* source = image.bytes().data();
+  const unsigned channels = dropAlpha ? 3u : 4u;
+  if (dropAlpha) {
+    rgb.resize(static_cast<std::size_t>(image.width()) * image.height() * 3);
+    const auto bytes = image.bytes();
+    for (std::size_t i = 0, j = 0; i < bytes.size(); i += 4, j += 3) {
+      std::memcpy(&rgb[j], &bytes[i], 3);
+    }
+    source = rgb.data();
+  }
+  png_image png{};
+  png.version = PNG_IMAGE_VERSION;
+  png.width = image.width();
+  png.height = image.height();
+  png.format = dropAlpha ? PNG_FORMAT_RGB : PNG_FORMAT_RGBA;
+  const png_int_32 stride = bottomUpStride(image.width(), channels);
+  png_alloc_size_t size = 0;
+  if (!png_image_write_to_memory(&png, nullptr, &size, 0, source, stride, nullptr)) {
+    const std::string message = png.message;
+    png_image_free(&png);
+    throw Error("encodePng: " + message);
+  }
+  std::vector<std::uint8_t> out(size);
+  if (!png_image_write_to_memory(&png, out.data(), &size, 0, source, stride, nullptr)) {
+    const std::string message = png.message;
+    png_image_free(&png);
+    throw Error("encodePng: " + message);
+  }
+  out.resize(size);
+  return out;
+}
+
+Image decodePng(std::span<const std::uint8_t> data, const std::string& where) {
+  png_image png{};
+  png.version = PNG_IMAGE_VERSION;
+  if (!png_image_begin_read_from_memory(&png, data.data(), data.size())) {
+    const std::string message = png.message;
+    png_image_free(&png);
+    throw InputError(where + ": not a readable PNG: " + message);
+  }
+  png.format = PNG_FORMAT_RGBA;
+  if (png.width == 0 || png.height == 0 || png.width > 65536 || png.height > 65536) {
+    png_image_free(&png);
+    throw InputError(where + ": unsupported PNG size");
+  }
+  Image image(png.width, png.height);
+  if (!png_image_finish_read(&png, nullptr, image.bytes().data(), bottomUpStride(png.width, 4),
+                             nullptr)) {
+    const std::string message = png.message;
+    png_image_free(&png);
+    throw InputError(where + ": damaged PNG: " + message);
+  }
+  return image;
+}
+
+void writePng(const Image& image, const std::filesystem::path& path, bool dropAlpha) {
+  const std::vector<std::uint8_t> bytes = encodePng(image, dropAlpha);
+  std::filesystem::path tmp = path;
+  tmp += ".tmp";
+  {
+    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
+    out.write(reinterpret_cast<const char*>(bytes.data()),
+              static_cast<std::streamsize>(bytes.size()));
+    out.close();
+    if (!out) {
+      std::error_code ignored;
+      std::filesystem::remove(tmp, ignored);
+      throw Error("cannot write " + path.string());
+    }
+  }
+  std::error_code ec;
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) {
+    std::error_code ignored;
+    std::filesystem::remove(tmp, ignored);
+    throw Error("cannot write " + path.string() + ": " + ec.message());
+  }
+}
+
+Image readPng(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw InputError(path.string() + ": cannot open");
+  const std::vector<std::uint8_t> bytes((std::istreambuf_iterator<char>(in)),
+                                        std::istreambuf_iterator<char>());
+  return decodePng(bytes, path.string());
+}
+
+void blit(std::span<const std::uint8_t> tileRgba, std::uint32_t tileWidth, std::uint32_t tileHeight,
+          Image& frame, std::uint32_t x, std::uint32_t y) {
+  if (tileRgba.size() != rgbaBytes(tileWidth, tileHeight)) {
+    throw UsageError("blit: tile payload size does not match its rectangle");
+  }
+  if (std::uint64_t{x} + tileWidth > frame.width() ||
+      std::uint64_t{y} + tileHeight > frame.height()) {
+    throw UsageError("blit: tile " + std::to_string(tileWidth) + "x" + std::to_string(tileHeight) +
+                     " at (" + std::to_string(x) + "," + std::to_string(y) + ") does not fit a " +
+                     std::to_string(frame.width()) + "x" + std::to_string(frame.height()) +
+                     " frame");
+  }
+  const std::size_t rowBytes = static_cast<std::size_t>(tileWidth) * 4;
+  for (std::uint32_t row = 0; row < tileHeight; ++row) {
+    std::memcpy(frame.pixel(x, y + row), tileRgba.data() + row * rowBytes, rowBytes);
+  }
+}
+
+void blit(const Image& tile, Image& frame, std::uint32_t x, std::uint32_t y) {
+  blit(tile.bytes(), tile.width(), tile.height(), frame, x, y);
+}
+
+Image crop(const Image& image, std::uint32_t x, std::uint32_t y, std::uint32_t width,
+           std::uint32_t height) {
+  if (std::uint64_t{x} + width > image.width() || std::uint64_t{y} + height > image.height()) {
+    throw UsageError("crop: rectangle outside the image");
+  }
+  Image out(width, height);
+  const std::size_t rowBytes = static_cast<std::size_t>(width) * 4;
+  for (std::uint32_t row = 0; row < height; ++row) {
+    std::memcpy(out.pixel(0, row), image.pixel(x, y + row), rowBytes);
+  }
+  return out;
+}
+
+ImageDiff compareImages(const Image& a, const Image& b, int tolerance) {
+  if (a.width() != b.width() || a.height() != b.height()) {
+    throw UsageError("compareImages: sizes differ");
+  }
+  ImageDiff diff;
+  for (std::uint32_t y = 0; y < a.height(); ++y) {
+    for (std::uint32_t x = 0; x < a.width(); ++x) {
+      const std::uint8_t* p = a.pixel(x, y);
+      const std::uint8_t* q = b.pixel(x, y);
+      int worst = 0;
+      for (int c = 0; c < 4; ++c) worst = std::max(worst, std::abs(int{p[c]} - int{q[c]}));
+      diff.maxChannelDifference = std::max(diff.maxChannelDifference, worst);
+      if (worst > tolerance) {
+        if (diff.differingPixels == 0) {
+          diff.firstX = x;
+          diff.firstY = y;
+        }
+        ++diff.differingPixels;
+      }
+    }
+  }
+  return diff;
+}
+
+}  // namespace pointillist

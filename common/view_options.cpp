@@ -1,0 +1,49 @@
+#include "common/view_options.hpp"
+
+#include "common/errors.hpp"
+
+namespace pointillist {
+
+void addViewOptions(CLI::App& app, ViewOptions& options) {
+  app.add_option("--camera-path", options.cameraPath,
+                 "Camera path file, or built-in: orbit, flythrough, closeup");
+  app.add_option("--frames", options.frames, "Frames for a built-in camera path");
+  app.add_option("--size", options.size, "Frame size WxH");
+  app.add_option("--mode", options.mode, "Render mode: points (fast) or splats (geometry shader)");
+  app.add_option("--up", options.up, "Up axis of the data for built-in paths: auto, x, y, z");
+  app.add_option("--lod-pixels", options.lodPixels,
+                 "Use a cell's level-splats once its splats project to this radius in pixels");
+  app.add_option("--size-scale", options.sizeScale, "Multiplies splat radii");
+  app.add_flag("--no-backface-cull", options.noBackfaceCull, "Keep cells that face away");
+}
+
+v1::RenderMode parseRenderMode(const std::string& name) {
+  if (name == "points") return v1::RENDER_MODE_POINTS;
+  if (name == "splats") return v1::RENDER_MODE_SPLATS;
+  throw UsageError("render mode '" + name + "' is not one of: points, splats");
+}
+
+glm::vec3 parseUpAxis(const std::string& name, const SceneBounds& bounds) {
+  if (name == "auto") return defaultUpAxis(bounds);
+  if (name == "x") return {1, 0, 0};
+  if (name == "y") return {0, 1, 0};
+  if (name == "z") return {0, 0, 1};
+  throw UsageError("--up '" + name + "' is not one of: auto, x, y, z");
+}
+
+SceneBounds datasetBounds(const DatasetManifest& manifest) {
+  return {{manifest.boundsMin[0], manifest.boundsMin[1], manifest.boundsMin[2]},
+          {manifest.boundsMax[0], manifest.boundsMax[1], manifest.boundsMax[2]}};
+}
+
+std::vector<Camera> viewCameras(const ViewOptions& options, const SceneBounds& bounds) {
+  const auto [width, height] = parseImageSize(options.size);
+  const auto keys =
+      loadCameraPath(options.cameraPath, bounds, options.frames, parseUpAxis(options.up, bounds));
+  std::vector<Camera> cameras;
+  cameras.reserve(keys.size());
+  for (const auto& key : keys) cameras.push_back(cameraFromKey(key, bounds, width, height));
+  return cameras;
+}
+
+}  // namespace pointillist

@@ -1,0 +1,36 @@
+#pragma once
+// What a run looks at and how: shared by the display and the reference
+// renderer so both see exactly the same frames from the same options.
+#include <CLI/CLI.hpp>
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "common/camera_path.hpp"
+#include "common/dataset.hpp"
+#include "pointillist.pb.h"
+
+namespace pointillist {
+
+struct ViewOptions {
+  std::string cameraPath = "orbit";
+  std::uint32_t frames = 24;
+  std::string size = "1280x720";
+  std::string mode = "points";
+  std::string up = "auto";
+  float lodPixels = 1.0f;
+  float sizeScale = 1.0f;
+  bool noBackfaceCull = false;
+};
+
+void addViewOptions(CLI::App& app, ViewOptions& options);
+
+v1::RenderMode parseRenderMode(const std::string& name);  // points | splats
+glm::vec3 parseUpAxis(const std::string& name, const SceneBounds& bounds);
+SceneBounds datasetBounds(const DatasetManifest& manifest);
+
+// The cameras of a run: one per frame of the path.
+std::vector<Camera> viewCameras(const ViewOptions& options, const SceneBounds& bounds);
+
+}  // namespace pointillist

@@ -1,0 +1,193 @@
+#include "preprocess/dataset_builder.hpp"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <limits>
+#include <thread>
+
+#include "common/errors.hpp"
+#include "common/geometry.hpp"
+
+namespace pointillist::preprocess {
+
+namespace {
+
+struct Summary {
+  float lo[3] = {std::numeric_limits<float>::infinity(), std::numeric_limits<float>::infinity(),
+                 std::numeric_limits<float>::infinity()};
+  float hi[3] = {-std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity(),
+                 -std::numeric_limits<float>::infinity()};
+  float maxRadius = 0.0f;
+  Vec3d normalSum{};
+  bool unknownNormal = false;
+};
+
+// Stored normals are unit up to float rounding; skip the square root then.
+Vec3d unitNormal(const Splat& p) {
+  const Vec3d n = {p.normal[0], p.normal[1], p.normal[2]};
+  const double len2 = dot(n, n);
+  return std::abs(len2 - 1.0) < 1e-6 ? n : normalized(n);
+}
+
+void accumulate(Summary& s, std::span<const Splat> splats) {
+  for (const Splat& p : splats) {
+    for (int a = 0; a < 3; ++a) {
+      s.lo[a] = std::min(s.lo[a], p.position[a]);
+      s.hi[a] = std::max(s.hi[a], p.position[a]);
+    }
+    s.maxRadius = std::max(s.maxRadius, p.radius);
+    const Vec3d n = {p.normal[0], p.normal[1], p.normal[2]};
+    if (dot(n, n) > 0.25)
+      s.normalSum = add(s.normalSum, unitNormal(p));
+    else
+      s.unknownNormal = true;
+  }
+}
+
+void merge(Summary& into, const Summary& s) {
+  for (int a = 0; a < 3; ++a) {
+    into.lo[a] = std::min(into.lo[a], s.lo[a]);
+    into.hi[a] = std::max(into.hi[a], s.hi[a]);
+  }
+  into.maxRadius = std::max(into.maxRadius, s.maxRadius);
+  into.normalSum = add(into.normalSum, s.normalSum);
+  into.unknownNormal = into.unknownNormal || s.unknownNormal;
+}
+
+double minDot(const Vec3d& axis, std::span<const Splat> splats, double current) {
+  for (const Splat& p : splats) current = std::min(current, dot(axis, unitNormal(p)));
+  return current;
+}
+
+template <class Fn>
+void parallelFor(std::size_t n, unsigned threads, Fn fn) {
+  if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
+  std::atomic<std::size_t> next{0};
+  constexpr std::size_t kChunk = 64;
+  auto run = [&] {
+    for (std::size_t b; (b = next.fetch_add(kChunk)) < n;)
+      for (std::size_t i = b; i < std::min(n, b + kChunk); ++i) fn(i);
+  };
+  std::vector<std::thread> pool;
+  for (unsigned t = 1; t < threads; ++t) pool.emplace_back(run);
+  run();
+  for (auto& t : pool) t.join();
+}
+
+}  // namespace
+
+DatasetContent assembleDatasetContent(Octree tree, LevelSplats ls,
+                                      const PreprocessOptions& options) {
+  const auto& cells = tree.cells;
+  const std::size_t n = cells.size();
+  const std::span<const Splat> points(tree.points);
+  const std::span<const Splat> splats(ls.splats);
+  DatasetContent content;
+  content.cells.resize(n);
+
+  // Bounds, radius and normal sum: own splats in parallel, then merged
+  // bottom-up (children follow their parent in depth-first order).
+  std::vector<Summary> summary(n);
+  parallelFor(n, options.threads, [&](std::size_t i) {
+    const BuildCell& c = cells[i];
+    if (c.isLeaf())
+      accumulate(summary[i], points.subspan(static_cast<std::size_t>(c.begin),
+                                            static_cast<std::size_t>(c.end - c.begin)));
+    accumulate(summary[i],
+               splats.subspan(static_cast<std::size_t>(ls.cellBegin[i]), ls.cellCount[i]));
+  });
+  for (std::size_t i = n; i-- > 1;) merge(summary[cells[i].parent], summary[i]);
+
+  // The cone's half angle needs every normal of the subtree against the axis.
+  parallelFor(n, options.threads, [&](std::size_t i) {
+    const BuildCell& c = cells[i];
+    const Summary& s = summary[i];
+    OctreeCell& out = content.cells[i];
+    out = OctreeCell{};
+    for (int a = 0; a < 3; ++a) {
+      out.boundsMin[a] = s.lo[a];
+      out.boundsMax[a] = s.hi[a];
+    }
+    out.maxSplatRadius = s.maxRadius;
+    const Vec3d axis = normalized(s.normalSum);
+    if (s.unknownNormal || length(axis) == 0.0) {
+      clearNormalCone(out);
+    } else {
+      // The subtree's level-splats are one range: up to the next cell outside it.
+      const std::uint64_t levelEnd =
+          c.nextSibling == kNoIndex ? splats.size() : ls.cellBegin[c.nextSibling];
+      const auto pts = points.subspan(static_cast<std::size_t>(c.begin),
+                                      static_cast<std::size_t>(c.end - c.begin));
+      const auto lvl = splats.subspan(static_cast<std::size_t>(ls.cellBegin[i]),
+                                      static_cast<std::size_t>(levelEnd - ls.cellBegin[i]));
+      const ConeAxisQ q = quantizeConeAxis(axis);
+      const Vec3d decoded = decodeConeAxis(q);
+      encodeNormalCone(out, q, minDot(decoded, lvl, minDot(decoded, pts, 1.0)));
+    }
+    out.nextSibling = c.nextSibling;
+    out.topLevel = c.topLevel;
+    out.level = c.level;
+    out.depth = c.depth;
+    out.childCount = c.childCount;
+    out.flags = c.isLeaf() ? kCellFlagLeaf : 0;
+    if (c.topLevel != kNoIndex) {
+      const BuildCell& top = cells[tree.topLevelCells[c.topLevel]];
+      const std::uint64_t packetPoints = top.end - top.begin;
+      out.pointsOffset = static_cast<std::uint32_t>(c.begin - top.begin);
+      out.pointsCount = static_cast<std::uint32_t>(c.end - c.begin);
+      out.splatsOffset =
+          static_cast<std::uint32_t>(packetPoints + ls.cellBegin[i] - ls.topLevelBegin[c.topLevel]);
+      out.splatsCount = ls.cellCount[i];
+    }
+  });
+
+  content.topLevel.resize(tree.topLevelCells.size());
+  for (std::size_t k = 0; k < tree.topLevelCells.size(); ++k) {
+    const BuildCell& top = cells[tree.topLevelCells[k]];
+    const std::uint64_t p = top.end - top.begin;
+    const std::uint64_t l = ls.topLevelBegin[k + 1] - ls.topLevelBegin[k];
+    if (p + l > std::numeric_limits<std::uint32_t>::max())
+      throw UsageError("top-level cell " + std::to_string(k) + " holds " + std::to_string(p + l) +
+                       " splats, more than 32-bit offsets address; use a deeper --top-level-depth");
+    TopLevelCell& t = content.topLevel[k];
+    t = TopLevelCell{};
+    t.cellIndex = tree.topLevelCells[k];
+    t.pointCount = static_cast<std::uint32_t>(p);
+    t.levelSplatCount = static_cast<std::uint32_t>(l);
+  }
+
+  DatasetManifest& m = content.manifest;
+  m.source = options.source;
+  m.createdBy = "pointillist-preprocess";
+  m.topLevelDepth = tree.topLevelDepth;
+  m.maxDepth = options.octree.maxDepth;
+  m.leafPoints = options.octree.leafPoints;
+  m.levelSplatReduction = options.levelSplats.reduction;
+  content.points = std::move(tree.points);
+  content.levelSplats = std::move(ls.splats);
+  return content;
+}
+
+DatasetContent buildDatasetContent(std::vector<Splat> points, const PreprocessOptions& options,
+                                   const StageProgressFn& progress) {
+  auto stage = [&](const char* name) -> ProgressFn {
+    if (!progress) return {};
+    return
+        [&progress, name](std::uint64_t done, std::uint64_t total) { progress(name, done, total); };
+  };
+  const std::uint64_t total = points.size();
+  Octree tree = buildOctree(std::move(points), options.octree, stage("octree"));
+  const unsigned depth = options.topLevelDepth >= 0
+                             ? static_cast<unsigned>(options.topLevelDepth)
+                             : chooseTopLevelDepth(tree, options.targetPacketBytes);
+  assignTopLevelCells(tree, depth);
+  LevelSplats ls =
+      buildLevelSplats(tree, options.levelSplats, stage("level-splats"), options.threads);
+  if (progress) progress("cells", 0, total);
+  DatasetContent content = assembleDatasetContent(std::move(tree), std::move(ls), options);
+  if (progress) progress("cells", total, total);
+  return content;
+}
+
+}  // namespace pointillist::preprocess

@@ -1,0 +1,41 @@
+#pragma once
+// Seed 003 §4.1.1, step two: turns the octree and its level-splats into the
+// compact dataset records -- the 64-byte octree-cell-array, the top-level table
+// and the point-array grouped per top-level cell -- ready for writeDataset.
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "common/dataset.hpp"
+#include "preprocess/level_splats.hpp"
+#include "preprocess/octree_builder.hpp"
+
+namespace pointillist::preprocess {
+
+struct PreprocessOptions {
+  OctreeOptions octree;
+  LevelSplatOptions levelSplats;
+  int topLevelDepth = -1;  // -1: chooseTopLevelDepth(targetPacketBytes)
+  std::uint64_t targetPacketBytes = kDefaultPacketBytes;
+  unsigned threads = 0;  // 0: all cores
+  std::string source;    // recorded in the manifest
+};
+
+// stage is "octree", "level-splats" or "cells"; (done, total) in points.
+using StageProgressFn =
+    std::function<void(const char* stage, std::uint64_t done, std::uint64_t total)>;
+
+// Builds everything writeDataset needs. Per cell: bounds are the tight bounds
+// of all splat centres of its subtree (points and level-splats);
+// maxSplatRadius the largest radius among them; the normal cone contains every
+// normal among them (no cone when any normal is unknown, i.e. zero).
+DatasetContent buildDatasetContent(std::vector<Splat> points, const PreprocessOptions& options,
+                                   const StageProgressFn& progress = {});
+
+// The same from an already built octree with top-level cells and level-splats
+// (tests use the pieces).
+DatasetContent assembleDatasetContent(Octree tree, LevelSplats levelSplats,
+                                      const PreprocessOptions& options);
+
+}  // namespace pointillist::preprocess

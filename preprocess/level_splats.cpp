@@ -1,0 +1,382 @@
+#include "preprocess/level_splats.hpp"
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <condition_variable>
+#include <exception>
+#include <mutex>
+#include <numeric>
+#include <thread>
+
+#include "common/geometry.hpp"
+
+namespace pointillist::preprocess {
+
+namespace {
+
+struct Range {
+  std::uint32_t begin;
+  std::uint32_t end;
+  double spread;  // total variance (covariance trace): the split priority
+  Vec3d mean;
+  Sym3 covariance;
+};
+
+// Max-heap on spread; ties by position so the result does not depend on the
+// heap implementation.
+bool lessSpread(const Range& a, const Range& b) {
+  if (a.spread != b.spread) return a.spread < b.spread;
+  return a.begin > b.begin;
+}
+
+struct Gaussian {
+  Vec3d mean;
+  Sym3 inverse;
+  double logDet;
+};
+
+double quadratic(const Sym3& m, const Vec3d& d) {
+  return m[0] * d[0] * d[0] + m[3] * d[1] * d[1] + m[5] * d[2] * d[2] +
+         2.0 * (m[1] * d[0] * d[1] + m[2] * d[0] * d[2] + m[4] * d[1] * d[2]);
+}
+
+// Inverse and log-determinant of (covariance + eps I) by the adjugate: no
+// eigen-decomposition needed for the Mahalanobis distance.
+Gaussian makeGaussian(const CovarianceAccumulator& acc, double eps) {
+  Sym3 c = acc.covariance();
+  c[0] += eps;
+  c[3] += eps;
+  c[5] += eps;
+  const double a00 = c[3] * c[5] - c[4] * c[4];
+  const double a01 = c[2] * c[4] - c[1] * c[5];
+  const double a02 = c[1] * c[4] - c[2] * c[3];
+  const double det = c[0] * a00 + c[1] * a01 + c[2] * a02;
+  // Positive definite by construction (PSD + eps I); guard against rounding.
+  const double safeDet = std::max(det, eps * eps * eps);
+  const double inv = 1.0 / safeDet;
+  Gaussian g{acc.mean(), {}, std::log(safeDet)};
+  g.inverse = {a00 * inv,
+               a01 * inv,
+               a02 * inv,
+               (c[0] * c[5] - c[2] * c[2]) * inv,
+               (c[1] * c[2] - c[0] * c[4]) * inv,
+               (c[0] * c[3] - c[1] * c[1]) * inv};
+  return g;
+}
+
+// Direction of largest variance by power iteration: enough for choosing a cut
+// and much cheaper than a full eigen-decomposition.
+Vec3d majorAxis(const Sym3& c) {
+  const Vec3d cols[3] = {{c[0], c[1], c[2]}, {c[1], c[3], c[4]}, {c[2], c[4], c[5]}};
+  Vec3d v = cols[0];
+  for (const Vec3d& col : cols)
+    if (dot(col, col) > dot(v, v)) v = col;
+  for (int it = 0; it < 8; ++it) {
+    const Vec3d w = {dot(cols[0], v), dot(cols[1], v), dot(cols[2], v)};
+    const double m = std::max({std::abs(w[0]), std::abs(w[1]), std::abs(w[2])});
+    if (!(m > 0.0)) break;
+    v = scale(w, 1.0 / m);
+  }
+  const Vec3d n = normalized(v);
+  return length(n) > 0.0 ? n : eigenSymmetric3(c).vectors[2];
+}
+
+float roundUp(double v) {
+  float f = static_cast<float>(v);
+  if (static_cast<double>(f) < v) f = std::nextafter(f, std::numeric_limits<float>::infinity());
+  return f;
+}
+
+}  // namespace
+
+std::size_t levelSplatTarget(std::size_t inputs, const LevelSplatOptions& options) {
+  if (inputs == 0) return 0;
+  const double reduction = std::max(options.reduction, 1.0);
+  auto t = static_cast<std::size_t>(std::ceil(static_cast<double>(inputs) / reduction));
+  t = std::min<std::size_t>(t, std::max<std::uint32_t>(options.maxPerCell, 1));
+  return std::clamp<std::size_t>(t, 1, inputs);
+}
+
+Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
+                         const LevelSplatOptions& options) {
+  Clustering out;
+  const std::size_t m = input.size();
+  if (m == 0) return out;
+  target = std::clamp<std::size_t>(target, 1, m);
+
+  // Positions relative to the first input keep doubles precise far from the origin.
+  const Vec3d origin = {input[0].position[0], input[0].position[1], input[0].position[2]};
+  std::vector<Vec3d> pos(m);
+  double radiusSum = 0.0;
+  for (std::size_t i = 0; i < m; ++i) {
+    pos[i] = sub({input[i].position[0], input[i].position[1], input[i].position[2]}, origin);
+    radiusSum += static_cast<double>(input[i].radius);
+  }
+
+  // 1. Hierarchical covariance split.
+  std::vector<std::uint32_t> order(m);
+  std::iota(order.begin(), order.end(), 0u);
+  auto analyse = [&](std::uint32_t b, std::uint32_t e) {
+    CovarianceAccumulator acc;
+    for (std::uint32_t i = b; i < e; ++i) acc.add(pos[order[i]]);
+    const Sym3 c = acc.covariance();
+    return Range{b, e, e - b >= 2 ? c[0] + c[3] + c[5] : 0.0, acc.mean(), c};
+  };
+  std::vector<Range> heap{analyse(0, static_cast<std::uint32_t>(m))};
+  std::vector<Range> done;
+  const double rootSpread = heap[0].spread;
+  while (!heap.empty() && heap.size() + done.size() < target) {
+    std::pop_heap(heap.begin(), heap.end(), lessSpread);
+    const Range r = heap.back();
+    heap.pop_back();
+    if (!(r.spread > 0.0)) {
+      done.push_back(r);
+      continue;
+    }
+    // Cut through the centroid, normal to the direction of largest variance.
+    const Vec3d axis = majorAxis(r.covariance);
+    auto proj = [&](std::uint32_t i) { return dot(sub(pos[i], r.mean), axis); };
+    auto* first = order.data() + r.begin;
+    auto* last = order.data() + r.end;
+    auto* mid = std::partition(first, last, [&](std::uint32_t i) { return proj(i) < 0.0; });
+    if (mid == first || mid == last) {  // numerically one-sided: cut at the median
+      mid = first + (last - first) / 2;
+      std::nth_element(first, mid, last, [&](std::uint32_t a, std::uint32_t b) {
+        return proj(a) < proj(b) || (proj(a) == proj(b) && a < b);
+      });
+    }
+    const auto cut = static_cast<std::uint32_t>(mid - order.data());
+    heap.push_back(analyse(r.begin, cut));
+    std::push_heap(heap.begin(), heap.end(), lessSpread);
+    heap.push_back(analyse(cut, r.end));
+    std::push_heap(heap.begin(), heap.end(), lessSpread);
+  }
+  done.insert(done.end(), heap.begin(), heap.end());
+  std::sort(done.begin(), done.end(),
+            [](const Range& a, const Range& b) { return a.begin < b.begin; });
+
+  std::size_t k = done.size();
+  out.assignment.assign(m, 0);
+  for (std::size_t c = 0; c < k; ++c)
+    for (std::uint32_t i = done[c].begin; i < done[c].end; ++i)
+      out.assignment[order[i]] = static_cast<std::uint32_t>(c);
+
+  // 2. Mahalanobis refinement: reassign to the most likely cluster Gaussian.
+  // Skipped when the all-pairs cost would explode (huge degenerate leaves).
+  double eps = 0.25 * (radiusSum / static_cast<double>(m)) * (radiusSum / static_cast<double>(m));
+  if (!(eps > 0.0)) eps = 1e-6 * rootSpread;
+  if (!(eps > 0.0)) eps = 1e-12;
+  for (int it = 0; it < options.refineIterations && k > 1 && m * k <= (std::size_t{1} << 22);
+       ++it) {
+    std::vector<CovarianceAccumulator> acc(k);
+    for (std::size_t i = 0; i < m; ++i) acc[out.assignment[i]].add(pos[i]);
+    std::vector<Gaussian> g;
+    g.reserve(k);
+    for (const auto& a : acc) g.push_back(makeGaussian(a, eps));
+    bool changed = false;
+    for (std::size_t i = 0; i < m; ++i) {
+      std::uint32_t best = out.assignment[i];
+      double bestCost = quadratic(g[best].inverse, sub(pos[i], g[best].mean)) + g[best].logDet;
+      for (std::uint32_t c = 0; c < k; ++c) {
+        const double cost = quadratic(g[c].inverse, sub(pos[i], g[c].mean)) + g[c].logDet;
+        if (cost < bestCost) {
+          bestCost = cost;
+          best = c;
+        }
+      }
+      changed |= best != out.assignment[i];
+      out.assignment[i] = best;
+    }
+    // Drop clusters that lost all their members.
+    std::vector<bool> alive(k, false);
+    for (const std::uint32_t a : out.assignment) alive[a] = true;
+    std::vector<std::uint32_t> remap(k, kNoIndex);
+    std::uint32_t used = 0;
+    for (std::size_t c = 0; c < k; ++c)
+      if (alive[c]) remap[c] = used++;
+    for (auto& a : out.assignment) a = remap[a];
+    k = used;
+    if (!changed) break;
+  }
+
+  // 3. One splat per cluster.
+  std::vector<CovarianceAccumulator> acc(k);
+  std::vector<Vec3d> normalSum(k, Vec3d{});
+  std::vector<std::array<double, 4>> colorSum(k, std::array<double, 4>{});
+  std::vector<bool> anyNormal(k, false);
+  for (std::size_t i = 0; i < m; ++i) {
+    const std::uint32_t c = out.assignment[i];
+    acc[c].add(pos[i]);
+    const Vec3d n = {input[i].normal[0], input[i].normal[1], input[i].normal[2]};
+    if (dot(n, n) > 0.25) {
+      normalSum[c] = add(normalSum[c], normalized(n));
+      anyNormal[c] = true;
+    }
+    for (std::size_t ch = 0; ch < 4; ++ch) colorSum[c][ch] += input[i].color[ch];
+  }
+  out.splats.resize(k);
+  for (std::size_t c = 0; c < k; ++c) {
+    Splat& s = out.splats[c];
+    const Vec3d mean = add(acc[c].mean(), origin);
+    for (std::size_t a = 0; a < 3; ++a) s.position[a] = static_cast<float>(mean[a]);
+    Vec3d normal{};
+    if (anyNormal[c]) {
+      normal = normalized(normalSum[c]);
+      if (acc[c].count() >= 3) {
+        const SmallestEigen3 e = smallestEigen3(acc[c].covariance());
+        // A plane fit needs a cluster that is flat but not a line: otherwise
+        // the plane can spin about the line and the mean normal is better.
+        const bool flat = e.values[1] > 0.0 && e.values[0] <= 0.25 * e.values[1] &&
+                          e.values[1] >= 0.05 * e.values[2];
+        if (flat) normal = dot(e.vector, normalSum[c]) < 0.0 ? scale(e.vector, -1.0) : e.vector;
+      }
+    }
+    for (std::size_t a = 0; a < 3; ++a) s.normal[a] = static_cast<float>(normal[a]);
+    const double n = static_cast<double>(acc[c].count());
+    for (std::size_t ch = 0; ch < 4; ++ch)
+      s.color[ch] =
+          static_cast<std::uint8_t>(std::lround(std::clamp(colorSum[c][ch] / n, 0.0, 255.0)));
+    s.radius = 0.0f;
+  }
+  // Radius from the stored (float) centre so the coverage property holds exactly.
+  std::vector<double> radius(k, 0.0);
+  for (std::size_t i = 0; i < m; ++i) {
+    const std::uint32_t c = out.assignment[i];
+    const Splat& s = out.splats[c];
+    Vec3d d;
+    for (std::size_t a = 0; a < 3; ++a)
+      d[a] = static_cast<double>(input[i].position[a]) - static_cast<double>(s.position[a]);
+    const auto ri = static_cast<double>(input[i].radius);
+    radius[c] = std::max({radius[c], length(d) + options.radiusShare * ri, ri});
+  }
+  for (std::size_t c = 0; c < k; ++c) out.splats[c].radius = roundUp(radius[c]);
+  return out;
+}
+
+LevelSplats buildLevelSplats(const Octree& tree, const LevelSplatOptions& options,
+                             const ProgressFn& progress, unsigned threads) {
+  const auto& cells = tree.cells;
+  const std::size_t nTop = tree.topLevelCells.size();
+  struct TopResult {
+    std::vector<Splat> splats;
+    std::vector<std::uint32_t> begin;  // per cell of the subtree
+    std::vector<std::uint32_t> count;
+  };
+  std::vector<TopResult> results(nTop);
+
+  auto process = [&](std::size_t k) {
+    const std::uint32_t root = tree.topLevelCells[k];
+    const std::uint32_t end = cells[root].nextSibling == kNoIndex
+                                  ? static_cast<std::uint32_t>(cells.size())
+                                  : cells[root].nextSibling;
+    const std::size_t count = end - root;
+    std::vector<std::vector<Splat>> perCell(count);
+    std::vector<Splat> gathered;
+    for (std::uint32_t i = end; i-- > root;) {
+      const BuildCell& c = cells[i];
+      std::span<const Splat> inputs;
+      if (c.isLeaf()) {
+        inputs = std::span<const Splat>(tree.points)
+                     .subspan(static_cast<std::size_t>(c.begin),
+                              static_cast<std::size_t>(c.end - c.begin));
+      } else {
+        gathered.clear();
+        for (std::uint32_t j = i + 1; j < end && cells[j].parent == i; j = cells[j].nextSibling) {
+          const auto& child = perCell[j - root];
+          gathered.insert(gathered.end(), child.begin(), child.end());
+          if (cells[j].nextSibling == kNoIndex) break;
+        }
+        inputs = gathered;
+      }
+      perCell[i - root] =
+          clusterSplats(inputs, levelSplatTarget(inputs.size(), options), options).splats;
+    }
+    TopResult& r = results[k];
+    r.begin.resize(count);
+    r.count.resize(count);
+    std::size_t total = 0;
+    for (const auto& v : perCell) total += v.size();
+    r.splats.reserve(total);
+    for (std::size_t j = 0; j < count; ++j) {
+      r.begin[j] = static_cast<std::uint32_t>(r.splats.size());
+      r.count[j] = static_cast<std::uint32_t>(perCell[j].size());
+      r.splats.insert(r.splats.end(), perCell[j].begin(), perCell[j].end());
+    }
+  };
+
+  // Workers take top-level cells in turn; this thread reports progress, so a
+  // progress callback that throws (interrupt) stops the workers cleanly.
+  std::atomic<std::size_t> next{0};
+  std::atomic<std::uint64_t> pointsDone{0};
+  std::atomic<bool> stop{false};
+  std::mutex mutex;
+  std::condition_variable cv;
+  std::size_t finishedWorkers = 0;
+  std::exception_ptr error;
+  if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
+  threads = static_cast<unsigned>(std::min<std::size_t>(threads, std::max<std::size_t>(nTop, 1)));
+  auto worker = [&] {
+    try {
+      for (std::size_t k; !stop && (k = next++) < nTop;) {
+        process(k);
+        const BuildCell& root = cells[tree.topLevelCells[k]];
+        pointsDone += root.end - root.begin;
+      }
+    } catch (...) {
+      std::lock_guard lock(mutex);
+      if (!error) error = std::current_exception();
+      stop = true;
+    }
+    std::lock_guard lock(mutex);
+    ++finishedWorkers;
+    cv.notify_all();
+  };
+  if (progress) progress(0, tree.points.size());
+  std::vector<std::thread> pool;
+  for (unsigned t = 0; t < threads; ++t) pool.emplace_back(worker);
+  try {
+    std::unique_lock lock(mutex);
+    while (finishedWorkers < pool.size()) {
+      cv.wait_for(lock, std::chrono::milliseconds(200));
+      if (progress) {
+        lock.unlock();
+        progress(pointsDone.load(), tree.points.size());
+        lock.lock();
+      }
+    }
+  } catch (...) {
+    stop = true;
+    for (auto& t : pool) t.join();
+    throw;
+  }
+  for (auto& t : pool) t.join();
+  if (error) std::rethrow_exception(error);
+
+  LevelSplats out;
+  out.cellBegin.assign(cells.size(), 0);
+  out.cellCount.assign(cells.size(), 0);
+  out.topLevelBegin.resize(nTop + 1);
+  std::size_t total = 0;
+  for (const auto& r : results) total += r.splats.size();
+  out.splats.reserve(total);
+  for (std::size_t k = 0; k < nTop; ++k) {
+    out.topLevelBegin[k] = out.splats.size();
+    const std::uint32_t root = tree.topLevelCells[k];
+    for (std::size_t j = 0; j < results[k].begin.size(); ++j) {
+      out.cellBegin[root + j] = out.topLevelBegin[k] + results[k].begin[j];
+      out.cellCount[root + j] = results[k].count[j];
+    }
+    out.splats.insert(out.splats.end(), results[k].splats.begin(), results[k].splats.end());
+    results[k] = {};
+  }
+  out.topLevelBegin[nTop] = out.splats.size();
+  // Cells above the top-level depth: their subtree's splats start with their first child's.
+  for (std::size_t i = cells.size(); i-- > 0;)
+    if (cells[i].topLevel == kNoIndex) out.cellBegin[i] = out.cellBegin[i + 1];
+  if (progress) progress(tree.points.size(), tree.points.size());
+  return out;
+}
+
+}  // namespace pointillist::preprocess

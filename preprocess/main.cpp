@@ -1,0 +1,342 @@
+// pointillist-preprocess: point clouds, meshes or a generated scene in, a
+// dataset directory (octree-cell-array, top-level table, point-array with
+// level-splats; seed 003 §4.1) out.
+#include <unistd.h>
+
+#include <CLI/CLI.hpp>
+#include <atomic>
+#include <chrono>
+#include <csignal>
+#include <cstdio>
+#include <filesystem>
+#include <iostream>
+#include <new>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "common/dataset.hpp"
+#include "common/errors.hpp"
+#include "preprocess/dataset_builder.hpp"
+#include "preprocess/generator.hpp"
+#include "preprocess/normals.hpp"
+#include "preprocess/readers.hpp"
+
+namespace pp = pointillist::preprocess;
+using pointillist::Error;
+using pointillist::UsageError;
+using Clock = std::chrono::steady_clock;
+
+namespace {
+
+constexpr const char* kTool = "pointillist-preprocess";
+
+std::atomic<int> gInterrupted{0};
+
+extern "C" void onSignal(int sig) {
+  // The first signal asks for a clean stop at the next progress report (the
+  // temporary dataset directory is removed on the way out); a second one kills.
+  if (gInterrupted.exchange(sig) != 0) {
+    std::signal(sig, SIG_DFL);
+    std::raise(sig);
+  }
+}
+
+class Interrupted : public Error {
+ public:
+  using Error::Error;
+  const char* kind() const noexcept override { return "interrupted"; }
+};
+
+double seconds(Clock::time_point since) {
+  return std::chrono::duration<double>(Clock::now() - since).count();
+}
+
+std::string humanCount(double v) {
+  char buf[32];
+  if (v >= 1e9)
+    std::snprintf(buf, sizeof buf, "%.2fG", v / 1e9);
+  else if (v >= 1e6)
+    std::snprintf(buf, sizeof buf, "%.2fM", v / 1e6);
+  else if (v >= 1e4)
+    std::snprintf(buf, sizeof buf, "%.1fk", v / 1e3);
+  else
+    std::snprintf(buf, sizeof buf, "%.0f", v);
+  return buf;
+}
+
+std::string humanBytes(double v) {
+  char buf[32];
+  if (v >= 1024.0 * 1024 * 1024)
+    std::snprintf(buf, sizeof buf, "%.2f GiB", v / (1024.0 * 1024 * 1024));
+  else if (v >= 1024.0 * 1024)
+    std::snprintf(buf, sizeof buf, "%.1f MiB", v / (1024.0 * 1024));
+  else
+    std::snprintf(buf, sizeof buf, "%.1f KiB", v / 1024.0);
+  return buf;
+}
+
+// Progress on stderr: one updating line on a terminal (at most 10 times a
+// second), otherwise a plain line every 5 seconds. Also where an interrupt is
+// noticed.
+class Progress {
+ public:
+  explicit Progress(bool quiet) : quiet_(quiet), tty_(::isatty(STDERR_FILENO) != 0) {}
+
+  void update(const std::string& stage, std::uint64_t done, std::uint64_t total) {
+    // Only the main thread may throw: a worker thread would terminate the process.
+    if (const int sig = gInterrupted.load(); sig != 0 && std::this_thread::get_id() == mainThread_)
+      throw Interrupted("stopped by signal " + std::to_string(sig) + "; nothing was written");
+    if (quiet_ || std::this_thread::get_id() != mainThread_) return;
+    const auto now = Clock::now();
+    if (stage != stage_) {
+      finishStage();
+      stage_ = stage;
+      stageStart_ = now;
+      last_ = {};
+    }
+    // Terminal: refresh at most 10 times a second. Log: a line every 5 s of a
+    // long stage; short stages only get their "done" line.
+    if (tty_ ? (now - last_ < std::chrono::milliseconds(100) && done < total)
+             : (now - (last_ == Clock::time_point{} ? stageStart_ : last_) <
+                std::chrono::seconds(5)))
+      return;
+    last_ = now;
+    std::string line = "  " + stage + ": ";
+    if (total > 0) {
+      char pct[16];
+      std::snprintf(pct, sizeof pct, "%5.1f%%",
+                    100.0 * static_cast<double>(done) / static_cast<double>(total));
+      line += std::string(pct) + " (" + humanCount(static_cast<double>(done)) + " / " +
+              humanCount(static_cast<double>(total)) + ")";
+    } else {
+      line += humanCount(static_cast<double>(done));
+    }
+    if (tty_) {
+      std::fprintf(stderr, "\r%s\x1b[K", line.c_str());
+      open_ = true;
+    } else {
+      std::fprintf(stderr, "%s\n", line.c_str());
+    }
+    std::fflush(stderr);
+  }
+
+  // Ends the current stage with its duration.
+  void finishStage() {
+    if (quiet_ || stage_.empty()) return;
+    char buf[64];
+    std::snprintf(buf, sizeof buf, "%.2f s", seconds(stageStart_));
+    if (tty_ && open_)
+      std::fprintf(stderr, "\r  %s: done in %s\x1b[K\n", stage_.c_str(), buf);
+    else
+      std::fprintf(stderr, "  %s: done in %s\n", stage_.c_str(), buf);
+    stage_.clear();
+    open_ = false;
+  }
+
+  void note(const std::string& text) {
+    if (quiet_) return;
+    finishStage();
+    std::fprintf(stderr, "%s: %s\n", kTool, text.c_str());
+  }
+
+  pp::ProgressFn stageFn(const std::string& stage) {
+    return [this, stage](std::uint64_t done, std::uint64_t total) { update(stage, done, total); };
+  }
+
+ private:
+  bool quiet_;
+  bool tty_;
+  std::thread::id mainThread_ = std::this_thread::get_id();
+  bool open_ = false;
+  std::string stage_;
+  Clock::time_point stageStart_{};
+  Clock::time_point last_{};
+};
+
+struct Options {
+  std::vector<std::string> inputs;
+  std::string output;
+  std::string generate;
+  std::size_t points = 1'000'000;
+  int topLevelDepth = -1;
+  unsigned maxDepth = pp::OctreeOptions{}.maxDepth;
+  std::uint32_t leafPoints = pp::OctreeOptions{}.leafPoints;
+  std::uint64_t packetKiB = pp::kDefaultPacketBytes / 1024;
+  int neighbours = 12;
+  bool dropNonFinite = false;
+  std::uint64_t seed = 1;
+  unsigned threads = 0;
+  bool quiet = false;
+  bool force = false;
+};
+
+void appendCloud(pp::PointCloud& into, pp::PointCloud&& more) {
+  if (into.splats.empty()) {
+    into = std::move(more);
+    return;
+  }
+  into.splats.insert(into.splats.end(), more.splats.begin(), more.splats.end());
+  into.hasNormals = into.hasNormals && more.hasNormals;
+  into.hasRadii = into.hasRadii && more.hasRadii;
+  into.hasColors = into.hasColors || more.hasColors;
+  into.source += ", " + more.source;
+}
+
+int run(const Options& o) {
+  const auto start = Clock::now();
+  if (o.inputs.empty() && o.generate.empty())
+    throw UsageError("no input: give INPUT files and/or --generate [NAME] (scenes: " + [] {
+      std::string names;
+      for (const auto& n : pp::generatorNames()) names += (names.empty() ? "" : ", ") + n;
+      return names;
+    }() + ")");
+  if (o.points == 0) throw UsageError("--points must be positive");
+  if (o.neighbours < 3) throw UsageError("--neighbours must be at least 3");
+  if (o.packetKiB == 0) throw UsageError("--packet-kib must be positive");
+  if (o.maxDepth < 1 || o.maxDepth > 21) throw UsageError("--max-depth must be 1..21");
+  if (o.leafPoints < 1) throw UsageError("--leaf-points must be positive");
+  if (o.topLevelDepth < -1) throw UsageError("--top-level-depth must not be negative");
+  const std::filesystem::path output(o.output);
+  std::error_code ec;
+  if (std::filesystem::exists(std::filesystem::symlink_status(output, ec)) && !o.force)
+    throw UsageError("output '" + o.output + "' already exists (use --force to replace it)");
+
+  Progress progress(o.quiet);
+  pp::PointCloud cloud;
+  if (!o.inputs.empty()) {
+    pp::ReadOptions ro;
+    ro.meshSamplePoints = o.points;
+    ro.seed = o.seed;
+    ro.dropNonFinite = o.dropNonFinite;
+    ro.progress = progress.stageFn("reading");
+    std::vector<std::filesystem::path> files(o.inputs.begin(), o.inputs.end());
+    cloud = pp::readPointClouds(files, ro);
+    progress.finishStage();
+  }
+  if (!o.generate.empty()) {
+    progress.update("generating '" + o.generate + "'", 0, o.points);
+    appendCloud(cloud, pp::generateScene(o.generate, o.points, o.seed));
+    progress.finishStage();
+  }
+  const std::uint64_t pointCount = cloud.splats.size();
+  progress.note(humanCount(static_cast<double>(pointCount)) + " points from " + cloud.source);
+  if (!cloud.hasNormals || !cloud.hasRadii) {
+    pp::NormalOptions no;
+    no.neighbours = o.neighbours;
+    no.onlyWhereMissing = true;
+    no.progress = progress.stageFn("normals and radii");
+    pp::estimateNormalsAndRadii(cloud, no);
+    progress.finishStage();
+  }
+
+  pp::PreprocessOptions po;
+  po.octree.maxDepth = o.maxDepth;
+  po.octree.leafPoints = o.leafPoints;
+  po.topLevelDepth = o.topLevelDepth;
+  po.targetPacketBytes = o.packetKiB * 1024;
+  po.threads = o.threads;
+  po.source = cloud.source;
+  const auto buildStart = Clock::now();
+  pointillist::DatasetContent content = pp::buildDatasetContent(
+      std::move(cloud.splats), po, [&](const char* stage, std::uint64_t done, std::uint64_t total) {
+        progress.update(stage, done, total);
+      });
+  progress.finishStage();
+  content.manifest.createdBy = std::string(kTool) + " (max depth " + std::to_string(o.maxDepth) +
+                               ", leaf points " + std::to_string(o.leafPoints) + ")";
+  const std::uint64_t bytes = pointillist::writeDataset(
+      output, content, o.force,
+      [&](std::uint64_t done, std::uint64_t total) { progress.update("writing", done, total); });
+  progress.finishStage();
+  const double buildSeconds = seconds(buildStart);
+  const double total = seconds(start);
+
+  const auto& m = content.manifest;
+  std::printf(
+      "%s: wrote %s: %llu points, %llu cells (depth %u), %llu top-level cells (depth %u, %s per "
+      "packet), "
+      "%llu level-splats, %s in %.2f s (%s points/s; octree, level-splats and writing %.2f s, %s "
+      "points/s)\n",
+      kTool, o.output.c_str(), static_cast<unsigned long long>(m.pointCount),
+      static_cast<unsigned long long>(m.cellCount), m.treeDepth,
+      static_cast<unsigned long long>(m.topLevelCount), m.topLevelDepth,
+      humanBytes(static_cast<double>(m.pointCount + m.levelSplatCount) *
+                 sizeof(pointillist::Splat) / static_cast<double>(m.topLevelCount))
+          .c_str(),
+      static_cast<unsigned long long>(m.levelSplatCount),
+      humanBytes(static_cast<double>(bytes)).c_str(), total,
+      humanCount(static_cast<double>(pointCount) / total).c_str(), buildSeconds,
+      humanCount(static_cast<double>(pointCount) / buildSeconds).c_str());
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "Builds a Pointillist dataset directory -- octree-cell-array, top-level cells and a "
+      "point-array "
+      "with level-splats (Hubo & Bekaert 2005, section 4.1) -- from point clouds (PLY, XYZ/PTS, "
+      "LAS), "
+      "meshes (OFF, PLY; sampled) or a built-in generated scene. Normals and radii missing from "
+      "the "
+      "input are estimated from nearest neighbours.",
+      kTool};
+  Options o;
+  app.add_option("INPUT", o.inputs,
+                 "Input files: .ply .xyz .pts .txt .las .off (several are merged)");
+  app.add_option("-o,--output", o.output, "Dataset directory to create")->required();
+  app.add_option("--generate", o.generate, "Add a generated scene (NAME defaults to city)")
+      ->expected(0, 1)
+      ->default_str("city");
+  app.add_option("--points", o.points, "Surface samples per mesh / points of a generated scene")
+      ->capture_default_str();
+  app.add_option(
+      "--top-level-depth", o.topLevelDepth,
+      "Depth of the top-level cells (default: chosen so a packet is about --packet-kib)");
+  app.add_option("--packet-kib", o.packetKiB,
+                 "Target average top-level packet size for the automatic depth")
+      ->capture_default_str();
+  app.add_option("--max-depth", o.maxDepth, "Octree recursion limit (1..21)")
+      ->capture_default_str();
+  app.add_option("--leaf-points", o.leafPoints, "Split cells with more points than this")
+      ->capture_default_str();
+  app.add_option("--neighbours", o.neighbours, "Neighbours for normal and radius estimation")
+      ->capture_default_str();
+  app.add_flag("--drop-non-finite", o.dropNonFinite,
+               "Drop NaN/Inf points with a warning instead of refusing");
+  app.add_option("--seed", o.seed, "Seed for mesh sampling and generation")->capture_default_str();
+  app.add_option("--threads", o.threads, "Worker threads (0: all cores)")->capture_default_str();
+  app.add_flag("-q,--quiet", o.quiet, "No progress output");
+  app.add_flag("-f,--force", o.force, "Replace an existing dataset at the output");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::CallForHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    std::fprintf(stderr, "%s: usage error: %s\nRun with --help for more information.\n", kTool,
+                 e.what());
+    return 2;
+  }
+  std::signal(SIGINT, onSignal);
+  std::signal(SIGTERM, onSignal);
+  try {
+    return run(o);
+  } catch (const Interrupted& e) {
+    std::fprintf(stderr, "\n%s: %s: %s\n", kTool, e.kind(), e.what());
+    return 130;
+  } catch (const UsageError& e) {
+    std::fprintf(stderr, "%s: %s: %s\n", kTool, e.kind(), e.what());
+    return 2;
+  } catch (const Error& e) {
+    std::fprintf(stderr, "%s: %s: %s\n", kTool, e.kind(), e.what());
+    return 1;
+  } catch (const std::bad_alloc&) {
+    std::fprintf(stderr, "%s: error: out of memory\n", kTool);
+    return 1;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "%s: error: %s\n", kTool, e.what());
+    return 1;
+  }
+}

@@ -1,0 +1,391 @@
+#include "preprocess/normals.hpp"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <nanoflann.hpp>
+#include <numeric>
+#include <queue>
+#include <thread>
+#include <vector>
+
+#include "common/errors.hpp"
+#include "preprocess/readers.hpp"
+
+namespace pointillist::preprocess {
+
+SymmetricEigen3 symmetricEigen3(const std::array<std::array<double, 3>, 3>& matrix) {
+  auto a = matrix;
+  std::array<std::array<double, 3>, 3> v{{{1, 0, 0}, {0, 1, 0}, {0, 0, 1}}};
+  double scale = 0;
+  for (const auto& row : a) {
+    for (const double x : row) scale += x * x;
+  }
+  for (int sweep = 0; sweep < 64; ++sweep) {
+    const double off = a[0][1] * a[0][1] + a[0][2] * a[0][2] + a[1][2] * a[1][2];
+    if (off <= 1e-30 * scale || off == 0) break;
+    for (std::size_t p = 0; p < 2; ++p) {
+      for (std::size_t q = p + 1; q < 3; ++q) {
+        const double apq = a[p][q];
+        if (apq == 0) continue;
+        // Rotation angle that zeroes a[p][q]; t = tan, the smaller root.
+        const double theta = (a[q][q] - a[p][p]) / (2 * apq);
+        const double t = std::abs(theta) > 1e150 ? 0.5 / theta
+                                                 : std::copysign(1.0, theta) /
+                                                       (std::abs(theta) + std::hypot(theta, 1.0));
+        const double c = 1 / std::sqrt(t * t + 1);
+        const double s = t * c;
+        for (std::size_t k = 0; k < 3; ++k) {
+          const double akp = a[k][p], akq = a[k][q];
+          a[k][p] = c * akp - s * akq;
+          a[k][q] = s * akp + c * akq;
+        }
+        for (std::size_t k = 0; k < 3; ++k) {
+          const double apk = a[p][k], aqk = a[q][k];
+          a[p][k] = c * apk - s * aqk;
+          a[q][k] = s * apk + c * aqk;
+        }
+        for (std::size_t k = 0; k < 3; ++k) {
+          const double vkp = v[k][p], vkq = v[k][q];
+          v[k][p] = c * vkp - s * vkq;
+          v[k][q] = s * vkp + c * vkq;
+        }
+      }
+    }
+  }
+  std::array<std::size_t, 3> order{0, 1, 2};
+  std::sort(order.begin(), order.end(),
+            [&](std::size_t i, std::size_t j) { return a[i][i] < a[j][j]; });
+  SymmetricEigen3 result{};
+  for (std::size_t i = 0; i < 3; ++i) {
+    result.values[i] = a[order[i]][order[i]];
+    for (std::size_t k = 0; k < 3; ++k) result.vectors[i][k] = v[k][order[i]];
+  }
+  return result;
+}
+
+namespace {
+
+struct CloudAdaptor {
+  const std::vector<Splat>& splats;
+  std::size_t kdtree_get_point_count() const { return splats.size(); }
+  float kdtree_get_pt(std::uint32_t index, std::size_t dim) const {
+    return splats[index].position[dim];
+  }
+  template <class Box>
+  bool kdtree_get_bbox(Box&) const {
+    return false;
+  }
+};
+
+using KdTree =
+    nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, CloudAdaptor>,
+                                        CloudAdaptor, 3, std::uint32_t>;
+
+bool hasNormal(const Splat& s) {
+  return s.normal[0] != 0.0f || s.normal[1] != 0.0f || s.normal[2] != 0.0f;
+}
+bool hasRadius(const Splat& s) {
+  return s.radius > 0.0f && std::isfinite(s.radius);
+}
+
+float dotNormals(const Splat& a, const Splat& b) {
+  return a.normal[0] * b.normal[0] + a.normal[1] * b.normal[1] + a.normal[2] * b.normal[2];
+}
+void flip(Splat& s) {
+  for (float& c : s.normal) c = -c;
+}
+
+// Normals across an edge closer than this to perpendicular do not pass their
+// side on: at creases and where surfaces cross (a trunk through the ground)
+// the sign would be a coin toss.
+constexpr float kReliable = 0.5f;
+
+// Consistent orientation (see normals.hpp). owner: 0 unvisited, 1 anchors and
+// what they reach, c >= 2 the c-th component grown from a seed.
+void orient(std::vector<Splat>& splats, const std::vector<std::uint8_t>& needNormal,
+            const std::vector<std::uint8_t>& anchored, bool recomputed,
+            const std::vector<std::uint32_t>& neighbours, std::size_t k,
+            const NormalOptions& options, std::uint64_t total) {
+  const std::size_t n = splats.size();
+  std::vector<std::uint32_t> owner(n, 0);
+  for (std::size_t i = 0; i < n; ++i) {
+    // Recomputed normals already took the side of their old ones.
+    if (recomputed ? anchored[i] : !needNormal[i]) owner[i] = 1;
+  }
+  struct Edge {
+    float weight;
+    std::uint32_t to;
+    std::uint32_t from;
+    bool operator>(const Edge& other) const { return weight > other.weight; }
+  };
+  std::priority_queue<Edge, std::vector<Edge>, std::greater<>> heap;
+  std::vector<float> best(n, std::numeric_limits<float>::infinity());
+  const auto offer = [&](std::uint32_t from, std::uint32_t to) {
+    const float w = 1.0f - std::abs(dotNormals(splats[from], splats[to]));
+    if (w <= 1.0f - kReliable && w < best[to]) {
+      best[to] = w;
+      heap.push({w, to, from});
+    }
+  };
+  const auto pushEdges = [&](std::uint32_t from) {
+    if (!needNormal[from]) return;  // only estimated points have neighbour lists
+    for (std::size_t j = 0; j < k; ++j) {
+      const std::uint32_t to = neighbours[from * k + j];
+      if (owner[to] == 0) offer(from, to);
+    }
+  };
+  std::uint64_t oriented = 0;
+  std::vector<std::uint32_t> members;
+  // Prim's algorithm: the most parallel edge first (Hoppe's 1 - |n_i . n_j|).
+  const auto grow = [&](std::uint32_t mark) {
+    while (!heap.empty()) {
+      const Edge e = heap.top();
+      heap.pop();
+      if (owner[e.to] != 0) continue;
+      if (dotNormals(splats[e.to], splats[e.from]) < 0.0f) flip(splats[e.to]);
+      owner[e.to] = mark;
+      members.push_back(e.to);
+      pushEdges(e.to);
+      if ((++oriented & 65535) == 0 && options.progress) {
+        options.progress(n + oriented, total);
+      }
+    }
+  };
+
+  // Anchors first: they reach out through their own lists and through the
+  // lists of points that name them (kNN lists are not symmetric).
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto u = static_cast<std::uint32_t>(i);
+    if (owner[i] == 1) {
+      pushEdges(u);
+      continue;
+    }
+    for (std::size_t j = 0; j < k; ++j) {
+      const std::uint32_t from = neighbours[i * k + j];
+      if (owner[from] == 1) offer(from, u);
+    }
+  }
+  grow(1);
+
+  double centroid[3] = {0, 0, 0};
+  for (const Splat& s : splats) {
+    for (std::size_t d = 0; d < 3; ++d) centroid[d] += static_cast<double>(s.position[d]);
+  }
+  for (double& c : centroid) c /= static_cast<double>(n);
+  const auto outwardness = [&](const double* centre) {
+    double sum = 0;
+    for (const std::uint32_t i : members) {
+      for (std::size_t d = 0; d < 3; ++d) {
+        sum += (static_cast<double>(splats[i].position[d]) - centre[d]) *
+               static_cast<double>(splats[i].normal[d]);
+      }
+    }
+    return sum;
+  };
+
+  // The rest: components over reliable edges, each grown from its highest point
+  // with arbitrary sign, then turned as a whole.
+  std::vector<std::uint32_t> order(n);
+  std::iota(order.begin(), order.end(), 0U);
+  std::sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
+    return splats[a].position[2] > splats[b].position[2] ||
+           (splats[a].position[2] == splats[b].position[2] && a < b);
+  });
+  std::uint32_t mark = 1;
+  for (const std::uint32_t seed : order) {
+    if (owner[seed] != 0) continue;
+    ++mark;
+    members.assign(1, seed);
+    owner[seed] = mark;
+    pushEdges(seed);
+    grow(mark);
+
+    // 1. Reliable edges to points oriented earlier decide, if there are any.
+    float vote = 0.0f;
+    double up = 0, flatness = 0;
+    double centre[3] = {0, 0, 0};
+    for (const std::uint32_t i : members) {
+      for (std::size_t j = 0; j < k; ++j) {
+        const std::uint32_t other = neighbours[i * k + j];
+        if (owner[other] == 0 || owner[other] == mark) continue;
+        const float d = dotNormals(splats[i], splats[other]);
+        if (std::abs(d) >= kReliable) vote += d;
+      }
+      up += static_cast<double>(splats[i].normal[2]);
+      flatness += std::abs(static_cast<double>(splats[i].normal[2]));
+      for (std::size_t d = 0; d < 3; ++d) centre[d] += static_cast<double>(splats[i].position[d]);
+    }
+    const auto size = static_cast<double>(members.size());
+    for (double& c : centre) c /= size;
+    bool turn = false;
+    if (vote != 0.0f) {
+      turn = vote < 0.0f;
+    } else if (flatness > 0.6 * size) {
+      turn = up < 0;  // 2. mostly horizontal (terrain, floors, roofs): up
+    } else {
+      // 3. away from the component's own centre (closed objects: outward),
+      // for flat pieces away from the centre of the whole cloud.
+      const double own = outwardness(centre);
+      turn = std::abs(own) > 1e-9 * size ? own < 0 : outwardness(centroid) < 0;
+    }
+    if (turn) {
+      for (const std::uint32_t i : members) flip(splats[i]);
+    }
+    oriented += 1;
+  }
+}
+
+}  // namespace
+
+void estimateNormalsAndRadii(PointCloud& cloud, const NormalOptions& options) {
+  std::vector<Splat>& splats = cloud.splats;
+  const std::size_t n = splats.size();
+  if (n == 0) return;
+  if (!cloud.hasColors) {
+    for (Splat& s : splats) {
+      if ((s.color[0] | s.color[1] | s.color[2] | s.color[3]) == 0) {
+        s.color[0] = s.color[1] = s.color[2] = kDefaultGrey;
+        s.color[3] = 255;
+      }
+    }
+  }
+  if (n >= std::numeric_limits<std::uint32_t>::max()) {
+    throw UsageError(cloud.source + ": too many points for normal estimation in one piece");
+  }
+  if (options.neighbours < 3) throw UsageError("normal estimation needs at least 3 neighbours");
+
+  std::vector<std::uint8_t> needNormal(n), needRadius(n), anchored(n);
+  bool anyNormal = false, anyRadius = false;
+  for (std::size_t i = 0; i < n; ++i) {
+    needNormal[i] = !options.onlyWhereMissing || !hasNormal(splats[i]);
+    needRadius[i] = !options.onlyWhereMissing || !hasRadius(splats[i]);
+    anchored[i] = hasNormal(splats[i]);  // a normal we trust for orientation
+    anyNormal = anyNormal || needNormal[i];
+    anyRadius = anyRadius || needRadius[i];
+  }
+  if (!anyNormal && !anyRadius) {
+    cloud.hasNormals = cloud.hasRadii = true;
+    return;
+  }
+  const std::uint64_t total = 2 * static_cast<std::uint64_t>(n);
+  if (n == 1) {
+    if (needNormal[0]) splats[0].normal[2] = 1.0f;
+    if (needRadius[0]) splats[0].radius = 1.0f;
+    cloud.hasNormals = cloud.hasRadii = true;
+    if (options.progress) options.progress(total, total);
+    return;
+  }
+
+  const std::size_t k = std::min(static_cast<std::size_t>(options.neighbours), n - 1);
+  CloudAdaptor adaptor{splats};
+  KdTree tree(3, adaptor, nanoflann::KDTreeSingleIndexAdaptorParams(16));
+
+  // Neighbour lists (without the point itself) are kept for the orientation pass.
+  std::vector<std::uint32_t> neighbours(anyNormal ? n * k : 0);
+  std::vector<Splat> old(anyNormal && !options.onlyWhereMissing ? splats : std::vector<Splat>{});
+  const float radiusFactor = std::sqrt(3.0f / static_cast<float>(k));
+  std::atomic<std::uint64_t> done{0};
+
+  const auto work = [&](std::size_t begin, std::size_t end, bool reports) {
+    std::vector<std::uint32_t> index(k + 1);
+    std::vector<float> distance(k + 1);
+    for (std::size_t i = begin; i < end; ++i) {
+      if (!needNormal[i] && !needRadius[i]) continue;
+      const std::size_t found =
+          tree.knnSearch(splats[i].position, k + 1, index.data(), distance.data());
+      // Drop the point itself (with duplicates it need not come first).
+      std::size_t self = found;
+      for (std::size_t j = 0; j < found; ++j) {
+        if (index[j] == i) self = j;
+      }
+      if (self == found) self = found - 1;
+      std::size_t m = 0;
+      for (std::size_t j = 0; j < found; ++j) {
+        if (j == self) continue;
+        index[m] = index[j];
+        distance[m] = distance[j];
+        ++m;
+      }
+      if (needRadius[i]) splats[i].radius = std::sqrt(distance[m - 1]) * radiusFactor;
+      if (needNormal[i]) {
+        double mean[3];
+        for (std::size_t d = 0; d < 3; ++d) mean[d] = static_cast<double>(splats[i].position[d]);
+        for (std::size_t j = 0; j < m; ++j) {
+          for (std::size_t d = 0; d < 3; ++d)
+            mean[d] += static_cast<double>(splats[index[j]].position[d]);
+        }
+        for (double& c : mean) c /= static_cast<double>(m + 1);
+        std::array<std::array<double, 3>, 3> cov{};
+        const auto accumulate = [&](const Splat& s) {
+          double d[3];
+          for (std::size_t c = 0; c < 3; ++c) d[c] = static_cast<double>(s.position[c]) - mean[c];
+          for (std::size_t r = 0; r < 3; ++r) {
+            for (std::size_t c = 0; c < 3; ++c) cov[r][c] += d[r] * d[c];
+          }
+        };
+        accumulate(splats[i]);
+        for (std::size_t j = 0; j < m; ++j) accumulate(splats[index[j]]);
+        const SymmetricEigen3 eigen = symmetricEigen3(cov);
+        const auto& normal =
+            eigen.values[2] > 0 ? eigen.vectors[0] : std::array<double, 3>{0, 0, 1};
+        const double length =
+            std::sqrt(normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2]);
+        for (std::size_t d = 0; d < 3; ++d) {
+          splats[i].normal[d] = static_cast<float>(normal[d] / length);
+        }
+        std::copy(index.begin(), index.begin() + static_cast<std::ptrdiff_t>(k),
+                  neighbours.begin() + static_cast<std::ptrdiff_t>(i * k));
+        if (m < k) {  // fewer neighbours than asked (tiny clouds): repeat the last
+          std::fill(neighbours.begin() + static_cast<std::ptrdiff_t>(i * k + m),
+                    neighbours.begin() + static_cast<std::ptrdiff_t>((i + 1) * k), index[m - 1]);
+        }
+        // A recomputed normal keeps the side of the one it replaces.
+        if (!old.empty() && hasNormal(old[i]) && dotNormals(splats[i], old[i]) < 0) flip(splats[i]);
+      }
+      if (((i - begin) & 1023) == 1023) {
+        const std::uint64_t now = done.fetch_add(1024) + 1024;
+        if (reports && options.progress) options.progress(now, total);
+      }
+    }
+  };
+
+  const std::size_t threads =
+      n < 20000
+          ? 1
+          : std::max<std::size_t>(1, std::min<std::size_t>(8, std::thread::hardware_concurrency()));
+  {
+    std::vector<std::jthread> pool;
+    const std::size_t chunk = (n + threads - 1) / threads;
+    for (std::size_t t = 1; t < threads; ++t) {
+      pool.emplace_back(work, std::min(n, t * chunk), std::min(n, (t + 1) * chunk), false);
+    }
+    work(0, std::min(n, chunk), true);
+  }
+  if (options.progress) options.progress(n, total);
+
+  // Points whose neighbours all coincide got radius 0: use the median of the rest.
+  if (anyRadius) {
+    std::vector<float> radii;
+    for (const Splat& s : splats) {
+      if (s.radius > 0.0f) radii.push_back(s.radius);
+    }
+    float fallback = 1.0f;
+    if (!radii.empty()) {
+      std::nth_element(radii.begin(), radii.begin() + static_cast<std::ptrdiff_t>(radii.size() / 2),
+                       radii.end());
+      fallback = radii[radii.size() / 2];
+    }
+    for (Splat& s : splats) {
+      if (!(s.radius > 0.0f)) s.radius = fallback;
+    }
+  }
+
+  if (anyNormal) orient(splats, needNormal, anchored, !old.empty(), neighbours, k, options, total);
+  cloud.hasNormals = cloud.hasRadii = true;
+  if (options.progress) options.progress(total, total);
+}
+
+}  // namespace pointillist::preprocess

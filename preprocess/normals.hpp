@@ -1,0 +1,53 @@
+#pragma once
+// Normals and splat radii from k nearest neighbours (003 §4.1: "derived from
+// sample neighborhoods").
+//
+// Per point, over its k nearest neighbours (a nanoflann kd-tree):
+//  - normal: the eigenvector of the smallest eigenvalue of the neighbourhood
+//    covariance (own Jacobi solver, no Eigen);
+//  - orientation: propagated along a minimum spanning tree of the neighbour
+//    graph, most parallel normals first (weight 1 - |n_i . n_j|, Hoppe et al.
+//    1992), but only across edges within 60 degrees: at creases and where
+//    surfaces cross (a trunk through the ground) the sign would be a coin toss.
+//    Points that already had a normal are anchors and the points they reach
+//    agree with them. Every other connected piece is grown with arbitrary
+//    sign and then turned as a whole: to agree with reliable neighbours
+//    oriented before it if any; else, when mostly horizontal (terrain, floors,
+//    roofs), to point up; else away from its own centroid (closed objects get
+//    outward normals). Known weakness: surfaces that touch face to face or
+//    interpenetrate can pass on a wrong sign.
+//  - radius: r = d_k * sqrt(3 / k), d_k the distance to the k-th neighbour.
+//    With local density rho, pi d_k^2 rho ~= k, so pi r^2 ~= 3 / rho: each disk
+//    has three times the area per point and the disks cover the surface
+//    without holes even where sampling is irregular. On a regular grid of
+//    spacing s with k = 12, r = s.
+// Points whose neighbours all coincide get the median radius of the others.
+// Colours: readers already give grey to points without colour; when the cloud
+// has no colours, splats left all zero (RGBA 0,0,0,0, never written) get that
+// grey too.
+#include <array>
+
+#include "preprocess/point_cloud.hpp"
+
+namespace pointillist::preprocess {
+
+struct NormalOptions {
+  int neighbours = 12;
+  // Only fill in what is missing: zero normals, non-positive radii. When false,
+  // every normal and radius is recomputed (new normals keep the side of old ones).
+  bool onlyWhereMissing = true;
+  ProgressFn progress;  // (points done, 2 * points): neighbour search, then orientation
+};
+
+// Afterwards hasNormals and hasRadii are true.
+void estimateNormalsAndRadii(PointCloud& cloud, const NormalOptions& options);
+
+// Eigen-decomposition of a symmetric 3x3 matrix by cyclic Jacobi rotations:
+// values ascending, vectors[i] the unit eigenvector of values[i].
+struct SymmetricEigen3 {
+  std::array<double, 3> values;
+  std::array<std::array<double, 3>, 3> vectors;
+};
+SymmetricEigen3 symmetricEigen3(const std::array<std::array<double, 3>, 3>& matrix);
+
+}  // namespace pointillist::preprocess

@@ -1,0 +1,279 @@
+#include "preprocess/octree_builder.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+#include <string>
+
+#include "common/errors.hpp"
+
+namespace pointillist::preprocess {
+
+namespace {
+
+// Spreads the low 21 bits of v so that bit k lands at bit 3k.
+std::uint64_t spreadBits(std::uint64_t v) {
+  v &= 0x1fffff;
+  v = (v | v << 32) & 0x1f00000000ffffull;
+  v = (v | v << 16) & 0x1f0000ff0000ffull;
+  v = (v | v << 8) & 0x100f00f00f00f00full;
+  v = (v | v << 4) & 0x10c30c30c30c30c3ull;
+  v = (v | v << 2) & 0x1249249249249249ull;
+  return v;
+}
+
+struct Keyed {
+  std::uint64_t code;
+  std::uint64_t index;
+};
+
+// Stable LSD radix sort on the low `bits` bits of the codes, 8 bits a pass.
+// Stable LSD radix sort on code bits [lowBit, highBit), 8 bits a pass.
+// Reports progress as a share of the points.
+void radixSort(std::vector<Keyed>& items, unsigned lowBit, unsigned highBit,
+               const ProgressFn& progress) {
+  std::vector<Keyed> tmp(items.size());
+  const unsigned passes = (highBit - lowBit + 7) / 8;
+  for (unsigned pass = 0; pass < passes; ++pass) {
+    const unsigned shift = lowBit + pass * 8;
+    const std::uint64_t mask =
+        shift + 8 <= highBit ? 0xffu : (std::uint64_t{1} << (highBit - shift)) - 1;
+    std::array<std::size_t, 257> count{};
+    for (const Keyed& k : items) ++count[((k.code >> shift) & mask) + 1];
+    if (std::any_of(count.begin() + 1, count.end(),
+                    [&](std::size_t c) { return c == items.size(); }))
+      continue;  // every key shares this digit
+    for (std::size_t d = 1; d < count.size(); ++d) count[d] += count[d - 1];
+    for (const Keyed& k : items) tmp[count[(k.code >> shift) & mask]++] = k;
+    items.swap(tmp);
+    if (progress) progress(items.size() * (pass + 1) / (passes + 1), items.size());
+  }
+}
+
+// Orders points by Morton code. Only the top 8 levels are radix sorted; a run
+// sharing that prefix is sorted further only if it holds more than a leaf's
+// worth of points (otherwise it is one leaf and its inner order is free).
+// Ties keep input order, so the result is deterministic.
+void mortonSort(std::vector<Keyed>& items, unsigned totalBits, std::uint32_t leafPoints,
+                const ProgressFn& progress) {
+  const unsigned lowBit = totalBits > 24 ? totalBits - 24 : 0;
+  radixSort(items, lowBit, totalBits, progress);
+  if (lowBit == 0) return;
+  auto less = [](const Keyed& a, const Keyed& b) {
+    return a.code < b.code || (a.code == b.code && a.index < b.index);
+  };
+  for (std::size_t b = 0; b < items.size();) {
+    const std::uint64_t prefix = items[b].code >> lowBit;
+    std::size_t e = b + 1;
+    while (e < items.size() && (items[e].code >> lowBit) == prefix) ++e;
+    if (e - b > leafPoints)
+      std::sort(items.begin() + static_cast<std::ptrdiff_t>(b),
+                items.begin() + static_cast<std::ptrdiff_t>(e), less);
+    b = e;
+  }
+}
+
+class TreeBuilder {
+ public:
+  TreeBuilder(Octree& tree, const std::vector<std::uint64_t>& codes, const OctreeOptions& o)
+      : tree_(tree), codes_(codes), options_(o) {}
+
+  std::uint32_t build(std::uint64_t begin, std::uint64_t end, unsigned depth,
+                      std::uint32_t parent) {
+    const auto index = static_cast<std::uint32_t>(tree_.cells.size());
+    {
+      BuildCell cell;
+      cell.begin = begin;
+      cell.end = end;
+      cell.parent = parent;
+      cell.depth = static_cast<std::uint8_t>(depth);
+      tree_.cells.push_back(cell);
+    }
+    tree_.treeDepth = std::max(tree_.treeDepth, depth);
+    if (end - begin <= options_.leafPoints || depth >= options_.maxDepth) {
+      computeLeafBounds(tree_.cells[index]);
+      return index;
+    }
+    const unsigned shift = 3 * (options_.maxDepth - 1 - depth);
+    const auto* first = codes_.data();
+    std::uint64_t cur = begin;
+    unsigned children = 0;
+    for (std::uint64_t octant = 0; octant < 8 && cur < end; ++octant) {
+      const auto* split = std::partition_point(
+          first + cur, first + end, [&](std::uint64_t c) { return ((c >> shift) & 7u) <= octant; });
+      const auto childEnd = static_cast<std::uint64_t>(split - first);
+      if (childEnd > cur) {
+        build(cur, childEnd, depth + 1, index);
+        ++children;
+        cur = childEnd;
+      }
+    }
+    tree_.cells[index].childCount = static_cast<std::uint8_t>(children);
+    return index;
+  }
+
+ private:
+  void computeLeafBounds(BuildCell& cell) const {
+    float lo[3], hi[3];
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::numeric_limits<float>::infinity();
+      hi[a] = -std::numeric_limits<float>::infinity();
+    }
+    for (std::uint64_t i = cell.begin; i < cell.end; ++i) {
+      const Splat& s = tree_.points[i];
+      for (int a = 0; a < 3; ++a) {
+        lo[a] = std::min(lo[a], s.position[a]);
+        hi[a] = std::max(hi[a], s.position[a]);
+      }
+    }
+    for (int a = 0; a < 3; ++a) {
+      cell.boundsMin[a] = lo[a];
+      cell.boundsMax[a] = hi[a];
+    }
+  }
+
+  Octree& tree_;
+  const std::vector<std::uint64_t>& codes_;
+  const OctreeOptions& options_;
+};
+
+}  // namespace
+
+Octree buildOctree(std::vector<Splat> points, const OctreeOptions& options,
+                   const ProgressFn& progress) {
+  if (options.maxDepth < 1 || options.maxDepth > 21)
+    throw UsageError("octree max depth must be 1..21, got " + std::to_string(options.maxDepth));
+  if (options.leafPoints < 1) throw UsageError("leaf points must be at least 1");
+  if (points.empty()) throw InputError("empty point cloud: nothing to preprocess");
+  if (points.size() >= kNoIndex)
+    throw InputError("too many points (" + std::to_string(points.size()) + "); at most " +
+                     std::to_string(kNoIndex - 1));
+
+  if (progress) progress(0, points.size());
+  Octree tree;
+  double lo[3], hi[3];
+  for (int a = 0; a < 3; ++a) {
+    lo[a] = std::numeric_limits<double>::infinity();
+    hi[a] = -std::numeric_limits<double>::infinity();
+  }
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    for (int a = 0; a < 3; ++a) {
+      const double v = points[i].position[a];
+      if (!std::isfinite(v))
+        throw InputError("point " + std::to_string(i) + " has a non-finite coordinate");
+      lo[a] = std::min(lo[a], v);
+      hi[a] = std::max(hi[a], v);
+    }
+  }
+  double size = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]});
+  // A little slack so the maximum coordinate does not sit on the cube's face.
+  size = size > 0 ? size * (1.0 + 1e-6) : 1.0;
+  for (int a = 0; a < 3; ++a) tree.cubeMin[a] = lo[a];
+  tree.cubeSize = size;
+
+  const double cellsPerAxis = std::ldexp(1.0, static_cast<int>(options.maxDepth));
+  const double maxCoord = cellsPerAxis - 1.0;
+  std::vector<Keyed> keyed(points.size());
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    std::uint64_t code = 0;
+    for (int a = 0; a < 3; ++a) {
+      const double t = (static_cast<double>(points[i].position[a]) - lo[a]) / size * cellsPerAxis;
+      const auto q = static_cast<std::uint64_t>(std::clamp(std::floor(t), 0.0, maxCoord));
+      // x is the most significant of each triple so octant = 4x + 2y + z.
+      code |= spreadBits(q) << (2 - a);
+    }
+    keyed[i] = {code, i};
+  }
+  mortonSort(keyed, 3 * options.maxDepth, options.leafPoints, progress);
+
+  tree.points.resize(points.size());
+  std::vector<std::uint64_t> codes(points.size());
+  for (std::size_t i = 0; i < keyed.size(); ++i) {
+    tree.points[i] = points[keyed[i].index];
+    codes[i] = keyed[i].code;
+  }
+  keyed = {};
+  points = {};
+
+  TreeBuilder(tree, codes, options).build(0, tree.points.size(), 0, kNoIndex);
+  if (tree.cells.size() >= kNoIndex) throw InputError("octree too large for 32-bit cell indices");
+
+  // Bottom-up: inner bounds are the union of their children's; levels.
+  auto& cells = tree.cells;
+  for (std::size_t i = cells.size(); i-- > 1;) {
+    BuildCell& c = cells[i];
+    if (c.isLeaf()) c.level = 1;
+    BuildCell& p = cells[c.parent];
+    if (p.level == 0) {  // first child seen (from the back)
+      for (int a = 0; a < 3; ++a) {
+        p.boundsMin[a] = c.boundsMin[a];
+        p.boundsMax[a] = c.boundsMax[a];
+      }
+    } else {
+      for (int a = 0; a < 3; ++a) {
+        p.boundsMin[a] = std::min(p.boundsMin[a], c.boundsMin[a]);
+        p.boundsMax[a] = std::max(p.boundsMax[a], c.boundsMax[a]);
+      }
+    }
+    p.level = static_cast<std::uint8_t>(std::max<unsigned>(p.level, c.level + 1u));
+  }
+  if (cells[0].isLeaf()) cells[0].level = 1;
+
+  // nextSibling: the first later cell that is not deeper (ends the subtree).
+  std::vector<std::uint32_t> open;
+  for (std::size_t i = 0; i < cells.size(); ++i) {
+    while (!open.empty() && cells[open.back()].depth >= cells[i].depth) {
+      cells[open.back()].nextSibling = static_cast<std::uint32_t>(i);
+      open.pop_back();
+    }
+    open.push_back(static_cast<std::uint32_t>(i));
+  }
+  return tree;
+}
+
+std::size_t countTopLevelCells(const Octree& tree, unsigned depth) {
+  std::size_t n = 0;
+  for (const BuildCell& c : tree.cells)
+    if (c.depth == depth || (c.isLeaf() && c.depth < depth)) ++n;
+  return n;
+}
+
+unsigned chooseTopLevelDepth(const Octree& tree, std::uint64_t targetPacketBytes) {
+  const unsigned minDepth = std::min(3u, tree.treeDepth);
+  // Histogram once: cells at each depth and leaves at each depth.
+  std::vector<std::size_t> atDepth(tree.treeDepth + 1, 0), leavesAt(tree.treeDepth + 1, 0);
+  for (const BuildCell& c : tree.cells) {
+    ++atDepth[c.depth];
+    if (c.isLeaf()) ++leavesAt[c.depth];
+  }
+  const double packetBytes = static_cast<double>(tree.points.size()) * sizeof(Splat) * (4.0 / 3.0);
+  std::size_t leavesAbove = 0;
+  for (unsigned d = 0; d <= tree.treeDepth; ++d) {
+    const std::size_t count = atDepth[d] + leavesAbove;
+    leavesAbove += leavesAt[d];
+    if (d < minDepth) continue;
+    if (packetBytes / static_cast<double>(count) <= static_cast<double>(targetPacketBytes))
+      return d;
+  }
+  return tree.treeDepth;
+}
+
+void assignTopLevelCells(Octree& tree, unsigned depth) {
+  depth = std::min(depth, tree.treeDepth);
+  tree.topLevelDepth = depth;
+  tree.topLevelCells.clear();
+  for (std::size_t i = 0; i < tree.cells.size(); ++i) {
+    BuildCell& c = tree.cells[i];
+    if (c.depth > depth) {
+      c.topLevel = tree.cells[c.parent].topLevel;
+    } else if (c.depth == depth || c.isLeaf()) {
+      c.topLevel = static_cast<std::uint32_t>(tree.topLevelCells.size());
+      tree.topLevelCells.push_back(static_cast<std::uint32_t>(i));
+    } else {
+      c.topLevel = kNoIndex;
+    }
+  }
+}
+
+}  // namespace pointillist::preprocess

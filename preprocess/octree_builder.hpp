@@ -1,0 +1,77 @@
+#pragma once
+// Seed 003 §4.1.1, step one: an axis-aligned octree over the points'
+// bounding cube, with the point-array sorted so that every cell (leaf or not)
+// owns one contiguous range of it, and the cells listed depth-first.
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include "common/octree_cell.hpp"
+#include "common/splat.hpp"
+#include "preprocess/point_cloud.hpp"
+
+namespace pointillist::preprocess {
+
+struct OctreeOptions {
+  // Recursion limit. Also the resolution of the Morton sort (3 bits a level,
+  // so at most 21). 16 levels resolve 1/65536 of the bounding cube, finer than
+  // any scan we expect; deeper subdivision only adds cells.
+  unsigned maxDepth = 16;
+  // A cell with more points than this is split (unless at maxDepth). 128 keeps
+  // the cell array at roughly 1/40 of the points (traverse memory) while leaves
+  // stay small enough for fine culling and level of detail.
+  std::uint32_t leafPoints = 128;
+};
+
+// One cell while preprocessing, in depth-first (pre-order) position.
+struct BuildCell {
+  std::uint64_t begin = 0;  // subtree points: Octree::points[begin, end)
+  std::uint64_t end = 0;
+  std::uint32_t parent = kNoIndex;
+  std::uint32_t nextSibling = kNoIndex;  // next sibling, else nearest ancestor's, else kNoIndex
+  std::uint32_t topLevel = kNoIndex;     // set by assignTopLevelCells
+  std::uint8_t depth = 0;
+  std::uint8_t childCount = 0;
+  std::uint8_t level = 0;          // leaves 1, others 1 + max(children)
+  float boundsMin[3] = {0, 0, 0};  // tight bounds of the subtree's point centres
+  float boundsMax[3] = {0, 0, 0};
+
+  bool isLeaf() const { return childCount == 0; }
+};
+
+struct Octree {
+  std::vector<Splat> points;      // sorted by cell (Morton order)
+  std::vector<BuildCell> cells;   // depth-first; cells[0] is the root
+  unsigned treeDepth = 0;         // deepest cell
+  double cubeMin[3] = {0, 0, 0};  // the subdivided bounding cube
+  double cubeSize = 0;
+  // After assignTopLevelCells: the top-level cells' indices, depth-first.
+  unsigned topLevelDepth = 0;
+  std::vector<std::uint32_t> topLevelCells;
+};
+
+// Sorts `points` along a Morton curve at maxDepth resolution and builds the
+// tree. Throws InputError for an empty or non-finite cloud, UsageError for
+// options out of range. Deterministic: equal input gives an equal tree.
+Octree buildOctree(std::vector<Splat> points, const OctreeOptions& options,
+                   const ProgressFn& progress = {});
+
+// How many top-level cells a top-level depth gives: the cells at that depth
+// plus the leaves above it (a branch that ends early is its own top-level cell).
+std::size_t countTopLevelCells(const Octree& tree, unsigned depth);
+
+// Default top-level depth: the smallest depth (at least 3, the paper's lower
+// end, where the tree is that deep) at which the average packet -- points plus
+// about a third more in level-splats -- fits in targetPacketBytes. With the
+// 256 KiB default this gives depth 3 for ~0.3M and 5 for ~10M surface points,
+// the paper's range.
+inline constexpr std::uint64_t kDefaultPacketBytes = 256 * 1024;
+unsigned chooseTopLevelDepth(const Octree& tree,
+                             std::uint64_t targetPacketBytes = kDefaultPacketBytes);
+
+// Marks the top-level cells for `depth` (clamped to the tree depth): every
+// cell at that depth and every leaf above it; cells beneath inherit the index,
+// cells above get kNoIndex.
+void assignTopLevelCells(Octree& tree, unsigned depth);
+
+}  // namespace pointillist::preprocess

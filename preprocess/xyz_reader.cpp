@@ -1,0 +1,215 @@
+#include "preprocess/xyz_reader.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+#include <vector>
+
+#include "preprocess/readers.hpp"
+
+namespace pointillist::preprocess {
+namespace {
+
+using detail::failAtLine;
+
+// Lines looked at before the 6- and 9-column layouts are decided.
+constexpr std::size_t kSniffLines = 256;
+
+enum class Triple { Normal, Color };
+
+struct Layout {
+  std::size_t columns = 3;
+  int normalAt = -1;        // first column of nx ny nz, or -1
+  int colorAt = -1;         // first column of r g b, or -1
+  bool unitColors = false;  // colours stored as 0..1 floats
+};
+
+struct Row {
+  std::uint64_t line;
+  std::vector<double> values;
+};
+
+bool looksLikeNormal(const double* v) {
+  const double length = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+  return std::abs(length - 1.0) < 0.05 || length == 0.0;
+}
+
+bool looksLikeColor(const double* v) {
+  return std::all_of(v, v + 3, [](double c) { return c >= 0.0 && c <= 255.0; });
+}
+
+class XyzParser {
+ public:
+  XyzParser(const std::filesystem::path& file, const ReadOptions& options)
+      : file_(file), reader_(file), builder_(file, options) {}
+
+  PointCloud run() {
+    std::vector<Row> sniffed;
+    Row row;
+    while (sniffed.size() < kSniffLines && nextRow(row)) sniffed.push_back(row);
+    // Size the array from the bytes per line seen so far.
+    const std::uint64_t perLine =
+        std::max<std::uint64_t>(1, reader_.offset() / (sniffed.size() + 1));
+    builder_.reserve(reader_.size() / perLine + 16, reader_.size() / 6 + 16);
+    if (sniffed.empty()) {
+      if (countLine_ > 0) {
+        failAtLine(file_, countLine_,
+                   "PTS header announces " + std::to_string(expectedCount_) +
+                       " points but the file has none");
+      }
+      detail::failFile(file_, "contains no points");
+    }
+    decideLayout(sniffed);
+    for (const Row& r : sniffed) addRow(r);
+    while (nextRow(row)) addRow(row);
+    if (countLine_ > 0 && rows_ != expectedCount_) {
+      failAtLine(file_, reader_.lineNumber(),
+                 "PTS header (line " + std::to_string(countLine_) + ") announces " +
+                     std::to_string(expectedCount_) + " points but the file has " +
+                     std::to_string(rows_));
+    }
+    builder_.progress(reader_.size(), reader_.size());
+    return builder_.finish(layout_.normalAt >= 0, layout_.colorAt >= 0, false);
+  }
+
+ private:
+  // Next data line as numbers; false at end of file.
+  bool nextRow(Row& row) {
+    std::string_view line;
+    for (;;) {
+      if (!reader_.readLine(line)) return false;
+      const std::size_t hash = line.find('#');
+      if (hash != std::string_view::npos) line = line.substr(0, hash);
+      detail::splitFields(line, fields_);
+      if (fields_.empty()) continue;
+      const std::uint64_t at = reader_.lineNumber();
+      if (columns_ == 0 && fields_.size() == 1 && countLine_ == 0) {
+        // A PTS point count before the first point.
+        if (!detail::parseUnsigned(fields_[0], expectedCount_)) {
+          failAtLine(file_, at,
+                     "expected a point count or x y z, got '" + std::string(fields_[0]) + "'");
+        }
+        countLine_ = at;
+        continue;
+      }
+      if (columns_ == 0) {
+        columns_ = fields_.size();
+        firstLine_ = at;
+        if (columns_ != 3 && columns_ != 4 && columns_ != 6 && columns_ != 7 && columns_ != 9) {
+          failAtLine(file_, at,
+                     std::to_string(columns_) +
+                         " values per line; expected 3 (x y z), 4 (x y z i), 6 (x y z nx ny nz "
+                         "or x y z r g b), 7 (x y z i r g b) or 9");
+        }
+      } else if (fields_.size() != columns_) {
+        failAtLine(file_, at,
+                   std::to_string(fields_.size()) + " values, but line " +
+                       std::to_string(firstLine_) + " has " + std::to_string(columns_) +
+                       " (the layout is fixed by the first line)");
+      }
+      row.line = at;
+      row.values.resize(columns_);
+      for (std::size_t i = 0; i < columns_; ++i) {
+        if (!detail::parseDouble(fields_[i], row.values[i])) {
+          failAtLine(file_, at, "not a number: '" + std::string(fields_[i]) + "'");
+        }
+      }
+      return true;
+    }
+  }
+
+  // Which of the 3-value groups at `at` are normals or colours, over all sniffed rows.
+  bool allRows(const std::vector<Row>& rows, std::size_t at, Triple kind) const {
+    return std::all_of(rows.begin(), rows.end(), [&](const Row& r) {
+      return kind == Triple::Normal ? looksLikeNormal(&r.values[at])
+                                    : looksLikeColor(&r.values[at]);
+    });
+  }
+
+  void decideLayout(const std::vector<Row>& rows) {
+    layout_.columns = columns_;
+    const auto fail = [&] {
+      failAtLine(file_, rows.front().line,
+                 "cannot tell normals from colours in the " + std::to_string(columns_) +
+                     "-column layout (normals must be unit vectors, colours 0..255 or 0..1)");
+    };
+    switch (columns_) {
+      case 6:
+        if (allRows(rows, 3, Triple::Normal)) {
+          layout_.normalAt = 3;
+        } else if (allRows(rows, 3, Triple::Color)) {
+          layout_.colorAt = 3;
+        } else {
+          fail();
+        }
+        break;
+      case 7:
+        layout_.colorAt = 4;
+        break;
+      case 9:
+        if (allRows(rows, 3, Triple::Normal) && allRows(rows, 6, Triple::Color)) {
+          layout_.normalAt = 3;
+          layout_.colorAt = 6;
+        } else if (allRows(rows, 3, Triple::Color) && allRows(rows, 6, Triple::Normal)) {
+          layout_.colorAt = 3;
+          layout_.normalAt = 6;
+        } else {
+          fail();
+        }
+        break;
+      default:
+        break;
+    }
+    if (layout_.colorAt >= 0) {
+      // 0..1 colours: all values within [0,1] and at least one fraction.
+      const auto at = static_cast<std::size_t>(layout_.colorAt);
+      bool withinUnit = true;
+      bool fractional = false;
+      for (const Row& r : rows) {
+        for (std::size_t k = at; k < at + 3; ++k) {
+          withinUnit = withinUnit && r.values[k] <= 1.0;
+          fractional = fractional || r.values[k] != std::floor(r.values[k]);
+        }
+      }
+      layout_.unitColors = withinUnit && fractional;
+    }
+  }
+
+  void addRow(const Row& r) {
+    Splat s = detail::greySplat();
+    for (std::size_t k = 0; k < 3; ++k) s.position[k] = static_cast<float>(r.values[k]);
+    if (layout_.normalAt >= 0) {
+      const auto at = static_cast<std::size_t>(layout_.normalAt);
+      for (std::size_t k = 0; k < 3; ++k) s.normal[k] = static_cast<float>(r.values[at + k]);
+    }
+    if (layout_.colorAt >= 0) {
+      const auto at = static_cast<std::size_t>(layout_.colorAt);
+      for (std::size_t k = 0; k < 3; ++k) {
+        const double c = r.values[at + k];
+        s.color[k] = layout_.unitColors ? detail::colorFromUnit(c) : detail::colorFromByte(c);
+      }
+    }
+    builder_.add(s, r.line, 0);
+    if ((++rows_ & 4095) == 0) builder_.progress(reader_.offset(), reader_.size());
+  }
+
+  const std::filesystem::path& file_;
+  detail::FileReader reader_;
+  detail::CloudBuilder builder_;
+  std::vector<std::string_view> fields_;
+  std::size_t columns_ = 0;
+  std::uint64_t firstLine_ = 0;
+  std::uint64_t countLine_ = 0;
+  std::uint64_t expectedCount_ = 0;
+  std::uint64_t rows_ = 0;
+  Layout layout_;
+};
+
+}  // namespace
+
+PointCloud readXyz(const std::filesystem::path& file, const ReadOptions& options) {
+  XyzParser parser(file, options);
+  return parser.run();
+}
+
+}  // namespace pointillist::preprocess

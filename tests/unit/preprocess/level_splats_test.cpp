@@ -1,0 +1,259 @@
+// Level-splats (seed 003 §4.1.2) and the covariance tools under them.
+#include "preprocess/level_splats.hpp"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+#include <set>
+#include <vector>
+
+#include "common/geometry.hpp"
+#include "preprocess/octree_builder.hpp"
+
+namespace pointillist::preprocess {
+namespace {
+
+double distance(const Splat& a, const Splat& b) {
+  double s = 0.0;
+  for (int k = 0; k < 3; ++k) {
+    const double d = static_cast<double>(a.position[k]) - static_cast<double>(b.position[k]);
+    s += d * d;
+  }
+  return std::sqrt(s);
+}
+
+// A wavy patch z = 0.05 sin(3x) over [0,1]^2 with normals close to +z.
+std::vector<Splat> patch(std::size_t n, std::uint32_t seed, float z0 = 0.0f) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  std::vector<Splat> out(n);
+  for (auto& s : out) {
+    s = Splat{};
+    s.position[0] = u(rng);
+    s.position[1] = u(rng);
+    s.position[2] = z0 + 0.05f * std::sin(3.0f * s.position[0]);
+    const float slope = 0.15f * std::cos(3.0f * s.position[0]);
+    const float len = std::sqrt(1.0f + slope * slope);
+    s.normal[0] = -slope / len;
+    s.normal[2] = 1.0f / len;
+    s.radius = 0.5f / std::sqrt(static_cast<float>(n));
+    s.color[0] = 100;
+    s.color[1] = 150;
+    s.color[2] = 200;
+    s.color[3] = 255;
+  }
+  return out;
+}
+
+TEST(Eigen3, DecomposesRotatedDiagonalMatrices) {
+  std::mt19937 rng(4);
+  std::normal_distribution<double> g(0.0, 1.0);
+  for (int trial = 0; trial < 200; ++trial) {
+    // Random orthonormal basis by Gram-Schmidt, random (sometimes repeated) eigenvalues.
+    Vec3d a = {g(rng), g(rng), g(rng)}, b = {g(rng), g(rng), g(rng)};
+    a = normalized(a);
+    b = normalized(sub(b, scale(a, dot(a, b))));
+    const Vec3d c = {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                     a[0] * b[1] - a[1] * b[0]};
+    double l[3] = {std::abs(g(rng)), std::abs(g(rng)), trial % 3 == 0 ? 0.0 : std::abs(g(rng))};
+    if (trial % 5 == 0) l[1] = l[0];
+    const Vec3d* v[3] = {&a, &b, &c};
+    Sym3 m{};
+    const int idx[6][2] = {{0, 0}, {0, 1}, {0, 2}, {1, 1}, {1, 2}, {2, 2}};
+    for (int e = 0; e < 6; ++e)
+      for (int k = 0; k < 3; ++k)
+        m[static_cast<std::size_t>(e)] += l[k] * (*v[k])[static_cast<std::size_t>(idx[e][0])] *
+                                          (*v[k])[static_cast<std::size_t>(idx[e][1])];
+    const Eigen3 r = eigenSymmetric3(m);
+    std::vector<double> expected(l, l + 3);
+    std::sort(expected.begin(), expected.end());
+    for (std::size_t k = 0; k < 3; ++k) {
+      EXPECT_NEAR(r.values[k], expected[k], 1e-9);
+      EXPECT_NEAR(length(r.vectors[k]), 1.0, 1e-12);
+      // A v = lambda v
+      const Vec3d& x = r.vectors[k];
+      const Vec3d ax = {m[0] * x[0] + m[1] * x[1] + m[2] * x[2],
+                        m[1] * x[0] + m[3] * x[1] + m[4] * x[2],
+                        m[2] * x[0] + m[4] * x[1] + m[5] * x[2]};
+      EXPECT_NEAR(length(sub(ax, scale(x, r.values[k]))), 0.0, 1e-9);
+    }
+    EXPECT_NEAR(dot(r.vectors[0], r.vectors[1]), 0.0, 1e-9);
+    EXPECT_NEAR(dot(r.vectors[1], r.vectors[2]), 0.0, 1e-9);
+    // The closed form agrees (its values lose digits near repeated roots, and
+    // the vector is only defined for a simple smallest value).
+    const SmallestEigen3 f = smallestEigen3(m);
+    for (std::size_t k = 0; k < 3; ++k) EXPECT_NEAR(f.values[k], expected[k], 1e-6);
+    if (expected[1] - expected[0] > 1e-3) {
+      EXPECT_NEAR(std::abs(dot(f.vector, r.vectors[0])), 1.0, 1e-9);
+    }
+    EXPECT_NEAR(length(f.vector), 1.0, 1e-12);
+  }
+  const Eigen3 zero = eigenSymmetric3(Sym3{});
+  EXPECT_EQ(zero.values[2], 0.0);
+  EXPECT_NEAR(length(zero.vectors[0]), 1.0, 1e-12);
+}
+
+TEST(Covariance, MeanAndCovarianceFarFromTheOrigin) {
+  CovarianceAccumulator acc;
+  for (double x : {1e6 + 1.0, 1e6 - 1.0}) acc.add({x, 5.0, -3.0});
+  EXPECT_DOUBLE_EQ(acc.mean()[0], 1e6);
+  EXPECT_DOUBLE_EQ(acc.covariance()[0], 1.0);
+  EXPECT_DOUBLE_EQ(acc.covariance()[3], 0.0);
+}
+
+TEST(LevelSplats, TargetIsAQuarterWithinLimits) {
+  LevelSplatOptions o;
+  EXPECT_EQ(levelSplatTarget(0, o), 0u);
+  EXPECT_EQ(levelSplatTarget(1, o), 1u);
+  EXPECT_EQ(levelSplatTarget(4, o), 1u);
+  EXPECT_EQ(levelSplatTarget(5, o), 2u);
+  EXPECT_EQ(levelSplatTarget(128, o), 32u);
+  EXPECT_EQ(levelSplatTarget(100000, o), 256u);
+}
+
+TEST(LevelSplats, EveryReplacedCentreLiesWithinItsLevelSplat) {
+  const LevelSplatOptions o;
+  for (std::uint32_t seed = 1; seed <= 10; ++seed) {
+    const auto in = patch(100 + 37 * seed, seed);
+    const std::size_t target = levelSplatTarget(in.size(), o);
+    const Clustering c = clusterSplats(in, target, o);
+    ASSERT_GE(c.splats.size(), 1u);
+    ASSERT_LE(c.splats.size(), target);
+    EXPECT_GE(c.splats.size() * 10, target * 9) << "refinement should not collapse clusters";
+    ASSERT_EQ(c.assignment.size(), in.size());
+    std::vector<int> used(c.splats.size(), 0);
+    for (std::size_t i = 0; i < in.size(); ++i) {
+      ASSERT_LT(c.assignment[i], c.splats.size());
+      const Splat& out = c.splats[c.assignment[i]];
+      ++used[c.assignment[i]];
+      EXPECT_LE(distance(in[i], out), static_cast<double>(out.radius))
+          << "seed " << seed << " input " << i;
+      // Default share 1: the replaced splat's whole sphere is inside (no holes).
+      EXPECT_LE(distance(in[i], out) + static_cast<double>(in[i].radius),
+                static_cast<double>(out.radius));
+      EXPECT_GE(out.radius, in[i].radius);
+    }
+    EXPECT_TRUE(std::all_of(used.begin(), used.end(), [](int n) { return n > 0; }));
+    for (const Splat& s : c.splats) {
+      // Flat-ish patch: normals near +z and oriented like the inputs; colour kept.
+      EXPECT_GT(s.normal[2], 0.9f) << "seed " << seed;
+      EXPECT_NEAR(std::sqrt(s.normal[0] * s.normal[0] + s.normal[1] * s.normal[1] +
+                            s.normal[2] * s.normal[2]),
+                  1.0f, 1e-5f);
+      EXPECT_EQ(s.color[1], 150);
+    }
+  }
+}
+
+TEST(LevelSplats, CentroidAndColourAverage) {
+  std::vector<Splat> in(2);
+  for (int i = 0; i < 2; ++i) {
+    in[static_cast<std::size_t>(i)] = Splat{};
+    in[static_cast<std::size_t>(i)].position[0] = static_cast<float>(i * 2);
+    in[static_cast<std::size_t>(i)].normal[1] = 1.0f;
+    in[static_cast<std::size_t>(i)].radius = 0.5f;
+    in[static_cast<std::size_t>(i)].color[0] = static_cast<std::uint8_t>(i * 100);
+  }
+  const Clustering c = clusterSplats(in, 1, LevelSplatOptions{});
+  ASSERT_EQ(c.splats.size(), 1u);
+  EXPECT_FLOAT_EQ(c.splats[0].position[0], 1.0f);
+  EXPECT_EQ(c.splats[0].color[0], 50);
+  EXPECT_FLOAT_EQ(c.splats[0].normal[1], 1.0f);  // too few inputs for a plane: mean normal
+  EXPECT_FLOAT_EQ(c.splats[0].radius, 1.5f);     // distance 1 + the input's radius 0.5
+}
+
+TEST(LevelSplats, IdenticalInputsGiveOneSplat) {
+  std::vector<Splat> in(50, patch(1, 1)[0]);
+  const Clustering c = clusterSplats(in, 12, LevelSplatOptions{});
+  ASSERT_EQ(c.splats.size(), 1u);
+  EXPECT_EQ(c.splats[0].radius, in[0].radius);
+}
+
+TEST(LevelSplats, UnknownNormalsStayUnknown) {
+  auto in = patch(64, 2);
+  for (auto& s : in) s.normal[0] = s.normal[1] = s.normal[2] = 0.0f;
+  for (const Splat& s : clusterSplats(in, 16, LevelSplatOptions{}).splats)
+    EXPECT_EQ(s.normal[0] * s.normal[0] + s.normal[1] * s.normal[1] + s.normal[2] * s.normal[2],
+              0.0f);
+}
+
+TEST(LevelSplats, ClustersDoNotMixCloseParallelSheets) {
+  // Two sheets 0.1 apart, each with ~0.035 point spacing: the Mahalanobis
+  // assignment keeps clusters on one sheet.
+  auto a = patch(800, 5, 0.0f);
+  const auto b = patch(800, 6, 0.1f);
+  for (auto& s : a) s.position[2] = 0.0f;
+  std::vector<Splat> in = a;
+  for (auto s : b) {
+    s.position[2] = 0.1f;
+    in.push_back(s);
+  }
+  const Clustering c = clusterSplats(in, 400, LevelSplatOptions{});
+  std::vector<std::set<int>> sheets(c.splats.size());
+  for (std::size_t i = 0; i < in.size(); ++i) sheets[c.assignment[i]].insert(i < a.size() ? 0 : 1);
+  std::size_t mixed = 0;
+  for (const auto& s : sheets) mixed += s.size() > 1 ? 1u : 0u;
+  EXPECT_EQ(mixed, 0u);
+}
+
+TEST(LevelSplats, EveryCellCoversItsLevelBelow) {
+  std::vector<Splat> pts;
+  for (std::uint32_t s = 0; s < 4; ++s) {
+    auto p = patch(1500, 10 + s, 0.3f * static_cast<float>(s));
+    pts.insert(pts.end(), p.begin(), p.end());
+  }
+  OctreeOptions oo;
+  oo.maxDepth = 8;
+  oo.leafPoints = 24;
+  Octree tree = buildOctree(pts, oo);
+  assignTopLevelCells(tree, 2);
+  const LevelSplatOptions o;
+  const LevelSplats ls = buildLevelSplats(tree, o, {}, 2);
+  const auto& cells = tree.cells;
+  std::size_t leafSplats = 0, points = 0;
+  for (std::uint32_t i = 0; i < cells.size(); ++i) {
+    const BuildCell& c = cells[i];
+    if (c.topLevel == kNoIndex) {
+      EXPECT_EQ(ls.cellCount[i], 0u);
+      continue;
+    }
+    std::vector<Splat> inputs;
+    if (c.isLeaf()) {
+      inputs.assign(tree.points.begin() + static_cast<std::ptrdiff_t>(c.begin),
+                    tree.points.begin() + static_cast<std::ptrdiff_t>(c.end));
+      leafSplats += ls.cellCount[i];
+      points += inputs.size();
+    } else {
+      for (std::uint32_t j = i + 1; j < cells.size() && cells[j].parent == i;) {
+        inputs.insert(
+            inputs.end(), ls.splats.begin() + static_cast<std::ptrdiff_t>(ls.cellBegin[j]),
+            ls.splats.begin() + static_cast<std::ptrdiff_t>(ls.cellBegin[j] + ls.cellCount[j]));
+        if (cells[j].nextSibling == kNoIndex) break;
+        j = cells[j].nextSibling;
+      }
+    }
+    const std::size_t n = ls.cellCount[i];
+    ASSERT_GE(n, 1u);
+    ASSERT_LE(n, levelSplatTarget(inputs.size(), o));
+    const Splat* own = ls.splats.data() + ls.cellBegin[i];
+    for (const Splat& in : inputs) {
+      bool covered = false;
+      for (std::size_t k = 0; k < n && !covered; ++k)
+        covered = distance(in, own[k]) <= static_cast<double>(own[k].radius);
+      ASSERT_TRUE(covered) << "cell " << i;
+    }
+  }
+  // Level 1 is about a quarter of the points (ceil per leaf adds a little).
+  EXPECT_GE(leafSplats * 4, points);
+  EXPECT_LE(leafSplats * 3, points);
+  // Subtree level-splats are contiguous and start with the cell's own.
+  for (std::uint32_t i = 0; i + 1 < cells.size(); ++i)
+    if (cells[i].topLevel != kNoIndex && !cells[i].isLeaf()) {
+      EXPECT_EQ(ls.cellBegin[i + 1], ls.cellBegin[i] + ls.cellCount[i]);
+    }
+}
+
+}  // namespace
+}  // namespace pointillist::preprocess

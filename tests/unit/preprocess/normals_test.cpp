@@ -1,0 +1,269 @@
+// Normals and radii from k nearest neighbours: the eigen solver, outward
+// orientation on closed shapes, upward on open ones, radii from spacing.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <numbers>
+#include <vector>
+
+#include "common/errors.hpp"
+#include "preprocess/generator.hpp"
+#include "preprocess/mesh_sampler.hpp"
+#include "preprocess/normals.hpp"
+#include "preprocess/readers.hpp"
+
+using pointillist::Splat;
+using namespace pointillist::preprocess;
+
+namespace {
+
+using Matrix = std::array<std::array<double, 3>, 3>;
+
+void expectEigenPairs(const Matrix& m, const SymmetricEigen3& e) {
+  EXPECT_LE(e.values[0], e.values[1]);
+  EXPECT_LE(e.values[1], e.values[2]);
+  double scale = 1e-300;
+  for (const auto& row : m) {
+    for (const double x : row) scale = std::max(scale, std::abs(x));
+  }
+  for (std::size_t i = 0; i < 3; ++i) {
+    const auto& v = e.vectors[i];
+    for (std::size_t r = 0; r < 3; ++r) {
+      const double mv = m[r][0] * v[0] + m[r][1] * v[1] + m[r][2] * v[2];
+      EXPECT_NEAR(mv, e.values[i] * v[r], 1e-10 * scale) << "pair " << i;
+    }
+    for (std::size_t j = 0; j < 3; ++j) {
+      const auto& w = e.vectors[j];
+      EXPECT_NEAR(v[0] * w[0] + v[1] * w[1] + v[2] * w[2], i == j ? 1.0 : 0.0, 1e-12);
+    }
+  }
+}
+
+// Cloud with zero normals and radii (what a plain XYZ file gives).
+PointCloud stripped(PointCloud cloud) {
+  for (Splat& s : cloud.splats) {
+    s.normal[0] = s.normal[1] = s.normal[2] = 0.0f;
+    s.radius = 0.0f;
+  }
+  cloud.hasNormals = cloud.hasRadii = false;
+  return cloud;
+}
+
+double angleDegrees(const Splat& s, const std::array<double, 3>& direction) {
+  const double len = std::sqrt(direction[0] * direction[0] + direction[1] * direction[1] +
+                               direction[2] * direction[2]);
+  double c = 0;
+  for (std::size_t k = 0; k < 3; ++k) c += static_cast<double>(s.normal[k]) * direction[k] / len;
+  return std::acos(std::clamp(c, -1.0, 1.0)) * 180.0 / std::numbers::pi;
+}
+
+}  // namespace
+
+TEST(SymmetricEigen3, DiagonalRepeatedAndRandom) {
+  expectEigenPairs({{{3, 0, 0}, {0, 1, 0}, {0, 0, 2}}},
+                   symmetricEigen3({{{3, 0, 0}, {0, 1, 0}, {0, 0, 2}}}));
+  const auto diag = symmetricEigen3({{{3, 0, 0}, {0, 1, 0}, {0, 0, 2}}});
+  EXPECT_DOUBLE_EQ(diag.values[0], 1);
+  EXPECT_DOUBLE_EQ(std::abs(diag.vectors[0][1]), 1);
+  const Matrix repeated{{{2, 1, 1}, {1, 2, 1}, {1, 1, 2}}};  // eigenvalues 1, 1, 4
+  const auto e = symmetricEigen3(repeated);
+  expectEigenPairs(repeated, e);
+  EXPECT_NEAR(e.values[0], 1, 1e-12);
+  EXPECT_NEAR(e.values[2], 4, 1e-12);
+  expectEigenPairs(Matrix{}, symmetricEigen3(Matrix{}));
+  Rng rng(5);
+  for (int t = 0; t < 200; ++t) {
+    Matrix m{};
+    const double scale = std::pow(10.0, rng.uniform(-8, 8));
+    for (std::size_t r = 0; r < 3; ++r) {
+      for (std::size_t c = r; c < 3; ++c) m[r][c] = m[c][r] = scale * rng.uniform(-1, 1);
+    }
+    expectEigenPairs(m, symmetricEigen3(m));
+  }
+  // A nearly flat covariance: the normal is the thin direction.
+  const auto flat = symmetricEigen3({{{4, 0.001, 0}, {0.001, 3, 0.002}, {0, 0.002, 1e-6}}});
+  EXPECT_GT(std::abs(flat.vectors[0][2]), 0.9999);
+}
+
+TEST(Normals, SphereNormalsPointOutward) {
+  // An offset sphere, so "outward" is not just "away from the origin".
+  PointCloud cloud = stripped(generateScene("sphere", 20000, 3));
+  for (Splat& s : cloud.splats) {
+    s.position[0] = s.position[0] * 5.0f + 100.0f;
+    s.position[1] = s.position[1] * 5.0f - 40.0f;
+    s.position[2] = s.position[2] * 5.0f + 7.0f;
+  }
+  std::uint64_t lastDone = 0, lastTotal = 0;
+  NormalOptions options;
+  options.progress = [&](std::uint64_t done, std::uint64_t total) {
+    lastDone = done;
+    lastTotal = total;
+  };
+  estimateNormalsAndRadii(cloud, options);
+  EXPECT_TRUE(cloud.hasNormals);
+  EXPECT_TRUE(cloud.hasRadii);
+  EXPECT_EQ(lastDone, lastTotal);
+  EXPECT_EQ(lastTotal, 40000u);
+  std::vector<double> angles;
+  for (const Splat& s : cloud.splats) {
+    const double a = angleDegrees(
+        s, {static_cast<double>(s.position[0]) - 100.0, static_cast<double>(s.position[1]) + 40.0,
+            static_cast<double>(s.position[2]) - 7.0});
+    ASSERT_LT(a, 90.0) << "inward normal";
+    angles.push_back(a);
+  }
+  std::sort(angles.begin(), angles.end());
+  EXPECT_LT(angles[angles.size() * 99 / 100], 5.0);
+  EXPECT_LT(angles.back(), 15.0);
+  // Radii: about sqrt(3 * area / (pi * n)) for this uniform sampling.
+  const double expected = std::sqrt(3 * 4 * std::numbers::pi * 25 / (std::numbers::pi * 20000));
+  double mean = 0;
+  for (const Splat& s : cloud.splats) mean += static_cast<double>(s.radius);
+  mean /= 20000;
+  EXPECT_NEAR(mean, expected, 0.2 * expected);
+}
+
+TEST(Normals, TwoSeparateClosedShapesBothOutward) {
+  PointCloud a = stripped(generateScene("torus", 15000, 1));
+  PointCloud b = stripped(generateScene("sphere", 6000, 2));
+  for (Splat& s : b.splats) s.position[0] += 4.0f;
+  a.splats.insert(a.splats.end(), b.splats.begin(), b.splats.end());
+  estimateNormalsAndRadii(a, {});
+  std::size_t bad = 0;
+  for (std::size_t i = 0; i < a.splats.size(); ++i) {
+    const Splat& s = a.splats[i];
+    std::array<double, 3> outward{};
+    if (i < 15000) {  // torus: away from the ring's centre line
+      const double x = s.position[0], y = s.position[1], r = std::hypot(x, y);
+      outward = {x - x / r, y - y / r, s.position[2]};
+    } else {
+      outward = {static_cast<double>(s.position[0]) - 4.0, s.position[1], s.position[2]};
+    }
+    bad += angleDegrees(s, outward) > 20.0 ? 1u : 0u;
+  }
+  EXPECT_LT(bad, a.splats.size() / 100);
+}
+
+TEST(Normals, GridPlaneRadiusEqualsSpacingAndNormalsUp) {
+  PointCloud cloud;
+  const float spacing = 0.5f;
+  for (int i = 0; i < 60; ++i) {
+    for (int j = 0; j < 60; ++j) {
+      Splat s{};
+      s.position[0] = static_cast<float>(i) * spacing;
+      s.position[1] = static_cast<float>(j) * spacing;
+      s.position[2] = 0.3f * s.position[0] + 2.0f;  // a tilted plane
+      cloud.splats.push_back(s);
+    }
+  }
+  estimateNormalsAndRadii(cloud, {});
+  for (std::size_t idx = 0; idx < cloud.splats.size(); ++idx) {
+    const Splat& s = cloud.splats[idx];
+    EXPECT_LT(angleDegrees(s, {-0.3, 0, 1}), 0.05) << idx;  // float precision
+    const int i = static_cast<int>(idx / 60), j = static_cast<int>(idx % 60);
+    if (i >= 3 && i < 57 && j >= 3 && j < 57) {
+      // k = 12 on a square grid: the 12th neighbour is 2 steps away, r = 2s * sqrt(3/12) = s
+      // (steps measured along the tilted plane in x).
+      const double stepX = static_cast<double>(spacing) * std::sqrt(1 + 0.09);
+      EXPECT_GE(s.radius, spacing * 0.999f);
+      EXPECT_LE(static_cast<double>(s.radius), stepX * 1.001);
+    }
+  }
+}
+
+TEST(Normals, OnlyWhereMissingKeepsGivenValuesAndAgreesWithThem) {
+  // Upper hemisphere points get inward normals given; the rest have none.
+  PointCloud cloud = stripped(generateScene("sphere", 8000, 9));
+  std::size_t given = 0;
+  for (Splat& s : cloud.splats) {
+    if (s.position[2] > 0.3f) {
+      for (int k = 0; k < 3; ++k) s.normal[k] = -s.position[k];
+      s.radius = 0.25f;
+      ++given;
+    }
+  }
+  const PointCloud before = cloud;
+  estimateNormalsAndRadii(cloud, {});
+  std::size_t inward = 0;
+  for (std::size_t i = 0; i < cloud.splats.size(); ++i) {
+    const Splat& s = cloud.splats[i];
+    if (before.splats[i].radius > 0.0f) {
+      EXPECT_EQ(s.radius, 0.25f);
+      EXPECT_EQ(s.normal[2], before.splats[i].normal[2]);
+    } else {
+      EXPECT_GT(s.radius, 0.0f);
+    }
+    // The anchors' side (inward) spreads to the estimated ones.
+    inward += angleDegrees(s, {-s.position[0], -s.position[1], -s.position[2]}) < 30 ? 1u : 0u;
+  }
+  EXPECT_GT(given, 1000u);
+  EXPECT_GT(inward, cloud.splats.size() * 98 / 100);
+
+  // Recomputing everything keeps each point on its old side.
+  NormalOptions all;
+  all.onlyWhereMissing = false;
+  estimateNormalsAndRadii(cloud, all);
+  for (const Splat& s : cloud.splats) {
+    EXPECT_LT(angleDegrees(s, {-s.position[0], -s.position[1], -s.position[2]}), 30);
+  }
+}
+
+TEST(Normals, DuplicatesAndTinyClouds) {
+  PointCloud cloud;
+  Splat s{};
+  for (int i = 0; i < 20; ++i) cloud.splats.push_back(s);  // all identical
+  s.position[0] = 1.0f;
+  cloud.splats.push_back(s);
+  estimateNormalsAndRadii(cloud, {});
+  for (const Splat& p : cloud.splats) {
+    EXPECT_TRUE(std::isfinite(p.radius));
+    EXPECT_GT(p.radius, 0.0f);
+    const double len = std::sqrt(static_cast<double>(
+        p.normal[0] * p.normal[0] + p.normal[1] * p.normal[1] + p.normal[2] * p.normal[2]));
+    EXPECT_NEAR(len, 1.0, 1e-5);
+  }
+  PointCloud one;
+  one.splats.push_back(Splat{});
+  estimateNormalsAndRadii(one, {});
+  EXPECT_EQ(one.splats[0].normal[2], 1.0f);
+  EXPECT_GT(one.splats[0].radius, 0.0f);
+  EXPECT_EQ(one.splats[0].color[0], kDefaultGrey);  // never-written colour becomes grey
+  EXPECT_EQ(one.splats[0].color[3], 255);
+
+  PointCloud empty;
+  EXPECT_NO_THROW(estimateNormalsAndRadii(empty, {}));
+  NormalOptions few;
+  few.neighbours = 2;
+  EXPECT_THROW(estimateNormalsAndRadii(cloud, few), pointillist::UsageError);
+}
+
+// Real data with known normals: a sampled mesh (triangle normals) and CGAL's
+// kitten scan (normals in the file). Signs must agree almost everywhere.
+TEST(Normals, RealMeshAndScanAgreeWithKnownNormals) {
+  const std::filesystem::path data = std::filesystem::path(POINTILLIST_TEST_DATA_DIR) / "data";
+  if (!std::filesystem::exists(data)) {
+    GTEST_SKIP() << "test data missing at " << data << "; run `bash deploy/fetch-test-data.sh`";
+  }
+  ReadOptions read;
+  read.meshSamplePoints = 20000;
+  for (const auto& file : {data / "meshes" / "bunny00.off", data / "points_3" / "kitten.xyz"}) {
+    SCOPED_TRACE(file.string());
+    const PointCloud truth = readPointCloud(file, read);
+    ASSERT_TRUE(truth.hasNormals);
+    PointCloud cloud = stripped(truth);
+    estimateNormalsAndRadii(cloud, {});
+    std::size_t flipped = 0, close = 0;
+    for (std::size_t i = 0; i < cloud.splats.size(); ++i) {
+      double d = 0;
+      for (std::size_t k = 0; k < 3; ++k) {
+        d += static_cast<double>(cloud.splats[i].normal[k]) *
+             static_cast<double>(truth.splats[i].normal[k]);
+      }
+      flipped += d < 0 ? 1u : 0u;
+      close += d > std::cos(15 * std::numbers::pi / 180) ? 1u : 0u;
+    }
+    EXPECT_LT(flipped, cloud.splats.size() / 200);  // under 0.5%
+    EXPECT_GT(close, cloud.splats.size() * 95 / 100);
+  }
+}

@@ -1,0 +1,453 @@
+// Octree (seed 003 §4.1.1): point-array order, depth-first cell array with
+// sibling skips, levels, top-level cells and packets, cones and bounds.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <functional>
+#include <limits>
+#include <random>
+#include <vector>
+
+#include "common/dataset.hpp"
+#include "common/errors.hpp"
+#include "common/geometry.hpp"
+#include "preprocess/dataset_builder.hpp"
+#include "preprocess/level_splats.hpp"
+#include "preprocess/octree_builder.hpp"
+
+namespace pointillist::preprocess {
+namespace {
+
+// Points on a unit sphere (outward normals) plus a dense blob and a few far
+// points, so the tree has deep, shallow and uneven branches.
+std::vector<Splat> testCloud(std::size_t n, std::uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<float> gauss(0.0f, 1.0f);
+  std::uniform_int_distribution<int> byte(0, 255);
+  std::vector<Splat> out;
+  for (std::size_t i = 0; i < n; ++i) {
+    float v[3] = {gauss(rng), gauss(rng), gauss(rng)};
+    const float len = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+    Splat s{};
+    for (int a = 0; a < 3; ++a) {
+      s.normal[a] = v[a] / len;
+      s.position[a] = s.normal[a];
+    }
+    if (i % 7 == 0)  // blob near one pole: dense region
+      for (int a = 0; a < 3; ++a) s.position[a] = 0.05f * s.normal[a] + (a == 2 ? 0.9f : 0.0f);
+    s.radius = 0.02f;
+    s.color[0] = static_cast<std::uint8_t>(byte(rng));
+    s.color[1] = static_cast<std::uint8_t>(byte(rng));
+    s.color[2] = 200;
+    s.color[3] = 255;
+    out.push_back(s);
+  }
+  Splat far{};
+  far.position[0] = 3.0f;
+  far.position[1] = 3.0f;
+  far.position[2] = 3.0f;
+  far.normal[0] = 1.0f;
+  far.radius = 0.1f;
+  out.push_back(far);
+  return out;
+}
+
+PreprocessOptions smallOptions() {
+  PreprocessOptions o;
+  o.octree.maxDepth = 10;
+  o.octree.leafPoints = 16;
+  o.topLevelDepth = 3;
+  o.threads = 2;
+  return o;
+}
+
+struct Built {
+  std::vector<Splat> input;
+  Octree tree;  // before assembly (points sorted, build cells)
+  DatasetContent content;
+};
+
+Built build(std::size_t n, const PreprocessOptions& o, std::uint32_t seed = 1) {
+  Built b;
+  b.input = testCloud(n, seed);
+  b.tree = buildOctree(b.input, o.octree);
+  assignTopLevelCells(b.tree, static_cast<unsigned>(o.topLevelDepth));
+  LevelSplats ls = buildLevelSplats(b.tree, o.levelSplats, {}, o.threads);
+  b.content = assembleDatasetContent(b.tree, std::move(ls), o);
+  finalizeDatasetContent(b.content);
+  return b;
+}
+
+std::vector<std::vector<std::uint32_t>> childLists(const Octree& t) {
+  std::vector<std::vector<std::uint32_t>> children(t.cells.size());
+  for (std::uint32_t i = 1; i < t.cells.size(); ++i) children[t.cells[i].parent].push_back(i);
+  return children;
+}
+
+bool sameBytes(const Splat& a, const Splat& b) {
+  return std::memcmp(&a, &b, sizeof(Splat)) == 0;
+}
+bool lessBytes(const Splat& a, const Splat& b) {
+  return std::memcmp(&a, &b, sizeof(Splat)) < 0;
+}
+
+// All splats of cell i's subtree, via the cell array and packets only.
+std::vector<Splat> subtreeSplats(const DatasetContent& c, std::uint32_t i) {
+  std::vector<std::uint64_t> pointBase(c.topLevel.size()), splatBase(c.topLevel.size());
+  std::uint64_t p = 0, s = 0;
+  for (std::size_t k = 0; k < c.topLevel.size(); ++k) {
+    pointBase[k] = p;
+    splatBase[k] = s;
+    p += c.topLevel[k].pointCount;
+    s += c.topLevel[k].levelSplatCount;
+  }
+  std::vector<Splat> out;
+  const std::uint32_t end = c.cells[i].nextSibling == kNoIndex
+                                ? static_cast<std::uint32_t>(c.cells.size())
+                                : c.cells[i].nextSibling;
+  for (std::uint32_t j = i; j < end; ++j) {
+    const OctreeCell& cell = c.cells[j];
+    if (cell.topLevel == kNoIndex) continue;
+    const std::uint64_t P = c.topLevel[cell.topLevel].pointCount;
+    if (cell.isLeaf())
+      for (std::uint32_t q = 0; q < cell.pointsCount; ++q)
+        out.push_back(c.points[pointBase[cell.topLevel] + cell.pointsOffset + q]);
+    for (std::uint32_t q = 0; q < cell.splatsCount; ++q)
+      out.push_back(c.levelSplats[splatBase[cell.topLevel] + cell.splatsOffset - P + q]);
+  }
+  return out;
+}
+
+TEST(OctreeRecords, Sizes) {
+  static_assert(sizeof(OctreeCell) == 64);
+  EXPECT_EQ(sizeof(OctreeCell), 64u);
+  EXPECT_EQ(sizeof(TopLevelCell), 32u);
+  EXPECT_EQ(sizeof(Splat), 32u);
+}
+
+TEST(Octree, EveryPointInExactlyOneLeaf) {
+  const Built b = build(6000, smallOptions());
+  const Octree& t = b.tree;
+  // The point-array is a permutation of the input.
+  auto sortedIn = b.input, sortedOut = t.points;
+  std::sort(sortedIn.begin(), sortedIn.end(), lessBytes);
+  std::sort(sortedOut.begin(), sortedOut.end(), lessBytes);
+  ASSERT_EQ(sortedIn.size(), sortedOut.size());
+  EXPECT_TRUE(std::equal(sortedIn.begin(), sortedIn.end(), sortedOut.begin(), sameBytes));
+  // Leaves, depth-first, tile [0, N) exactly; each holds its points in its bounds.
+  std::uint64_t next = 0;
+  std::size_t leaves = 0;
+  for (const BuildCell& c : t.cells) {
+    if (!c.isLeaf()) continue;
+    ++leaves;
+    EXPECT_EQ(c.begin, next);
+    EXPECT_GT(c.end, c.begin);
+    EXPECT_TRUE(c.end - c.begin <= 16 || c.depth == 10);
+    for (std::uint64_t i = c.begin; i < c.end; ++i)
+      for (int a = 0; a < 3; ++a) {
+        EXPECT_GE(t.points[i].position[a], c.boundsMin[a]);
+        EXPECT_LE(t.points[i].position[a], c.boundsMax[a]);
+      }
+    next = c.end;
+  }
+  EXPECT_EQ(next, t.points.size());
+  EXPECT_GT(leaves, 100u);
+  // ... and inside its top-level cell's point range.
+  for (const OctreeCell& c : b.content.cells) {
+    if (!c.isLeaf()) continue;
+    ASSERT_NE(c.topLevel, kNoIndex);
+    EXPECT_LE(std::uint64_t{c.pointsOffset} + c.pointsCount,
+              b.content.topLevel[c.topLevel].pointCount);
+  }
+}
+
+TEST(Octree, ChildrenAreTheOctantsOfTheirParentsCube) {
+  const Built b = build(4000, smallOptions());
+  const Octree& t = b.tree;
+  const auto children = childLists(t);
+  const unsigned maxDepth = 10;
+  auto octant = [&](const Splat& s, unsigned depth) {
+    unsigned o = 0;
+    for (int a = 0; a < 3; ++a) {
+      const double u = (static_cast<double>(s.position[a]) - t.cubeMin[a]) / t.cubeSize;
+      const auto q = static_cast<std::uint64_t>(std::clamp(std::floor(u * 1024.0), 0.0, 1023.0));
+      o = o * 2 + static_cast<unsigned>((q >> (maxDepth - 1 - depth)) & 1u);
+    }
+    return o;
+  };
+  for (std::uint32_t i = 0; i < t.cells.size(); ++i) {
+    const BuildCell& c = t.cells[i];
+    EXPECT_EQ(c.childCount, children[i].size());
+    unsigned previous = 0;
+    for (std::size_t k = 0; k < children[i].size(); ++k) {
+      const BuildCell& ch = t.cells[children[i][k]];
+      EXPECT_EQ(ch.depth, c.depth + 1);
+      const unsigned o = octant(t.points[ch.begin], c.depth);
+      if (k > 0) {
+        EXPECT_GT(o, previous);  // distinct octants, in order
+      }
+      previous = o;
+      for (std::uint64_t p = ch.begin; p < ch.end; ++p) ASSERT_EQ(octant(t.points[p], c.depth), o);
+    }
+    if (!children[i].empty()) {
+      EXPECT_EQ(t.cells[children[i].front()].begin, c.begin);
+      EXPECT_EQ(t.cells[children[i].back()].end, c.end);
+    }
+  }
+}
+
+TEST(Octree, NextSiblingAndLevelsFollowTheRules) {
+  const Built b = build(5000, smallOptions());
+  const Octree& t = b.tree;
+  const auto children = childLists(t);
+  const auto& cells = b.content.cells;
+  // Recursive definitions, independent of the builder's stack pass.
+  std::vector<std::uint32_t> next(cells.size(), kNoIndex);
+  std::function<void(std::uint32_t, std::uint32_t)> assign = [&](std::uint32_t i,
+                                                                 std::uint32_t after) {
+    next[i] = after;
+    for (std::size_t k = 0; k < children[i].size(); ++k)
+      assign(children[i][k], k + 1 < children[i].size() ? children[i][k + 1] : after);
+  };
+  assign(0, kNoIndex);
+  std::function<unsigned(std::uint32_t)> level = [&](std::uint32_t i) {
+    unsigned m = 0;
+    for (auto c : children[i]) m = std::max(m, level(c));
+    return children[i].empty() ? 1u : 1u + m;
+  };
+  for (std::uint32_t i = 0; i < cells.size(); ++i) {
+    EXPECT_EQ(cells[i].nextSibling, next[i]) << i;
+    EXPECT_EQ(cells[i].level, level(i)) << i;
+    EXPECT_EQ(cells[i].isLeaf(), children[i].empty());
+    EXPECT_EQ(cells[i].childCount, children[i].size());
+    if (!children[i].empty()) {
+      EXPECT_EQ(children[i][0], i + 1);  // depth-first: the first child follows
+    }
+  }
+}
+
+TEST(Octree, SiblingSkipWalkVisitsExactlyTheRecursiveWalk) {
+  const Built b = build(5000, smallOptions());
+  const auto children = childLists(b.tree);
+  const auto& cells = b.content.cells;
+  // Seed 003 §4.3: visit index, then index + 1 to descend or nextSibling to skip.
+  auto skipWalk = [&](const std::function<bool(std::uint32_t)>& descend) {
+    std::vector<std::uint32_t> visited;
+    std::uint32_t index = 0;
+    do {
+      visited.push_back(index);
+      index = (!cells[index].isLeaf() && descend(index)) ? index + 1 : cells[index].nextSibling;
+    } while (index != kNoIndex);
+    return visited;
+  };
+  auto recursiveWalk = [&](const std::function<bool(std::uint32_t)>& descend) {
+    std::vector<std::uint32_t> visited;
+    std::function<void(std::uint32_t)> rec = [&](std::uint32_t i) {
+      visited.push_back(i);
+      if (!descend(i)) return;
+      for (auto c : children[i]) rec(c);
+    };
+    rec(0);
+    return visited;
+  };
+  auto always = [](std::uint32_t) { return true; };
+  const auto all = skipWalk(always);
+  EXPECT_EQ(all, recursiveWalk(always));
+  ASSERT_EQ(all.size(), cells.size());
+  for (std::uint32_t i = 0; i < all.size(); ++i) EXPECT_EQ(all[i], i);
+  for (std::uint32_t seed = 1; seed <= 5; ++seed) {
+    auto cull = [seed](std::uint32_t i) {  // a random but fixed predicate per cell
+      std::uint32_t h = (i + 1) * 2654435761u ^ seed * 40503u;
+      h ^= h >> 13;
+      return (h % 10) < 8;
+    };
+    const auto visited = skipWalk(cull);
+    EXPECT_EQ(visited, recursiveWalk(cull)) << "seed " << seed;
+    EXPECT_LT(visited.size(), cells.size());
+  }
+}
+
+TEST(Octree, TopLevelCellsPartitionThePointArray) {
+  const Built b = build(8000, smallOptions());
+  const DatasetContent& c = b.content;
+  const unsigned depth = c.manifest.topLevelDepth;
+  EXPECT_EQ(depth, 3u);
+  // Packets are contiguous, disjoint and cover the point-array.
+  std::uint64_t offset = 0, points = 0;
+  for (const TopLevelCell& t : c.topLevel) {
+    EXPECT_EQ(t.byteOffset, offset);
+    EXPECT_EQ(t.byteSize, (std::uint64_t{t.pointCount} + t.levelSplatCount) * sizeof(Splat));
+    offset += t.byteSize;
+    points += t.pointCount;
+    const OctreeCell& cell = c.cells[t.cellIndex];
+    EXPECT_TRUE(cell.depth == depth || (cell.isLeaf() && cell.depth < depth));
+    EXPECT_EQ(cell.pointsOffset, 0u);
+    EXPECT_EQ(cell.pointsCount, t.pointCount);
+  }
+  EXPECT_EQ(points, c.points.size());
+  EXPECT_EQ(offset, (c.points.size() + c.levelSplats.size()) * sizeof(Splat));
+  // Every point index is claimed by exactly one leaf, through its packet.
+  std::vector<int> claimed(c.points.size(), 0);
+  std::vector<std::uint64_t> base(c.topLevel.size(), 0);
+  for (std::size_t k = 1; k < base.size(); ++k)
+    base[k] = base[k - 1] + c.topLevel[k - 1].pointCount;
+  for (const OctreeCell& cell : c.cells) {
+    if (cell.topLevel == kNoIndex) {
+      EXPECT_LT(cell.depth, depth);
+      EXPECT_FALSE(cell.isLeaf());
+      EXPECT_EQ(cell.pointsCount + cell.splatsCount, 0u);
+      continue;
+    }
+    const TopLevelCell& t = c.topLevel[cell.topLevel];
+    EXPECT_LE(std::uint64_t{cell.pointsOffset} + cell.pointsCount, t.pointCount);
+    EXPECT_GE(cell.splatsOffset, t.pointCount);
+    EXPECT_LE(std::uint64_t{cell.splatsOffset} + cell.splatsCount,
+              std::uint64_t{t.pointCount} + t.levelSplatCount);
+    EXPECT_GE(cell.splatsCount, 1u);
+    if (cell.isLeaf())
+      for (std::uint32_t q = 0; q < cell.pointsCount; ++q)
+        ++claimed[base[cell.topLevel] + cell.pointsOffset + q];
+  }
+  EXPECT_TRUE(std::all_of(claimed.begin(), claimed.end(), [](int n) { return n == 1; }));
+  EXPECT_NO_THROW(validateDatasetStructure(c.manifest, c.cells, c.topLevel, "test"));
+}
+
+TEST(Octree, ShallowBranchLeafIsItsOwnTopLevelCell) {
+  // A dense cluster in one corner and three points in the opposite one: that
+  // octant is a leaf at depth 1, above the top-level depth 3.
+  std::vector<Splat> pts = testCloud(3000, 3);
+  for (auto& s : pts)
+    for (int a = 0; a < 3; ++a) s.position[a] = s.position[a] * 0.1f - 1.0f;
+  for (int i = 0; i < 3; ++i) {
+    Splat s{};
+    s.position[0] = s.position[1] = s.position[2] = 1.0f - 0.01f * static_cast<float>(i);
+    s.normal[1] = 1.0f;
+    s.radius = 0.01f;
+    pts.push_back(s);
+  }
+  PreprocessOptions o = smallOptions();
+  DatasetContent c = buildDatasetContent(pts, o);
+  finalizeDatasetContent(c);
+  bool found = false;
+  for (const TopLevelCell& t : c.topLevel) {
+    const OctreeCell& cell = c.cells[t.cellIndex];
+    if (cell.depth == 1 && cell.isLeaf()) {
+      found = true;
+      EXPECT_EQ(t.pointCount, 3u);
+    }
+  }
+  EXPECT_TRUE(found);
+}
+
+TEST(Octree, TopLevelDepthIsChosenFromDataSizeAndCanBeOverridden) {
+  PreprocessOptions o = smallOptions();
+  Octree t = buildOctree(testCloud(20000, 5), o.octree);
+  // 20k points (~850 KiB of packets) fit in few packets: the paper's minimum 3.
+  EXPECT_EQ(chooseTopLevelDepth(t), 3u);
+  // Small packets force a deeper top level, with more top-level cells.
+  const unsigned deeper = chooseTopLevelDepth(t, 8 * 1024);
+  EXPECT_GT(deeper, 3u);
+  EXPECT_GT(countTopLevelCells(t, deeper), countTopLevelCells(t, 3));
+  const double perPacket =
+      20001.0 * 32 * 4 / 3 / static_cast<double>(countTopLevelCells(t, deeper));
+  EXPECT_LE(perPacket, 8 * 1024.0);
+  o.topLevelDepth = 2;
+  EXPECT_EQ(buildDatasetContent(testCloud(2000, 5), o).manifest.topLevelDepth, 2u);
+  o.topLevelDepth = 50;  // deeper than the tree: clamped, every leaf is a top-level cell
+  DatasetContent c = buildDatasetContent(testCloud(2000, 5), o);
+  std::size_t leaves = 0;
+  for (const auto& cell : c.cells) leaves += cell.isLeaf() ? 1u : 0u;
+  EXPECT_EQ(c.topLevel.size(), leaves);
+}
+
+TEST(Octree, NormalConeContainsAllNormalsOfTheSubtree) {
+  const Built b = build(6000, smallOptions());
+  const auto& cells = b.content.cells;
+  std::size_t leaves = 0, tightLeaves = 0;
+  for (std::uint32_t i = 0; i < cells.size(); ++i) {
+    const NormalCone cone = decodeNormalCone(cells[i]);
+    if (cells[i].isLeaf()) {
+      ++leaves;
+      if (cone.valid && cone.cosHalfAngle > 0.5) ++tightLeaves;
+    }
+    if (!cone.valid) continue;
+    for (const Splat& s : subtreeSplats(b.content, i)) {
+      const Vec3d n = normalized({s.normal[0], s.normal[1], s.normal[2]});
+      // In float, as a traverse would compute it.
+      const float d = static_cast<float>(cone.axis[0]) * static_cast<float>(n[0]) +
+                      static_cast<float>(cone.axis[1]) * static_cast<float>(n[1]) +
+                      static_cast<float>(cone.axis[2]) * static_cast<float>(n[2]);
+      ASSERT_GE(static_cast<double>(d), cone.cosHalfAngle) << "cell " << i;
+    }
+  }
+  // On a sphere, leaf cones are narrow: the cone is useful, not just valid.
+  EXPECT_GT(tightLeaves * 10, leaves * 9);
+}
+
+TEST(Octree, BoundsAndRadiusAreConservativeForTheSubtree) {
+  const Built b = build(5000, smallOptions());
+  const auto& cells = b.content.cells;
+  for (std::uint32_t i = 0; i < cells.size(); ++i) {
+    for (const Splat& s : subtreeSplats(b.content, i)) {
+      for (int a = 0; a < 3; ++a) {
+        ASSERT_GE(s.position[a], cells[i].boundsMin[a]) << i;
+        ASSERT_LE(s.position[a], cells[i].boundsMax[a]) << i;
+      }
+      ASSERT_LE(s.radius, cells[i].maxSplatRadius) << i;
+    }
+  }
+}
+
+TEST(Octree, IsDeterministic) {
+  const Built a = build(3000, smallOptions(), 9);
+  const Built b = build(3000, smallOptions(), 9);
+  ASSERT_EQ(a.content.cells.size(), b.content.cells.size());
+  EXPECT_EQ(
+      std::memcmp(a.content.cells.data(), b.content.cells.data(), a.content.cells.size() * 64), 0);
+  ASSERT_EQ(a.content.levelSplats.size(), b.content.levelSplats.size());
+  EXPECT_EQ(std::memcmp(a.content.levelSplats.data(), b.content.levelSplats.data(),
+                        a.content.levelSplats.size() * 32),
+            0);
+}
+
+TEST(Octree, IdenticalPointsStopAtMaxDepth) {
+  std::vector<Splat> pts(500, testCloud(1, 1)[0]);
+  pts.push_back(testCloud(1, 2)[1]);  // one other point so the cube is not degenerate
+  PreprocessOptions o = smallOptions();
+  o.octree.maxDepth = 6;
+  DatasetContent c = buildDatasetContent(pts, o);
+  EXPECT_NO_THROW(finalizeDatasetContent(c));
+  std::uint32_t biggest = 0;
+  for (const auto& cell : c.cells)
+    if (cell.isLeaf()) {
+      EXPECT_LE(cell.depth, 6);
+      biggest = std::max(biggest, cell.pointsCount);
+    }
+  EXPECT_EQ(biggest, 500u);
+}
+
+TEST(Octree, RefusesBadInputAndOptions) {
+  OctreeOptions o;
+  EXPECT_THROW(buildOctree({}, o), InputError);
+  auto pts = testCloud(10, 1);
+  pts[3].position[1] = std::numeric_limits<float>::quiet_NaN();
+  EXPECT_THROW(buildOctree(pts, o), InputError);
+  o.maxDepth = 22;
+  EXPECT_THROW(buildOctree(testCloud(10, 1), o), UsageError);
+  o.maxDepth = 0;
+  EXPECT_THROW(buildOctree(testCloud(10, 1), o), UsageError);
+}
+
+TEST(Octree, SinglePointDatasetIsValid) {
+  DatasetContent c = buildDatasetContent(testCloud(0, 1), smallOptions());  // just the far point
+  finalizeDatasetContent(c);
+  ASSERT_EQ(c.cells.size(), 1u);
+  EXPECT_EQ(c.topLevel.size(), 1u);
+  EXPECT_EQ(c.cells[0].level, 1);
+  EXPECT_EQ(c.levelSplats.size(), 1u);
+}
+
+}  // namespace
+}  // namespace pointillist::preprocess

@@ -1,0 +1,113 @@
+// The render cache of top-level cells: LRU under a memory cap, time-out, pins.
+#include <gtest/gtest.h>
+
+#include <map>
+#include <random>
+
+#include "render/cell_cache.hpp"
+
+namespace pointillist::render {
+namespace {
+
+using namespace std::chrono_literals;
+using Clock = CellCache::Clock;
+
+TEST(CellCache, EvictsLeastRecentlyUsedToStayUnderTheCap) {
+  CellCache cache(300, 60s);
+  const auto t = Clock::now();
+  EXPECT_TRUE(cache.insert(1, 100, t).empty());
+  EXPECT_TRUE(cache.insert(2, 100, t + 1ms).empty());
+  EXPECT_TRUE(cache.insert(3, 100, t + 2ms).empty());
+  cache.touch(1, t + 3ms);  // 2 is now the least recently used
+  const auto evicted = cache.insert(4, 100, t + 4ms);
+  ASSERT_EQ(evicted.size(), 1u);
+  EXPECT_EQ(evicted[0], 2u);
+  EXPECT_EQ(cache.bytes(), 300u);
+  EXPECT_EQ(cache.lruOrder(), (std::vector<std::uint32_t>{3, 1, 4}));
+  // A large cell evicts as many as needed.
+  const auto many = cache.insert(5, 250, t + 5ms);
+  EXPECT_EQ(many, (std::vector<std::uint32_t>{3, 1, 4}));
+  EXPECT_EQ(cache.bytes(), 250u);
+  EXPECT_EQ(cache.evictions(), 4u);
+}
+
+TEST(CellCache, PinnedCellsAreNeverEvicted) {
+  CellCache cache(200, 1ms);
+  const auto t = Clock::now();
+  cache.pin(1);
+  cache.insert(1, 100, t);
+  cache.insert(2, 100, t);
+  const auto evicted = cache.insert(3, 100, t);
+  EXPECT_EQ(evicted, (std::vector<std::uint32_t>{2}));
+  EXPECT_TRUE(cache.contains(1));
+  // Time-out skips pinned cells too.
+  EXPECT_EQ(cache.expire(t + 1s), (std::vector<std::uint32_t>{3}));
+  EXPECT_TRUE(cache.contains(1));
+  cache.unpin(1);
+  EXPECT_EQ(cache.expire(t + 2s), (std::vector<std::uint32_t>{1}));
+  EXPECT_EQ(cache.size(), 0u);
+}
+
+TEST(CellCache, GoesOverTheCapOnlyWhenEverythingIsPinned) {
+  CellCache cache(100, 60s);
+  const auto t = Clock::now();
+  cache.pin(1);
+  cache.pin(2);
+  cache.insert(1, 80, t);
+  cache.insert(2, 80, t);
+  EXPECT_EQ(cache.overCapInsertions(), 1u);
+  EXPECT_EQ(cache.peakBytes(), 160u);
+}
+
+TEST(CellCache, ExpiresCellsUnusedLongerThanTheTimeout) {
+  CellCache cache(1000, 100ms);
+  const auto t = Clock::now();
+  cache.insert(1, 10, t);
+  cache.insert(2, 10, t + 50ms);
+  cache.touch(1, t + 120ms);
+  EXPECT_TRUE(cache.expire(t + 140ms).empty());
+  EXPECT_EQ(cache.expire(t + 160ms), (std::vector<std::uint32_t>{2}));
+  EXPECT_EQ(cache.expire(t + 230ms), (std::vector<std::uint32_t>{1}));
+}
+
+TEST(CellCache, RandomWorkloadKeepsItsInvariants) {
+  CellCache cache(5000, 50ms);
+  std::mt19937 random(11);
+  auto t = Clock::now();
+  std::map<std::uint32_t, int> pins;
+  for (int step = 0; step < 20'000; ++step) {
+    t += std::chrono::microseconds(random() % 200);
+    const std::uint32_t cell = random() % 64;
+    switch (random() % 5) {
+      case 0:
+      case 1:
+        for (auto victim : cache.insert(cell, 100 + random() % 900, t)) {
+          EXPECT_FALSE(cache.pinned(victim));
+          EXPECT_FALSE(cache.contains(victim));
+        }
+        break;
+      case 2:
+        cache.touch(cell, t);
+        break;
+      case 3:
+        if (pins[cell] < 2 && pins.size() < 3) {
+          cache.pin(cell);
+          ++pins[cell];
+        } else if (pins.contains(cell)) {
+          cache.unpin(cell);
+          if (--pins[cell] == 0) pins.erase(cell);
+        }
+        break;
+      default:
+        for (auto victim : cache.expire(t)) EXPECT_FALSE(cache.pinned(victim));
+    }
+    if (cache.overCapInsertions() == 0) {
+      ASSERT_LE(cache.bytes(), cache.capBytes());
+    }
+    ASSERT_EQ(cache.lruOrder().size(), cache.size());
+  }
+  EXPECT_GT(cache.evictions(), 0u);
+}
+
+}  // namespace
+}  // namespace pointillist::render

@@ -1,0 +1,217 @@
+// The traverse walk against brute force: the sibling-skip loop visits what a
+// recursive walk visits, tiles never lose a splat that touches them, and tiles
+// draw only what the full frame draws.
+#include <gtest/gtest.h>
+
+#include <functional>
+#include <random>
+#include <set>
+
+#include "common/camera.hpp"
+#include "preprocess/dataset_builder.hpp"
+#include "preprocess/generator.hpp"
+#include "traverse/octree_traversal.hpp"
+
+namespace pointillist::traverse {
+namespace {
+
+struct Fixture {
+  DatasetContent content;
+  glm::vec3 boundsMin, boundsMax;
+};
+
+const Fixture& cityFixture() {
+  static const Fixture fixture = [] {
+    Fixture f;
+    auto cloud = preprocess::generateScene("city", 30'000, 7);
+    preprocess::PreprocessOptions options;
+    options.octree.leafPoints = 64;
+    options.topLevelDepth = 2;
+    f.content = preprocess::buildDatasetContent(std::move(cloud.splats), options);
+    finalizeDatasetContent(f.content);
+    const auto& m = f.content.manifest;
+    f.boundsMin = {m.boundsMin[0], m.boundsMin[1], m.boundsMin[2]};
+    f.boundsMax = {m.boundsMax[0], m.boundsMax[1], m.boundsMax[2]};
+    return f;
+  }();
+  return fixture;
+}
+
+// Recursive reference of the same decisions, without the sibling-skip array trick.
+void recursiveWalk(std::span<const OctreeCell> cells, std::uint32_t index, const Camera& camera,
+                   const FrustumPlanes& planes, const TraversalSettings& settings,
+                   std::vector<PacketRange>& out) {
+  const OctreeCell& cell = cells[index];
+  const float r = cell.maxSplatRadius * settings.sizeScale;
+  const glm::vec3 low(cell.boundsMin[0] - r, cell.boundsMin[1] - r, cell.boundsMin[2] - r);
+  const glm::vec3 high(cell.boundsMax[0] + r, cell.boundsMax[1] + r, cell.boundsMax[2] + r);
+  if (boxOutside(planes, low, high)) return;
+  if (settings.backfaceCull && cellBackfacing(cell, cameraEye(camera), settings.sizeScale)) return;
+  bool descend = cell.topLevel == kNoIndex;
+  if (!descend) {
+    const float distance = distanceToCell(cell, cameraEye(camera), settings.sizeScale);
+    const bool coarse = distance > 0.0f &&
+                        projectedRadiusPixels(camera, r, distance) <= settings.lodPixels &&
+                        cell.splatsCount > 0;
+    if (coarse) {
+      out.push_back({cell.topLevel, cell.splatsOffset, cell.splatsCount});
+      return;
+    }
+    if (cell.isLeaf()) {
+      if (cell.pointsCount > 0) out.push_back({cell.topLevel, cell.pointsOffset, cell.pointsCount});
+      return;
+    }
+    descend = true;
+  }
+  if (cell.isLeaf()) return;
+  // Children: index + 1, then each child's nextSibling until it leaves this subtree.
+  std::uint32_t child = index + 1;
+  const std::uint32_t end =
+      cell.nextSibling == kNoIndex ? static_cast<std::uint32_t>(cells.size()) : cell.nextSibling;
+  while (child < end) {
+    recursiveWalk(cells, child, camera, planes, settings, out);
+    child = cells[child].nextSibling == kNoIndex ? end : cells[child].nextSibling;
+  }
+}
+
+std::set<std::pair<std::uint32_t, std::uint32_t>> splatSet(const std::vector<PacketRange>& ranges) {
+  std::set<std::pair<std::uint32_t, std::uint32_t>> set;
+  for (const auto& range : ranges) {
+    for (std::uint32_t i = 0; i < range.count; ++i) set.insert({range.topLevel, range.offset + i});
+  }
+  return set;
+}
+
+const Splat& splatAt(const DatasetContent& content, std::uint32_t topLevel, std::uint32_t offset) {
+  const TopLevelCell& entry = content.topLevel[topLevel];
+  // Packet k = its points (in table order) then its level-splats.
+  std::uint64_t pointsBefore = 0, splatsBefore = 0;
+  for (std::uint32_t k = 0; k < topLevel; ++k) {
+    pointsBefore += content.topLevel[k].pointCount;
+    splatsBefore += content.topLevel[k].levelSplatCount;
+  }
+  if (offset < entry.pointCount) return content.points[pointsBefore + offset];
+  return content.levelSplats[splatsBefore + offset - entry.pointCount];
+}
+
+std::vector<Camera> testCameras(const Fixture& f) {
+  std::vector<Camera> cameras;
+  cameras.push_back(cameraForBounds(f.boundsMin, f.boundsMax, 320, 200, 30.0f, 25.0f, 1.0f));
+  cameras.push_back(cameraForBounds(f.boundsMin, f.boundsMax, 320, 200, 200.0f, 10.0f, 0.35f));
+  cameras.push_back(cameraForBounds(f.boundsMin, f.boundsMax, 256, 256, 95.0f, 60.0f, 3.0f));
+  return cameras;
+}
+
+TEST(OctreeTraversal, SiblingSkipMatchesRecursiveWalk) {
+  const Fixture& f = cityFixture();
+  for (const Camera& camera : testCameras(f)) {
+    for (bool cull : {true, false}) {
+      TraversalSettings settings;
+      settings.backfaceCull = cull;
+      for (const TileRect& rect :
+           {fullFrameRect(camera), makeTileRect(0, 0, 100, 80), makeTileRect(150, 90, 64, 64)}) {
+        const auto result = traverseTile(f.content.cells, camera, rect, settings);
+        std::vector<PacketRange> expected;
+        recursiveWalk(f.content.cells, 0, camera, tilePlanes(camera, rect, settings.marginPixels),
+                      settings, expected);
+        EXPECT_EQ(splatSet(result.ranges), splatSet(expected));
+        std::uint64_t count = 0;
+        for (const auto& range : expected) count += range.count;
+        EXPECT_EQ(result.splats, count);
+      }
+    }
+  }
+}
+
+TEST(OctreeTraversal, TilesDrawOnlyWhatTheFullFrameDrawsAndLoseNothingThatTouchesThem) {
+  const Fixture& f = cityFixture();
+  std::mt19937 random(3);
+  for (const Camera& camera : testCameras(f)) {
+    TraversalSettings settings;
+    const auto full = traverseTile(f.content.cells, camera, fullFrameRect(camera), settings);
+    ASSERT_GT(full.splats, 0u);
+    const auto fullSet = splatSet(full.ranges);
+    for (int trial = 0; trial < 6; ++trial) {
+      const std::uint32_t w = 16 + static_cast<std::uint32_t>(random()) % 120,
+                          h = 16 + static_cast<std::uint32_t>(random()) % 90;
+      const std::uint32_t x = static_cast<std::uint32_t>(random()) % (camera.image_width() - w);
+      const std::uint32_t y = static_cast<std::uint32_t>(random()) % (camera.image_height() - h);
+      const TileRect rect = makeTileRect(x, y, w, h);
+      const auto tile = traverseTile(f.content.cells, camera, rect, settings);
+      const auto tileSet = splatSet(tile.ranges);
+      for (const auto& key : tileSet) ASSERT_TRUE(fullSet.contains(key));
+      // Every full-frame splat whose footprint reaches the tile must be in it.
+      std::size_t touching = 0;
+      for (const auto& [topLevel, offset] : fullSet) {
+        const Splat& s = splatAt(f.content, topLevel, offset);
+        const glm::vec3 p(s.position[0], s.position[1], s.position[2]);
+        const glm::vec4 window = projectToWindow(camera, p);
+        if (window.w <= 0.0f) continue;
+        const float reach = projectedRadiusPixels(camera, s.radius, window.w) + 0.5f;
+        const bool touches = window.x + reach >= static_cast<float>(x) &&
+                             window.x - reach <= static_cast<float>(x + w) &&
+                             window.y + reach >= static_cast<float>(y) &&
+                             window.y - reach <= static_cast<float>(y + h);
+        if (!touches) continue;
+        ++touching;
+        ASSERT_TRUE(tileSet.contains({topLevel, offset}))
+            << "splat at pixel " << window.x << "," << window.y << " missing from tile " << x << ","
+            << y << " " << w << "x" << h;
+      }
+      EXPECT_LE(touching, tileSet.size());
+    }
+  }
+}
+
+TEST(OctreeTraversal, CoarserLevelOfDetailDrawsFewerSplats) {
+  const Fixture& f = cityFixture();
+  const Camera camera = testCameras(f)[2];  // far away
+  TraversalSettings fine;
+  fine.lodPixels = 0.25f;
+  TraversalSettings coarse;
+  coarse.lodPixels = 4.0f;
+  const auto fineResult = traverseTile(f.content.cells, camera, fullFrameRect(camera), fine);
+  const auto coarseResult = traverseTile(f.content.cells, camera, fullFrameRect(camera), coarse);
+  EXPECT_LT(coarseResult.splats, fineResult.splats);
+  EXPECT_GT(coarseResult.splats, 0u);
+}
+
+TEST(OctreeTraversal, RangesAreSortedMergedAndInsideTheirPackets) {
+  const Fixture& f = cityFixture();
+  for (const Camera& camera : testCameras(f)) {
+    const auto result = traverseTile(f.content.cells, camera, fullFrameRect(camera), {});
+    for (std::size_t i = 0; i < result.ranges.size(); ++i) {
+      const auto& range = result.ranges[i];
+      const auto& entry = f.content.topLevel.at(range.topLevel);
+      EXPECT_LE(range.offset + range.count, entry.pointCount + entry.levelSplatCount);
+      if (i > 0) {
+        const auto& previous = result.ranges[i - 1];
+        EXPECT_TRUE(previous.topLevel < range.topLevel ||
+                    (previous.topLevel == range.topLevel &&
+                     previous.offset + previous.count < range.offset));
+      }
+    }
+    EXPECT_TRUE(std::is_sorted(result.topLevelCells.begin(), result.topLevelCells.end()));
+  }
+}
+
+TEST(OctreeTraversal, BackfacingCellIsCulledOnlyWhenEveryNormalFacesAway) {
+  OctreeCell cell{};
+  cell.boundsMin[0] = cell.boundsMin[1] = cell.boundsMin[2] = -1.0f;
+  cell.boundsMax[0] = cell.boundsMax[1] = cell.boundsMax[2] = 1.0f;
+  cell.maxSplatRadius = 0.1f;
+  // All normals within ~10 degrees of +z.
+  cell.coneAxis[0] = 0;
+  cell.coneAxis[1] = 0;
+  cell.coneAxis[2] = 32767;
+  cell.coneCos = static_cast<std::int16_t>(0.98 * 32767);
+  EXPECT_TRUE(cellBackfacing(cell, {0, 0, -20}, 1.0f));     // looking at the backs
+  EXPECT_FALSE(cellBackfacing(cell, {0, 0, 20}, 1.0f));     // looking at the fronts
+  EXPECT_FALSE(cellBackfacing(cell, {20, 0, 0.5f}, 1.0f));  // grazing: some may face us
+  EXPECT_FALSE(cellBackfacing(cell, {0, 0, -0.5f}, 1.0f));  // eye inside the cell
+  cell.coneCos = -32767;                                    // no cone
+  EXPECT_FALSE(cellBackfacing(cell, {0, 0, -20}, 1.0f));
+}
+
+}  // namespace
+}  // namespace pointillist::traverse

@@ -1,0 +1,104 @@
+// The cost function of seed 003 §4.3 and the traverse's model of render processes.
+#include <gtest/gtest.h>
+
+#include <set>
+
+#include "traverse/render_model.hpp"
+
+namespace pointillist::traverse {
+namespace {
+
+std::vector<TopLevelCell> table(std::initializer_list<std::uint64_t> bytes) {
+  std::vector<TopLevelCell> cells;
+  std::uint64_t offset = 0;
+  for (std::uint64_t size : bytes) {
+    TopLevelCell cell{};
+    cell.byteOffset = offset;
+    cell.byteSize = size;
+    offset += size;
+    cells.push_back(cell);
+  }
+  return cells;
+}
+
+TEST(RenderModel, PrefersTheRenderThatHasTheData) {
+  const auto cells = table({1'000'000, 2'000'000, 500});
+  RenderModel model(3, cells);
+  const std::uint32_t loaded[] = {0, 1};
+  model.applyReport(1, {.workloadSplats = 0, .loaded = loaded});
+  const std::uint32_t needed[] = {0, 1};
+  const auto choice = model.choose(needed, 1000);
+  EXPECT_EQ(choice.render, 1u);
+  EXPECT_EQ(choice.missingBytes, 0u);
+  EXPECT_TRUE(choice.missingCells.empty());
+}
+
+TEST(RenderModel, PrefersAnIdleRenderWhenWorkOutweighsTheTransfer) {
+  const auto cells = table({1000, 1000});
+  RenderModel model(2, cells);
+  const std::uint32_t loaded[] = {0};
+  // Render 0 has the data but 10 M splats queued (2 s at 5 M/s); moving 1 kB costs ~10 us.
+  model.applyReport(0, {.workloadSplats = 10'000'000, .loaded = loaded});
+  const std::uint32_t needed[] = {0};
+  const auto choice = model.choose(needed, 100);
+  EXPECT_EQ(choice.render, 1u);
+  EXPECT_EQ(choice.missingBytes, 1000u);
+  ASSERT_EQ(choice.missingCells.size(), 1u);
+  EXPECT_EQ(choice.missingCells[0], 0u);
+}
+
+TEST(RenderModel, CostIsWorkloadTimesTsPlusMissingBytesTimesTn) {
+  const auto cells = table({4000, 6000});
+  RenderModel model(2, cells);
+  // Measured rates replace the defaults (moving average converges).
+  for (int i = 0; i < 200; ++i) {
+    model.applyReport(0, {.workloadSplats = 500, .secondsPerSplat = 1e-6, .secondsPerByte = 1e-5});
+  }
+  EXPECT_NEAR(model.secondsPerSplat(), 1e-6, 1e-9);
+  EXPECT_NEAR(model.secondsPerByte(), 1e-5, 1e-8);
+  const std::uint32_t needed[] = {0, 1};
+  std::uint64_t missing = 0;
+  const double cost = model.cost(0, needed, 100, &missing);
+  EXPECT_EQ(missing, 10'000u);
+  EXPECT_NEAR(cost, (500 + 100) * 1e-6 + 10'000 * 1e-5, 1e-9);
+}
+
+TEST(RenderModel, WorkloadCountsPacketsSentSinceTheLastReport) {
+  const auto cells = table({100});
+  RenderModel model(1, cells);
+  model.recordPacket(0, 1, 300, {});
+  model.recordPacket(0, 2, 200, {});
+  EXPECT_EQ(model.workload(0), 500u);
+  // The render had seen packet 1 (and finished part of it) when it reported.
+  model.applyReport(0, {.workloadSplats = 120, .lastPacketFromUs = 1});
+  EXPECT_EQ(model.workload(0), 320u);
+  model.applyReport(0, {.workloadSplats = 0, .lastPacketFromUs = 2});
+  EXPECT_EQ(model.workload(0), 0u);
+}
+
+TEST(RenderModel, OrderedCellsCountAsPresentUntilEvicted) {
+  const auto cells = table({100, 100});
+  RenderModel model(2, cells);
+  const std::uint32_t ordered[] = {1};
+  model.recordPacket(1, 1, 10, ordered);
+  EXPECT_TRUE(model.hasCell(1, 1));
+  const std::uint32_t loaded[] = {1};
+  model.applyReport(1, {.loaded = loaded, .lastPacketFromUs = 1});
+  EXPECT_TRUE(model.hasCell(1, 1));
+  EXPECT_EQ(model.cachedCellCount(1), 1u);
+  const std::uint32_t evicted[] = {1};
+  model.applyReport(1, {.evicted = evicted, .lastPacketFromUs = 1});
+  EXPECT_FALSE(model.hasCell(1, 1));
+  EXPECT_EQ(model.cachedCellCount(1), 0u);
+}
+
+TEST(RenderModel, EqualCostsSpreadOverRenders) {
+  const auto cells = table({100});
+  RenderModel model(4, cells);
+  std::set<std::size_t> chosen;
+  for (int i = 0; i < 4; ++i) chosen.insert(model.choose({}, 0).render);
+  EXPECT_EQ(chosen.size(), 4u);
+}
+
+}  // namespace
+}  // namespace pointillist::traverse

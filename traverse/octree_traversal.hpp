@@ -1,0 +1,59 @@
+#pragma once
+// The data-traverse walk of seed 003 §4.3 over the octree-cell-array: the
+// sibling-skip loop, conservative culling against a mini frustum (tile) and by
+// normal cone, and level-of-detail selection from projected splat size.
+//
+// Every decision except the frustum test depends on the camera only, never on
+// the tile, so the union of all tiles' packets draws exactly what a full-frame
+// traversal draws: that is what makes composed frames match the reference.
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "common/camera.hpp"
+#include "common/octree_cell.hpp"
+
+namespace pointillist::traverse {
+
+struct TraversalSettings {
+  // Draw a cell's level-splats once its largest splat projects to at most this
+  // many pixels in radius at the cell's nearest point (about one splat per pixel).
+  float lodPixels = 1.0f;
+  // Renderer's radius multiplier; culling grows splat radii by the same factor.
+  float sizeScale = 1.0f;
+  // Pixels added around the tile: a rasterized splat may reach about one pixel
+  // beyond its projected radius (rounding of point sizes, minimum sizes).
+  float marginPixels = 1.0f;
+  bool backfaceCull = true;
+};
+
+// One drawn range: splats [offset, offset + count) of a top-level cell's packet.
+struct PacketRange {
+  std::uint32_t topLevel = 0;
+  std::uint32_t offset = 0;
+  std::uint32_t count = 0;
+  bool operator==(const PacketRange&) const = default;
+};
+
+struct TraversalResult {
+  std::vector<PacketRange> ranges;           // sorted by (topLevel, offset), merged when adjacent
+  std::vector<std::uint32_t> topLevelCells;  // distinct, ascending
+  std::uint64_t splats = 0;
+  std::uint64_t cellsVisited = 0;
+  std::uint64_t cellsCulledFrustum = 0;
+  std::uint64_t cellsCulledBackface = 0;
+};
+
+// Walks `cells` for the tile `rect` of `camera` (pass the full frame rect for a
+// whole-frame traversal).
+TraversalResult traverseTile(std::span<const OctreeCell> cells, const Camera& camera,
+                             const TileRect& rect, const TraversalSettings& settings);
+
+// True when every splat of the cell faces away from the eye (conservative:
+// combines the normal cone with the cone of view directions onto the cell).
+bool cellBackfacing(const OctreeCell& cell, const glm::vec3& eye, float sizeScale);
+
+// Euclidean distance from the eye to the cell's bounds grown by its splat radius (0 inside).
+float distanceToCell(const OctreeCell& cell, const glm::vec3& eye, float sizeScale);
+
+}  // namespace pointillist::traverse

@@ -1,0 +1,101 @@
+#include "traverse/render_model.hpp"
+
+#include <algorithm>
+#include <limits>
+
+#include "common/errors.hpp"
+
+namespace pointillist::traverse {
+
+double blend(double average, double sample, double weight) {
+  return average + weight * (sample - average);
+}
+
+RenderModel::RenderModel(std::size_t renderCount, std::span<const TopLevelCell> topLevel)
+    : renders_(renderCount) {
+  if (renderCount == 0) throw UsageError("a render model needs at least one render process");
+  cellBytes_.reserve(topLevel.size());
+  for (const TopLevelCell& cell : topLevel) cellBytes_.push_back(cell.byteSize);
+}
+
+std::uint64_t RenderModel::workload(std::size_t render) const {
+  const RenderState& state = renders_.at(render);
+  std::uint64_t total = state.reportedWorkload;
+  for (const auto& [id, splats] : state.unreported) total += splats;
+  return total;
+}
+
+bool RenderModel::hasCell(std::size_t render, std::uint32_t cell) const {
+  const RenderState& state = renders_.at(render);
+  return state.cached.contains(cell) || state.ordered.contains(cell);
+}
+
+std::size_t RenderModel::cachedCellCount(std::size_t render) const {
+  return renders_.at(render).cached.size();
+}
+
+double RenderModel::cost(std::size_t render, std::span<const std::uint32_t> cells,
+                         std::uint64_t splats, std::uint64_t* missingBytes) const {
+  std::uint64_t missing = 0;
+  for (std::uint32_t cell : cells) {
+    if (!hasCell(render, cell)) missing += cellBytes_.at(cell);
+  }
+  if (missingBytes != nullptr) *missingBytes = missing;
+  // The packet's own splats cost the same everywhere; they are included so the
+  // figure reads as the expected completion time on that render.
+  return static_cast<double>(workload(render) + splats) * secondsPerSplat_ +
+         static_cast<double>(missing) * secondsPerByte_;
+}
+
+RenderChoice RenderModel::choose(std::span<const std::uint32_t> cells, std::uint64_t splats) const {
+  RenderChoice best;
+  best.cost = std::numeric_limits<double>::infinity();
+  std::uint64_t bestWorkload = std::numeric_limits<std::uint64_t>::max();
+  const std::size_t count = renders_.size();
+  for (std::size_t step = 0; step < count; ++step) {
+    const std::size_t render = (rotation_ + step) % count;
+    std::uint64_t missing = 0;
+    const double value = cost(render, cells, splats, &missing);
+    const std::uint64_t load = workload(render);
+    if (value < best.cost || (value == best.cost && load < bestWorkload)) {
+      best.render = render;
+      best.cost = value;
+      best.missingBytes = missing;
+      bestWorkload = load;
+    }
+  }
+  rotation_ = (best.render + 1) % count;
+  for (std::uint32_t cell : cells) {
+    if (!hasCell(best.render, cell)) best.missingCells.push_back(cell);
+  }
+  return best;
+}
+
+void RenderModel::recordPacket(std::size_t render, std::uint64_t packetId, std::uint64_t splats,
+                               std::span<const std::uint32_t> orderedCells) {
+  RenderState& state = renders_.at(render);
+  state.unreported.emplace_back(packetId, splats);
+  for (std::uint32_t cell : orderedCells) state.ordered.insert(cell);
+}
+
+void RenderModel::applyReport(std::size_t render, const RenderReportView& report) {
+  RenderState& state = renders_.at(render);
+  state.reportedWorkload = report.workloadSplats;
+  state.lastPacketSeen = std::max(state.lastPacketSeen, report.lastPacketFromUs);
+  std::erase_if(state.unreported,
+                [&](const auto& packet) { return packet.first <= state.lastPacketSeen; });
+  for (std::uint32_t cell : report.loaded) {
+    state.cached.insert(cell);
+    state.ordered.erase(cell);
+  }
+  for (std::uint32_t cell : report.evicted) {
+    state.cached.erase(cell);
+    state.ordered.erase(cell);
+  }
+  if (report.secondsPerSplat > 0.0)
+    secondsPerSplat_ = blend(secondsPerSplat_, report.secondsPerSplat, 0.25);
+  if (report.secondsPerByte > 0.0)
+    secondsPerByte_ = blend(secondsPerByte_, report.secondsPerByte, 0.25);
+}
+
+}  // namespace pointillist::traverse
