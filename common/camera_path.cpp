@@ -59,7 +59,7 @@ std::vector<CameraKey> builtinCameraPath(const std::string& name, const SceneBou
   for (std::uint32_t i = 0; i < frames; ++i) {
     const float t = frames == 1 ? 0.0f : static_cast<float>(i) / static_cast<float>(frames);
     if (name == "orbit") {
-      keys.push_back(orbitKey(bounds, up, 30.0f + 360.0f * t, 25.0f, 1.0f, centre));
+      keys.push_back(orbitKey(bounds, up, 30.0f + 360.0f * t, 30.0f, 0.8f, centre));
     } else if (name == "flythrough") {
       // From an overview down to a third of the bounding radius above the data,
       // turning a quarter while the target slides across the surface.

@@ -165,7 +165,7 @@ std::string RunStats::summary() const {
   }
   std::snprintf(
       line, sizeof line,
-      "cache: hit rate %.1f%% (%llu hits, %llu misses), %llu evictions, peak %.1f MiB on "
+      "cache: hit rate %.1f%% (%llu hits, %llu misses), %llu evictions, peak %.2f MiB on "
       "one render\n",
       hits + misses ? 100.0 * static_cast<double>(hits) / static_cast<double>(hits + misses) : 0.0,
       static_cast<unsigned long long>(hits), static_cast<unsigned long long>(misses),

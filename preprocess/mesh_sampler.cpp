@@ -281,7 +281,7 @@ TriangleMesh readOffMesh(const std::filesystem::path& file, const ReadOptions& o
       if (!options.dropNonFinite) {
         failAtLine(file, at,
                    "non-finite value (NaN or Inf) in vertex " + std::to_string(i) +
-                       " (set dropNonFinite to drop such points)");
+                       " (pass --drop-non-finite to drop such points)");
       }
       mesh.badVertices.resize(static_cast<std::size_t>(vertexCount), false);
       mesh.badVertices[static_cast<std::size_t>(i)] = true;

@@ -516,7 +516,7 @@ class PlyParser {
           std::abs(v[2]) <= static_cast<double>(std::numeric_limits<float>::max());
       if (!finite) {
         const std::string message =
-            "non-finite vertex coordinate (NaN or Inf) (set dropNonFinite to skip it)";
+            "non-finite vertex coordinate (NaN or Inf) (pass --drop-non-finite to skip it)";
         if (!options_.dropNonFinite) {
           if (line > 0) failAtLine(file_, line, message);
           failAtByte(file_, byte, message);

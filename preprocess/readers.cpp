@@ -141,7 +141,7 @@ void CloudBuilder::add(const Splat& splat, std::uint64_t line, std::uint64_t byt
     if (!options_.dropNonFinite) {
       const std::string message = "non-finite value (NaN or Inf) in point " +
                                   std::to_string(cloud_.splats.size() + dropped_) +
-                                  " (set dropNonFinite to drop such points)";
+                                  " (pass --drop-non-finite to drop such points)";
       if (line > 0) failAtLine(file_, line, message);
       failAtByte(file_, byte, message);
     }

@@ -52,6 +52,16 @@ std::vector<std::uint32_t> CellCache::expire(Clock::time_point now) {
   return evicted;
 }
 
+bool CellCache::canFit(std::uint64_t bytes) const {
+  std::uint64_t pinnedBytes = 0;
+  for (const auto& [cell, count] : pins_) {
+    if (const auto found = entries_.find(cell); found != entries_.end()) {
+      pinnedBytes += found->second.bytes;
+    }
+  }
+  return pinnedBytes + bytes <= capBytes_;
+}
+
 void CellCache::pin(std::uint32_t cell) {
   ++pins_[cell];
 }

@@ -25,6 +25,8 @@ class CellCache {
   // until it fits under the cap. Returns the evicted cells. When pinned cells
   // alone exceed the cap the cell is still added (counted in overCapInsertions).
   std::vector<std::uint32_t> insert(std::uint32_t cell, std::uint64_t bytes, Clock::time_point now);
+  // True when `bytes` more fit under the cap once every unpinned cell is evicted.
+  bool canFit(std::uint64_t bytes) const;
   // Evicts unpinned cells unused for longer than the time-out.
   std::vector<std::uint32_t> expire(Clock::time_point now);
   // Pins count per cell; a pin may be taken before the cell arrives.

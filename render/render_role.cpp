@@ -28,7 +28,8 @@ struct RenderOptions {
   std::string profile = "compat";
   // Test hooks: simulate a slow or stalled render process.
   double slowMillisecondsPerPacket = 0.0;
-  long stallAfterPackets = -1;
+  int stallIndex = -1;  // which render process (index among renders) stalls
+  long stallAfterPackets = 0;
 };
 
 double movingAverage(double average, double sample) {
@@ -80,6 +81,7 @@ class RenderProcess {
       for (std::uint32_t cell : cache_.expire(now)) evict(cell);
       rerequestLateCells(now);
     }
+    pinHeadPacket();
     bool worked = false;
     if (!stalled()) {
       for (auto it = queue_.begin(); it != queue_.end(); ++it) {
@@ -100,13 +102,14 @@ class RenderProcess {
     char line[300];
     std::snprintf(line, sizeof line,
                   "packets=%llu splats=%llu busy=%.3fs hits=%llu misses=%llu evictions=%llu "
-                  "peak_cache=%.1fMiB data_in=%.1fMiB",
+                  "peak_cache=%.1fMiB data_in=%.1fMiB dropped_prefetches=%llu",
                   static_cast<unsigned long long>(packetsDone_),
                   static_cast<unsigned long long>(splatsDone_), busySeconds_,
                   static_cast<unsigned long long>(hits_), static_cast<unsigned long long>(misses_),
                   static_cast<unsigned long long>(cache_.evictions()),
                   static_cast<double>(cache_.peakBytes()) / 1048576.0,
-                  static_cast<double>(dataBytesReceived_) / 1048576.0);
+                  static_cast<double>(dataBytesReceived_) / 1048576.0,
+                  static_cast<unsigned long long>(droppedPrefetches_));
     return line;
   }
 
@@ -114,11 +117,35 @@ class RenderProcess {
   struct QueuedPacket {
     v1::RenderPacket packet;
     Clock::time_point arrived;
+    std::uint64_t sequence = 0;
   };
 
+  // Only the oldest queued packet holds its cells in the cache: pinning every
+  // queued packet could hold more than the memory cap. Cells of later packets
+  // may be evicted and are asked for again when their packet comes first.
+  void pinHeadPacket() {
+    const std::uint64_t head = queue_.empty() ? 0 : queue_.front().sequence;
+    if (head == pinnedSequence_) return;
+    for (std::uint32_t cell : pinnedCells_) cache_.unpin(cell);
+    pinnedCells_.clear();
+    pinnedSequence_ = head;
+    if (queue_.empty()) return;
+    std::map<std::uint32_t, v1::SendOrder> requests;
+    const auto now = Clock::now();
+    for (std::uint32_t cell : queue_.front().packet.top_level_cells()) {
+      cache_.pin(cell);
+      pinnedCells_.push_back(cell);
+      if (!cache_.contains(cell) && !requestedAt_.contains(cell)) {
+        requestedAt_[cell] = now;
+        requests[owners_[cell]].add_top_level_cells(cell);
+      }
+    }
+    sendRequests(requests);
+  }
+
   bool stalled() const {
-    return options_.stallAfterPackets >= 0 &&
-           packetsDone_ >= static_cast<std::uint64_t>(options_.stallAfterPackets);
+    return options_.stallIndex == job_.indexInRole() &&
+           packetsDone_ >= static_cast<std::uint64_t>(std::max(0L, options_.stallAfterPackets));
   }
 
   bool ready(const QueuedPacket& queued) const {
@@ -146,17 +173,21 @@ class RenderProcess {
     }
     dataBytesReceived_ += envelope.payload.size();
     const auto now = Clock::now();
-    if (const auto waiting = waitingSince_.find(cell); waiting != waitingSince_.end()) {
-      // T_n: how long a packet waited per byte of missing data.
-      const double seconds = std::chrono::duration<double>(now - waiting->second).count();
-      if (!envelope.payload.empty()) {
-        secondsPerByte_ =
-            movingAverage(secondsPerByte_, seconds / static_cast<double>(envelope.payload.size()));
-      }
-      waitingSince_.erase(waiting);
+    // T_n: the measured transfer time of the payload per byte.
+    if (envelope.payload.size() >= 4096 && envelope.payloadSeconds > 0.0) {
+      secondsPerByte_ = movingAverage(
+          secondsPerByte_, envelope.payloadSeconds / static_cast<double>(envelope.payload.size()));
     }
     requestedAt_.erase(cell);
     if (cache_.contains(cell)) return;  // already here (a late duplicate)
+    if (!cache_.pinned(cell) && !cache_.canFit(envelope.payload.size())) {
+      // Prefetched data that cannot fit beside the packet being waited for:
+      // drop it and say so, so it is sent again when it is needed.
+      ++droppedPrefetches_;
+      evicted_.push_back(cell);
+      reportDirty_ = true;
+      return;
+    }
     for (std::uint32_t victim : cache_.insert(cell, envelope.payload.size(), now)) evict(victim);
     const std::span<const Splat> splats(reinterpret_cast<const Splat*>(envelope.payload.data()),
                                         envelope.payload.size() / sizeof(Splat));
@@ -177,14 +208,12 @@ class RenderProcess {
         throw ProtocolError("render packet names top-level cell " + std::to_string(cell) +
                             " beyond the dataset's " + std::to_string(owners_.size()));
       }
-      cache_.pin(cell);
       if (cache_.contains(cell)) {
         ++hits_;
         cache_.touch(cell, now);
         continue;
       }
       ++misses_;
-      waitingSince_.try_emplace(cell, now);
       // The traverse ordered it already; asking too covers a cell evicted after
       // the traverse last heard from us (data-send drops the duplicate).
       if (!requestedAt_.contains(cell)) {
@@ -194,11 +223,15 @@ class RenderProcess {
     }
     sendRequests(requests);
     workload_ += packet.total_splats();
-    queue_.push_back({std::move(packet), now});
+    queue_.push_back({std::move(packet), now, ++packetsQueued_});
     reportDirty_ = true;
   }
 
   void sendRequests(std::map<std::uint32_t, v1::SendOrder>& requests) {
+    if (requests.empty()) return;
+    // Data-send must hear of an eviction before a request for the same cell,
+    // or it would drop the request as a duplicate.
+    if (!evicted_.empty()) sendReports();
     const auto& datasends = job_.ranksOf(v1::ROLE_DATASEND);
     for (auto& [owner, order] : requests) {
       order.set_render_rank(job_.worldRank());
@@ -210,7 +243,7 @@ class RenderProcess {
   void rerequestLateCells(Clock::time_point now) {
     std::map<std::uint32_t, v1::SendOrder> requests;
     for (auto& [cell, when] : requestedAt_) {
-      if (now - when > std::chrono::seconds(5)) {
+      if (now - when > std::chrono::seconds(1)) {
         when = now;
         requests[owners_[cell]].add_top_level_cells(cell);
       }
@@ -241,10 +274,7 @@ class RenderProcess {
     }
     const RenderStats stats = renderer_.render(packet.camera(), packet.rect(), ranges, settings);
     const auto now = Clock::now();
-    for (std::uint32_t cell : packet.top_level_cells()) {
-      cache_.unpin(cell);
-      cache_.touch(cell, now);
-    }
+    for (std::uint32_t cell : packet.top_level_cells()) cache_.touch(cell, now);
     if (stats.splats >= 1000 && stats.seconds > 0.0) {
       secondsPerSplat_ =
           movingAverage(secondsPerSplat_, stats.seconds / static_cast<double>(stats.splats));
@@ -328,7 +358,9 @@ class RenderProcess {
   std::map<int, std::size_t> traverseIndex_;
   std::vector<std::uint64_t> lastPacketFrom_;
   std::deque<QueuedPacket> queue_;
-  std::unordered_map<std::uint32_t, Clock::time_point> waitingSince_;
+  std::uint64_t packetsQueued_ = 0;
+  std::uint64_t pinnedSequence_ = 0;
+  std::vector<std::uint32_t> pinnedCells_;
   std::unordered_map<std::uint32_t, Clock::time_point> requestedAt_;
   std::vector<std::uint32_t> loaded_;
   std::vector<std::uint32_t> evicted_;
@@ -342,6 +374,7 @@ class RenderProcess {
   std::uint64_t hits_ = 0;
   std::uint64_t misses_ = 0;
   std::uint64_t dataBytesReceived_ = 0;
+  std::uint64_t droppedPrefetches_ = 0;
   double busySeconds_ = 0.0;
   double secondsPerSplat_ = 0.0;
   double secondsPerByte_ = 0.0;
@@ -362,6 +395,7 @@ int runRenderRole(Job& job, int argc, char** argv) {
       ->check(CLI::PositiveNumber);
   app.add_option("--gl-profile", options.profile, "OSMesa context profile: compat or core");
   app.add_option("--slow-ms", options.slowMillisecondsPerPacket)->group("");
+  app.add_option("--stall-index", options.stallIndex)->group("");
   app.add_option("--stall-after", options.stallAfterPackets)->group("");
   if (!parseRoleOptions(app, job, argc, argv)) return 0;
 

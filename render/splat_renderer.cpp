@@ -39,6 +39,7 @@ layout(location = 1) in vec4 inColor;
 layout(location = 2) in float inRadius;
 uniform mat4 viewProjection;
 uniform vec2 frameSize;
+uniform float guard;          // pixels of clip volume beyond each frame edge
 uniform float diameterScale;  // 2 * focal length in pixels * sizeScale
 uniform float constantSize;   // > 0: fixed size
 uniform float maxSize;
@@ -56,7 +57,7 @@ void main() {
   vec3 ndc = clip.xyz / clip.w;
   vec2 window = (ndc.xy * 0.5 + 0.5) * frameSize;
   vec2 snapped = mod(size, 2.0) == 1.0 ? floor(window) + 0.5 : floor(window + 0.5);
-  gl_Position = vec4(snapped / frameSize * 2.0 - 1.0, ndc.z, 1.0);
+  gl_Position = vec4((snapped + guard) / (frameSize + 2.0 * guard) * 2.0 - 1.0, ndc.z, 1.0);
 }
 )";
 
@@ -100,6 +101,7 @@ in Splat {
 uniform mat4 view;
 uniform mat4 projection;
 uniform vec2 frameSize;
+uniform float guard;        // pixels of clip volume beyond each frame edge
 uniform float focalPixels;  // pixels per world unit at eye distance 1
 uniform float radiusScale;
 uniform float minPixelRadius;
@@ -114,6 +116,11 @@ flat out vec4 gColor;
 void emitClip(vec4 clip) {
   gl_Position = clip;
   EmitVertex();
+}
+
+// Frame clip coordinates -> the guarded viewport's.
+vec4 guarded(vec4 clip) {
+  return vec4(clip.xy * frameSize / (frameSize + 2.0 * guard), clip.zw);
 }
 
 void main() {
@@ -154,8 +161,8 @@ void main() {
       lo = min(lo, window);
       hi = max(hi, window);
     }
-    lo = (lo - 1.0) / frameSize * 2.0 - 1.0;
-    hi = (hi + 1.0) / frameSize * 2.0 - 1.0;
+    lo = (lo - 1.0 + guard) / (frameSize + 2.0 * guard) * 2.0 - 1.0;
+    hi = (hi + 1.0 + guard) / (frameSize + 2.0 * guard) * 2.0 - 1.0;
     // z = 0: depth clipping is done per pixel by the fragment shader.
     emitClip(vec4(lo.x, lo.y, 0.0, 1.0));
     emitClip(vec4(hi.x, lo.y, 0.0, 1.0));
@@ -164,10 +171,10 @@ void main() {
   } else {
     // Crosses the eye plane: a slightly larger square in clip space, clipped by GL.
     float grow = 1.1;
-    emitClip(projection * vec4(centre + grow * radius * (-u - v), 1.0));
-    emitClip(projection * vec4(centre + grow * radius * (u - v), 1.0));
-    emitClip(projection * vec4(centre + grow * radius * (-u + v), 1.0));
-    emitClip(projection * vec4(centre + grow * radius * (u + v), 1.0));
+    emitClip(guarded(projection * vec4(centre + grow * radius * (-u - v), 1.0)));
+    emitClip(guarded(projection * vec4(centre + grow * radius * (u - v), 1.0)));
+    emitClip(guarded(projection * vec4(centre + grow * radius * (-u + v), 1.0)));
+    emitClip(guarded(projection * vec4(centre + grow * radius * (u + v), 1.0)));
   }
   EndPrimitive();
 }
@@ -272,6 +279,12 @@ GLuint linkProgram(const char* vertex, const char* geometry, const char* fragmen
   return program;
 }
 
+// Clip volume beyond each frame edge, in pixels: GL clips points by their
+// centre, so without it a wide point (or, for splats, nothing) whose centre
+// is just outside the frame would vanish although part of it is inside.
+// Half the largest point size llvmpipe draws (255).
+constexpr std::int64_t kGuardPixels = 128;
+
 const void* byteOffset(std::size_t offset) {
   return reinterpret_cast<const void*>(offset);
 }
@@ -326,6 +339,12 @@ SplatRenderer::SplatRenderer(OffscreenContext& context)
   GLfloat range[2] = {1.0f, 1.0f};
   glGetFloatv(GL_ALIASED_POINT_SIZE_RANGE, range);
   maxPointSizeGl_ = range[1];
+  GLint dims[2] = {0, 0};
+  glGetIntegerv(GL_MAX_VIEWPORT_DIMS, dims);
+  maxViewport_ = std::min(dims[0], dims[1]);
+  GLint bounds[2] = {0, 0};
+  glGetIntegerv(GL_VIEWPORT_BOUNDS_RANGE, bounds);
+  viewportBoundsMin_ = bounds[0];
   throwOnGlError("SplatRenderer");
 }
 
@@ -400,6 +419,17 @@ std::uint32_t SplatRenderer::cellSplatCount(std::uint32_t id) const {
   return it == cells_.end() ? 0 : it->second.count;
 }
 
+std::uint32_t SplatRenderer::guardPixels(const Camera& camera) const {
+  const auto largest =
+      static_cast<std::int64_t>(std::max(camera.image_width(), camera.image_height()));
+  const std::int64_t byDims = (maxViewport_ - largest) / 2;
+  const std::int64_t byBounds =
+      -viewportBoundsMin_ -
+      static_cast<std::int64_t>(std::max(camera.image_width(), camera.image_height()));
+  return static_cast<std::uint32_t>(
+      std::clamp<std::int64_t>(std::min(byDims, byBounds), 0, kGuardPixels));
+}
+
 unsigned SplatRenderer::program(SplatMode mode) {
   if (mode == SplatMode::Points) {
     if (programs_->points == 0) {
@@ -424,6 +454,7 @@ void SplatRenderer::setUniforms(unsigned prog, const Camera& camera, const TileR
   const auto frameW = static_cast<float>(camera.image_width());
   const auto frameH = static_cast<float>(camera.image_height());
   glUniform2f(uniform(prog, "frameSize"), frameW, frameH);
+  glUniform1f(uniform(prog, "guard"), static_cast<float>(guardPixels(camera)));
   if (settings.mode == SplatMode::Points) {
     glUniformMatrix4fv(uniform(prog, "viewProjection"), 1, GL_FALSE,
                        glm::value_ptr(viewProjection));
@@ -512,10 +543,12 @@ RenderStats SplatRenderer::draw(
     ensureAccumulation(rect.width(), rect.height());
     glBindFramebuffer(GL_FRAMEBUFFER, accumulation_.framebuffer);
   }
-  // The full frame's viewport, shifted so the tile's pixels land in the buffer.
-  glViewport(-static_cast<GLint>(rect.x()), -static_cast<GLint>(rect.y()),
-             static_cast<GLsizei>(camera.image_width()),
-             static_cast<GLsizei>(camera.image_height()));
+  // The full frame's viewport grown by the guard band, shifted so the tile's
+  // pixels land in the buffer.
+  const auto guard = static_cast<GLint>(guardPixels(camera));
+  glViewport(-static_cast<GLint>(rect.x()) - guard, -static_cast<GLint>(rect.y()) - guard,
+             static_cast<GLsizei>(camera.image_width()) + 2 * guard,
+             static_cast<GLsizei>(camera.image_height()) + 2 * guard);
   glDisable(GL_SCISSOR_TEST);
   glDisable(GL_BLEND);
   glDisable(GL_CULL_FACE);

@@ -5,15 +5,19 @@
 // (uploadCell) and draws ranges of it per packet (DrawRange = the packet's
 // range_top_level / range_offset / range_count); releaseCell on eviction.
 //
-// Tiles: a tile is drawn with the full frame's projection and a viewport
-// shifted by (-rect.x, -rect.y) into a tile-sized framebuffer. That is the tile
-// projection of common/camera.hpp expressed in the viewport, but clip
+// Tiles: a tile is drawn with the full frame's projection and the full frame's
+// viewport shifted by (-rect.x, -rect.y) into a tile-sized framebuffer. That is
+// the tile projection of common/camera.hpp expressed in the viewport, but clip
 // coordinates (and so clipping and the shaders' arithmetic) are bit-identical
-// to the full frame's. Shaders work in full-frame pixels (points snap to the
-// full-frame pixel grid; splats ray-cast per full-frame pixel), so a tile is
-// pixel-identical to the same rectangle of a full-frame render provided it is
-// given every splat that touches it (see tilePlanes' margin) in the same
-// relative order (ranges are drawn sorted by cell, then offset).
+// to the full frame's; the tile projection as a matrix would clip wide points
+// by their centre at tile borders (llvmpipe drops a point whose centre is
+// outside the clip volume) and round differently. Shaders work in full-frame
+// pixels (points snap to the full-frame pixel grid; splats ray-cast per
+// full-frame pixel), so a tile is pixel-identical to the same rectangle of a
+// full-frame render provided it is given every splat that touches it (see
+// tilePlanes' margin) in the same relative order (ranges are drawn sorted by
+// cell, then offset). The viewport also has a 128-pixel guard band around the
+// frame so points centred just outside the frame still show their inside part.
 //
 // Modes:
 //  - Points: GL_POINTS, one vertex per splat; size = the splat's projected
@@ -127,6 +131,7 @@ class SplatRenderer {
   void destroyAccumulation();
   void destroy(Cell& cell);
   unsigned program(SplatMode mode);
+  std::uint32_t guardPixels(const Camera& camera) const;
   void setUniforms(unsigned program, const Camera& camera, const TileRect& rect,
                    const RenderSettings& settings);
   RenderStats draw(const Camera& camera, const TileRect& rect,
@@ -141,6 +146,8 @@ class SplatRenderer {
   Accumulation accumulation_;
   std::uint64_t uploadedBytes_ = 0;
   float maxPointSizeGl_ = 1.0f;
+  std::int64_t maxViewport_ = 0;        // GL_MAX_VIEWPORT_DIMS
+  std::int64_t viewportBoundsMin_ = 0;  // GL_VIEWPORT_BOUNDS_RANGE[0]
   std::uint32_t drawSerial_ = 0;
 };
 

@@ -47,13 +47,27 @@ double RenderModel::cost(std::size_t render, std::span<const std::uint32_t> cell
          static_cast<double>(missing) * secondsPerByte_;
 }
 
-RenderChoice RenderModel::choose(std::span<const std::uint32_t> cells, std::uint64_t splats) const {
+bool RenderModel::suspectedStalled(std::size_t render, Clock::time_point now) const {
+  const RenderState& state = renders_.at(render);
+  if (!state.waitingSince) return false;
+  const double expected = static_cast<double>(workload(render)) * secondsPerSplat_;
+  const double waited = std::chrono::duration<double>(now - *state.waitingSince).count();
+  return waited > std::max(1.0, 4.0 * expected);
+}
+
+RenderChoice RenderModel::choose(std::span<const std::uint32_t> cells, std::uint64_t splats,
+                                 Clock::time_point now) const {
   RenderChoice best;
   best.cost = std::numeric_limits<double>::infinity();
   std::uint64_t bestWorkload = std::numeric_limits<std::uint64_t>::max();
   const std::size_t count = renders_.size();
+  bool allStalled = true;
+  for (std::size_t render = 0; render < count; ++render) {
+    allStalled = allStalled && suspectedStalled(render, now);
+  }
   for (std::size_t step = 0; step < count; ++step) {
     const std::size_t render = (rotation_ + step) % count;
+    if (!allStalled && suspectedStalled(render, now)) continue;
     std::uint64_t missing = 0;
     const double value = cost(render, cells, splats, &missing);
     const std::uint64_t load = workload(render);
@@ -74,12 +88,18 @@ RenderChoice RenderModel::choose(std::span<const std::uint32_t> cells, std::uint
 void RenderModel::recordPacket(std::size_t render, std::uint64_t packetId, std::uint64_t splats,
                                std::span<const std::uint32_t> orderedCells) {
   RenderState& state = renders_.at(render);
+  if (!state.waitingSince) state.waitingSince = Clock::now();
   state.unreported.emplace_back(packetId, splats);
   for (std::uint32_t cell : orderedCells) state.ordered.insert(cell);
 }
 
-void RenderModel::applyReport(std::size_t render, const RenderReportView& report) {
+void RenderModel::applyReport(std::size_t render, const RenderReportView& report,
+                              Clock::time_point now) {
   RenderState& state = renders_.at(render);
+  if (report.packetsDone > state.packetsDone || report.workloadSplats == 0) {
+    state.waitingSince.reset();  // progress, or nothing to do
+  }
+  state.packetsDone = std::max(state.packetsDone, report.packetsDone);
   state.reportedWorkload = report.workloadSplats;
   state.lastPacketSeen = std::max(state.lastPacketSeen, report.lastPacketFromUs);
   std::erase_if(state.unreported,
@@ -92,6 +112,7 @@ void RenderModel::applyReport(std::size_t render, const RenderReportView& report
     state.cached.erase(cell);
     state.ordered.erase(cell);
   }
+  if (!state.waitingSince && workload(render) > 0) state.waitingSince = now;
   if (report.secondsPerSplat > 0.0)
     secondsPerSplat_ = blend(secondsPerSplat_, report.secondsPerSplat, 0.25);
   if (report.secondsPerByte > 0.0)

@@ -5,7 +5,9 @@
 //   Cost(i) = workload(i) * T_s + missing_bytes(i) * T_n
 // T_s (seconds per splat) and T_n (seconds per byte) are measured by the render
 // processes while running and averaged here.
+#include <chrono>
 #include <cstdint>
+#include <optional>
 #include <span>
 #include <unordered_map>
 #include <unordered_set>
@@ -23,6 +25,7 @@ struct RenderReportView {
   double secondsPerByte = 0.0;   // 0: not measured yet
   // Highest packet id from this traverse the render had received when reporting.
   std::uint64_t lastPacketFromUs = 0;
+  std::uint64_t packetsDone = 0;  // packets the render has finished in all
 };
 
 struct RenderChoice {
@@ -34,6 +37,8 @@ struct RenderChoice {
 
 class RenderModel {
  public:
+  using Clock = std::chrono::steady_clock;
+
   RenderModel(std::size_t renderCount, std::span<const TopLevelCell> topLevel);
 
   // Cost of sending a packet of `splats` splats that needs `cells` to render i.
@@ -41,13 +46,19 @@ class RenderModel {
               std::uint64_t* missingBytes = nullptr) const;
   // The render with the lowest cost; ties go to the lowest pending work, then
   // rotate from the last choice so idle renders share the first frames.
-  RenderChoice choose(std::span<const std::uint32_t> cells, std::uint64_t splats) const;
+  // A render that has had work for much longer than that work should take
+  // without finishing a packet is suspected stalled and only chosen when every
+  // render is.
+  RenderChoice choose(std::span<const std::uint32_t> cells, std::uint64_t splats,
+                      Clock::time_point now = Clock::now()) const;
+  bool suspectedStalled(std::size_t render, Clock::time_point now) const;
 
   // Records that a packet went to `render` with the given id, and that its
   // missing cells were ordered (they count as present from now on).
   void recordPacket(std::size_t render, std::uint64_t packetId, std::uint64_t splats,
                     std::span<const std::uint32_t> orderedCells);
-  void applyReport(std::size_t render, const RenderReportView& report);
+  void applyReport(std::size_t render, const RenderReportView& report,
+                   Clock::time_point now = Clock::now());
 
   std::uint64_t workload(std::size_t render) const;  // reported + sent since the report
   bool hasCell(std::size_t render, std::uint32_t cell) const;
@@ -64,6 +75,9 @@ class RenderModel {
     std::vector<std::pair<std::uint64_t, std::uint64_t>> unreported;
     std::unordered_set<std::uint32_t> cached;   // confirmed by reports
     std::unordered_set<std::uint32_t> ordered;  // ordered by us, not yet confirmed
+    std::uint64_t packetsDone = 0;
+    // Since when the render has had work and finished nothing.
+    std::optional<Clock::time_point> waitingSince;
   };
   std::vector<RenderState> renders_;
   std::vector<std::uint64_t> cellBytes_;

@@ -60,11 +60,14 @@ class TraverseProcess {
 
   std::string summary() const {
     char line[256];
-    std::snprintf(line, sizeof line, "tasks=%llu splats=%llu ordered_cells=%llu ordered_bytes=%llu",
+    std::snprintf(line, sizeof line,
+                  "tasks=%llu splats=%llu ordered_cells=%llu ordered_bytes=%llu "
+                  "largest_tile_data=%.2fMiB",
                   static_cast<unsigned long long>(tasksDone_),
                   static_cast<unsigned long long>(splatsPacked_),
                   static_cast<unsigned long long>(cellsOrdered_),
-                  static_cast<unsigned long long>(bytesOrdered_));
+                  static_cast<unsigned long long>(bytesOrdered_),
+                  static_cast<double>(maxPacketBytes_) / 1048576.0);
     return line;
   }
 
@@ -119,6 +122,11 @@ class TraverseProcess {
     model_.recordPacket(choice.render, packetsSent_, result.splats, choice.missingCells);
 
     ++tasksDone_;
+    std::uint64_t packetBytes = 0;
+    for (std::uint32_t cell : result.topLevelCells) {
+      packetBytes += dataset_.topLevelCells()[cell].byteSize;
+    }
+    maxPacketBytes_ = std::max(maxPacketBytes_, packetBytes);
     splatsPacked_ += result.splats;
     cellsOrdered_ += choice.missingCells.size();
     bytesOrdered_ += choice.missingBytes;
@@ -139,6 +147,7 @@ class TraverseProcess {
     view.secondsPerSplat = report.seconds_per_splat();
     view.secondsPerByte = report.seconds_per_byte();
     view.lastPacketFromUs = report.last_packet_from_recipient();
+    view.packetsDone = report.packets_done();
     model_.applyReport(found->second, view);
   }
 
@@ -154,6 +163,7 @@ class TraverseProcess {
   std::uint64_t splatsPacked_ = 0;
   std::uint64_t cellsOrdered_ = 0;
   std::uint64_t bytesOrdered_ = 0;
+  std::uint64_t maxPacketBytes_ = 0;  // largest working set of one tile
 };
 
 }  // namespace

@@ -235,6 +235,7 @@ Envelope Channel::receiveMatched(MPI_Message& message, MPI_Status& status) {
   const std::uint64_t payloadBytes = getLE(frame.data() + 8, 8);
   envelope.header = frame.substr(kPrefixBytes);
 
+  const auto payloadStart = std::chrono::steady_clock::now();
   envelope.payload.resize(payloadBytes);
   std::vector<MPI_Request> requests;
   for (std::size_t offset = 0; offset < payloadBytes; offset += maxChunkBytes_) {
@@ -250,6 +251,8 @@ Envelope Channel::receiveMatched(MPI_Message& message, MPI_Status& status) {
   for (MPI_Request& request : requests) {
     waitFor(request, std::chrono::minutes(5), "message payload");
   }
+  envelope.payloadSeconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - payloadStart).count();
   return envelope;
 }
 

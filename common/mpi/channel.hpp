@@ -69,6 +69,9 @@ struct Envelope {
   MessageKind kind = MessageKind::Test;
   std::string header;
   std::vector<std::byte> payload;
+  // Time from the header's arrival to the payload's: the transfer time of the
+  // payload (large payloads move only once the receiver has posted for them).
+  double payloadSeconds = 0.0;
 
   // Parses the header as M; a malformed header is a ProtocolError.
   template <class M>

@@ -2,8 +2,11 @@
 # Runs a Pointillist job and the single-process reference renderer on the same
 # dataset and cameras, then compares every frame pixel by pixel.
 #   compare_with_reference.sh BIN_DIR DATASET LAYOUT CAMERA_PATH FRAMES SIZE MODE [RUN.SH OPTIONS...]
-# Exits non-zero when any frame differs in more than $MAX_DIFFERING_PIXELS pixels
-# (default 0: pixel-identical).
+# Environment:
+#   MAX_DIFFERING_PIXELS  pixels allowed to differ per frame (default 0: identical)
+#   EXPECT_OUTPUT         a regex the job's output must match (e.g. re-issued tiles)
+#   CACHE_CAP_MB          the render cache cap given to the job: evictions must
+#                         happen and the peak cache must stay within it
 set -euo pipefail
 bin="$1" dataset="$2" layout="$3" path="$4" frames="$5" size="$6" mode="$7"
 shift 7
@@ -11,9 +14,40 @@ root="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
+extra=()
+if [[ -n "${CACHE_CAP_MB:-}" ]]; then
+  extra+=(--cache-mb "$CACHE_CAP_MB")
+fi
+set +e
 POINTILLIST_BUILD="$(dirname "$bin")" timeout --kill-after=10 240 \
   bash "$root/deploy/run.sh" --layout "$layout" --dataset "$dataset" --camera-path "$path" \
-  --frames "$frames" --size "$size" --mode "$mode" --out "$work/job" --quiet "$@"
+  --frames "$frames" --size "$size" --mode "$mode" --out "$work/job" "${extra[@]}" "$@" \
+  >"$work/job.log" 2>&1
+code=$?
+set -e
+cat "$work/job.log"
+if ((code != 0)); then
+  echo "FAIL: the job exited with code $code"
+  exit 1
+fi
+if [[ -n "${EXPECT_OUTPUT:-}" ]] && ! grep -Eq -- "$EXPECT_OUTPUT" "$work/job.log"; then
+  echo "FAIL: job output does not match /$EXPECT_OUTPUT/"
+  exit 1
+fi
+if [[ -n "${CACHE_CAP_MB:-}" ]]; then
+  line=$(grep -E '^cache: ' "$work/job.log")
+  evictions=$(sed -E 's/.* ([0-9]+) evictions.*/\1/' <<<"$line")
+  peak=$(sed -E 's/.*peak ([0-9.]+) MiB.*/\1/' <<<"$line")
+  echo "cache cap ${CACHE_CAP_MB} MiB: $evictions evictions, peak $peak MiB"
+  if ((evictions == 0)); then
+    echo "FAIL: no evictions under a ${CACHE_CAP_MB} MiB cap"
+    exit 1
+  fi
+  if ! awk -v p="$peak" -v c="$CACHE_CAP_MB" 'BEGIN{exit !(p <= c)}'; then
+    echo "FAIL: peak cache $peak MiB exceeds the ${CACHE_CAP_MB} MiB cap"
+    exit 1
+  fi
+fi
 "$bin/pointillist-reference" --dataset "$dataset" --camera-path "$path" --frames "$frames" \
   --size "$size" --mode "$mode" --out "$work/reference" --compare "$work/job" \
   --max-differing-pixels "${MAX_DIFFERING_PIXELS:-0}"

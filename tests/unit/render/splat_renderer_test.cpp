@@ -92,6 +92,30 @@ TEST_F(Renderer, PointSizeFollowsProjectedRadius) {
   EXPECT_EQ(count(2.5f * pixel, 0.0f, 2.0f), 100u);  // size scale
 }
 
+// GL clips points by their centre; the renderer's guard band keeps the part of
+// a wide point (and of a splat) that reaches into the frame from outside.
+TEST_F(Renderer, WidePointsJustOutsideTheFrameShowTheirInsidePart) {
+  const Camera camera = frontCamera();
+  const float ppu = pixelsPerUnit(camera, 5.0f);
+  // Window position (-2.3, 60.4): centre snapped to (-2.5, 60.5); a 9 px
+  // point covers x in [-7, 2), y in [56, 65).
+  const Splat s =
+      makeSplat((-2.3f - 80.0f) / ppu, (60.4f - 60.0f) / ppu, 0.0f, 0.001f, 255, 255, 255, 0, 0, 1);
+  RenderSettings settings = settingsFor(SplatMode::Points);
+  settings.pointSize = 9.0f;
+  const auto lit = litPixels(draw(camera, {&s, 1}, settings));
+  ASSERT_EQ(lit.size(), 18u);
+  for (const auto& [x, y] : lit) {
+    EXPECT_LE(x, 1u);
+    EXPECT_GE(y, 56u);
+    EXPECT_LE(y, 64u);
+  }
+  // A splat centred outside the frame shows its inside part too.
+  const Splat disk =
+      makeSplat((-3.0f - 80.0f) / ppu, 0.0f, 0.0f, 6.0f / ppu, 255, 255, 255, 0, 0, 1);
+  EXPECT_GT(litPixels(draw(camera, {&disk, 1}, settingsFor(SplatMode::Splats))).size(), 10u);
+}
+
 TEST_F(Renderer, NearSplatWinsTheDepthTest) {
   const Camera camera = frontCamera();
   const Splat nearRed = makeSplat(0.1f, 0.1f, 0.5f, 0.05f, 255, 0, 0, 0, 0, 1);

@@ -102,3 +102,30 @@ TEST(RenderModel, EqualCostsSpreadOverRenders) {
 
 }  // namespace
 }  // namespace pointillist::traverse
+
+namespace pointillist::traverse {
+namespace {
+
+TEST(RenderModel, AStalledRenderIsAvoidedEvenWhenItHasTheData) {
+  using namespace std::chrono_literals;
+  const auto cells = table({10'000'000, 100});
+  RenderModel model(2, cells);
+  const auto t = RenderModel::Clock::now();
+  const std::uint32_t loaded[] = {0};
+  // Render 0 holds the big cell, has a little work and keeps finishing packets.
+  model.applyReport(0, {.workloadSplats = 1000, .loaded = loaded, .packetsDone = 1}, t);
+  const std::uint32_t needed[] = {0};
+  EXPECT_EQ(model.choose(needed, 10, t + 100ms).render, 0u);
+  // It reports more work but finishes nothing for two seconds: suspected stalled.
+  model.applyReport(0, {.workloadSplats = 2000, .loaded = {}, .packetsDone = 1}, t + 200ms);
+  EXPECT_FALSE(model.suspectedStalled(0, t + 500ms));
+  EXPECT_TRUE(model.suspectedStalled(0, t + 2500ms));
+  EXPECT_EQ(model.choose(needed, 10, t + 2500ms).render, 1u);
+  // Progress clears the suspicion.
+  model.applyReport(0, {.workloadSplats = 1000, .packetsDone = 2}, t + 2600ms);
+  EXPECT_FALSE(model.suspectedStalled(0, t + 2700ms));
+  EXPECT_EQ(model.choose(needed, 10, t + 2700ms).render, 0u);
+}
+
+}  // namespace
+}  // namespace pointillist::traverse
