@@ -140,19 +140,15 @@ int runDatasendRole(Job& job, int argc, char** argv) {
   if (!parseRoleOptions(app, job, argc, argv)) return 0;
 
   if (datasetPath.empty()) {  // a handshake-only job
-    job.handshake(handshakeOptions(common));
-    job.reportReady("no dataset");
-    serveUntilShutdown(job, ServeHandlers{});
+    runWorkerRole(job, handshakeOptions(common), "no dataset", ServeHandlers{});
     return 0;
   }
   DataSendProcess process(job, datasetPath);
-  job.handshake(handshakeOptions(common));
-  job.reportReady(process.readyDetail());
   ServeHandlers handlers;
   handlers.onMessage = [&](Envelope& envelope) { process.onMessage(envelope); };
   handlers.onIdle = [&] { return process.reapSends(); };
   handlers.summary = [&] { return process.summary(); };
-  serveUntilShutdown(job, handlers);
+  runWorkerRole(job, handshakeOptions(common), process.readyDetail(), handlers);
   return 0;
 }
 

@@ -400,19 +400,15 @@ int runRenderRole(Job& job, int argc, char** argv) {
   if (!parseRoleOptions(app, job, argc, argv)) return 0;
 
   if (options.datasetPath.empty()) {  // a handshake-only job
-    job.handshake(handshakeOptions(options.common));
-    job.reportReady("no dataset");
-    serveUntilShutdown(job, ServeHandlers{});
+    runWorkerRole(job, handshakeOptions(options.common), "no dataset", ServeHandlers{});
     return 0;
   }
   RenderProcess process(job, options);
-  job.handshake(handshakeOptions(options.common));
-  job.reportReady(process.readyDetail());
   ServeHandlers handlers;
   handlers.onMessage = [&](Envelope& envelope) { process.onMessage(envelope); };
   handlers.onIdle = [&] { return process.onIdle(); };
   handlers.summary = [&] { return process.summary(); };
-  serveUntilShutdown(job, handlers);
+  runWorkerRole(job, handshakeOptions(options.common), process.readyDetail(), handlers);
   return 0;
 }
 

@@ -177,21 +177,17 @@ int runTraverseRole(Job& job, int argc, char** argv) {
   if (!parseRoleOptions(app, job, argc, argv)) return 0;
 
   if (datasetPath.empty()) {  // a handshake-only job
-    job.handshake(handshakeOptions(common));
-    job.reportReady("no dataset");
-    serveUntilShutdown(job, ServeHandlers{});
+    runWorkerRole(job, handshakeOptions(common), "no dataset", ServeHandlers{});
     return 0;
   }
   // Load before the handshake so a bad dataset fails fast, with peers told.
   TraverseProcess process(job, datasetPath);
-  job.handshake(handshakeOptions(common));
-  job.reportReady(process.readyDetail());
-  process.requestWork();
   ServeHandlers handlers;
   handlers.onMessage = [&](Envelope& envelope) { process.onMessage(envelope); };
   handlers.onIdle = [&] { return process.reapSends(); };
   handlers.summary = [&] { return process.summary(); };
-  serveUntilShutdown(job, handlers);
+  runWorkerRole(job, handshakeOptions(common), process.readyDetail(), handlers,
+                [&] { process.requestWork(); });
   return 0;
 }
 

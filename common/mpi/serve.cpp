@@ -32,4 +32,12 @@ void serveUntilShutdown(Job& job, const ServeHandlers& handlers) {
   }
 }
 
+void runWorkerRole(Job& job, const HandshakeOptions& handshake, const std::string& readyDetail,
+                   const ServeHandlers& handlers, const std::function<void()>& afterReady) {
+  job.handshake(handshake);
+  job.reportReady(readyDetail);
+  if (afterReady) afterReady();
+  serveUntilShutdown(job, handlers);
+}
+
 }  // namespace pointillist

@@ -20,4 +20,10 @@ struct ServeHandlers {
 
 void serveUntilShutdown(Job& job, const ServeHandlers& handlers);
 
+// A worker role's life after start-up: handshake, report ready (with a detail
+// line for the display), run `afterReady` (e.g. ask for the first work), then
+// serve until shutdown.
+void runWorkerRole(Job& job, const HandshakeOptions& handshake, const std::string& readyDetail,
+                   const ServeHandlers& handlers, const std::function<void()>& afterReady = {});
+
 }  // namespace pointillist
