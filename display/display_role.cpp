@@ -1,5 +1,6 @@
 #include "display/display_role.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <deque>
@@ -13,6 +14,7 @@
 #include "common/view_options.hpp"
 #include "display/frame_scheduler.hpp"
 #include "display/frame_stats.hpp"
+#include "display/load_equalizer.hpp"
 #include "display/tiling.hpp"
 
 namespace pointillist::display {
@@ -35,8 +37,17 @@ struct DisplayOptions {
   std::uint32_t minTileSize = 32;
   double tileTimeoutSeconds = 10.0;
   std::uint32_t maxAttempts = 3;
+  std::string scheduler = "cost";
   bool quiet = false;
 };
+
+v1::Scheduler parseScheduler(const std::string& name) {
+  if (name == "cost") return v1::SCHEDULER_COST;
+  if (name == "round-robin") return v1::SCHEDULER_ROUND_ROBIN;
+  if (name == "static") return v1::SCHEDULER_STATIC;
+  if (name == "equalizer") return v1::SCHEDULER_EQUALIZER;
+  throw UsageError("scheduler '" + name + "' is not one of: cost, round-robin, static, equalizer");
+}
 
 double since(Clock::time_point start, Clock::time_point now) {
   return std::chrono::duration<double>(now - start).count();
@@ -48,11 +59,12 @@ class DisplayProcess {
       : job_(job),
         options_(options),
         dataset_(Dataset::open(options.datasetPath, DatasetParts::Cells)),
-        scheduler_(
-            options.framesInFlight,
-            std::chrono::milliseconds(static_cast<long>(options.tileTimeoutSeconds * 1000.0)),
-            options.maxAttempts),
-        mode_(parseRenderMode(options.view.mode)) {
+        frames_(options.framesInFlight,
+                std::chrono::milliseconds(static_cast<long>(options.tileTimeoutSeconds * 1000.0)),
+                options.maxAttempts),
+        mode_(parseRenderMode(options.view.mode)),
+        scheduler_(parseScheduler(options.scheduler)),
+        equalizer_(job.layout().render) {
     bounds_ = datasetBounds(dataset_.manifest());
     // The root holds the largest splat radius of the whole tree.
     maxRadius_ = dataset_.cells().empty() ? 0.0f : dataset_.cells()[0].maxSplatRadius;
@@ -71,16 +83,21 @@ class DisplayProcess {
 
   void run() {
     start_ = Clock::now();
-    for (std::uint64_t index = 0; index < cameras_.size(); ++index) addFrame(index);
     Backoff backoff;
-    while (!scheduler_.finished()) {
+    while (framesAdded_ < cameras_.size() || !frames_.finished()) {
+      // Frames are laid out when they enter the window, so a re-split from the
+      // last completed frame applies to the next one.
+      while (framesAdded_ < cameras_.size() &&
+             framesAdded_ < stats_.frames.size() + options_.framesInFlight) {
+        addFrame(framesAdded_++);
+      }
       bool worked = false;
       while (auto envelope = job_.channel().tryReceive()) {
         handle(*envelope);
         worked = true;
       }
       worked = dispatch() || worked;
-      const auto requeued = scheduler_.checkTimeouts(Clock::now());
+      const auto requeued = frames_.checkTimeouts(Clock::now());
       if (requeued > 0) {
         std::fprintf(stderr, "display: %u tile(s) did not come back in %.1f s; re-issued\n",
                      requeued, options_.tileTimeoutSeconds);
@@ -100,7 +117,9 @@ class DisplayProcess {
                                                               : std::string();
     if (!statsFile.empty()) {
       stats_.writeJson(statsFile);
-      std::printf("display: statistics in %s\n", statsFile.c_str());
+      const auto csvDir = std::filesystem::path(statsFile).parent_path();
+      stats_.writeCsv(csvDir.empty() ? std::filesystem::path(".") : csvDir);
+      std::printf("display: statistics in %s and the CSV files beside it\n", statsFile.c_str());
     }
     std::fflush(stdout);
   }
@@ -111,11 +130,32 @@ class DisplayProcess {
     std::vector<TileRect> tiles;
     const float margin = maxRadius_ * options_.view.sizeScale;
     if (const auto area = boxOfInterest(camera, bounds_.min, bounds_.max, margin)) {
-      const auto target = static_cast<std::uint32_t>(
-          std::max(1.0, options_.tilesPerRender * static_cast<double>(job_.layout().render)));
-      tiles = splitIntoTiles(*area, target, options_.minTileSize);
+      if (scheduler_ == v1::SCHEDULER_EQUALIZER) {
+        tiles = equalizer_.split(*area);
+      }
+      const bool emptyStrip = std::any_of(tiles.begin(), tiles.end(), [](const TileRect& tile) {
+        return tile.width() == 0 || tile.height() == 0;
+      });
+      if (tiles.empty() || emptyStrip) {  // other schedulers, or an area too small to strip
+        const auto target = static_cast<std::uint32_t>(
+            std::max(1.0, options_.tilesPerRender * static_cast<double>(job_.layout().render)));
+        tiles = splitIntoTiles(*area, target, options_.minTileSize);
+      }
     }
-    scheduler_.addFrame(index, camera, std::move(tiles), Image(width_, height_, kBackground));
+    frames_.addFrame(index, camera, std::move(tiles), Image(width_, height_, kBackground));
+  }
+
+  std::uint32_t assignRender(const TileTaskRef& task) {
+    const std::uint32_t renders = job_.layout().render;
+    switch (scheduler_) {
+      case v1::SCHEDULER_ROUND_ROBIN:
+        return static_cast<std::uint32_t>(roundRobin_++ % renders);
+      case v1::SCHEDULER_STATIC:
+      case v1::SCHEDULER_EQUALIZER:
+        return task.tile % renders;
+      default:
+        return 0;
+    }
   }
 
   void handle(Envelope& envelope) {
@@ -141,9 +181,9 @@ class DisplayProcess {
   bool dispatch() {
     bool worked = false;
     while (!idleTraverses_.empty()) {
-      const auto task = scheduler_.nextTask(Clock::now());
+      const auto task = frames_.nextTask(Clock::now());
       if (!task) break;
-      const FrameState* state = scheduler_.frame(task->frame);
+      const FrameState* state = frames_.frame(task->frame);
       v1::TileTask message;
       message.set_frame_id(task->frame);
       message.set_tile_id(task->tile);
@@ -157,6 +197,8 @@ class DisplayProcess {
       message.set_lod_pixels(options_.view.lodPixels);
       message.set_size_scale(options_.view.sizeScale);
       message.set_backface_cull(!options_.view.noBackfaceCull);
+      message.set_scheduler(scheduler_);
+      message.set_assigned_render(assignRender(*task));
       const int traverse = idleTraverses_.front();
       idleTraverses_.pop_front();
       sends_.push_back(job_.channel().post(traverse, MessageKind::TileTask, message));
@@ -188,11 +230,11 @@ class DisplayProcess {
                           std::to_string(envelope.payload.size()) + " bytes, expected " +
                           std::to_string(expectedBytes));
     }
-    if (!scheduler_.tileArrived(header.frame_id(), header.tile_id(), header.rect())) {
+    if (!frames_.tileArrived(header.frame_id(), header.tile_id(), header.rect())) {
       ++stats_.lateTiles;
       return;
     }
-    FrameState* state = scheduler_.frame(header.frame_id());
+    FrameState* state = frames_.frame(header.frame_id());
     blit(std::span<const std::uint8_t>(
              reinterpret_cast<const std::uint8_t*>(envelope.payload.data()),
              envelope.payload.size()),
@@ -204,11 +246,14 @@ class DisplayProcess {
     record.splatsPerRender[header.render_rank()] += header.splats_rendered();
     record.busySecondsPerRender[header.render_rank()] +=
         static_cast<double>(header.render_time_us()) * 1e-6;
+    auto& tileSeconds = tileSeconds_[header.frame_id()];
+    tileSeconds.resize(state->tiles.size(), 0.0);
+    tileSeconds.at(header.tile_id()) = static_cast<double>(header.render_time_us()) * 1e-6;
   }
 
   bool emitFrames() {
     bool worked = false;
-    while (auto state = scheduler_.popCompleteFrame()) {
+    while (auto state = frames_.popCompleteFrame()) {
       worked = true;
       const auto now = Clock::now();
       FrameRecord record = std::move(pending_[state->index]);
@@ -217,8 +262,13 @@ class DisplayProcess {
       record.startSeconds = state->hasStarted ? since(start_, state->started) : since(start_, now);
       record.endSeconds = since(start_, now);
       record.tiles = static_cast<std::uint32_t>(state->tiles.size());
-      record.reissuedTiles = scheduler_.reissued(state->index);
-      record.failedTiles = scheduler_.failed(state->index);
+      record.reissuedTiles = frames_.reissued(state->index);
+      record.failedTiles = frames_.failed(state->index);
+      if (scheduler_ == v1::SCHEDULER_EQUALIZER) {
+        auto seconds = std::move(tileSeconds_[state->index]);
+        if (seconds.size() == equalizer_.strips()) equalizer_.update(seconds);
+      }
+      tileSeconds_.erase(state->index);
       for (const auto& [rank, samples] : stats_.renders) {
         record.splatsPerRender.try_emplace(rank, 0);
         record.busySecondsPerRender.try_emplace(rank, 0.0);
@@ -267,8 +317,13 @@ class DisplayProcess {
   Job& job_;
   DisplayOptions options_;
   Dataset dataset_;
-  FrameScheduler scheduler_;
+  FrameScheduler frames_;
   v1::RenderMode mode_;
+  v1::Scheduler scheduler_;
+  LoadEqualizer equalizer_;
+  std::uint64_t roundRobin_ = 0;
+  std::uint64_t framesAdded_ = 0;
+  std::map<std::uint64_t, std::vector<double>> tileSeconds_;
   SceneBounds bounds_;
   float maxRadius_ = 0.0f;
   std::uint32_t width_ = 0;
@@ -308,6 +363,9 @@ int runDisplayRole(Job& job, int argc, char** argv) {
                  "Seconds before a missing tile is handed out again");
   app.add_option("--max-attempts", options.maxAttempts,
                  "Times a tile is handed out before it is given up");
+  app.add_option("--scheduler", options.scheduler,
+                 "How tiles are given to render processes: cost (seed 003), round-robin, "
+                 "static, equalizer");
   app.add_flag("--quiet", options.quiet, "No per-frame lines");
   if (!parseRoleOptions(app, job, argc, argv)) return 0;
 

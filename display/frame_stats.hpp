@@ -1,9 +1,10 @@
 #pragma once
 // Per-frame and per-render-process statistics of a run, printed and written as
-// JSON for benchmarks (deploy/bench-*.sh read it).
+// JSON and CSV for benchmarks (deploy/bench-*.sh read them).
 #include <cstdint>
 #include <filesystem>
 #include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -34,6 +35,61 @@ struct RenderSample {
   std::uint64_t dataBytesReceived = 0;
 };
 
+// How evenly one frame's work was spread over the render processes: max/mean
+// over all render processes of the job (1 is perfect balance).
+struct FrameBalance {
+  double maxBusySeconds = 0.0;
+  double meanBusySeconds = 0.0;
+  std::optional<double> busy;    // none when no render process was busy
+  std::optional<double> splats;  // none when no splat was drawn
+};
+
+struct RenderFigures {
+  std::uint64_t splats = 0;  // whole run
+  double busySeconds = 0.0;
+  double splatsPerSecond = 0.0;        // of wall time, whole run
+  double splatsPerSecondSteady = 0.0;  // of wall time, steady-state frames
+  double splatsPerBusySecond = 0.0;
+  double busyFraction = 0.0;  // of the whole run
+};
+
+// The key figures of a run; the printed summary and the benchmarks use these.
+// "Steady" means frames from steadyFrom on (caches warm).
+struct KeyFigures {
+  std::size_t frames = 0;
+  std::size_t steadyFrom = 0;
+  std::size_t renderProcesses = 0;
+  double totalSeconds = 0.0;
+  double framesPerSecond = 0.0;
+  double framesPerSecondSteady = 0.0;
+  double splatsPerFrame = 0.0;
+  double splatsPerSecond = 0.0;          // all render processes, whole run
+  std::map<int, RenderFigures> renders;  // by world rank
+  // Steady splats/s of wall time per render process, over all render
+  // processes of the job (one that drew nothing counts as 0).
+  double renderSplatsPerSecondMean = 0.0;
+  double renderSplatsPerSecondMin = 0.0;
+  double renderSplatsPerSecondMax = 0.0;
+  // Means over steady frames of the per-frame max/mean (FrameBalance).
+  std::size_t imbalanceFrames = 0;
+  double imbalanceBusy = 0.0;
+  double imbalanceSplats = 0.0;
+  std::uint64_t bytesTotal = 0;
+  std::uint64_t bytesFirstFrame = 0;
+  double bytesPerFrameSteady = 0.0;
+  std::uint64_t cacheHits = 0;
+  std::uint64_t cacheMisses = 0;
+  std::uint64_t cacheHitsSteady = 0;
+  std::uint64_t cacheMissesSteady = 0;
+  std::uint64_t evictions = 0;
+  std::uint64_t peakCacheBytes = 0;  // largest on one render process
+  double cacheHitRate = 0.0;         // 0..1, whole run
+  double cacheHitRateSteady = 0.0;   // 0..1, during steady frames
+  std::uint64_t reissuedTiles = 0;
+  std::uint64_t failedTiles = 0;
+  std::uint64_t lateTiles = 0;
+};
+
 struct RunStats {
   std::string layout;
   std::string dataset;
@@ -48,10 +104,20 @@ struct RunStats {
 
   // Frames per second over frames [first, end).
   double framesPerSecond(std::size_t first) const;
+  // First steady-state frame: the first few frames warm the caches.
+  std::size_t steadyStart() const;
+  // Render processes of the job (from the layout, else those that reported).
+  std::size_t renderProcessCount() const;
+  FrameBalance balance(const FrameRecord& frame) const;
+  KeyFigures keyFigures() const;
+
   std::string toJson() const;
   void writeJson(const std::filesystem::path& file) const;
-  // Human summary: frame rate (all and steady state), splats/s per render,
-  // imbalance, bytes per frame, cache hit rate.
+  // Writes DIR/frames.csv, DIR/renders.csv, DIR/per_frame_render.csv and
+  // DIR/figures.csv (keyFigures() as one line); frame_stats.cpp lists the columns.
+  void writeCsv(const std::filesystem::path& dir) const;
+  // Human summary of keyFigures(): frame rate (all and steady state), splats/s
+  // per render, imbalance, bytes per frame, cache hit rate.
   std::string summary() const;
 };
 

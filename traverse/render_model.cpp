@@ -85,6 +85,17 @@ RenderChoice RenderModel::choose(std::span<const std::uint32_t> cells, std::uint
   return best;
 }
 
+RenderChoice RenderModel::assigned(std::size_t render, std::span<const std::uint32_t> cells,
+                                   std::uint64_t splats) const {
+  RenderChoice choice;
+  choice.render = render % renders_.size();
+  choice.cost = cost(choice.render, cells, splats, &choice.missingBytes);
+  for (std::uint32_t cell : cells) {
+    if (!hasCell(choice.render, cell)) choice.missingCells.push_back(cell);
+  }
+  return choice;
+}
+
 void RenderModel::recordPacket(std::size_t render, std::uint64_t packetId, std::uint64_t splats,
                                std::span<const std::uint32_t> orderedCells) {
   RenderState& state = renders_.at(render);

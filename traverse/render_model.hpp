@@ -52,6 +52,9 @@ class RenderModel {
   RenderChoice choose(std::span<const std::uint32_t> cells, std::uint64_t splats,
                       Clock::time_point now = Clock::now()) const;
   bool suspectedStalled(std::size_t render, Clock::time_point now) const;
+  // The same figures for a render chosen by someone else (other schedulers).
+  RenderChoice assigned(std::size_t render, std::span<const std::uint32_t> cells,
+                        std::uint64_t splats) const;
 
   // Records that a packet went to `render` with the given id, and that its
   // missing cells were ordered (they count as present from now on).

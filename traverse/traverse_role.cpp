@@ -80,7 +80,10 @@ class TraverseProcess {
     const TraversalResult result =
         traverseTile(dataset_.cells(), task.camera(), task.rect(), settings);
 
-    const RenderChoice choice = model_.choose(result.topLevelCells, result.splats);
+    const RenderChoice choice =
+        task.scheduler() == v1::SCHEDULER_COST
+            ? model_.choose(result.topLevelCells, result.splats)
+            : model_.assigned(task.assigned_render(), result.topLevelCells, result.splats);
     const int renderRank = job_.ranksOf(v1::ROLE_RENDER).at(choice.render);
 
     // Order what the chosen render lacks from the data-send processes owning it.
