@@ -72,7 +72,12 @@ class DisplayProcess {
     const auto [width, height] = parseImageSize(options.view.size);
     width_ = width;
     height_ = height;
+    // Fail before rendering, not after, when the outputs cannot be written.
     if (!options.outDir.empty()) std::filesystem::create_directories(options.outDir);
+    if (const auto folder = std::filesystem::path(options.statsFile).parent_path();
+        !folder.empty()) {
+      std::filesystem::create_directories(folder);
+    }
     stats_.layout = job.layout().toString();
     stats_.dataset = options.datasetPath;
     stats_.cameraPath = options.view.cameraPath;
