@@ -10,6 +10,8 @@
 //              (like octree leaves), so consecutive splats land close by.
 #include <CLI/CLI.hpp>
 
+#include "common/tool_entry.hpp"
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -182,13 +184,6 @@ int run(int argc, char** argv) {
 }  // namespace pointillist::render
 
 int main(int argc, char** argv) {
-  try {
-    return pointillist::render::run(argc, argv);
-  } catch (const pointillist::Error& e) {
-    std::fprintf(stderr, "pointillist-bench-render: %s: %s\n", e.kind(), e.what());
-    return 2;
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "pointillist-bench-render: %s\n", e.what());
-    return 2;
-  }
+  return pointillist::runToolMain("pointillist-bench-render",
+                                  [&] { return pointillist::render::run(argc, argv); });
 }

@@ -4,6 +4,8 @@
 // against (--compare), and the single-process speed baseline.
 #include <CLI/CLI.hpp>
 
+#include "common/tool_entry.hpp"
+
 #include <cstdio>
 #include <filesystem>
 
@@ -105,12 +107,6 @@ int run(int argc, char** argv) {
 }  // namespace pointillist::render
 
 int main(int argc, char** argv) {
-  try {
-    return pointillist::render::run(argc, argv);
-  } catch (const pointillist::Error& error) {
-    std::fprintf(stderr, "pointillist-reference: %s: %s\n", error.kind(), error.what());
-  } catch (const std::exception& error) {
-    std::fprintf(stderr, "pointillist-reference: unexpected error: %s\n", error.what());
-  }
-  return 2;
+  return pointillist::runToolMain("pointillist-reference",
+                                  [&] { return pointillist::render::run(argc, argv); });
 }
