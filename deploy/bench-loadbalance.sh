@@ -5,7 +5,14 @@
 #
 #   deploy/bench-loadbalance.sh --dataset D [--layout 1,2,1,4] [--camera-path orbit]
 #       [--frames 48] [--size 1280x720] [--scheduler S[,S...]] [--out DIR]
-#       [--points N] [--save-frames] [-- more job options, e.g. --cache-mb 256]
+#       [--points N] [--repeat N] [--variant LABEL=SCHEDULER[:OPTIONS]]...
+#       [--save-frames] [-- more job options, e.g. --cache-mb 256]
+#
+# --repeat N runs every entry N times, interleaved (entry by entry, then again)
+# so that drift in the machine's load spreads over all of them; the table shows
+# the median run and the range of steady frames/s. --variant adds a row that
+# runs SCHEDULER with extra job options, e.g. the cost scheduler as the paper
+# writes it: --variant "cost-paper=cost:--cost-model paper --prefetch-frames 0 --equal-tiles"
 #
 # --dataset city generates the built-in scene with --points N points (default
 # 2000000) into datasets/city-N unless it is there already. Schedulers default
@@ -40,10 +47,13 @@ schedulers="cost,round-robin,static,equalizer"
 out="out/bench-loadbalance"
 points=""
 save_frames=0
+repeat=1
 job_args=()
+declare -A variant_scheduler=() variant_options=()
+variant_labels=()
 while (($#)); do
   case "$1" in
-    --dataset|--layout|--camera-path|--frames|--size|--scheduler|--out|--points)
+    --dataset|--layout|--camera-path|--frames|--size|--scheduler|--out|--points|--repeat|--variant)
       (($# >= 2)) || die "$1 needs a value (see --help)"
       case "$1" in
         --dataset) dataset="$2" ;;
@@ -54,6 +64,14 @@ while (($#)); do
         --scheduler) schedulers="$2" ;;
         --out) out="$2" ;;
         --points) points="$2" ;;
+        --repeat) repeat="$2" ;;
+        --variant)
+          [[ "$2" =~ ^([a-z0-9][a-z0-9_-]*)=([a-z0-9-]+)(:(.*))?$ ]] ||
+            die "--variant '$2' is not LABEL=SCHEDULER[:JOB OPTIONS] (e.g. cost-paper=cost:--cost-model paper)"
+          [[ -z "${variant_scheduler[${BASH_REMATCH[1]}]:-}" ]] || die "variant '${BASH_REMATCH[1]}' is given twice"
+          variant_labels+=("${BASH_REMATCH[1]}")
+          variant_scheduler[${BASH_REMATCH[1]}]="${BASH_REMATCH[2]}"
+          variant_options[${BASH_REMATCH[1]}]="${BASH_REMATCH[4]}" ;;
       esac
       shift 2 ;;
     --save-frames) save_frames=1; shift ;;
@@ -67,6 +85,7 @@ done
 [[ "$layout" =~ ^1,[1-9][0-9]*,[1-9][0-9]*,[1-9][0-9]*$ ]] ||
   die "--layout '$layout' is not 1,T,S,R (one display, at least one of each other role)"
 [[ "$frames" =~ ^[1-9][0-9]*$ ]] || die "--frames '$frames' is not a positive count"
+[[ "$repeat" =~ ^[1-9][0-9]*$ ]] || die "--repeat '$repeat' is not a positive count"
 [[ "$size" =~ ^[1-9][0-9]*x[1-9][0-9]*$ ]] || die "--size '$size' is not WIDTHxHEIGHT"
 if [[ -n "$points" && "$dataset" != "city" ]]; then
   die "--points only applies to --dataset city (the generated scene)"
@@ -79,6 +98,13 @@ for s in "${scheduler_list[@]}"; do
   [[ "$s" =~ ^[a-z0-9][a-z0-9_-]*$ ]] || die "scheduler name '$s' is not a lower-case name (list them as cost,static,...)"
   [[ -z "${seen[$s]:-}" ]] || die "scheduler '$s' is listed twice"
   seen[$s]=1
+  variant_scheduler[$s]="$s"
+  variant_options[$s]=""
+done
+for label in "${variant_labels[@]}"; do
+  [[ -z "${seen[$label]:-}" ]] || die "variant '$label' has the name of a listed scheduler"
+  seen[$label]=1
+  scheduler_list+=("$label")
 done
 
 check_dataset() {
@@ -132,10 +158,11 @@ fi
 
 mkdir -p "$out"
 out="$(cd "$out" && pwd)"
-job_options() {  # SCHEDULER -> the role options of a run
-  local options=(--dataset "$dataset" --camera-path "$camera")
-  ((scheduler_option)) && options+=(--scheduler "$1")
-  printf '%s\0' "${options[@]}" "${job_args[@]}"
+job_options() {  # ENTRY -> the role options of a run
+  local options=(--dataset "$dataset" --camera-path "$camera") extra=()
+  ((scheduler_option)) && options+=(--scheduler "${variant_scheduler[$1]}")
+  read -r -a extra <<<"${variant_options[$1]}"
+  printf '%s\0' "${options[@]}" "${extra[@]}" "${job_args[@]}"
 }
 run_job() {  # SCHEDULER FRAMES SIZE DIR LOG
   local options=()
@@ -167,36 +194,58 @@ fi
 
 say "$dataset, layout $layout, $camera, $frames frames at $size, schedulers: ${scheduler_list[*]}"
 say "$(nproc) cores, load average $(cut -d' ' -f1-3 /proc/loadavg), $build_type build"
-declare -A load=()
+declare -A load=() failed_set=()
 failed=()
 done_list=()
+runs_csv="$out/runs.csv"
+rm -f "$runs_csv"
+total=$((${#scheduler_list[@]} * repeat))
 index=0
-for s in "${scheduler_list[@]}"; do
-  index=$((index + 1))
-  dir="$out/$s"
-  rm -rf "$dir"
-  mkdir -p "$dir"
-  say "[$index/${#scheduler_list[@]}] $s: running (log: $dir/run.log)"
-  load[$s]="$(cut -d' ' -f1 /proc/loadavg)"
-  start=$SECONDS
-  if ! run_job "$s" "$frames" "$size" "$dir" "$dir/run.log"; then
-    show_failure "$s" "$dir/run.log"
-    failed+=("$s")
-    continue
-  fi
-  for f in frames.csv renders.csv per_frame_render.csv figures.csv; do
-    if [[ ! -s "$dir/$f" ]]; then
-      say "scheduler '$s': the job ran but wrote no $dir/$f (a display without CSV output?)"
+for ((run = 1; run <= repeat; ++run)); do
+  for s in "${scheduler_list[@]}"; do
+    index=$((index + 1))
+    [[ -z "${failed_set[$s]:-}" ]] || continue
+    dir="$out/$s/run-$run"
+    ((repeat > 1)) || dir="$out/$s"
+    ((run > 1)) || rm -rf "$out/$s"
+    mkdir -p "$dir"
+    say "[$index/$total] $s${variant_options[$s]:+ (${variant_options[$s]})}, run $run of $repeat: running (log: $dir/run.log)"
+    load[$s]="${load[$s]:-}${load[$s]:+ }$(cut -d' ' -f1 /proc/loadavg)"
+    start=$SECONDS
+    if ! run_job "$s" "$frames" "$size" "$dir" "$dir/run.log"; then
+      show_failure "$s" "$dir/run.log"
       failed+=("$s")
-      continue 2
+      failed_set[$s]=1
+      continue
     fi
+    for f in frames.csv renders.csv per_frame_render.csv figures.csv; do
+      if [[ ! -s "$dir/$f" ]]; then
+        say "scheduler '$s': the job ran but wrote no $dir/$f (a display without CSV output?)"
+        failed+=("$s")
+        failed_set[$s]=1
+        continue 2
+      fi
+    done
+    [[ -s "$runs_csv" ]] || { printf 'scheduler,run,'; head -n 1 "$dir/figures.csv"; } >"$runs_csv"
+    { printf '%s,%d,' "$s" "$run"; sed -n 2p "$dir/figures.csv"; } >>"$runs_csv"
+    awk -F, -v s="$s" -v t=$((SECONDS - start)) 'NR == 1 { for (i = 1; i <= NF; ++i) c[$i] = i; next }
+      { printf "bench-loadbalance: %s: %.2f frames/s steady, imbalance busy %.2f, hit rate %.1f%% steady (%d s)\n",
+          s, $c["frames_per_second_steady"], $c["imbalance_busy"], 100 * $c["cache_hit_rate_steady"], t }' \
+      "$dir/figures.csv" >&2
   done
-  done_list+=("$s")
-  awk -F, -v s="$s" -v t=$((SECONDS - start)) 'NR == 1 { for (i = 1; i <= NF; ++i) c[$i] = i; next }
-    { printf "bench-loadbalance: %s: %.2f frames/s steady, imbalance busy %.2f, hit rate %.1f%% steady (%d s)\n",
-        s, $c["frames_per_second_steady"], $c["imbalance_busy"], 100 * $c["cache_hit_rate_steady"], t }' \
-    "$dir/figures.csv" >&2
 done
+for s in "${scheduler_list[@]}"; do
+  [[ -n "${failed_set[$s]:-}" ]] || done_list+=("$s")
+done
+if ((repeat > 1)); then
+  # The median run by steady frames/s stands for its entry (table and plots).
+  for s in "${done_list[@]}"; do
+    median_run="$(awk -F, -v s="$s" 'NR == 1 { for (i = 1; i <= NF; ++i) c[$i] = i; next }
+      $1 == s { print $c["frames_per_second_steady"], $2 }' "$runs_csv" | sort -g | awk '{ r[NR] = $2 } END { print r[int((NR + 1) / 2)] }')"
+    for f in "$out/$s/run-$median_run"/*; do cp "$f" "$out/$s/"; done
+    echo "$median_run" >"$out/$s/median-run.txt"
+  done
+fi
 ((${#done_list[@]} > 0)) || die "no scheduler ran to the end: ${failed[*]}"
 
 # summary.csv: the scheduler, then every column of the runs' figures.csv.
@@ -210,7 +259,13 @@ done
 } >"$out/summary.csv"
 
 # The comparison table, in markdown; the same text is printed at the end.
-table="$(awk -F, '
+table="$(awk -F, -v ranges="$(
+  if ((repeat > 1)); then awk -F, 'NR == 1 { for (i = 1; i <= NF; ++i) c[$i] = i; next }
+    { f = $c["frames_per_second_steady"]; s = $1
+      if (!(s in lo) || f < lo[s]) lo[s] = f
+      if (!(s in hi) || f > hi[s]) hi[s] = f }
+    END { for (s in lo) printf "%s=%.2f-%.2f;", s, lo[s], hi[s] }' "$runs_csv"; fi)" '
+  BEGIN { n = split(ranges, parts, ";"); for (i = 1; i <= n; ++i) if (split(parts[i], kv, "=") == 2) range[kv[1]] = kv[2] }
   NR == 1 { for (i = 1; i <= NF; ++i) c[$i] = i; next }
   function v(name) { return $c[name] }
   function mib(bytes) { return sprintf("%.3f", bytes / 1048576) }
@@ -227,6 +282,7 @@ table="$(awk -F, '
     cell[n, 8] = mib(v("bytes_per_frame_steady"))
     cell[n, 9] = sprintf("%.1f%% (%.1f%%)", 100 * v("cache_hit_rate_steady"), 100 * v("cache_hit_rate"))
     cell[n, 10] = sprintf("%d", v("reissued_tiles"))
+    if (range[v("scheduler")] != "") cell[n, 3] = cell[n, 3] " (" range[v("scheduler")] ")"
   }
   END {
     split("scheduler|frames/s overall|frames/s steady|M splats/s per render: mean (min-max)|imbalance busy|imbalance splats|MiB/frame first|MiB/frame steady|cache hits steady (all)|re-issued tiles", head, "|")
@@ -336,6 +392,12 @@ cpu="$(sed -n 's/^model name[[:space:]]*: //p' /proc/cpuinfo | head -n 1)"
   echo
   echo "- dataset: \`$(basename "$dataset")\`, layout $layout (display, traverse, data-send, render), camera path \`$camera\`, $frames frames at $size"
   [[ ${#job_args[@]} -eq 0 ]] || echo "- more job options: \`${job_args[*]}\`"
+  for label in "${variant_labels[@]}"; do
+    echo "- variant \`$label\`: scheduler ${variant_scheduler[$label]} with \`${variant_options[$label]}\`"
+  done
+  if ((repeat > 1)); then
+    echo "- every entry ran $repeat times, interleaved; the row is the median run by steady frames/s, the range after it is the lowest and highest of the $repeat runs (all runs: \`runs.csv\`)"
+  fi
   echo "- $(date -u '+%Y-%m-%d %H:%M UTC'), $(nproc) cores (${cpu:-unknown CPU}), $build_type build, revision $revision"
   echo
   echo "$table"

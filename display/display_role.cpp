@@ -14,7 +14,7 @@
 #include "common/view_options.hpp"
 #include "display/frame_scheduler.hpp"
 #include "display/frame_stats.hpp"
-#include "display/load_equalizer.hpp"
+#include "display/tile_planner.hpp"
 #include "display/tiling.hpp"
 
 namespace pointillist::display {
@@ -38,15 +38,40 @@ struct DisplayOptions {
   double tileTimeoutSeconds = 10.0;
   std::uint32_t maxAttempts = 3;
   std::string scheduler = "cost";
+  bool equalTiles = false;
+  std::string costModel = "overlap";
+  std::uint32_t prefetchFrames = 3;
   bool quiet = false;
 };
 
-v1::Scheduler parseScheduler(const std::string& name) {
-  if (name == "cost") return v1::SCHEDULER_COST;
-  if (name == "round-robin") return v1::SCHEDULER_ROUND_ROBIN;
-  if (name == "static") return v1::SCHEDULER_STATIC;
-  if (name == "equalizer") return v1::SCHEDULER_EQUALIZER;
-  throw UsageError("scheduler '" + name + "' is not one of: cost, round-robin, static, equalizer");
+v1::Scheduler schedulerMessage(SchedulerKind kind) {
+  switch (kind) {
+    case SchedulerKind::Cost:
+      return v1::SCHEDULER_COST;
+    case SchedulerKind::RoundRobin:
+      return v1::SCHEDULER_ROUND_ROBIN;
+    case SchedulerKind::Static:
+      return v1::SCHEDULER_STATIC;
+    case SchedulerKind::Equalizer:
+      return v1::SCHEDULER_EQUALIZER;
+  }
+  return v1::SCHEDULER_COST;
+}
+
+v1::CostModel parseCostModel(const std::string& name) {
+  if (name == "overlap") return v1::COST_MODEL_OVERLAP;
+  if (name == "paper") return v1::COST_MODEL_PAPER;
+  throw UsageError("cost model '" + name + "' is not one of: overlap, paper");
+}
+
+TilePlanOptions tilePlanOptions(const DisplayOptions& options, std::uint32_t renders) {
+  TilePlanOptions plan;
+  plan.scheduler = parseSchedulerKind(options.scheduler);
+  plan.renders = renders;
+  plan.tilesPerRender = options.tilesPerRender;
+  plan.minTileSize = options.minTileSize;
+  plan.balancedTiles = !options.equalTiles;
+  return plan;
 }
 
 double since(Clock::time_point start, Clock::time_point now) {
@@ -63,8 +88,9 @@ class DisplayProcess {
                 std::chrono::milliseconds(static_cast<long>(options.tileTimeoutSeconds * 1000.0)),
                 options.maxAttempts),
         mode_(parseRenderMode(options.view.mode)),
-        scheduler_(parseScheduler(options.scheduler)),
-        equalizer_(job.layout().render) {
+        planner_(tilePlanOptions(options, job.layout().render)),
+        scheduler_(schedulerMessage(planner_.options().scheduler)),
+        costModel_(parseCostModel(options.costModel)) {
     bounds_ = datasetBounds(dataset_.manifest());
     // The root holds the largest splat radius of the whole tree.
     maxRadius_ = dataset_.cells().empty() ? 0.0f : dataset_.cells()[0].maxSplatRadius;
@@ -135,32 +161,9 @@ class DisplayProcess {
     std::vector<TileRect> tiles;
     const float margin = maxRadius_ * options_.view.sizeScale;
     if (const auto area = boxOfInterest(camera, bounds_.min, bounds_.max, margin)) {
-      if (scheduler_ == v1::SCHEDULER_EQUALIZER) {
-        tiles = equalizer_.split(*area);
-      }
-      const bool emptyStrip = std::any_of(tiles.begin(), tiles.end(), [](const TileRect& tile) {
-        return tile.width() == 0 || tile.height() == 0;
-      });
-      if (tiles.empty() || emptyStrip) {  // other schedulers, or an area too small to strip
-        const auto target = static_cast<std::uint32_t>(
-            std::max(1.0, options_.tilesPerRender * static_cast<double>(job_.layout().render)));
-        tiles = splitIntoTiles(*area, target, options_.minTileSize);
-      }
+      tiles = planner_.plan(*area);
     }
     frames_.addFrame(index, camera, std::move(tiles), Image(width_, height_, kBackground));
-  }
-
-  std::uint32_t assignRender(const TileTaskRef& task) {
-    const std::uint32_t renders = job_.layout().render;
-    switch (scheduler_) {
-      case v1::SCHEDULER_ROUND_ROBIN:
-        return static_cast<std::uint32_t>(roundRobin_++ % renders);
-      case v1::SCHEDULER_STATIC:
-      case v1::SCHEDULER_EQUALIZER:
-        return task.tile % renders;
-      default:
-        return 0;
-    }
   }
 
   void handle(Envelope& envelope) {
@@ -203,7 +206,13 @@ class DisplayProcess {
       message.set_size_scale(options_.view.sizeScale);
       message.set_backface_cull(!options_.view.noBackfaceCull);
       message.set_scheduler(scheduler_);
-      message.set_assigned_render(assignRender(*task));
+      message.set_cost_model(costModel_);
+      if (scheduler_ == v1::SCHEDULER_COST && options_.prefetchFrames > 0 &&
+          task->frame + options_.prefetchFrames < cameras_.size()) {
+        *message.mutable_lookahead_camera() = cameras_[task->frame + options_.prefetchFrames];
+      }
+      message.set_assigned_render(planner_.assign(task->tile).value_or(0));
+      dispatchedAt_[{task->frame, task->tile}] = since(start_, Clock::now());
       const int traverse = idleTraverses_.front();
       idleTraverses_.pop_front();
       sends_.push_back(job_.channel().post(traverse, MessageKind::TileTask, message));
@@ -235,6 +244,26 @@ class DisplayProcess {
                           std::to_string(envelope.payload.size()) + " bytes, expected " +
                           std::to_string(expectedBytes));
     }
+    TileRecord tileRecord;
+    tileRecord.frame = header.frame_id();
+    tileRecord.tile = header.tile_id();
+    tileRecord.attempt = header.attempt();
+    tileRecord.renderRank = header.render_rank();
+    tileRecord.traverseRank = header.traverse_rank();
+    tileRecord.arrivedSeconds = sample.seconds;
+    if (const auto found = dispatchedAt_.find({header.frame_id(), header.tile_id()});
+        found != dispatchedAt_.end()) {
+      tileRecord.dispatchedSeconds = found->second;
+      dispatchedAt_.erase(found);
+    }
+    tileRecord.queuedSeconds = static_cast<double>(header.queued_time_us()) * 1e-6;
+    tileRecord.dataWaitSeconds = static_cast<double>(header.data_wait_us()) * 1e-6;
+    tileRecord.renderSeconds = static_cast<double>(header.render_time_us()) * 1e-6;
+    tileRecord.splats = header.splats_rendered();
+    tileRecord.pixels = static_cast<std::uint64_t>(header.rect().width()) * header.rect().height();
+    tileRecord.orderedBytes = header.ordered_bytes();
+    tileRecord.prefetchBytes = header.prefetch_bytes();
+    stats_.tiles.push_back(tileRecord);
     if (!frames_.tileArrived(header.frame_id(), header.tile_id(), header.rect())) {
       ++stats_.lateTiles;
       return;
@@ -247,13 +276,17 @@ class DisplayProcess {
          header.rect().y());
     FrameRecord& record = pending_[header.frame_id()];
     record.splats += header.splats_rendered();
-    record.bytesOrdered += header.ordered_bytes();
+    record.bytesOrdered += header.ordered_bytes() + header.prefetch_bytes();
+    record.bytesPrefetched += header.prefetch_bytes();
     record.splatsPerRender[header.render_rank()] += header.splats_rendered();
     record.busySecondsPerRender[header.render_rank()] +=
         static_cast<double>(header.render_time_us()) * 1e-6;
-    auto& tileSeconds = tileSeconds_[header.frame_id()];
-    tileSeconds.resize(state->tiles.size(), 0.0);
-    tileSeconds.at(header.tile_id()) = static_cast<double>(header.render_time_us()) * 1e-6;
+    auto& feedback = tileFeedback_[header.frame_id()];
+    feedback.resize(state->tiles.size());
+    TileFeedback& tile = feedback.at(header.tile_id());
+    tile.rect = header.rect();
+    tile.seconds = static_cast<double>(header.render_time_us()) * 1e-6;
+    tile.splats = header.splats_rendered();
   }
 
   bool emitFrames() {
@@ -269,11 +302,8 @@ class DisplayProcess {
       record.tiles = static_cast<std::uint32_t>(state->tiles.size());
       record.reissuedTiles = frames_.reissued(state->index);
       record.failedTiles = frames_.failed(state->index);
-      if (scheduler_ == v1::SCHEDULER_EQUALIZER) {
-        auto seconds = std::move(tileSeconds_[state->index]);
-        if (seconds.size() == equalizer_.strips()) equalizer_.update(seconds);
-      }
-      tileSeconds_.erase(state->index);
+      if (record.failedTiles == 0) planner_.frameDone(tileFeedback_[state->index]);
+      tileFeedback_.erase(state->index);
       for (const auto& [rank, samples] : stats_.renders) {
         record.splatsPerRender.try_emplace(rank, 0);
         record.busySecondsPerRender.try_emplace(rank, 0.0);
@@ -324,11 +354,12 @@ class DisplayProcess {
   Dataset dataset_;
   FrameScheduler frames_;
   v1::RenderMode mode_;
+  TilePlanner planner_;
   v1::Scheduler scheduler_;
-  LoadEqualizer equalizer_;
-  std::uint64_t roundRobin_ = 0;
+  v1::CostModel costModel_;
   std::uint64_t framesAdded_ = 0;
-  std::map<std::uint64_t, std::vector<double>> tileSeconds_;
+  std::map<std::uint64_t, std::vector<TileFeedback>> tileFeedback_;
+  std::map<std::pair<std::uint64_t, std::uint32_t>, double> dispatchedAt_;
   SceneBounds bounds_;
   float maxRadius_ = 0.0f;
   std::uint32_t width_ = 0;
@@ -371,6 +402,14 @@ int runDisplayRole(Job& job, int argc, char** argv) {
   app.add_option("--scheduler", options.scheduler,
                  "How tiles are given to render processes: cost (seed 003), round-robin, "
                  "static, equalizer");
+  app.add_option("--cost-model", options.costModel,
+                 "Cost scheduler: overlap (transfers overlap queued work, default) or paper "
+                 "(seed 003: transfer time adds to the queue)");
+  app.add_option("--prefetch-frames", options.prefetchFrames,
+                 "Cost scheduler: order the data each tile's rect needs this many frames on "
+                 "(0: no prefetch)");
+  app.add_flag("--equal-tiles", options.equalTiles,
+               "Cost scheduler: equal tiles instead of tiles sized by last frame's work");
   app.add_flag("--quiet", options.quiet, "No per-frame lines");
   if (!parseRoleOptions(app, job, argc, argv)) return 0;
 

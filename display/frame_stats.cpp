@@ -274,7 +274,7 @@ void RunStats::writeJson(const std::filesystem::path& file) const {
 void RunStats::writeCsv(const std::filesystem::path& dir) const {
   std::ostringstream framesCsv, rendersCsv, perFrameCsv;
   framesCsv << "frame,start,end,seconds,splats,tiles,reissued,failed,bytes_sent,max_render_busy,"
-               "mean_render_busy,imbalance_busy,imbalance_splats\n";
+               "mean_render_busy,imbalance_busy,imbalance_splats,bytes_prefetched\n";
   perFrameCsv << "frame,render_rank,splats,busy_seconds\n";
   for (const FrameRecord& f : frames) {
     const FrameBalance b = balance(f);
@@ -282,7 +282,8 @@ void RunStats::writeCsv(const std::filesystem::path& dir) const {
               << number(f.endSeconds - f.startSeconds) << ',' << f.splats << ',' << f.tiles << ','
               << f.reissuedTiles << ',' << f.failedTiles << ',' << f.bytesOrdered << ','
               << number(b.maxBusySeconds) << ',' << number(b.meanBusySeconds) << ','
-              << optionalNumber(b.busy) << ',' << optionalNumber(b.splats) << '\n';
+              << optionalNumber(b.busy) << ',' << optionalNumber(b.splats) << ','
+              << f.bytesPrefetched << '\n';
     std::map<int, std::pair<std::uint64_t, double>> perRender;
     for (const auto& [rank, s] : f.splatsPerRender) perRender[rank].first = s;
     for (const auto& [rank, busy] : f.busySecondsPerRender) perRender[rank].second = busy;
@@ -299,6 +300,17 @@ void RunStats::writeCsv(const std::filesystem::path& dir) const {
                  << s.evictions << ',' << s.dataBytesReceived << '\n';
     }
   }
+  std::ostringstream tilesCsv;
+  tilesCsv << "frame,tile,attempt,render_rank,traverse_rank,dispatched,arrived,queued_seconds,"
+              "data_wait_seconds,render_seconds,splats,pixels,ordered_bytes,prefetch_bytes\n";
+  for (const TileRecord& t : tiles) {
+    tilesCsv << t.frame << ',' << t.tile << ',' << t.attempt << ',' << t.renderRank << ','
+             << t.traverseRank << ',' << number(t.dispatchedSeconds) << ','
+             << number(t.arrivedSeconds) << ',' << number(t.queuedSeconds) << ','
+             << number(t.dataWaitSeconds) << ',' << number(t.renderSeconds) << ',' << t.splats
+             << ',' << t.pixels << ',' << t.orderedBytes << ',' << t.prefetchBytes << '\n';
+  }
+  writeFile(dir / "tiles.csv", tilesCsv.str(), "tile statistics");
   std::string header, row;
   for (const auto& [name, value] : keyFigureFields(keyFigures())) {
     header += (header.empty() ? "" : ",") + name;

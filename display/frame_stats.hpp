@@ -18,7 +18,8 @@ struct FrameRecord {
   std::uint32_t tiles = 0;
   std::uint32_t reissuedTiles = 0;
   std::uint32_t failedTiles = 0;
-  std::uint64_t bytesOrdered = 0;  // top-level cell data sent to render processes
+  std::uint64_t bytesOrdered = 0;     // top-level cell data sent to render processes
+  std::uint64_t bytesPrefetched = 0;  // of that, ordered ahead along the camera path
   std::map<int, std::uint64_t> splatsPerRender;
   std::map<int, double> busySecondsPerRender;
 };
@@ -33,6 +34,24 @@ struct RenderSample {
   std::uint64_t cacheMisses = 0;
   std::uint64_t evictions = 0;
   std::uint64_t dataBytesReceived = 0;
+};
+
+// One tile's trip: handed to a traverse, queued and drawn on a render, back.
+struct TileRecord {
+  std::uint64_t frame = 0;
+  std::uint32_t tile = 0;
+  std::uint32_t attempt = 0;
+  int renderRank = 0;
+  int traverseRank = 0;
+  double dispatchedSeconds = 0.0;  // since the run began
+  double arrivedSeconds = 0.0;
+  double queuedSeconds = 0.0;    // on the render: arrival of the packet to drawn
+  double dataWaitSeconds = 0.0;  // of that, waiting for cell data
+  double renderSeconds = 0.0;
+  std::uint64_t splats = 0;
+  std::uint64_t pixels = 0;
+  std::uint64_t orderedBytes = 0;
+  std::uint64_t prefetchBytes = 0;
 };
 
 // How evenly one frame's work was spread over the render processes: max/mean
@@ -99,6 +118,7 @@ struct RunStats {
   std::string mode;
   std::vector<FrameRecord> frames;
   std::map<int, std::vector<RenderSample>> renders;  // by world rank
+  std::vector<TileRecord> tiles;                     // in arrival order
   std::uint64_t lateTiles = 0;  // arrived after their frame was done or re-issued
   double totalSeconds = 0.0;
 
@@ -114,7 +134,7 @@ struct RunStats {
   std::string toJson() const;
   void writeJson(const std::filesystem::path& file) const;
   // Writes DIR/frames.csv, DIR/renders.csv, DIR/per_frame_render.csv and
-  // DIR/figures.csv (keyFigures() as one line); frame_stats.cpp lists the columns.
+  // DIR/tiles.csv, DIR/figures.csv (keyFigures() as one line); frame_stats.cpp lists the columns.
   void writeCsv(const std::filesystem::path& dir) const;
   // Human summary of keyFigures(): frame rate (all and steady state), splats/s
   // per render, imbalance, bytes per frame, cache hit rate.

@@ -1,9 +1,11 @@
 #include "render/render_role.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <deque>
 #include <map>
+#include <optional>
 #include <thread>
 #include <unordered_map>
 #include <unordered_set>
@@ -30,6 +32,27 @@ struct RenderOptions {
   double slowMillisecondsPerPacket = 0.0;
   int stallIndex = -1;  // which render process (index among renders) stalls
   long stallAfterPackets = 0;
+};
+
+// The last `capacity` samples of a noisy measurement.
+class RecentSamples {
+ public:
+  explicit RecentSamples(std::size_t capacity) : capacity_(capacity) {}
+  void add(double sample) {
+    if (samples_.size() == capacity_) samples_.pop_front();
+    samples_.push_back(sample);
+  }
+  double lowerQuartile() const {
+    if (samples_.empty()) return 0.0;
+    std::vector<double> sorted(samples_.begin(), samples_.end());
+    const auto quartile = static_cast<std::ptrdiff_t>(sorted.size() / 4);
+    std::nth_element(sorted.begin(), sorted.begin() + quartile, sorted.end());
+    return sorted[static_cast<std::size_t>(quartile)];
+  }
+
+ private:
+  std::size_t capacity_;
+  std::deque<double> samples_;
 };
 
 double movingAverage(double average, double sample) {
@@ -117,6 +140,7 @@ class RenderProcess {
   struct QueuedPacket {
     v1::RenderPacket packet;
     Clock::time_point arrived;
+    std::optional<Clock::time_point> dataComplete;  // when every cell was first present
     std::uint64_t sequence = 0;
   };
 
@@ -155,6 +179,13 @@ class RenderProcess {
     return true;
   }
 
+  // Stamps the packets whose data has just become complete (for data_wait_us).
+  void stampReadyPackets(Clock::time_point now) {
+    for (QueuedPacket& queued : queue_) {
+      if (!queued.dataComplete && ready(queued)) queued.dataComplete = now;
+    }
+  }
+
   void handleData(const Envelope& envelope) {
     const auto header = envelope.as<v1::DataPacketHeader>();
     const std::uint32_t cell = header.top_level_cell();
@@ -175,8 +206,8 @@ class RenderProcess {
     const auto now = Clock::now();
     // T_n: the measured transfer time of the payload per byte.
     if (envelope.payload.size() >= 4096 && envelope.payloadSeconds > 0.0) {
-      secondsPerByte_ = movingAverage(
-          secondsPerByte_, envelope.payloadSeconds / static_cast<double>(envelope.payload.size()));
+      transferSamples_.add(envelope.payloadSeconds / static_cast<double>(envelope.payload.size()));
+      secondsPerByte_ = transferSamples_.lowerQuartile();
     }
     requestedAt_.erase(cell);
     if (cache_.contains(cell)) return;  // already here (a late duplicate)
@@ -192,6 +223,7 @@ class RenderProcess {
     const std::span<const Splat> splats(reinterpret_cast<const Splat*>(envelope.payload.data()),
                                         envelope.payload.size() / sizeof(Splat));
     renderer_.uploadCell(cell, splats);
+    stampReadyPackets(Clock::now());
     loaded_.push_back(cell);
     reportDirty_ = true;
   }
@@ -223,7 +255,8 @@ class RenderProcess {
     }
     sendRequests(requests);
     workload_ += packet.total_splats();
-    queue_.push_back({std::move(packet), now, ++packetsQueued_});
+    queue_.push_back({std::move(packet), now, std::nullopt, ++packetsQueued_});
+    if (ready(queue_.back())) queue_.back().dataComplete = now;
     reportDirty_ = true;
   }
 
@@ -295,11 +328,15 @@ class RenderProcess {
     header.set_attempt(packet.attempt());
     header.set_queued_time_us(
         std::chrono::duration_cast<std::chrono::microseconds>(now - queued.arrived).count());
+    header.set_data_wait_us(std::chrono::duration_cast<std::chrono::microseconds>(
+                                queued.dataComplete.value_or(queued.arrived) - queued.arrived)
+                                .count());
     header.set_workload_splats(workload_);
     header.set_cache_hits(hits_);
     header.set_cache_misses(misses_);
     header.set_cache_bytes(cache_.bytes());
     header.set_ordered_bytes(packet.ordered_bytes());
+    header.set_prefetch_bytes(packet.prefetch_bytes());
     header.set_traverse_rank(packet.traverse_rank());
     header.set_evictions(cache_.evictions());
     header.set_peak_cache_bytes(cache_.peakBytes());
@@ -378,6 +415,10 @@ class RenderProcess {
   double busySeconds_ = 0.0;
   double secondsPerSplat_ = 0.0;
   double secondsPerByte_ = 0.0;
+  // A transfer is only ever slowed by the receiver being descheduled or
+  // asleep between polls, never sped up: the lower quartile of recent samples
+  // tracks the link, a mean tracks the CPU contention.
+  RecentSamples transferSamples_{32};
 };
 
 }  // namespace

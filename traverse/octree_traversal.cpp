@@ -67,6 +67,34 @@ bool cellBackfacing(const OctreeCell& cell, const glm::vec3& eye, float sizeScal
   return axisAngle + coneAngle + viewAngle + kSafety < 0.5 * M_PI;
 }
 
+std::vector<std::uint32_t> topLevelCellsInTile(std::span<const OctreeCell> cells,
+                                               const Camera& camera, const TileRect& rect,
+                                               const TraversalSettings& settings) {
+  std::vector<std::uint32_t> found;
+  if (cells.empty()) return found;
+  const FrustumPlanes planes = tilePlanes(camera, rect, settings.marginPixels);
+  const glm::vec3 eye = cameraEye(camera);
+  const auto size = static_cast<std::uint32_t>(cells.size());
+  std::uint32_t index = 0;
+  while (index != kNoIndex && index < size) {
+    const OctreeCell& cell = cells[index];
+    const bool culled = boxOutside(planes, grownMin(cell, settings.sizeScale),
+                                   grownMax(cell, settings.sizeScale)) ||
+                        (settings.backfaceCull && cellBackfacing(cell, eye, settings.sizeScale));
+    if (culled) {
+      index = cell.nextSibling;
+    } else if (cell.topLevel != kNoIndex) {
+      if (cell.pointsCount + cell.splatsCount > 0) found.push_back(cell.topLevel);
+      index = cell.nextSibling;
+    } else {
+      index = cell.isLeaf() ? cell.nextSibling : index + 1;
+    }
+  }
+  std::sort(found.begin(), found.end());
+  found.erase(std::unique(found.begin(), found.end()), found.end());
+  return found;
+}
+
 TraversalResult traverseTile(std::span<const OctreeCell> cells, const Camera& camera,
                              const TileRect& rect, const TraversalSettings& settings) {
   TraversalResult result;

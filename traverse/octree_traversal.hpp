@@ -49,6 +49,13 @@ struct TraversalResult {
 TraversalResult traverseTile(std::span<const OctreeCell> cells, const Camera& camera,
                              const TileRect& rect, const TraversalSettings& settings);
 
+// The top-level cells whose bounds reach into the tile: the same culling as
+// traverseTile down to the top-level depth, without level-of-detail selection
+// (a superset of what traverseTile returns, at a fraction of the walk).
+std::vector<std::uint32_t> topLevelCellsInTile(std::span<const OctreeCell> cells,
+                                               const Camera& camera, const TileRect& rect,
+                                               const TraversalSettings& settings);
+
 // True when every splat of the cell faces away from the eye (conservative:
 // combines the normal cone with the cone of view directions onto the cell).
 bool cellBackfacing(const OctreeCell& cell, const glm::vec3& eye, float sizeScale);

@@ -11,8 +11,9 @@ double blend(double average, double sample, double weight) {
   return average + weight * (sample - average);
 }
 
-RenderModel::RenderModel(std::size_t renderCount, std::span<const TopLevelCell> topLevel)
-    : renders_(renderCount) {
+RenderModel::RenderModel(std::size_t renderCount, std::span<const TopLevelCell> topLevel,
+                         CostModel costModel)
+    : renders_(renderCount), costModel_(costModel) {
   if (renderCount == 0) throw UsageError("a render model needs at least one render process");
   cellBytes_.reserve(topLevel.size());
   for (const TopLevelCell& cell : topLevel) cellBytes_.push_back(cell.byteSize);
@@ -43,8 +44,11 @@ double RenderModel::cost(std::size_t render, std::span<const std::uint32_t> cell
   if (missingBytes != nullptr) *missingBytes = missing;
   // The packet's own splats cost the same everywhere; they are included so the
   // figure reads as the expected completion time on that render.
-  return static_cast<double>(workload(render) + splats) * secondsPerSplat_ +
-         static_cast<double>(missing) * secondsPerByte_;
+  const double queued = static_cast<double>(workload(render)) * secondsPerSplat_;
+  const double transfer = static_cast<double>(missing) * secondsPerByte_;
+  const double own = static_cast<double>(splats) * secondsPerSplat_;
+  if (costModel_ == CostModel::Paper) return queued + transfer + own;
+  return std::max(queued, transfer) + own;
 }
 
 bool RenderModel::suspectedStalled(std::size_t render, Clock::time_point now) const {
@@ -60,6 +64,7 @@ RenderChoice RenderModel::choose(std::span<const std::uint32_t> cells, std::uint
   RenderChoice best;
   best.cost = std::numeric_limits<double>::infinity();
   std::uint64_t bestWorkload = std::numeric_limits<std::uint64_t>::max();
+  best.missingBytes = std::numeric_limits<std::uint64_t>::max();
   const std::size_t count = renders_.size();
   bool allStalled = true;
   for (std::size_t render = 0; render < count; ++render) {
@@ -71,7 +76,9 @@ RenderChoice RenderModel::choose(std::span<const std::uint32_t> cells, std::uint
     std::uint64_t missing = 0;
     const double value = cost(render, cells, splats, &missing);
     const std::uint64_t load = workload(render);
-    if (value < best.cost || (value == best.cost && load < bestWorkload)) {
+    const bool tie = value == best.cost;
+    if (value < best.cost || (tie && missing < best.missingBytes) ||
+        (tie && missing == best.missingBytes && load < bestWorkload)) {
       best.render = render;
       best.cost = value;
       best.missingBytes = missing;
@@ -79,9 +86,7 @@ RenderChoice RenderModel::choose(std::span<const std::uint32_t> cells, std::uint
     }
   }
   rotation_ = (best.render + 1) % count;
-  for (std::uint32_t cell : cells) {
-    if (!hasCell(best.render, cell)) best.missingCells.push_back(cell);
-  }
+  best.missingCells = missingCells(best.render, cells);
   return best;
 }
 
@@ -90,18 +95,30 @@ RenderChoice RenderModel::assigned(std::size_t render, std::span<const std::uint
   RenderChoice choice;
   choice.render = render % renders_.size();
   choice.cost = cost(choice.render, cells, splats, &choice.missingBytes);
-  for (std::uint32_t cell : cells) {
-    if (!hasCell(choice.render, cell)) choice.missingCells.push_back(cell);
-  }
+  choice.missingCells = missingCells(choice.render, cells);
   return choice;
 }
 
 void RenderModel::recordPacket(std::size_t render, std::uint64_t packetId, std::uint64_t splats,
-                               std::span<const std::uint32_t> orderedCells) {
+                               std::span<const std::uint32_t> orderedCells, Clock::time_point now) {
   RenderState& state = renders_.at(render);
-  if (!state.waitingSince) state.waitingSince = Clock::now();
+  if (!state.waitingSince) state.waitingSince = now;
   state.unreported.emplace_back(packetId, splats);
   for (std::uint32_t cell : orderedCells) state.ordered.insert(cell);
+}
+
+void RenderModel::recordPrefetch(std::size_t render, std::span<const std::uint32_t> orderedCells) {
+  RenderState& state = renders_.at(render);
+  for (std::uint32_t cell : orderedCells) state.ordered.insert(cell);
+}
+
+std::vector<std::uint32_t> RenderModel::missingCells(std::size_t render,
+                                                     std::span<const std::uint32_t> cells) const {
+  std::vector<std::uint32_t> missing;
+  for (std::uint32_t cell : cells) {
+    if (!hasCell(render, cell)) missing.push_back(cell);
+  }
+  return missing;
 }
 
 void RenderModel::applyReport(std::size_t render, const RenderReportView& report,

@@ -1,8 +1,11 @@
 #pragma once
 // A traverse process's model of every render process (seed 003 §4.3, §4.5):
 // pending work and cached top-level cells, kept from the renders' reports, and
-// the cost function that picks where a render packet goes:
+// the cost function that picks where a render packet goes. As the paper writes it:
 //   Cost(i) = workload(i) * T_s + missing_bytes(i) * T_n
+// By default the transfer is taken to overlap the work already queued there
+// (data-send streams the cells while the render draws), see docs/scheduling.md:
+//   Cost(i) = max(workload(i) * T_s, missing_bytes(i) * T_n) + packet_splats * T_s
 // T_s (seconds per splat) and T_n (seconds per byte) are measured by the render
 // processes while running and averaged here.
 #include <chrono>
@@ -28,6 +31,11 @@ struct RenderReportView {
   std::uint64_t packetsDone = 0;  // packets the render has finished in all
 };
 
+enum class CostModel {
+  Overlap,  // transfers overlap the queued work (default)
+  Paper,    // seed 003 as written: the transfer adds to the queue
+};
+
 struct RenderChoice {
   std::size_t render = 0;  // index among render processes
   double cost = 0.0;
@@ -39,13 +47,17 @@ class RenderModel {
  public:
   using Clock = std::chrono::steady_clock;
 
-  RenderModel(std::size_t renderCount, std::span<const TopLevelCell> topLevel);
+  RenderModel(std::size_t renderCount, std::span<const TopLevelCell> topLevel,
+              CostModel costModel = CostModel::Overlap);
+  void setCostModel(CostModel model) { costModel_ = model; }
+  CostModel costModel() const { return costModel_; }
 
   // Cost of sending a packet of `splats` splats that needs `cells` to render i.
   double cost(std::size_t render, std::span<const std::uint32_t> cells, std::uint64_t splats,
               std::uint64_t* missingBytes = nullptr) const;
-  // The render with the lowest cost; ties go to the lowest pending work, then
-  // rotate from the last choice so idle renders share the first frames.
+  // The render with the lowest cost; ties go to the fewest missing bytes, then
+  // the lowest pending work, then rotate from the last choice so idle renders
+  // share the first frames.
   // A render that has had work for much longer than that work should take
   // without finishing a packet is suspected stalled and only chosen when every
   // render is.
@@ -59,7 +71,13 @@ class RenderModel {
   // Records that a packet went to `render` with the given id, and that its
   // missing cells were ordered (they count as present from now on).
   void recordPacket(std::size_t render, std::uint64_t packetId, std::uint64_t splats,
-                    std::span<const std::uint32_t> orderedCells);
+                    std::span<const std::uint32_t> orderedCells,
+                    Clock::time_point now = Clock::now());
+  // Cells ordered for `render` ahead of any packet (prefetch along the camera path).
+  void recordPrefetch(std::size_t render, std::span<const std::uint32_t> orderedCells);
+  // Of `cells`, those `render` neither holds nor has on order.
+  std::vector<std::uint32_t> missingCells(std::size_t render,
+                                          std::span<const std::uint32_t> cells) const;
   void applyReport(std::size_t render, const RenderReportView& report,
                    Clock::time_point now = Clock::now());
 
@@ -86,6 +104,7 @@ class RenderModel {
   std::vector<std::uint64_t> cellBytes_;
   double secondsPerSplat_ = 2e-7;  // until measured: 5 M splats/s
   double secondsPerByte_ = 1e-8;   // until measured: 100 MB/s
+  CostModel costModel_;
   mutable std::size_t rotation_ = 0;
 };
 

@@ -1,5 +1,6 @@
 #include "traverse/traverse_role.hpp"
 
+#include <algorithm>
 #include <cstdio>
 #include <deque>
 #include <map>
@@ -13,6 +14,10 @@
 
 namespace pointillist::traverse {
 namespace {
+
+// At most this much prefetched data per tile, so a sharp turn of the camera
+// cannot flood the links ahead of the packets that are waiting.
+constexpr std::uint64_t kPrefetchBudgetBytes = 8ull << 20;
 
 class TraverseProcess {
  public:
@@ -62,12 +67,16 @@ class TraverseProcess {
     char line[256];
     std::snprintf(line, sizeof line,
                   "tasks=%llu splats=%llu ordered_cells=%llu ordered_bytes=%llu "
-                  "largest_tile_data=%.2fMiB",
+                  "prefetched_cells=%llu prefetched_bytes=%llu largest_tile_data=%.2fMiB "
+                  "T_s=%.3gs/splat T_n=%.3gs/B",
                   static_cast<unsigned long long>(tasksDone_),
                   static_cast<unsigned long long>(splatsPacked_),
                   static_cast<unsigned long long>(cellsOrdered_),
                   static_cast<unsigned long long>(bytesOrdered_),
-                  static_cast<double>(maxPacketBytes_) / 1048576.0);
+                  static_cast<unsigned long long>(cellsPrefetched_),
+                  static_cast<unsigned long long>(bytesPrefetched_),
+                  static_cast<double>(maxPacketBytes_) / 1048576.0, model_.secondsPerSplat(),
+                  model_.secondsPerByte());
     return line;
   }
 
@@ -80,6 +89,8 @@ class TraverseProcess {
     const TraversalResult result =
         traverseTile(dataset_.cells(), task.camera(), task.rect(), settings);
 
+    model_.setCostModel(task.cost_model() == v1::COST_MODEL_PAPER ? CostModel::Paper
+                                                                  : CostModel::Overlap);
     const RenderChoice choice =
         task.scheduler() == v1::SCHEDULER_COST
             ? model_.choose(result.topLevelCells, result.splats)
@@ -91,6 +102,28 @@ class TraverseProcess {
     for (std::uint32_t cell : choice.missingCells) {
       v1::SendOrder& order = orders[owners_.at(cell)];
       order.add_top_level_cells(cell);
+    }
+    // Prefetch along the camera path: what this rect will need a few frames on
+    // goes to the render drawing it now, which the cost function then favours
+    // for that part of the screen.
+    std::uint64_t prefetchBytes = 0;
+    if (task.scheduler() == v1::SCHEDULER_COST && task.has_lookahead_camera()) {
+      const auto ahead =
+          topLevelCellsInTile(dataset_.cells(), task.lookahead_camera(), task.rect(), settings);
+      std::vector<std::uint32_t> prefetch;
+      for (std::uint32_t cell : model_.missingCells(choice.render, ahead)) {
+        if (std::binary_search(choice.missingCells.begin(), choice.missingCells.end(), cell)) {
+          continue;
+        }
+        const std::uint64_t bytes = dataset_.topLevelCells()[cell].byteSize;
+        if (prefetchBytes + bytes > kPrefetchBudgetBytes) break;
+        prefetchBytes += bytes;
+        prefetch.push_back(cell);
+        orders[owners_.at(cell)].add_top_level_cells(cell);
+      }
+      model_.recordPrefetch(choice.render, prefetch);
+      cellsPrefetched_ += prefetch.size();
+      bytesPrefetched_ += prefetchBytes;
     }
     const auto& datasends = job_.ranksOf(v1::ROLE_DATASEND);
     for (auto& [owner, order] : orders) {
@@ -121,6 +154,7 @@ class TraverseProcess {
     packet.set_packet_id(++packetsSent_);
     packet.set_ordered_bytes(choice.missingBytes);
     packet.set_chosen_cost(choice.cost);
+    packet.set_prefetch_bytes(prefetchBytes);
     sends_.push_back(job_.channel().post(renderRank, MessageKind::RenderPacket, packet));
     model_.recordPacket(choice.render, packetsSent_, result.splats, choice.missingCells);
 
@@ -167,6 +201,8 @@ class TraverseProcess {
   std::uint64_t cellsOrdered_ = 0;
   std::uint64_t bytesOrdered_ = 0;
   std::uint64_t maxPacketBytes_ = 0;  // largest working set of one tile
+  std::uint64_t cellsPrefetched_ = 0;
+  std::uint64_t bytesPrefetched_ = 0;
 };
 
 }  // namespace

@@ -163,6 +163,28 @@ TEST(OctreeTraversal, TilesDrawOnlyWhatTheFullFrameDrawsAndLoseNothingThatTouche
   }
 }
 
+TEST(OctreeTraversal, PrefetchCellsAreASupersetOfWhatTheTileDraws) {
+  const Fixture& f = cityFixture();
+  for (const Camera& camera : testCameras(f)) {
+    for (const TileRect& rect :
+         {fullFrameRect(camera), makeTileRect(0, 0, 100, 80), makeTileRect(150, 90, 64, 64)}) {
+      TraversalSettings settings;
+      const auto drawn = traverseTile(f.content.cells, camera, rect, settings);
+      const auto ahead = topLevelCellsInTile(f.content.cells, camera, rect, settings);
+      ASSERT_TRUE(std::is_sorted(ahead.begin(), ahead.end()));
+      ASSERT_EQ(std::adjacent_find(ahead.begin(), ahead.end()), ahead.end());
+      for (std::uint32_t cell : drawn.topLevelCells) {
+        EXPECT_TRUE(std::binary_search(ahead.begin(), ahead.end(), cell)) << "cell " << cell;
+      }
+      // Culled by the frustum: a tile never names more than the whole frame does.
+      const auto whole =
+          topLevelCellsInTile(f.content.cells, camera, fullFrameRect(camera), settings);
+      EXPECT_LE(ahead.size(), whole.size());
+      EXPECT_LT(whole.size(), f.content.topLevel.size() + 1);
+    }
+  }
+}
+
 TEST(OctreeTraversal, CoarserLevelOfDetailDrawsFewerSplats) {
   const Fixture& f = cityFixture();
   const Camera camera = testCameras(f)[2];  // far away

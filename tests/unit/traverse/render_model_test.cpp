@@ -47,9 +47,9 @@ TEST(RenderModel, PrefersAnIdleRenderWhenWorkOutweighsTheTransfer) {
   EXPECT_EQ(choice.missingCells[0], 0u);
 }
 
-TEST(RenderModel, CostIsWorkloadTimesTsPlusMissingBytesTimesTn) {
+TEST(RenderModel, PaperCostIsWorkloadTimesTsPlusMissingBytesTimesTn) {
   const auto cells = table({4000, 6000});
-  RenderModel model(2, cells);
+  RenderModel model(2, cells, CostModel::Paper);
   // Measured rates replace the defaults (moving average converges).
   for (int i = 0; i < 200; ++i) {
     model.applyReport(0, {.workloadSplats = 500, .secondsPerSplat = 1e-6, .secondsPerByte = 1e-5});
@@ -61,6 +61,44 @@ TEST(RenderModel, CostIsWorkloadTimesTsPlusMissingBytesTimesTn) {
   const double cost = model.cost(0, needed, 100, &missing);
   EXPECT_EQ(missing, 10'000u);
   EXPECT_NEAR(cost, (500 + 100) * 1e-6 + 10'000 * 1e-5, 1e-9);
+}
+
+TEST(RenderModel, OverlapCostLetsTheTransferHideBehindQueuedWork) {
+  const auto cells = table({4000, 6000});
+  RenderModel model(2, cells);
+  ASSERT_EQ(model.costModel(), CostModel::Overlap);
+  for (int i = 0; i < 200; ++i) {
+    model.applyReport(0, {.workloadSplats = 500, .secondsPerSplat = 1e-6, .secondsPerByte = 1e-7});
+  }
+  const std::uint32_t needed[] = {0, 1};
+  // 10 kB at 1e-7 s/B = 1 ms arrives while the 500 queued splats (0.5 ms) are
+  // drawn: the transfer is the longer of the two.
+  EXPECT_NEAR(model.cost(0, needed, 100, nullptr), 10'000 * 1e-7 + 100 * 1e-6, 1e-9);
+  // With 5000 splats queued (5 ms) the transfer is hidden entirely.
+  model.applyReport(0, {.workloadSplats = 5000});
+  EXPECT_NEAR(model.cost(0, needed, 100, nullptr), (5000 + 100) * 1e-6, 1e-9);
+}
+
+TEST(RenderModel, OverlapCostSendsDataToABusyRenderWhoseQueueHidesTheTransfer) {
+  // Render 0 holds the cell and has 2.5 ms queued; render 1 has 2 ms queued and
+  // needs the 10 kB cell (1 ms). Paper: 2.5 ms against 2 + 1 = 3 ms, stay.
+  // Overlap: the cell arrives while render 1 draws its queue, 2.5 against 2 ms, move.
+  const auto cells = table({10'000});
+  const std::uint32_t loaded[] = {0};
+  const std::uint32_t needed[] = {0};
+  RenderModel paper(2, cells, CostModel::Paper);
+  RenderModel overlap(2, cells, CostModel::Overlap);
+  for (RenderModel* model : {&paper, &overlap}) {
+    for (int i = 0; i < 200; ++i) {
+      model->applyReport(0, {.secondsPerSplat = 1e-6, .secondsPerByte = 1e-7});
+    }
+    model->applyReport(0, {.workloadSplats = 2500, .loaded = loaded});
+    model->applyReport(1, {.workloadSplats = 2000});
+  }
+  EXPECT_EQ(paper.choose(needed, 100).render, 0u);
+  const auto moved = overlap.choose(needed, 100);
+  EXPECT_EQ(moved.render, 1u);
+  EXPECT_EQ(moved.missingBytes, 10'000u);
 }
 
 TEST(RenderModel, WorkloadCountsPacketsSentSinceTheLastReport) {

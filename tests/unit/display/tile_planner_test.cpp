@@ -1,0 +1,171 @@
+// The display's tile layout per scheduler: exact cover always; for the cost
+// scheduler, tiles sized so each holds about the same measured work.
+#include "display/tile_planner.hpp"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <random>
+
+#include "common/errors.hpp"
+
+namespace pointillist::display {
+namespace {
+
+void expectExactCover(const TileRect& area, const std::vector<TileRect>& tiles) {
+  std::vector<int> hits(static_cast<std::size_t>(area.width()) * area.height(), 0);
+  for (const TileRect& tile : tiles) {
+    ASSERT_GT(tile.width(), 0u);
+    ASSERT_GT(tile.height(), 0u);
+    ASSERT_GE(tile.x(), area.x());
+    ASSERT_GE(tile.y(), area.y());
+    ASSERT_LE(tile.x() + tile.width(), area.x() + area.width());
+    ASSERT_LE(tile.y() + tile.height(), area.y() + area.height());
+    for (std::uint32_t y = tile.y(); y < tile.y() + tile.height(); ++y) {
+      for (std::uint32_t x = tile.x(); x < tile.x() + tile.width(); ++x) {
+        ++hits[(y - area.y()) * area.width() + (x - area.x())];
+      }
+    }
+  }
+  for (int count : hits) ASSERT_EQ(count, 1);
+}
+
+// Work that lives in one corner: splats per pixel are 100 in the left quarter
+// of the area and 1 elsewhere.
+std::uint64_t cornerWork(const TileRect& tile, const TileRect& area) {
+  const std::uint32_t hotEnd = area.x() + area.width() / 4;
+  std::uint64_t work = 0;
+  for (std::uint32_t x = tile.x(); x < tile.x() + tile.width(); ++x) {
+    work += (x < hotEnd ? 100u : 1u) * tile.height();
+  }
+  return work;
+}
+
+std::vector<TileFeedback> feedback(const std::vector<TileRect>& tiles, const TileRect& area) {
+  std::vector<TileFeedback> result;
+  for (const TileRect& tile : tiles) {
+    const std::uint64_t splats = cornerWork(tile, area);
+    result.push_back({tile, static_cast<double>(splats) * 1e-7, splats});
+  }
+  return result;
+}
+
+double maxOverMean(const std::vector<TileRect>& tiles, const TileRect& area) {
+  std::uint64_t total = 0;
+  std::uint64_t largest = 0;
+  for (const TileRect& tile : tiles) {
+    const std::uint64_t work = cornerWork(tile, area);
+    total += work;
+    largest = std::max(largest, work);
+  }
+  return static_cast<double>(largest) * static_cast<double>(tiles.size()) /
+         static_cast<double>(total);
+}
+
+TEST(TilePlanner, EverySchedulerCoversTheAreaExactlyOnce) {
+  std::mt19937 random(11);
+  for (const auto kind : {SchedulerKind::Cost, SchedulerKind::RoundRobin, SchedulerKind::Static,
+                          SchedulerKind::Equalizer}) {
+    TilePlanner planner(
+        {.scheduler = kind, .renders = 5, .tilesPerRender = 2.0, .minTileSize = 16});
+    for (int trial = 0; trial < 40; ++trial) {
+      const TileRect area = makeTileRect(static_cast<std::uint32_t>(random()) % 300,
+                                         static_cast<std::uint32_t>(random()) % 200,
+                                         1 + static_cast<std::uint32_t>(random()) % 900,
+                                         1 + static_cast<std::uint32_t>(random()) % 600);
+      const auto tiles = planner.plan(area);
+      expectExactCover(area, tiles);
+      planner.frameDone(feedback(tiles, area));
+    }
+  }
+}
+
+TEST(TilePlanner, CostTilesFollowTheMeasuredWork) {
+  const TileRect area = makeTileRect(0, 0, 1280, 720);
+  TilePlanner balanced({.scheduler = SchedulerKind::Cost, .renders = 4, .tilesPerRender = 2.0});
+  TilePlanner grid({.scheduler = SchedulerKind::Cost,
+                    .renders = 4,
+                    .tilesPerRender = 2.0,
+                    .balancedTiles = false});
+  // Without feedback the balanced split cuts by area, like the grid.
+  auto tiles = balanced.plan(area);
+  EXPECT_EQ(tiles.size(), 8u);
+  expectExactCover(area, tiles);
+  const auto gridTiles = grid.plan(area);
+  EXPECT_GT(maxOverMean(gridTiles, area), 2.5);  // the hot corner is in one or two tiles
+
+  balanced.frameDone(feedback(tiles, area));
+  tiles = balanced.plan(area);
+  expectExactCover(area, tiles);
+  EXPECT_EQ(tiles.size(), 8u);
+  // One frame of feedback is enough to spread the corner's work over tiles.
+  EXPECT_LT(maxOverMean(tiles, area), 1.35);
+  // Heaviest tile first, so long packets start early.
+  for (std::size_t i = 1; i < tiles.size(); ++i) {
+    EXPECT_GE(cornerWork(tiles[i - 1], area) * 105 / 100, cornerWork(tiles[i], area));
+  }
+}
+
+TEST(TilePlanner, NewGroundStillGetsTiles) {
+  // Feedback measured on the left half only; the right half (the view moved)
+  // must still be split, not handed out as one huge tile.
+  const TileRect area = makeTileRect(0, 0, 1000, 500);
+  TilePlanner planner({.scheduler = SchedulerKind::Cost, .renders = 4, .tilesPerRender = 2.0});
+  const TileFeedback left{makeTileRect(0, 0, 500, 500), 0.01, 100'000};
+  planner.frameDone(std::span<const TileFeedback>(&left, 1));
+  const auto tiles = planner.plan(area);
+  expectExactCover(area, tiles);
+  const auto onRight = std::count_if(tiles.begin(), tiles.end(),
+                                     [](const TileRect& tile) { return tile.x() >= 500; });
+  EXPECT_GE(onRight, 1);
+  for (const TileRect& tile : tiles) {
+    EXPECT_LE(tile.width() * tile.height(), 500u * 500u);
+  }
+}
+
+TEST(TilePlanner, TinyAreasAreNotCutBelowTheMinimumTile) {
+  TilePlanner planner({.scheduler = SchedulerKind::Cost, .renders = 8, .minTileSize = 32});
+  const TileRect area = makeTileRect(10, 10, 70, 40);
+  const auto tiles = planner.plan(area);
+  expectExactCover(area, tiles);
+  EXPECT_EQ(tiles.size(), 2u);  // 70 px splits once into 35 + 35; 40 px not at all
+}
+
+TEST(TilePlanner, BaselinesAssignRendersTheCostSchedulerLeavesItToTheTraverse) {
+  TilePlanner roundRobin({.scheduler = SchedulerKind::RoundRobin, .renders = 3});
+  EXPECT_EQ(roundRobin.assign(7), 0u);
+  EXPECT_EQ(roundRobin.assign(7), 1u);
+  EXPECT_EQ(roundRobin.assign(0), 2u);
+  EXPECT_EQ(roundRobin.assign(0), 0u);
+  TilePlanner fixed({.scheduler = SchedulerKind::Static, .renders = 3});
+  EXPECT_EQ(fixed.assign(7), 1u);
+  EXPECT_EQ(fixed.assign(7), 1u);
+  TilePlanner cost({.scheduler = SchedulerKind::Cost, .renders = 3});
+  EXPECT_FALSE(cost.assign(0).has_value());
+}
+
+TEST(TilePlanner, EqualizerStripsFollowTheStripTimes) {
+  const TileRect area = makeTileRect(0, 0, 1200, 600);
+  TilePlanner planner({.scheduler = SchedulerKind::Equalizer, .renders = 3});
+  auto strips = planner.plan(area);
+  ASSERT_EQ(strips.size(), 3u);
+  EXPECT_EQ(strips[0].width(), 400u);
+  // The first strip took three times as long: it narrows.
+  const TileFeedback times[] = {{strips[0], 0.3, 3}, {strips[1], 0.1, 1}, {strips[2], 0.1, 1}};
+  planner.frameDone(times);
+  strips = planner.plan(area);
+  expectExactCover(area, strips);
+  EXPECT_LT(strips[0].width(), 400u);
+}
+
+TEST(TilePlanner, NamesRoundTripAndUnknownNamesAreRefused) {
+  for (const auto kind : {SchedulerKind::Cost, SchedulerKind::RoundRobin, SchedulerKind::Static,
+                          SchedulerKind::Equalizer}) {
+    EXPECT_EQ(parseSchedulerKind(schedulerName(kind)), kind);
+  }
+  EXPECT_THROW(parseSchedulerKind("fastest"), UsageError);
+  EXPECT_THROW(TilePlanner({.renders = 0}), UsageError);
+}
+
+}  // namespace
+}  // namespace pointillist::display
