@@ -282,19 +282,20 @@ table="$(awk -F, -v ranges="$(
     cell[n, 8] = mib(v("bytes_per_frame_steady"))
     cell[n, 9] = sprintf("%.1f%% (%.1f%%)", 100 * v("cache_hit_rate_steady"), 100 * v("cache_hit_rate"))
     cell[n, 10] = sprintf("%d", v("reissued_tiles"))
+    cell[n, 11] = sprintf("%.2f", v("imbalance_busy_run"))
     if (range[v("scheduler")] != "") cell[n, 3] = cell[n, 3] " (" range[v("scheduler")] ")"
   }
   END {
-    split("scheduler|frames/s overall|frames/s steady|M splats/s per render: mean (min-max)|imbalance busy|imbalance splats|MiB/frame first|MiB/frame steady|cache hits steady (all)|re-issued tiles", head, "|")
-    for (j = 1; j <= 10; ++j) { cell[0, j] = head[j]; w[j] = length(head[j]) }
-    for (i = 1; i <= rows; ++i) for (j = 1; j <= 10; ++j) if (length(cell[i, j]) > w[j]) w[j] = length(cell[i, j])
+    split("scheduler|frames/s overall|frames/s steady|M splats/s per render: mean (min-max)|imbalance busy|imbalance splats|MiB/frame first|MiB/frame steady|cache hits steady (all)|re-issued tiles|imbalance busy (run)", head, "|")
+    for (j = 1; j <= 11; ++j) { cell[0, j] = head[j]; w[j] = length(head[j]) }
+    for (i = 1; i <= rows; ++i) for (j = 1; j <= 11; ++j) if (length(cell[i, j]) > w[j]) w[j] = length(cell[i, j])
     for (i = 0; i <= rows; ++i) {
       line = "|"
-      for (j = 1; j <= 10; ++j) line = line sprintf(j == 1 ? " %-*s |" : " %*s |", w[j], cell[i, j])
+      for (j = 1; j <= 11; ++j) line = line sprintf(j == 1 ? " %-*s |" : " %*s |", w[j], cell[i, j])
       print line
       if (i == 0) {
         line = "|"
-        for (j = 1; j <= 10; ++j) { dashes = sprintf("%*s", w[j], ""); gsub(/ /, "-", dashes); line = line (j == 1 ? "-" dashes "-|" : "-" dashes ":|") }
+        for (j = 1; j <= 11; ++j) { dashes = sprintf("%*s", w[j], ""); gsub(/ /, "-", dashes); line = line (j == 1 ? "-" dashes "-|" : "-" dashes ":|") }
         print line
       }
     }
@@ -403,7 +404,7 @@ cpu="$(sed -n 's/^model name[[:space:]]*: //p' /proc/cpuinfo | head -n 1)"
   echo "$table"
   echo
   echo "- Steady state is frame $steady_from onwards (the first frames fill the caches)."
-  echo "- Imbalance is max/mean over the render processes per frame, averaged over the steady frames: 1 is perfect, $render_count means one render process did all the work."
+  echo "- Imbalance is max/mean over the render processes per frame, averaged over the steady frames: 1 is perfect, $render_count means one render process did all the work. \"Imbalance busy (run)\" is the same ratio of each render process's busy time summed over the steady frames: with frames in flight one render may draw frame f+1 while another draws f, so it tells how much of the machine stood idle, which the per-frame figure does not."
   echo "- Splats/s per render process is of wall time in steady state; min and max are over the render processes."
   echo "- Bytes are cell data sent to render processes; cache hits are top-level cells a render process already held when a tile asked for them."
   printf -- '- Load average (1 min) when each run started:'

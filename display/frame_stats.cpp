@@ -60,6 +60,7 @@ std::vector<std::pair<std::string, std::string>> keyFigureFields(const KeyFigure
       {"imbalance_frames", count(k.imbalanceFrames)},
       {"imbalance_busy", number(k.imbalanceBusy)},
       {"imbalance_splats", number(k.imbalanceSplats)},
+      {"imbalance_busy_run", number(k.imbalanceBusyRun)},
       {"bytes_total", count(k.bytesTotal)},
       {"bytes_first_frame", count(k.bytesFirstFrame)},
       {"bytes_per_frame_steady", number(k.bytesPerFrameSteady)},
@@ -132,6 +133,7 @@ KeyFigures RunStats::keyFigures() const {
   const double steadySpan = frames.empty() ? 0.0 : frames.back().endSeconds - steadyBegins;
   std::uint64_t splats = 0, steadyBytes = 0;
   std::map<int, std::uint64_t> steadySplats;
+  std::map<int, double> steadyBusy;
   double imbalanceBusy = 0.0, imbalanceSplats = 0.0;
   std::size_t busyFrames = 0, splatFrames = 0;
   for (std::size_t i = 0; i < frames.size(); ++i) {
@@ -147,6 +149,7 @@ KeyFigures RunStats::keyFigures() const {
     }
     for (const auto& [rank, b] : f.busySecondsPerRender) k.renders[rank].busySeconds += b;
     if (!steady) continue;
+    for (const auto& [rank, b] : f.busySecondsPerRender) steadyBusy[rank] += b;
     steadyBytes += f.bytesOrdered;
     const FrameBalance b = balance(f);
     if (b.busy) {
@@ -164,6 +167,15 @@ KeyFigures RunStats::keyFigures() const {
   k.imbalanceFrames = std::max(busyFrames, splatFrames);
   k.imbalanceBusy = ratio(imbalanceBusy, static_cast<double>(busyFrames));
   k.imbalanceSplats = ratio(imbalanceSplats, static_cast<double>(splatFrames));
+  {
+    double most = 0.0, total = 0.0;
+    for (const auto& [rank, busy] : steadyBusy) {
+      most = std::max(most, busy);
+      total += busy;
+    }
+    const double processes = static_cast<double>(std::max(k.renderProcesses, steadyBusy.size()));
+    k.imbalanceBusyRun = total > 0.0 ? most * processes / total : 0.0;
+  }
   if (!frames.empty()) k.bytesFirstFrame = frames.front().bytesOrdered;
   k.bytesPerFrameSteady = ratio(steadyBytes, steadyFrames);
 
@@ -351,8 +363,9 @@ std::string RunStats::summary() const {
   out << line;
   if (k.imbalanceFrames > 0) {
     std::snprintf(line, sizeof line,
-                  "imbalance (steady, max/mean per frame): busy time %.2f, splats %.2f\n",
-                  k.imbalanceBusy, k.imbalanceSplats);
+                  "imbalance (steady, max/mean per frame): busy time %.2f, splats %.2f; "
+                  "busy time over the run %.2f\n",
+                  k.imbalanceBusy, k.imbalanceSplats, k.imbalanceBusyRun);
     out << line;
   }
   std::snprintf(line, sizeof line,

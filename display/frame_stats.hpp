@@ -93,6 +93,10 @@ struct KeyFigures {
   std::size_t imbalanceFrames = 0;
   double imbalanceBusy = 0.0;
   double imbalanceSplats = 0.0;
+  // Max/mean of each render process's busy time summed over the steady frames:
+  // with frames in flight a render may draw frame f+1 while another draws f,
+  // so this is the share of the machine left idle, which per frame is not.
+  double imbalanceBusyRun = 0.0;
   std::uint64_t bytesTotal = 0;
   std::uint64_t bytesFirstFrame = 0;
   double bytesPerFrameSteady = 0.0;
