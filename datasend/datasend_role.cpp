@@ -61,6 +61,8 @@ class DataSendProcess {
     }
   }
 
+  bool sendsPending() const { return !sends_.empty(); }
+
   bool reapSends() {
     while (!sends_.empty() && sends_.front().test()) sends_.pop_front();
     return false;
@@ -148,6 +150,7 @@ int runDatasendRole(Job& job, int argc, char** argv) {
   handlers.onMessage = [&](Envelope& envelope) { process.onMessage(envelope); };
   handlers.onIdle = [&] { return process.reapSends(); };
   handlers.summary = [&] { return process.summary(); };
+  handlers.transfersPending = [&] { return process.sendsPending(); };
   runWorkerRole(job, handshakeOptions(common), process.readyDetail(), handlers);
   return 0;
 }

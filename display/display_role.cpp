@@ -39,8 +39,8 @@ struct DisplayOptions {
   std::uint32_t maxAttempts = 3;
   std::string scheduler = "cost";
   bool equalTiles = false;
-  std::string costModel = "overlap";
-  std::uint32_t prefetchFrames = 3;
+  std::string costModel = "paper";
+  std::uint32_t prefetchFrames = 0;
   bool quiet = false;
 };
 
@@ -403,8 +403,8 @@ int runDisplayRole(Job& job, int argc, char** argv) {
                  "How tiles are given to render processes: cost (seed 003), round-robin, "
                  "static, equalizer");
   app.add_option("--cost-model", options.costModel,
-                 "Cost scheduler: overlap (transfers overlap queued work, default) or paper "
-                 "(seed 003: transfer time adds to the queue)");
+                 "Cost scheduler: paper (seed 003: transfer time adds to the queue, default) or "
+                 "overlap (transfers overlap queued work)");
   app.add_option("--prefetch-frames", options.prefetchFrames,
                  "Cost scheduler: order the data each tile's rect needs this many frames on "
                  "(0: no prefetch)");

@@ -121,6 +121,8 @@ class RenderProcess {
     return worked;
   }
 
+  bool sendsPending() const { return !sends_.empty(); }
+
   std::string summary() const {
     char line[300];
     std::snprintf(line, sizeof line,
@@ -449,6 +451,7 @@ int runRenderRole(Job& job, int argc, char** argv) {
   handlers.onMessage = [&](Envelope& envelope) { process.onMessage(envelope); };
   handlers.onIdle = [&] { return process.onIdle(); };
   handlers.summary = [&] { return process.summary(); };
+  handlers.transfersPending = [&] { return process.sendsPending(); };
   runWorkerRole(job, handshakeOptions(options.common), process.readyDetail(), handlers);
   return 0;
 }

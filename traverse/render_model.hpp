@@ -3,7 +3,7 @@
 // pending work and cached top-level cells, kept from the renders' reports, and
 // the cost function that picks where a render packet goes. As the paper writes it:
 //   Cost(i) = workload(i) * T_s + missing_bytes(i) * T_n
-// By default the transfer is taken to overlap the work already queued there
+// As an option the transfer is taken to overlap the work already queued there
 // (data-send streams the cells while the render draws), see docs/scheduling.md:
 //   Cost(i) = max(workload(i) * T_s, missing_bytes(i) * T_n) + packet_splats * T_s
 // T_s (seconds per splat) and T_n (seconds per byte) are measured by the render
@@ -32,8 +32,8 @@ struct RenderReportView {
 };
 
 enum class CostModel {
-  Overlap,  // transfers overlap the queued work (default)
-  Paper,    // seed 003 as written: the transfer adds to the queue
+  Paper,    // seed 003 as written: the transfer adds to the queue (default)
+  Overlap,  // transfers overlap the queued work
 };
 
 struct RenderChoice {
@@ -48,7 +48,7 @@ class RenderModel {
   using Clock = std::chrono::steady_clock;
 
   RenderModel(std::size_t renderCount, std::span<const TopLevelCell> topLevel,
-              CostModel costModel = CostModel::Overlap);
+              CostModel costModel = CostModel::Paper);
   void setCostModel(CostModel model) { costModel_ = model; }
   CostModel costModel() const { return costModel_; }
 

@@ -58,6 +58,8 @@ class TraverseProcess {
     }
   }
 
+  bool sendsPending() const { return !sends_.empty(); }
+
   bool reapSends() {
     while (!sends_.empty() && sends_.front().test()) sends_.pop_front();
     return false;
@@ -89,8 +91,8 @@ class TraverseProcess {
     const TraversalResult result =
         traverseTile(dataset_.cells(), task.camera(), task.rect(), settings);
 
-    model_.setCostModel(task.cost_model() == v1::COST_MODEL_PAPER ? CostModel::Paper
-                                                                  : CostModel::Overlap);
+    model_.setCostModel(task.cost_model() == v1::COST_MODEL_OVERLAP ? CostModel::Overlap
+                                                                    : CostModel::Paper);
     const RenderChoice choice =
         task.scheduler() == v1::SCHEDULER_COST
             ? model_.choose(result.topLevelCells, result.splats)
@@ -225,6 +227,7 @@ int runTraverseRole(Job& job, int argc, char** argv) {
   handlers.onMessage = [&](Envelope& envelope) { process.onMessage(envelope); };
   handlers.onIdle = [&] { return process.reapSends(); };
   handlers.summary = [&] { return process.summary(); };
+  handlers.transfersPending = [&] { return process.sendsPending(); };
   runWorkerRole(job, handshakeOptions(common), process.readyDetail(), handlers,
                 [&] { process.requestWork(); });
   return 0;

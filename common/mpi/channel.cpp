@@ -96,6 +96,11 @@ void Backoff::wait() {
   sleep_ = std::min(maxSleep_, sleep_ * 2);
 }
 
+void Backoff::wait(std::chrono::microseconds cap) {
+  std::this_thread::sleep_for(std::min(sleep_, cap));
+  sleep_ = std::min(maxSleep_, sleep_ * 2);
+}
+
 SendHandle::SendHandle(SendHandle&& other) noexcept
     : requests_(std::move(other.requests_)),
       header_(std::move(other.header_)),
@@ -140,7 +145,7 @@ bool SendHandle::waitFor(std::chrono::milliseconds timeout) {
   Backoff backoff;
   while (!test()) {
     if (std::chrono::steady_clock::now() >= deadline) return false;
-    backoff.wait();
+    backoff.wait(kTransferPoll);
   }
   return true;
 }
@@ -307,7 +312,7 @@ void Channel::waitFor(MPI_Request& request, std::chrono::milliseconds timeout, c
       throw TimeoutError(std::string(what) + " did not complete within " +
                          std::to_string(timeout.count()) + " ms");
     }
-    backoff.wait();
+    backoff.wait(kTransferPoll);
   }
 }
 

@@ -51,10 +51,16 @@ const char* messageKindName(MessageKind kind);
 void checkMpi(int code, const char* call);
 
 // Sleeps between polls, growing from minSleep to maxSleep while nothing happens.
+// Longest sleep between polls while a bulk transfer of ours is in flight.
+inline constexpr std::chrono::microseconds kTransferPoll{50};
+
 class Backoff {
  public:
   Backoff();
   void wait();
+  // Sleeps at most `cap`: while a bulk transfer is under way, its fragments
+  // move only when this process calls into MPI, so it must not sleep long.
+  void wait(std::chrono::microseconds cap);
   void reset() { sleep_ = minSleep_; }
 
  private:

@@ -28,7 +28,11 @@ void serveUntilShutdown(Job& job, const ServeHandlers& handlers) {
       backoff.reset();
       continue;
     }
-    backoff.wait();
+    if (handlers.transfersPending && handlers.transfersPending()) {
+      backoff.wait(kTransferPoll);
+    } else {
+      backoff.wait();
+    }
   }
 }
 

@@ -14,6 +14,10 @@ struct ServeHandlers {
   // Called when no message is waiting; returns true if it did useful work
   // (then the loop polls again at once instead of sleeping).
   std::function<bool()> onIdle;
+  // True while bulk sends of this process are still in flight: the loop then
+  // polls often enough to move their fragments (shared memory without
+  // single-copy moves a large message only while both sides call MPI).
+  std::function<bool()> transfersPending;
   // Summary line sent back with the ShutdownAck.
   std::function<std::string()> summary;
 };

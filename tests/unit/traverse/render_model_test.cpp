@@ -49,7 +49,8 @@ TEST(RenderModel, PrefersAnIdleRenderWhenWorkOutweighsTheTransfer) {
 
 TEST(RenderModel, PaperCostIsWorkloadTimesTsPlusMissingBytesTimesTn) {
   const auto cells = table({4000, 6000});
-  RenderModel model(2, cells, CostModel::Paper);
+  RenderModel model(2, cells);
+  ASSERT_EQ(model.costModel(), CostModel::Paper);  // the default
   // Measured rates replace the defaults (moving average converges).
   for (int i = 0; i < 200; ++i) {
     model.applyReport(0, {.workloadSplats = 500, .secondsPerSplat = 1e-6, .secondsPerByte = 1e-5});
@@ -65,8 +66,7 @@ TEST(RenderModel, PaperCostIsWorkloadTimesTsPlusMissingBytesTimesTn) {
 
 TEST(RenderModel, OverlapCostLetsTheTransferHideBehindQueuedWork) {
   const auto cells = table({4000, 6000});
-  RenderModel model(2, cells);
-  ASSERT_EQ(model.costModel(), CostModel::Overlap);
+  RenderModel model(2, cells, CostModel::Overlap);
   for (int i = 0; i < 200; ++i) {
     model.applyReport(0, {.workloadSplats = 500, .secondsPerSplat = 1e-6, .secondsPerByte = 1e-7});
   }

@@ -1,0 +1,250 @@
+// pointillist-simulate: predicts frame rate, imbalance, bytes moved and the
+// bottleneck of Pointillist jobs of many sizes by driving the real scheduling
+// code with modelled processes in simulated time (no MPI, no rendering).
+#include <CLI/CLI.hpp>
+
+#include "common/tool_entry.hpp"
+
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <thread>
+
+#include "common/errors.hpp"
+#include "simulator/calibration.hpp"
+#include "simulator/sweep.hpp"
+
+namespace pointillist::simulator {
+namespace {
+
+std::vector<std::uint32_t> parseCounts(const std::string& option,
+                                       const std::vector<std::string>& texts, bool allowAuto) {
+  std::vector<std::uint32_t> counts;
+  for (const std::string& text : texts) {
+    if (allowAuto && text == "auto") {
+      counts.push_back(0);
+      continue;
+    }
+    std::size_t used = 0;
+    unsigned long value = 0;
+    try {
+      value = std::stoul(text, &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+    if (used != text.size() || text.empty() || text[0] == '-' || value == 0 || value > 1u << 20) {
+      throw UsageError(option + " '" + text + "' is not a count from 1 to 1048576" +
+                       (allowAuto ? " or 'auto'" : ""));
+    }
+    counts.push_back(static_cast<std::uint32_t>(value));
+  }
+  if (counts.empty()) throw UsageError(option + " needs at least one value");
+  return counts;
+}
+
+void writeText(const std::string& file, const std::string& text, const char* what) {
+  const auto folder = std::filesystem::path(file).parent_path();
+  if (!folder.empty()) std::filesystem::create_directories(folder);
+  std::ofstream out(file);
+  out << text;
+  if (!out) throw Error(file + ": cannot write the " + what);
+}
+
+int run(int argc, char** argv) {
+  CLI::App app{
+      "Pointillist scheduler simulator: drives the real tile planner, frame scheduler, cost "
+      "function and render cache with modelled processes in simulated time, for many job sizes"};
+  std::string datasetPath;
+  ViewOptions view;
+  view.frames = 16;
+  std::vector<std::string> renders{"8", "16", "32", "64", "128", "256", "512", "1024"};
+  std::vector<std::string> traverses{"1", "2", "4", "8"};
+  std::vector<std::string> datasends{"auto"};
+  std::vector<std::string> schedulers{"cost", "round-robin", "static", "equalizer"};
+  std::vector<std::string> costModels{"paper"};
+  bool equalTiles = false;
+  SweepOptions sweep;
+  ModelParameters& p = sweep.parameters;
+  double secondsPerSplat = 0.0;
+  double packetOverheadMs = p.packetOverheadSeconds * 1e3;
+  double bandwidthMBs = p.bandwidthBytesPerSecond / 1e6;
+  double latencyUs = p.latencySeconds * 1e6;
+  double traverseSecondsPerCell = 0.0;
+  double traverseTileUs = p.traverseTileSeconds * 1e6;
+  double composeNsPerPixel = p.composeSecondsPerPixel * 1e9;
+  std::string calibrateDir, csvFile, reportFile, statsDir;
+  std::vector<std::string> reportPlots;
+  unsigned jobs = std::max(1u, std::thread::hardware_concurrency());
+  bool quiet = false;
+
+  app.add_option("--dataset", datasetPath, "Dataset directory (pointillist-preprocess)")
+      ->required();
+  addViewOptions(app, view);
+  app.add_option("--renders", renders, "Render process counts, comma-separated")->delimiter(',');
+  app.add_option("--traverses", traverses, "Traverse process counts")->delimiter(',');
+  app.add_option("--datasends", datasends, "Data-send process counts, or auto (renders/4)")
+      ->delimiter(',');
+  app.add_option("--scheduler", schedulers, "cost, round-robin, static, equalizer")->delimiter(',');
+  app.add_option("--cost-model", costModels,
+                 "Cost scheduler: paper (seed 003, runtime default), overlap, or both")
+      ->delimiter(',');
+  app.add_option("--prefetch-frames", sweep.prefetchFrames,
+                 "Cost scheduler: order what each tile's rect needs this many frames on (0: off)")
+      ->capture_default_str();
+  app.add_flag("--equal-tiles", equalTiles,
+               "Cost scheduler: equal tiles instead of tiles sized by last frame's work");
+  app.add_option("--tiles-per-render", sweep.tilesPerRender, "Tiles per frame per render process")
+      ->capture_default_str();
+  app.add_option("--min-tile", sweep.minTileSize, "Smallest tile side in pixels")
+      ->capture_default_str();
+  app.add_option("--seconds-per-splat", secondsPerSplat,
+                 "T_s, render seconds per splat (default 2e-7: 5 M splats/s, llvmpipe points)");
+  app.add_option("--packet-overhead-ms", packetOverheadMs, "Render time per packet besides splats")
+      ->capture_default_str();
+  app.add_option("--bandwidth-mbs", bandwidthMBs, "Link bandwidth in MB/s (117: 1 GbE)")
+      ->capture_default_str();
+  app.add_option("--latency-us", latencyUs, "Message latency in microseconds")
+      ->capture_default_str();
+  app.add_option("--traverse-seconds-per-cell", traverseSecondsPerCell,
+                 "Traverse time per visited cell (default: timed on the first frames here)");
+  app.add_option("--traverse-tile-us", traverseTileUs, "Traverse time per tile besides cells")
+      ->capture_default_str();
+  app.add_option("--compose-ns-per-pixel", composeNsPerPixel, "Display time per composed pixel")
+      ->capture_default_str();
+  app.add_option("--cache-mb", p.cacheMegabytes, "Render cache cap in MiB")->capture_default_str();
+  app.add_option("--frames-in-flight", p.framesInFlight, "Frames the display hands out at once")
+      ->capture_default_str();
+  app.add_option("--tile-timeout", p.tileTimeoutSeconds, "Seconds before a tile is re-issued")
+      ->capture_default_str();
+  app.add_option("--max-attempts", p.maxAttempts, "Times a tile is handed out before given up")
+      ->capture_default_str();
+  app.add_option("--calibrate", calibrateDir,
+                 "Take T_s from a deploy/bench-loadbalance.sh output (or run) directory");
+  app.add_option("--csv", csvFile, "Write every figure of every configuration as CSV");
+  app.add_option("--report", reportFile, "Write a markdown report (assumptions, table)");
+  app.add_option("--stats", statsDir,
+                 "One configuration only: write the display's stats.json and CSV files of the "
+                 "simulated run (the runtime's format) into this directory");
+  app.add_option("--report-plot", reportPlots, "Image file to link from the report (repeatable)");
+  app.add_option("--jobs", jobs, "Configurations simulated at once")->capture_default_str();
+  app.add_flag("--quiet", quiet, "No progress lines on stderr");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& error) {
+    return app.exit(error);
+  }
+
+  sweep.renders = parseCounts("--renders", renders, false);
+  sweep.traverses = parseCounts("--traverses", traverses, false);
+  sweep.datasends = parseCounts("--datasends", datasends, true);
+  sweep.schedulers.clear();
+  for (const std::string& name : schedulers) {
+    sweep.schedulers.push_back(display::parseSchedulerKind(name));
+  }
+  sweep.costModels.clear();
+  for (const std::string& name : costModels) {
+    if (name == "overlap") {
+      sweep.costModels.push_back(traverse::CostModel::Overlap);
+    } else if (name == "paper") {
+      sweep.costModels.push_back(traverse::CostModel::Paper);
+    } else {
+      throw UsageError("--cost-model '" + name + "' is not one of: overlap, paper");
+    }
+  }
+  sweep.balancedTiles = !equalTiles;
+  if (jobs == 0) throw UsageError("--jobs must be at least 1");
+  sweep.jobs = jobs;
+  p.packetOverheadSeconds = packetOverheadMs * 1e-3;
+  p.bandwidthBytesPerSecond = bandwidthMBs * 1e6;
+  p.latencySeconds = latencyUs * 1e-6;
+  p.traverseTileSeconds = traverseTileUs * 1e-6;
+  p.composeSecondsPerPixel = composeNsPerPixel * 1e-9;
+  if (secondsPerSplat < 0.0 || traverseSecondsPerCell < 0.0) {
+    throw UsageError("--seconds-per-splat and --traverse-seconds-per-cell must be positive");
+  }
+  if (secondsPerSplat > 0.0 && !calibrateDir.empty()) {
+    throw UsageError("give --seconds-per-splat or --calibrate, not both");
+  }
+
+  Assumptions sources;
+  if (secondsPerSplat > 0.0) {
+    p.secondsPerSplat = secondsPerSplat;
+    sources.emplace_back("T_s from", "--seconds-per-splat");
+  } else if (!calibrateDir.empty()) {
+    const Calibration calibration = calibrateFromRuns(calibrateDir, p.packetOverheadSeconds);
+    p.secondsPerSplat = calibration.secondsPerSplat;
+    std::string runs;
+    for (const MeasuredRun& run : calibration.runs) {
+      char line[256];
+      std::snprintf(line, sizeof line, "%s%s (%s): %.2f frames/s steady, imbalance busy %.2f",
+                    runs.empty() ? "" : "; ", run.name.c_str(),
+                    run.layout.empty() ? "layout unknown" : run.layout.c_str(),
+                    run.framesPerSecondSteady, run.imbalanceBusy);
+      runs += line;
+    }
+    sources.emplace_back("T_s from", calibrateDir + ": render busy seconds per splat");
+    sources.emplace_back("measured there", runs);
+  } else {
+    sources.emplace_back("T_s from", "default (llvmpipe points on the 2-core development machine)");
+  }
+  validateParameters(p);
+
+  // Bad sweeps fail before the dataset is read.
+  const auto configs = sweepConfigs(sweep);
+  if (!statsDir.empty() && configs.size() != 1) {
+    throw UsageError("--stats needs exactly one configuration; this sweep has " +
+                     std::to_string(configs.size()));
+  }
+  const Scene scene = Scene::load(datasetPath, view);
+  if (traverseSecondsPerCell > 0.0) {
+    p.traverseSecondsPerCell = traverseSecondsPerCell;
+    sources.emplace_back("traverse time from", "--traverse-seconds-per-cell");
+  } else {
+    p.traverseSecondsPerCell = scene.measureTraverseSecondsPerCell();
+    sources.emplace_back("traverse time from", "timing whole-frame traversals on this machine");
+  }
+  const Assumptions assumptions = describeAssumptions(scene, view, sweep, sources);
+
+  if (!quiet) {
+    std::fprintf(stderr, "pointillist-simulate: %zu configurations on %u threads\n", configs.size(),
+                 std::min<unsigned>(jobs, static_cast<unsigned>(configs.size())));
+  }
+  std::vector<SweepRow> rows;
+  if (!statsDir.empty()) {
+    const auto start = std::chrono::steady_clock::now();
+    const SimulationResult result = simulate(scene, configs.front(), p);
+    rows.push_back(summarize(
+        result, std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count()));
+    std::filesystem::create_directories(statsDir);
+    result.stats.writeJson(std::filesystem::path(statsDir) / "stats.json");
+    result.stats.writeCsv(statsDir);
+  } else {
+    rows = runSweep(scene, sweep, [&](std::size_t done, std::size_t total, const SweepRow& row) {
+      if (quiet) return;
+      std::fprintf(stderr,
+                   "pointillist-simulate: [%zu/%zu] %-11s R=%-4u T=%-2u S=%-3u %7.2f frames/s "
+                   "steady, imbalance %.2f, %s (%.1f s)\n",
+                   done, total, configName(row.config).c_str(), row.config.renders,
+                   row.config.traverses, row.config.datasends, row.framesPerSecondSteady,
+                   row.imbalanceBusy, row.bottleneck.c_str(), row.wallSeconds);
+      std::fflush(stderr);
+    });
+  }
+
+  std::printf("Assumptions (simulated, not measured):\n%s\n%s",
+              formatAssumptions(assumptions).c_str(), formatTable(rows).c_str());
+  if (!csvFile.empty()) writeText(csvFile, formatCsv(rows), "CSV figures");
+  if (!reportFile.empty()) {
+    writeText(reportFile, formatReport(rows, assumptions, reportPlots), "report");
+  }
+  return 0;
+}
+
+}  // namespace
+}  // namespace pointillist::simulator
+
+int main(int argc, char** argv) {
+  return pointillist::runToolMain("pointillist-simulate",
+                                  [&] { return pointillist::simulator::run(argc, argv); });
+}

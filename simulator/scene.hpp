@@ -1,0 +1,87 @@
+#pragma once
+// What the simulator renders: a dataset's octree-cell-array and top-level
+// table, the cameras of a camera path, and the real traversal of every tile
+// (traverse/octree_traversal.hpp), memoized because the same tiles recur
+// across the configurations of a sweep.
+#include <cstdint>
+#include <mutex>
+#include <span>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "common/camera.hpp"
+#include "common/camera_path.hpp"
+#include "common/octree_cell.hpp"
+#include "common/view_options.hpp"
+#include "traverse/octree_traversal.hpp"
+
+namespace pointillist::simulator {
+
+// The part of a tile's traversal the model needs.
+struct TileWork {
+  std::vector<std::uint32_t> topLevelCells;  // distinct, ascending
+  std::uint64_t splats = 0;
+  std::uint64_t cellsVisited = 0;
+  std::uint32_t ranges = 0;  // draw ranges in the render packet
+};
+
+class Scene {
+ public:
+  // `name` labels reports (the dataset directory, say).
+  Scene(std::string name, std::vector<OctreeCell> cells, std::vector<TopLevelCell> topLevel,
+        SceneBounds bounds, std::vector<Camera> cameras,
+        const traverse::TraversalSettings& traversal);
+  Scene(const Scene&) = delete;
+  Scene& operator=(const Scene&) = delete;
+
+  // Opens a dataset (cells only, as a traverse process does) and builds the
+  // cameras of `view` from its bounds. Throws InputError / UsageError.
+  static Scene load(const std::string& datasetPath, const ViewOptions& view);
+
+  const std::string& name() const { return name_; }
+  std::span<const OctreeCell> cells() const { return cells_; }
+  std::span<const TopLevelCell> topLevel() const { return topLevel_; }
+  const SceneBounds& bounds() const { return bounds_; }
+  const std::vector<Camera>& cameras() const { return cameras_; }
+  const traverse::TraversalSettings& traversal() const { return traversal_; }
+  std::uint32_t width() const;
+  std::uint32_t height() const;
+  // World margin of the box of interest, as the display computes it: the
+  // root's largest splat radius times the size scale.
+  float marginWorld() const;
+  std::uint64_t datasetBytes() const;
+
+  // The traversal of tile `rect` of frame `frame`; thread-safe, computed once.
+  const TileWork& tileWork(std::uint64_t frame, const TileRect& rect) const;
+  // The top-level cells reaching into `rect` of frame `frame` (the traverse's
+  // prefetch walk, topLevelCellsInTile); thread-safe, computed once.
+  const std::vector<std::uint32_t>& cellsInTile(std::uint64_t frame, const TileRect& rect) const;
+  // Bytes of the top-level cells a whole-frame traversal of `frame` needs.
+  std::uint64_t frameWorkingSetBytes(std::uint64_t frame) const;
+  // Times whole-frame traversals of the first frames: seconds per visited cell.
+  double measureTraverseSecondsPerCell() const;
+
+ private:
+  struct Key {
+    std::uint64_t frame;
+    std::uint32_t x, y, width, height;
+    bool operator==(const Key&) const = default;
+  };
+  struct KeyHash {
+    std::size_t operator()(const Key& key) const;
+  };
+
+  std::string name_;
+  std::vector<OctreeCell> cells_;
+  std::vector<TopLevelCell> topLevel_;
+  SceneBounds bounds_;
+  std::vector<Camera> cameras_;
+  traverse::TraversalSettings traversal_;
+  mutable std::mutex mutex_;
+  // Node-based: references stay valid while other tiles are added.
+  mutable std::unordered_map<Key, TileWork, KeyHash> memo_;
+  mutable std::unordered_map<Key, std::vector<std::uint32_t>, KeyHash> cellsMemo_;
+};
+
+}  // namespace pointillist::simulator

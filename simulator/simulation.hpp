@@ -1,0 +1,111 @@
+#pragma once
+// A discrete-event model of one Pointillist job (seed 003 §4-5) that drives
+// the real, MPI-free scheduling code: the display's TilePlanner and
+// FrameScheduler, each traverse process's RenderModel (cost function) and
+// each render process's CellCache, in simulated time. Modelled instead of run:
+//   traverse  seconds per visited cell * cells visited (+ one per cell found by
+//             the prefetch walk) + a per-tile overhead;
+//   render    a per-packet overhead + splats * T_s, one packet at a time;
+//   network   every message takes latency L; bulk bytes (cell data, render
+//             packets, tile images) serialise on the sender's outgoing and the
+//             receiver's incoming link at bandwidth B (one NIC per process);
+//   display   composing a tile costs seconds per pixel on its one CPU.
+// Results are deterministic for fixed inputs.
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "display/frame_stats.hpp"
+#include "display/tile_planner.hpp"
+#include "simulator/scene.hpp"
+#include "traverse/render_model.hpp"
+
+namespace pointillist::simulator {
+
+// The model's rates. Defaults are measured on the development machine (2-core
+// Xeon, llvmpipe points) or are those of the runtime's options.
+struct ModelParameters {
+  double secondsPerSplat = 2e-7;           // T_s: 5 M splats/s per render process
+  double packetOverheadSeconds = 1e-3;     // per render packet (state, viewport, read-back)
+  double bandwidthBytesPerSecond = 117e6;  // 1 GbE payload
+  double latencySeconds = 50e-6;
+  double traverseSecondsPerCell = 1e-7;  // Scene::measureTraverseSecondsPerCell() measures it
+  double traverseTileSeconds = 20e-6;    // per tile task (messages, packet building)
+  double composeSecondsPerPixel = 1e-9;  // display blit of a tile image
+  double cacheMegabytes = 1024.0;        // render cache cap (--cache-mb)
+  double cacheTimeoutSeconds = 30.0;
+  std::uint32_t framesInFlight = 3;
+  double tileTimeoutSeconds = 10.0;
+  std::uint32_t maxAttempts = 3;
+};
+
+// Throws UsageError naming the first parameter out of range.
+void validateParameters(const ModelParameters& parameters);
+
+struct SimulationConfig {
+  display::SchedulerKind scheduler = display::SchedulerKind::Cost;
+  std::uint32_t renders = 1;
+  std::uint32_t traverses = 1;
+  std::uint32_t datasends = 1;
+  double tilesPerRender = 2.0;
+  std::uint32_t minTileSize = 32;
+  // Cost scheduler only: how the traverse counts missing data, and whether
+  // tiles are sized by last frame's work (the display's --equal-tiles off).
+  traverse::CostModel costModel = traverse::CostModel::Overlap;
+  bool balancedTiles = true;
+  // Cost scheduler: the traverse orders what each tile's rect needs this many
+  // frames on for the render it chose (the display's --prefetch-frames; 0: off).
+  std::uint32_t prefetchFrames = 0;
+};
+
+// "cost", "cost/paper", "cost/equal", "round-robin", ...
+std::string configName(const SimulationConfig& config);
+
+// Throws UsageError for counts of zero and the like.
+void validateConfig(const SimulationConfig& config);
+
+// What happened to one frame, for checks beyond the display's statistics.
+struct FrameTrace {
+  std::uint64_t frame = 0;
+  std::uint32_t tilesPlanned = 0;
+  std::uint32_t tilesComposed = 0;    // tile images the display accepted
+  std::uint32_t packetsRendered = 0;  // render packets finished for this frame (re-issues count)
+  std::uint64_t bytesMoved = 0;       // cell data sent by data-send processes for this frame
+  std::uint64_t bytesOrdered = 0;     // what the traverses ordered (missingBytes of their choices)
+  std::uint64_t bytesPrefetched = 0;  // of what they ordered, ahead along the camera path
+};
+
+// Busy share of the steady-state span (frames from steadyFrom on).
+struct Utilisation {
+  double renderMean = 0.0;
+  double renderMax = 0.0;
+  double traverseMean = 0.0;
+  double traverseMax = 0.0;
+  double networkMax = 0.0;   // busiest link of a traverse, data-send or render process
+  double displayLink = 0.0;  // the display's incoming link (tile images)
+  double displayCpu = 0.0;   // composing
+};
+
+struct SimulationResult {
+  SimulationConfig config;
+  // The display's statistics of the simulated run, in simulated seconds, with
+  // bytes_sent per frame = cell data actually sent for that frame.
+  display::RunStats stats;
+  display::KeyFigures figures;
+  std::vector<FrameTrace> frames;  // in the order the display completed them
+  Utilisation utilisation;
+  std::string bottleneck;  // render, traverse, network, display, or latency
+  double bottleneckUtilisation = 0.0;
+  double meanFrameLatency = 0.0;  // steady frames: first tile handed out to composed
+  double tilesPerFrame = 0.0;
+  std::uint64_t packetsRendered = 0;
+  std::uint64_t bytesMoved = 0;       // all cell data sent
+  std::uint64_t duplicateOrders = 0;  // cells data-send skipped (already sent)
+  std::uint64_t droppedPrefetches = 0;
+  std::uint64_t events = 0;
+};
+
+SimulationResult simulate(const Scene& scene, const SimulationConfig& config,
+                          const ModelParameters& parameters);
+
+}  // namespace pointillist::simulator

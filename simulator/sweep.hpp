@@ -1,0 +1,91 @@
+#pragma once
+// A sweep of simulated jobs over render, traverse and data-send counts and
+// schedulers, and its outputs: an aligned table, CSV and a markdown report,
+// each with the model's assumptions beside the figures.
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "simulator/simulation.hpp"
+
+namespace pointillist::simulator {
+
+struct SweepOptions {
+  std::vector<std::uint32_t> renders{8, 16, 32, 64, 128, 256, 512, 1024};
+  std::vector<std::uint32_t> traverses{1, 2, 4, 8};
+  std::vector<std::uint32_t> datasends{0};  // 0: autoDatasends(renders)
+  std::vector<display::SchedulerKind> schedulers{
+      display::SchedulerKind::Cost, display::SchedulerKind::RoundRobin,
+      display::SchedulerKind::Static, display::SchedulerKind::Equalizer};
+  // Cost rows are repeated for each cost model (paper is the runtime default).
+  std::vector<traverse::CostModel> costModels{traverse::CostModel::Overlap};
+  bool balancedTiles = true;         // cost scheduler: tiles sized by last frame's work
+  std::uint32_t prefetchFrames = 0;  // cost scheduler: order data this many frames ahead
+  double tilesPerRender = 2.0;
+  std::uint32_t minTileSize = 32;
+  ModelParameters parameters;
+  unsigned jobs = 1;  // configurations simulated at once
+};
+
+// One data-send process per four render processes (at least one).
+std::uint32_t autoDatasends(std::uint32_t renders);
+
+// Every configuration of the sweep: traverses, then renders, then data-sends,
+// then schedulers (cost once per cost model) vary, the last fastest. Throws UsageError for empty
+// lists or invalid counts.
+std::vector<SimulationConfig> sweepConfigs(const SweepOptions& options);
+
+// The figures of one configuration (rates per simulated second).
+struct SweepRow {
+  SimulationConfig config;
+  double framesPerSecond = 0.0;
+  double framesPerSecondSteady = 0.0;
+  double meanFrameLatency = 0.0;
+  double imbalanceBusy = 0.0;
+  double imbalanceSplats = 0.0;
+  double imbalanceBusyRun = 0.0;  // max/mean of busy time summed over the steady frames
+  double bytesFirstFrame = 0.0;
+  double bytesPerFrameSteady = 0.0;
+  double splatsPerFrame = 0.0;
+  double tilesPerFrame = 0.0;
+  double cacheHitRate = 0.0;
+  double cacheHitRateSteady = 0.0;
+  Utilisation utilisation;
+  std::string bottleneck;
+  double bottleneckUtilisation = 0.0;
+  std::uint64_t reissuedTiles = 0;
+  std::uint64_t failedTiles = 0;
+  std::uint64_t packetsRendered = 0;
+  std::uint64_t events = 0;
+  double wallSeconds = 0.0;  // real time the simulation took
+};
+
+SweepRow summarize(const SimulationResult& result, double wallSeconds);
+
+// (rows done, rows in all, the row just done); called from one thread at a time.
+using SweepProgress = std::function<void(std::size_t, std::size_t, const SweepRow&)>;
+
+// Rows in sweepConfigs() order, simulated on options.jobs threads.
+std::vector<SweepRow> runSweep(const Scene& scene, const SweepOptions& options,
+                               const SweepProgress& progress = {});
+
+using Assumptions = std::vector<std::pair<std::string, std::string>>;
+
+// The model's inputs as named lines: the scene, the view, every parameter and
+// the sweep; `extra` lines (where figures came from) are appended.
+Assumptions describeAssumptions(const Scene& scene, const ViewOptions& view,
+                                const SweepOptions& options, const Assumptions& extra = {});
+
+// The printed table: one line per row, columns aligned.
+std::string formatTable(const std::vector<SweepRow>& rows);
+// Assumptions as "name: value" lines.
+std::string formatAssumptions(const Assumptions& assumptions);
+// Header plus one line per row, raw units (seconds, bytes, shares 0..1).
+std::string formatCsv(const std::vector<SweepRow>& rows);
+// Markdown: assumptions, the table, notes on reading it, and `plots` (file names).
+std::string formatReport(const std::vector<SweepRow>& rows, const Assumptions& assumptions,
+                         const std::vector<std::string>& plots = {});
+
+}  // namespace pointillist::simulator
