@@ -14,6 +14,7 @@
 #include "common/mpi/role_options.hpp"
 #include "common/mpi/serve.hpp"
 #include "common/ownership.hpp"
+#include "common/rate_estimates.hpp"
 #include "render/cell_cache.hpp"
 #include "render/splat_renderer.hpp"
 
@@ -33,31 +34,6 @@ struct RenderOptions {
   int stallIndex = -1;  // which render process (index among renders) stalls
   long stallAfterPackets = 0;
 };
-
-// The last `capacity` samples of a noisy measurement.
-class RecentSamples {
- public:
-  explicit RecentSamples(std::size_t capacity) : capacity_(capacity) {}
-  void add(double sample) {
-    if (samples_.size() == capacity_) samples_.pop_front();
-    samples_.push_back(sample);
-  }
-  double lowerQuartile() const {
-    if (samples_.empty()) return 0.0;
-    std::vector<double> sorted(samples_.begin(), samples_.end());
-    const auto quartile = static_cast<std::ptrdiff_t>(sorted.size() / 4);
-    std::nth_element(sorted.begin(), sorted.begin() + quartile, sorted.end());
-    return sorted[static_cast<std::size_t>(quartile)];
-  }
-
- private:
-  std::size_t capacity_;
-  std::deque<double> samples_;
-};
-
-double movingAverage(double average, double sample) {
-  return average <= 0.0 ? sample : average + 0.2 * (sample - average);
-}
 
 class RenderProcess {
  public:
@@ -417,10 +393,7 @@ class RenderProcess {
   double busySeconds_ = 0.0;
   double secondsPerSplat_ = 0.0;
   double secondsPerByte_ = 0.0;
-  // A transfer is only ever slowed by the receiver being descheduled or
-  // asleep between polls, never sped up: the lower quartile of recent samples
-  // tracks the link, a mean tracks the CPU contention.
-  RecentSamples transferSamples_{32};
+  RecentSamples transferSamples_{32};  // T_n: their lower quartile
 };
 
 }  // namespace

@@ -13,6 +13,7 @@
 #include "common/errors.hpp"
 #include "common/image.hpp"
 #include "common/ownership.hpp"
+#include "common/rate_estimates.hpp"
 #include "display/frame_scheduler.hpp"
 #include "display/tiling.hpp"
 #include "render/cell_cache.hpp"
@@ -76,36 +77,6 @@ Clock::time_point toTime(double seconds) {
 double toSeconds(Clock::time_point time) {
   return std::chrono::duration<double>(time.time_since_epoch()).count();
 }
-
-// The render process's moving average of T_s (render/render_role.cpp).
-double movingAverage(double average, double sample) {
-  return average <= 0.0 ? sample : average + 0.2 * (sample - average);
-}
-
-// The render process's T_n: lower quartile of the last 32 transfer samples
-// (a copy of RecentSamples in render/render_role.cpp, which is not exported).
-class RecentSamples {
- public:
-  explicit RecentSamples(std::size_t capacity) : capacity_(capacity) {}
-  void add(double sample) {
-    if (samples_.size() == capacity_) samples_.pop_front();
-    samples_.push_back(sample);
-  }
-  double lowerQuartile() const {
-    if (samples_.empty()) return 0.0;
-    std::vector<double> sorted(samples_.begin(), samples_.end());
-    const auto quartile = static_cast<std::ptrdiff_t>(sorted.size() / 4);
-    std::nth_element(sorted.begin(), sorted.begin() + quartile, sorted.end());
-    return sorted[static_cast<std::size_t>(quartile)];
-  }
-
- private:
-  std::size_t capacity_;
-  std::deque<double> samples_;
-};
-
-// At most this much prefetched data per tile (traverse/traverse_role.cpp).
-constexpr std::uint64_t kPrefetchBudgetBytes = 8ull << 20;
 
 struct Interval {
   double start;
@@ -591,7 +562,7 @@ class Simulation {
           continue;
         }
         const std::uint64_t bytes = scene_.topLevel()[cell].byteSize;
-        if (prefetchBytes + bytes > kPrefetchBudgetBytes) break;
+        if (prefetchBytes + bytes > traverse::kPrefetchBudgetBytes) break;
         prefetchBytes += bytes;
         prefetch.push_back(cell);
         orders[owners_.at(cell)].push_back(cell);

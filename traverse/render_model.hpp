@@ -31,6 +31,10 @@ struct RenderReportView {
   std::uint64_t packetsDone = 0;  // packets the render has finished in all
 };
 
+// At most this much data ordered ahead along the camera path per tile, so a
+// sharp turn of the camera cannot flood the links ahead of waiting packets.
+inline constexpr std::uint64_t kPrefetchBudgetBytes = 8ull << 20;
+
 enum class CostModel {
   Paper,    // seed 003 as written: the transfer adds to the queue (default)
   Overlap,  // transfers overlap the queued work

@@ -15,10 +15,6 @@
 namespace pointillist::traverse {
 namespace {
 
-// At most this much prefetched data per tile, so a sharp turn of the camera
-// cannot flood the links ahead of the packets that are waiting.
-constexpr std::uint64_t kPrefetchBudgetBytes = 8ull << 20;
-
 class TraverseProcess {
  public:
   TraverseProcess(Job& job, const std::string& datasetPath)
