@@ -63,7 +63,8 @@ class DataSendProcess {
 
   bool sendsPending() const { return !sends_.empty(); }
 
-  bool reapSends() {
+  // Frees finished sends; nothing else to do between messages.
+  bool onIdle() {
     while (!sends_.empty() && sends_.front().test()) sends_.pop_front();
     return false;
   }
@@ -146,11 +147,7 @@ int runDatasendRole(Job& job, int argc, char** argv) {
     return 0;
   }
   DataSendProcess process(job, datasetPath);
-  ServeHandlers handlers;
-  handlers.onMessage = [&](Envelope& envelope) { process.onMessage(envelope); };
-  handlers.onIdle = [&] { return process.reapSends(); };
-  handlers.summary = [&] { return process.summary(); };
-  handlers.transfersPending = [&] { return process.sendsPending(); };
+  const ServeHandlers handlers = handlersFor(process);
   runWorkerRole(job, handshakeOptions(common), process.readyDetail(), handlers);
   return 0;
 }

@@ -48,7 +48,8 @@ class TilePlanner {
   // Tiles covering `area` exactly once.
   std::vector<TileRect> plan(const TileRect& area);
   // The render process (index among renders) that draws tile `tileIndex` of
-  // the last planned frame; nullopt when the traverse decides (cost).
+  // its frame, asked when the tile is handed out (round-robin deals in that
+  // order); nullopt when the traverse decides (cost).
   std::optional<std::uint32_t> assign(std::uint32_t tileIndex);
   // Feedback from a completed frame, tiles in the order plan() gave them.
   void frameDone(std::span<const TileFeedback> tiles);

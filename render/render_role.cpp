@@ -420,11 +420,7 @@ int runRenderRole(Job& job, int argc, char** argv) {
     return 0;
   }
   RenderProcess process(job, options);
-  ServeHandlers handlers;
-  handlers.onMessage = [&](Envelope& envelope) { process.onMessage(envelope); };
-  handlers.onIdle = [&] { return process.onIdle(); };
-  handlers.summary = [&] { return process.summary(); };
-  handlers.transfersPending = [&] { return process.sendsPending(); };
+  const ServeHandlers handlers = handlersFor(process);
   runWorkerRole(job, handshakeOptions(options.common), process.readyDetail(), handlers);
   return 0;
 }

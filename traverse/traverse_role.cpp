@@ -56,7 +56,8 @@ class TraverseProcess {
 
   bool sendsPending() const { return !sends_.empty(); }
 
-  bool reapSends() {
+  // Frees finished sends; nothing else to do between messages.
+  bool onIdle() {
     while (!sends_.empty() && sends_.front().test()) sends_.pop_front();
     return false;
   }
@@ -219,11 +220,7 @@ int runTraverseRole(Job& job, int argc, char** argv) {
   }
   // Load before the handshake so a bad dataset fails fast, with peers told.
   TraverseProcess process(job, datasetPath);
-  ServeHandlers handlers;
-  handlers.onMessage = [&](Envelope& envelope) { process.onMessage(envelope); };
-  handlers.onIdle = [&] { return process.reapSends(); };
-  handlers.summary = [&] { return process.summary(); };
-  handlers.transfersPending = [&] { return process.sendsPending(); };
+  const ServeHandlers handlers = handlersFor(process);
   runWorkerRole(job, handshakeOptions(common), process.readyDetail(), handlers,
                 [&] { process.requestWork(); });
   return 0;

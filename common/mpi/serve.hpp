@@ -22,6 +22,18 @@ struct ServeHandlers {
   std::function<std::string()> summary;
 };
 
+// Handlers that call a role's process object: onMessage(Envelope&), onIdle(),
+// summary() and sendsPending().
+template <class Process>
+ServeHandlers handlersFor(Process& process) {
+  ServeHandlers handlers;
+  handlers.onMessage = [&process](Envelope& envelope) { process.onMessage(envelope); };
+  handlers.onIdle = [&process] { return process.onIdle(); };
+  handlers.summary = [&process] { return process.summary(); };
+  handlers.transfersPending = [&process] { return process.sendsPending(); };
+  return handlers;
+}
+
 void serveUntilShutdown(Job& job, const ServeHandlers& handlers);
 
 // A worker role's life after start-up: handshake, report ready (with a detail
