@@ -1,6 +1,5 @@
 #include "datasend/datasend_role.hpp"
 
 int main(int argc, char** argv) {
-  return pointillist::runRoleMain(argc, argv, pointillist::v1::ROLE_DATASEND,
-                                  pointillist::datasend::runDatasendRole);
+  return pointillist::datasend::runDatasendMain(argc, argv);
 }

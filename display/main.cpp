@@ -1,6 +1,5 @@
 #include "display/display_role.hpp"
 
 int main(int argc, char** argv) {
-  return pointillist::runRoleMain(argc, argv, pointillist::v1::ROLE_DISPLAY,
-                                  pointillist::display::runDisplayRole);
+  return pointillist::display::runDisplayMain(argc, argv);
 }

@@ -1,6 +1,5 @@
 #include "render/render_role.hpp"
 
 int main(int argc, char** argv) {
-  return pointillist::runRoleMain(argc, argv, pointillist::v1::ROLE_RENDER,
-                                  pointillist::render::runRenderRole);
+  return pointillist::render::runRenderMain(argc, argv);
 }

@@ -1,9 +1,11 @@
 #pragma once
-#include "common/mpi/job.hpp"
+// The render process: owns one OSMesa context, lets the RenderCore decide what
+// to cache, ask for and draw next, draws with the SplatRenderer and sends each
+// tile to the display.
 
 namespace pointillist::render {
 
-// The render process's main loop: handshake, ready, work until shutdown.
-int runRenderRole(Job& job, int argc, char** argv);
+// The executable's main: options, handshake, ready, work until shutdown.
+int runRenderMain(int argc, char** argv);
 
 }  // namespace pointillist::render

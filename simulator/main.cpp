@@ -129,6 +129,7 @@ int run(int argc, char** argv) {
   app.add_option("--report-plot", reportPlots, "Image file to link from the report (repeatable)");
   app.add_option("--jobs", jobs, "Configurations simulated at once")->capture_default_str();
   app.add_flag("--quiet", quiet, "No progress lines on stderr");
+  app.name("pointillist-simulate");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& error) {

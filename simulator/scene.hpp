@@ -14,7 +14,7 @@
 #include "common/camera_path.hpp"
 #include "common/octree_cell.hpp"
 #include "common/view_options.hpp"
-#include "traverse/octree_traversal.hpp"
+#include "traverse/core/octree_traversal.hpp"
 
 namespace pointillist::simulator {
 

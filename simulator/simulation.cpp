@@ -7,17 +7,17 @@
 #include <map>
 #include <memory>
 #include <optional>
-#include <unordered_set>
-#include <variant>
+#include <utility>
 
+#include "common/clock.hpp"
 #include "common/errors.hpp"
-#include "common/image.hpp"
+#include "common/messages.hpp"
 #include "common/ownership.hpp"
-#include "common/rate_estimates.hpp"
-#include "display/frame_scheduler.hpp"
-#include "display/tiling.hpp"
-#include "render/cell_cache.hpp"
-#include "traverse/render_model.hpp"
+#include "common/peer_ranks.hpp"
+#include "datasend/core/send_ledger.hpp"
+#include "display/core/frame_assembly.hpp"
+#include "render/core/render_core.hpp"
+#include "traverse/core/packet_planner.hpp"
 
 namespace pointillist::simulator {
 
@@ -67,17 +67,6 @@ void validateConfig(const SimulationConfig& c) {
 
 namespace {
 
-using Clock = std::chrono::steady_clock;
-
-Clock::time_point toTime(double seconds) {
-  return Clock::time_point{} +
-         std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds));
-}
-
-double toSeconds(Clock::time_point time) {
-  return std::chrono::duration<double>(time.time_since_epoch()).count();
-}
-
 struct Interval {
   double start;
   double end;
@@ -92,92 +81,35 @@ double busyShare(const std::vector<Interval>& intervals, double from, double to)
   return busy / (to - from);
 }
 
-// --- messages -------------------------------------------------------------
+// A message on its way: the protocol message the core sent, shared by every
+// recipient, as the MPI roles would post it.
+struct Delivery {
+  int source = 0;
+  MessageKind kind = MessageKind::Test;
+  std::shared_ptr<const google::protobuf::MessageLite> message;
+  double transferSeconds = 0.0;  // data packets: the payload's time on the wire
 
-struct TaskMessage {
-  std::uint64_t frame = 0;
-  std::uint32_t tile = 0;
-  std::uint32_t attempt = 0;
-  TileRect rect;
-  std::optional<std::uint32_t> assigned;
-  std::optional<std::uint64_t> lookaheadFrame;  // cost scheduler: prefetch for this frame
-  double dispatched = 0.0;
+  template <class M>
+  const M& as() const {
+    return static_cast<const M&>(*message);
+  }
 };
 
-struct OrderMessage {
-  std::uint32_t render = 0;
-  std::vector<std::uint32_t> cells;
-  std::uint64_t frame = 0;  // whose data this is, for the bytes per frame
+enum class Step : std::uint8_t {
+  Deliver,       // a message reaches its process
+  TraverseDone,  // a traverse process has walked its tile
+  RenderIdle,    // a render process's serve loop finds no message waiting
+  RenderDone,    // a render process has drawn its packet
+  DisplayCheck,  // the display looks for tiles past their deadline
+  TileComposed,  // the display's CPU is done with a tile
 };
-
-struct DataMessage {
-  std::uint32_t cell = 0;
-  std::uint64_t bytes = 0;
-  double transferSeconds = 0.0;
-};
-
-struct PacketMessage {
-  std::uint64_t frame = 0;
-  std::uint32_t tile = 0;
-  std::uint32_t attempt = 0;
-  TileRect rect;
-  const TileWork* work = nullptr;
-  std::uint32_t traverse = 0;
-  std::uint64_t packetId = 0;
-  std::uint64_t orderedBytes = 0;
-  std::uint64_t prefetchBytes = 0;
-  double dispatched = 0.0;  // by the display
-};
-
-struct ReportMessage {
-  std::uint32_t render = 0;
-  std::uint64_t workload = 0;
-  std::vector<std::uint32_t> loaded;
-  std::vector<std::uint32_t> evicted;
-  double secondsPerSplat = 0.0;
-  double secondsPerByte = 0.0;
-  std::uint64_t packetsDone = 0;
-  std::vector<std::uint64_t> lastPacketFrom;  // per traverse
-};
-
-struct TileMessage {
-  std::uint64_t frame = 0;
-  std::uint32_t tile = 0;
-  TileRect rect;
-  std::uint32_t render = 0;
-  std::uint64_t splats = 0;
-  double seconds = 0.0;
-  display::RenderSample sample;
-  display::TileRecord record;
-};
-
-enum class Kind : std::uint8_t {
-  WorkRequest,     // traverse -> display
-  TileArrives,     // render -> display
-  TileComposed,    // display CPU done with a tile
-  TimeoutCheck,    // display: a tile's deadline
-  TaskArrives,     // display -> traverse
-  TraverseDone,    // traverse CPU done with a tile
-  TraverseReport,  // render -> traverse
-  Order,           // traverse or render -> data-send
-  DatasendReport,  // render -> data-send
-  PacketArrives,   // traverse -> render
-  DataArrives,     // data-send -> render
-  RenderIdle,      // render serve loop: onIdle
-  RenderDone,      // render CPU done with a packet
-  RenderMaintenance,
-};
-
-using Payload = std::variant<std::monostate, TaskMessage, std::shared_ptr<const OrderMessage>,
-                             DataMessage, std::shared_ptr<const PacketMessage>,
-                             std::shared_ptr<const ReportMessage>, std::shared_ptr<TileMessage>>;
 
 struct Event {
   double time = 0.0;
   std::uint64_t sequence = 0;
-  Kind kind = Kind::WorkRequest;
-  std::uint32_t target = 0;  // index among its role
-  Payload payload;
+  Step step = Step::Deliver;
+  int rank = 0;
+  Delivery delivery;
 };
 
 struct Later {
@@ -191,66 +123,61 @@ struct Link {
   std::vector<Interval> busy;
 };
 
-// --- the processes ----------------------------------------------------------
+// --- the processes: a core each, and what the model needs to time it --------
 
-struct TraverseState {
-  TraverseState(std::size_t renders, std::span<const TopLevelCell> topLevel,
-                traverse::CostModel costModel)
-      : model(renders, topLevel, costModel) {}
-  traverse::RenderModel model;
+struct TraverseProcess {
+  traverse::PacketPlanner planner;
   bool busy = false;
-  std::optional<TaskMessage> task;
+  std::optional<v1::TileTask> task;
   const TileWork* work = nullptr;
-  const std::vector<std::uint32_t>* ahead = nullptr;  // cells for the lookahead camera
-  std::vector<Event> deferred;                        // reports that came while traversing
-  std::uint64_t packetsSent = 0;
+  const std::vector<std::uint32_t>* ahead = nullptr;  // cells of the lookahead walk
+  std::vector<Delivery> deferred;                     // reports that came while walking
   std::vector<Interval> busyIntervals;
 };
 
-struct QueuedPacket {
-  std::shared_ptr<const PacketMessage> packet;
-  double arrived = 0.0;
-  std::uint64_t sequence = 0;
-  std::optional<double> dataComplete;  // when every cell was first present
-};
-
-struct RenderState {
-  RenderState(std::uint64_t capBytes, double timeoutSeconds, std::size_t traverses)
-      : cache(capBytes, std::chrono::milliseconds(static_cast<long>(timeoutSeconds * 1000.0))),
-        lastPacketFrom(traverses, 0) {}
-  render::CellCache cache;
-  std::deque<QueuedPacket> queue;
-  std::uint64_t packetsQueued = 0;
-  std::uint64_t pinnedSequence = 0;
-  std::vector<std::uint32_t> pinnedCells;
-  // cell -> (when asked, frame it was asked for)
-  std::map<std::uint32_t, std::pair<double, std::uint64_t>> requestedAt;
-  std::vector<std::uint32_t> loaded;
-  std::vector<std::uint32_t> evicted;
-  std::vector<std::uint64_t> lastPacketFrom;
+struct RenderProcess {
+  render::RenderCore core;
   bool busy = false;
   bool idlePending = false;
-  bool maintenancePending = false;
-  bool reportDirty = true;
-  double lastMaintenance = 0.0;
-  std::deque<Event> inbox;  // messages that came while rendering
-  std::optional<QueuedPacket> current;
+  std::optional<double> wakeAt;  // a maintenance wake-up already scheduled
+  std::deque<Delivery> inbox;    // messages that came while drawing
+  std::optional<render::ReadyPacket> current;
   double currentSeconds = 0.0;
-  std::uint64_t workload = 0;
-  std::uint64_t packetsDone = 0;
-  std::uint64_t hits = 0;
-  std::uint64_t misses = 0;
-  std::uint64_t dataBytesReceived = 0;
-  std::uint64_t droppedPrefetches = 0;
-  double secondsPerSplat = 0.0;
-  double secondsPerByte = 0.0;
-  RecentSamples transferSamples{32};
   std::vector<Interval> busyIntervals;
 };
 
-constexpr double kMaintenanceSeconds = 0.25;  // render_role.cpp onIdle
-constexpr double kRerequestSeconds = 1.0;     // render_role.cpp rerequestLateCells
 constexpr double kSimulatedSecondsLimit = 1e5;
+constexpr double kWakeSlack = 1e-6;  // wake just after a deadline, not on it
+
+v1::RunSettings runSettings(const Scene& scene, const SimulationConfig& config) {
+  v1::RunSettings settings;
+  settings.set_mode(v1::RENDER_MODE_POINTS);
+  settings.set_lod_pixels(scene.traversal().lodPixels);
+  settings.set_size_scale(scene.traversal().sizeScale);
+  settings.set_backface_cull(scene.traversal().backfaceCull);
+  settings.set_scheduler(display::schedulerMessage(config.scheduler));
+  settings.set_cost_model(traverse::costModelMessage(config.costModel));
+  return settings;
+}
+
+display::FrameAssemblyConfig assemblyConfig(const Scene& scene, const SimulationConfig& config,
+                                            const ModelParameters& p) {
+  display::FrameAssemblyConfig assembly;
+  assembly.cameras = scene.cameras();
+  assembly.bounds = scene.bounds();
+  assembly.marginWorld = scene.marginWorld();
+  assembly.framesInFlight = p.framesInFlight;
+  assembly.tileTimeout =
+      std::chrono::milliseconds(static_cast<long>(p.tileTimeoutSeconds * 1000.0));
+  assembly.maxAttempts = p.maxAttempts;
+  assembly.plan = display::TilePlanOptions{.scheduler = config.scheduler,
+                                           .renders = config.renders,
+                                           .tilesPerRender = config.tilesPerRender,
+                                           .minTileSize = config.minTileSize,
+                                           .balancedTiles = config.balancedTiles};
+  assembly.prefetchFrames = config.prefetchFrames;
+  return assembly;
+}
 
 class Simulation {
  public:
@@ -258,61 +185,63 @@ class Simulation {
       : scene_(scene),
         config_(config),
         p_(p),
+        peers_(PeerRanks::contiguous(
+            JobLayout{1, config.traverses, config.datasends, config.renders})),
         owners_(assignOwners(scene.topLevel(), config.datasends)),
-        frames_(p.framesInFlight,
-                std::chrono::milliseconds(static_cast<long>(p.tileTimeoutSeconds * 1000.0)),
-                p.maxAttempts),
-        planner_(display::TilePlanOptions{.scheduler = config.scheduler,
-                                          .renders = config.renders,
-                                          .tilesPerRender = config.tilesPerRender,
-                                          .minTileSize = config.minTileSize,
-                                          .balancedTiles = config.balancedTiles}),
-        ranks_(1 + config.traverses + config.datasends + config.renders),
-        outLinks_(ranks_),
-        inLinks_(ranks_),
-        sentTo_(config.datasends) {
+        assembly_(assemblyConfig(scene, config, p), peers_, timeAfterEpoch(0.0)),
+        outLinks_(peers_.layout().total()),
+        inLinks_(peers_.layout().total()) {
+    const v1::RunSettings settings = runSettings(scene, config);
     traverses_.reserve(config.traverses);
-    for (std::uint32_t t = 0; t < config.traverses; ++t) {
-      traverses_.emplace_back(config.renders, scene.topLevel(), config.costModel);
+    for (int rank : peers_.traverses) {
+      traverses_.push_back(TraverseProcess{
+          traverse::PacketPlanner(peers_, rank, settings, scene.topLevel(), owners_)});
     }
-    const auto capBytes = static_cast<std::uint64_t>(p.cacheMegabytes * 1024.0 * 1024.0);
+    for (std::uint32_t s = 0; s < config.datasends; ++s) ledgers_.emplace_back(peers_, owners_, s);
+    render::RenderCoreConfig core;
+    core.cacheCapBytes = static_cast<std::uint64_t>(p.cacheMegabytes * 1024.0 * 1024.0);
+    core.cacheTimeout =
+        std::chrono::milliseconds(static_cast<long>(p.cacheTimeoutSeconds * 1000.0));
     renders_.reserve(config.renders);
     for (std::uint32_t r = 0; r < config.renders; ++r) {
-      renders_.emplace_back(capBytes, p.cacheTimeoutSeconds, config.traverses);
+      render::RenderCoreConfig own = core;
+      if (config.stalledRender == r) own.stallAfterPackets = config.stallAfterPackets;
+      renders_.push_back(RenderProcess{
+          render::RenderCore(own, peers_, peers_.renders[r], scene.topLevel(), owners_)});
     }
-    stats_.layout = "1," + std::to_string(config.traverses) + "," +
-                    std::to_string(config.datasends) + "," + std::to_string(config.renders);
-    stats_.dataset = scene.name();
-    stats_.width = scene.width();
-    stats_.height = scene.height();
-    stats_.mode = "simulated";
+    display::RunStats& stats = assembly_.stats();
+    stats.dataset = scene.name();
+    stats.width = scene.width();
+    stats.height = scene.height();
+    stats.mode = "simulated";
   }
 
   SimulationResult run() {
-    addFrames(0.0);
-    for (std::uint32_t t = 0; t < config_.traverses; ++t) {
-      schedule(control(0.0), Kind::WorkRequest, t, {});
+    // Start-up: every traverse asks for work, every render reports once.
+    for (TraverseProcess& traverse : traverses_) {
+      Outbox out;
+      traverse.planner.requestWork(out);
+      send(0.0, rankOf(traverse), out);
     }
-    // A render process reports once when it starts (reportDirty_ starts true).
     for (std::uint32_t r = 0; r < config_.renders; ++r) wakeRender(0.0, r);
 
     const std::size_t frameCount = scene_.cameras().size();
-    while (!events_.empty() && stats_.frames.size() < frameCount) {
+    while (!events_.empty() && !assembly_.done()) {
       std::pop_heap(events_.begin(), events_.end(), Later{});
       Event event = std::move(events_.back());
       events_.pop_back();
       ++eventCount_;
       if (event.time > kSimulatedSecondsLimit) {
         throw Error("simulation ran past " + std::to_string(kSimulatedSecondsLimit) +
-                    " simulated seconds with " + std::to_string(stats_.frames.size()) + " of " +
+                    " simulated seconds with " + std::to_string(framesDone()) + " of " +
                     std::to_string(frameCount) + " frames done");
       }
       handle(std::move(event));
     }
-    if (stats_.frames.size() < frameCount) {
-      throw Error("simulation stalled: no event left with " + std::to_string(stats_.frames.size()) +
-                  " of " + std::to_string(frameCount) + " frames done (" + stats_.layout + ", " +
-                  configName(config_) + ")");
+    if (!assembly_.done()) {
+      throw Error("simulation stalled: no event left with " + std::to_string(framesDone()) +
+                  " of " + std::to_string(frameCount) + " frames done (" +
+                  peers_.layout().toString() + ", " + configName(config_) + ")");
     }
     return result();
   }
@@ -320,8 +249,10 @@ class Simulation {
  private:
   // --- events and network ---------------------------------------------------
 
-  void schedule(double time, Kind kind, std::uint32_t target, Payload payload) {
-    events_.push_back(Event{time, ++sequence_, kind, target, std::move(payload)});
+  std::size_t framesDone() const { return assembly_.stats().frames.size(); }
+
+  void schedule(double time, Step step, int rank, Delivery delivery = {}) {
+    events_.push_back(Event{time, ++sequence_, step, rank, std::move(delivery)});
     std::push_heap(events_.begin(), events_.end(), Later{});
   }
 
@@ -331,9 +262,9 @@ class Simulation {
   // and enter on the receiver's incoming link, which also serves one message
   // at a time; the switch buffers between the two, so a busy receiver does not
   // hold up the sender's other messages. Returns the arrival time.
-  double bulk(double now, std::uint32_t fromRank, std::uint32_t toRank, std::uint64_t bytes) {
-    Link& out = outLinks_[fromRank];
-    Link& in = inLinks_[toRank];
+  double bulk(double now, int from, int to, std::uint64_t bytes) {
+    Link& out = outLinks_[static_cast<std::size_t>(from)];
+    Link& in = inLinks_[static_cast<std::size_t>(to)];
     const double seconds = static_cast<double>(bytes) / p_.bandwidthBytesPerSecond;
     const double sent = std::max(now, out.freeAt) + seconds;
     out.busy.push_back({sent - seconds, sent});
@@ -344,10 +275,21 @@ class Simulation {
     return received + p_.latencySeconds;
   }
 
-  std::uint32_t traverseRank(std::uint32_t t) const { return 1 + t; }
-  std::uint32_t datasendRank(std::uint32_t s) const { return 1 + config_.traverses + s; }
-  std::uint32_t renderRank(std::uint32_t r) const {
-    return 1 + config_.traverses + config_.datasends + r;
+  // Sends what a core put in its outbox: control messages take the latency;
+  // render packets also take their modelled bytes on the links.
+  void send(double now, int from, Outbox& out, std::uint64_t packetBytes = 0) {
+    for (Outgoing& outgoing : out.take()) {
+      for (int to : outgoing.destinations) {
+        const double arrival = outgoing.kind == MessageKind::RenderPacket
+                                   ? bulk(now, from, to, packetBytes)
+                                   : control(now);
+        schedule(arrival, Step::Deliver, to, Delivery{from, outgoing.kind, outgoing.message});
+      }
+    }
+  }
+
+  int rankOf(const TraverseProcess& traverse) const {
+    return peers_.traverses[static_cast<std::size_t>(&traverse - traverses_.data())];
   }
 
   FrameTrace& trace(std::uint64_t frame) {
@@ -356,543 +298,288 @@ class Simulation {
     return t;
   }
 
+  // Which process a rank is: ranks are contiguous (PeerRanks::contiguous).
+  struct Seat {
+    v1::Role role = v1::ROLE_DISPLAY;
+    std::size_t index = 0;
+  };
+  Seat seatOf(int rank) const {
+    if (rank == peers_.display) return {v1::ROLE_DISPLAY, 0};
+    std::size_t index = static_cast<std::size_t>(rank - 1);
+    if (index < traverses_.size()) return {v1::ROLE_TRAVERSE, index};
+    index -= traverses_.size();
+    if (index < ledgers_.size()) return {v1::ROLE_DATASEND, index};
+    return {v1::ROLE_RENDER, index - ledgers_.size()};
+  }
+
   void handle(Event&& event) {
     const double now = event.time;
-    switch (event.kind) {
-      case Kind::WorkRequest:
-        idleTraverses_.push_back(event.target);
+    const Seat seat = seatOf(event.rank);
+    const auto render = static_cast<std::uint32_t>(seat.index);
+    switch (event.step) {
+      case Step::Deliver:
+        if (seat.role == v1::ROLE_DISPLAY) {
+          displayMessage(now, event.delivery);
+        } else if (seat.role == v1::ROLE_TRAVERSE) {
+          traverseMessage(now, traverses_[seat.index], std::move(event.delivery));
+        } else if (seat.role == v1::ROLE_DATASEND) {
+          datasendMessage(now, seat.index, event.delivery);
+        } else {
+          RenderProcess& process = renders_.at(render);
+          if (process.busy) {
+            process.inbox.push_back(std::move(event.delivery));
+          } else {
+            renderMessage(now, process, event.delivery);
+            wakeRender(now, render);
+          }
+        }
+        break;
+      case Step::TraverseDone:
+        traverseDone(now, traverses_[seat.index]);
+        break;
+      case Step::RenderIdle: {
+        RenderProcess& process = renders_.at(render);
+        process.idlePending = false;
+        if (process.wakeAt && *process.wakeAt <= now) process.wakeAt.reset();
+        if (!process.busy) idleStep(now, render);
+        break;
+      }
+      case Step::RenderDone:
+        renderDone(now, render);
+        break;
+      case Step::DisplayCheck:
+        checkPending_ = false;
+        dispatch(now);
+        finishFrames(now);
+        break;
+      case Step::TileComposed:
+        finishFrames(now);
+        break;
+    }
+  }
+
+  // --- display: FrameAssembly -------------------------------------------------
+
+  void displayMessage(double now, const Delivery& delivery) {
+    switch (delivery.kind) {
+      case MessageKind::WorkRequest:
+        assembly_.workRequested(delivery.source);
         dispatch(now);
         break;
-      case Kind::TileArrives:
-        tileArrives(now, std::get<std::shared_ptr<TileMessage>>(event.payload));
-        break;
-      case Kind::TileComposed:
-        emitFrames(now);
-        break;
-      case Kind::TimeoutCheck:
-        // Re-queued tiles go out again; tiles given up may complete a frame.
-        if (frames_.checkTimeouts(toTime(now)) > 0) dispatch(now);
-        emitFrames(now);
-        break;
-      case Kind::TaskArrives:
-        taskArrives(now, event.target, std::get<TaskMessage>(std::move(event.payload)));
-        break;
-      case Kind::TraverseDone:
-        traverseDone(now, event.target);
-        break;
-      case Kind::TraverseReport: {
-        TraverseState& traverse = traverses_[event.target];
-        if (traverse.busy) {
-          traverse.deferred.push_back(std::move(event));
-        } else {
-          applyReport(now, event);
-        }
+      case MessageKind::TileImage: {
+        const auto& header = delivery.as<v1::TileImageHeader>();
+        if (!assembly_.tileArrived(header, timeAfterEpoch(now))) return;
+        ++trace(header.frame_id()).tilesComposed;
+        // The display blits on its one CPU, tiles in arrival order.
+        const double pixels = static_cast<double>(header.rect().width()) * header.rect().height();
+        const double start = std::max(now, displayCpuFree_);
+        displayCpuFree_ = start + pixels * p_.composeSecondsPerPixel;
+        displayCpu_.push_back({start, displayCpuFree_});
+        schedule(displayCpuFree_, Step::TileComposed, peers_.display);
         break;
       }
-      case Kind::Order:
-        order(now, event.target, *std::get<std::shared_ptr<const OrderMessage>>(event.payload));
-        break;
-      case Kind::DatasendReport: {
-        const auto& report = *std::get<std::shared_ptr<const ReportMessage>>(event.payload);
-        auto& sent = sentTo_[event.target];
-        for (std::uint32_t cell : report.evicted) sent.erase(sentKey(report.render, cell));
-        break;
-      }
-      case Kind::PacketArrives:
-      case Kind::DataArrives:
-      case Kind::RenderMaintenance: {
-        RenderState& render = renders_[event.target];
-        if (event.kind == Kind::RenderMaintenance) render.maintenancePending = false;
-        if (render.busy) {
-          render.inbox.push_back(std::move(event));
-        } else {
-          renderMessage(now, event);
-          wakeRender(now, event.target);
-        }
-        break;
-      }
-      case Kind::RenderIdle: {
-        RenderState& render = renders_[event.target];
-        render.idlePending = false;
-        if (!render.busy) idleStep(now, event.target);
-        break;
-      }
-      case Kind::RenderDone:
-        renderDone(now, event.target);
-        break;
+      default:
+        throw Error(std::string("internal error: the display got a ") +
+                    messageKindName(delivery.kind));
     }
-  }
-
-  // --- display (display/display_role.cpp) -------------------------------------
-
-  void addFrames(double now) {
-    const std::size_t frameCount = scene_.cameras().size();
-    while (framesAdded_ < frameCount && framesAdded_ < stats_.frames.size() + p_.framesInFlight) {
-      addFrame(framesAdded_++);
-    }
-    dispatch(now);
-  }
-
-  void addFrame(std::uint64_t index) {
-    const Camera& camera = scene_.cameras()[index];
-    std::vector<TileRect> tiles;
-    const SceneBounds& bounds = scene_.bounds();
-    if (const auto area =
-            display::boxOfInterest(camera, bounds.min, bounds.max, scene_.marginWorld())) {
-      tiles = planner_.plan(*area);
-    }
-    auto& feedback = feedback_[index];
-    for (const TileRect& rect : tiles) feedback.push_back(display::TileFeedback{rect, 0.0, 0});
-    trace(index).tilesPlanned = static_cast<std::uint32_t>(tiles.size());
-    frames_.addFrame(index, camera, std::move(tiles), Image(1, 1));
   }
 
   void dispatch(double now) {
-    while (!idleTraverses_.empty()) {
-      const auto task = frames_.nextTask(toTime(now));
-      if (!task) break;
-      const display::FrameState* state = frames_.frame(task->frame);
-      TaskMessage message;
-      message.frame = task->frame;
-      message.tile = task->tile;
-      message.attempt = task->attempt;
-      message.rect = state->tiles.at(task->tile).rect;
-      // As the display does: assigned when handed out (round-robin counts hand-outs).
-      message.assigned = planner_.assign(task->tile);
-      message.dispatched = now;
-      if (config_.scheduler == display::SchedulerKind::Cost && config_.prefetchFrames > 0 &&
-          task->frame + config_.prefetchFrames < scene_.cameras().size()) {
-        message.lookaheadFrame = task->frame + config_.prefetchFrames;
-      }
-      const std::uint32_t traverse = idleTraverses_.front();
-      idleTraverses_.pop_front();
-      schedule(control(now), Kind::TaskArrives, traverse, std::move(message));
-      // FrameScheduler re-issues a tile once its deadline has passed.
-      schedule(now + p_.tileTimeoutSeconds + 1e-6, Kind::TimeoutCheck, 0, {});
+    Outbox out;
+    assembly_.dispatch(timeAfterEpoch(now), out);
+    send(now, peers_.display, out);
+    // Wake at the earliest deadline of a tile that is out, to re-issue it.
+    if (const auto deadline = assembly_.nextDeadline(); deadline && !checkPending_) {
+      checkPending_ = true;
+      schedule(std::max(now, secondsSinceEpoch(*deadline)) + kWakeSlack, Step::DisplayCheck,
+               peers_.display);
     }
   }
 
-  void tileArrives(double now, const std::shared_ptr<TileMessage>& tile) {
-    tile->sample.seconds = now;
-    const int rank = static_cast<int>(renderRank(tile->render));
-    stats_.renders[rank].push_back(tile->sample);
-    tile->record.arrivedSeconds = now;
-    stats_.tiles.push_back(tile->record);
-    if (!frames_.tileArrived(tile->frame, tile->tile, tile->rect)) {
-      ++stats_.lateTiles;
-      return;
+  void finishFrames(double now) {
+    const auto finished = assembly_.finishFrames(timeAfterEpoch(now));
+    for (const display::FinishedFrame& frame : finished) {
+      trace(frame.record.frame).tilesPlanned = frame.record.tiles;
+      completionOrder_.push_back(frame.record.frame);
     }
-    display::FrameRecord& record = pending_[tile->frame];
-    record.splats += tile->splats;
-    record.splatsPerRender[rank] += tile->splats;
-    record.busySecondsPerRender[rank] += tile->seconds;
-    feedback_.at(tile->frame).at(tile->tile) = {tile->rect, tile->seconds, tile->splats};
-    ++trace(tile->frame).tilesComposed;
-    // The display blits on its one CPU, tiles in arrival order.
-    const double pixels = static_cast<double>(tile->rect.width()) * tile->rect.height();
-    const double start = std::max(now, displayCpuFree_);
-    displayCpuFree_ = start + pixels * p_.composeSecondsPerPixel;
-    displayCpu_.push_back({start, displayCpuFree_});
-    schedule(displayCpuFree_, Kind::TileComposed, 0, {});
+    if (!finished.empty()) dispatch(now);  // frames that entered the window
   }
 
-  void emitFrames(double now) {
-    bool emitted = false;
-    while (auto state = frames_.popCompleteFrame()) {
-      emitted = true;
-      display::FrameRecord record = std::move(pending_[state->index]);
-      pending_.erase(state->index);
-      record.frame = state->index;
-      record.startSeconds = state->hasStarted ? toSeconds(state->started) : now;
-      record.endSeconds = now;
-      record.tiles = static_cast<std::uint32_t>(state->tiles.size());
-      record.reissuedTiles = frames_.reissued(state->index);
-      record.failedTiles = frames_.failed(state->index);
-      for (std::uint32_t r = 0; r < config_.renders; ++r) {
-        record.splatsPerRender.try_emplace(static_cast<int>(renderRank(r)), 0);
-        record.busySecondsPerRender.try_emplace(static_cast<int>(renderRank(r)), 0.0);
-      }
-      // A frame with failed tiles has no measurement for them: no re-split from it.
-      if (record.failedTiles == 0) planner_.frameDone(feedback_.at(state->index));
-      feedback_.erase(state->index);
-      completionOrder_.push_back(state->index);
-      stats_.frames.push_back(std::move(record));
-    }
-    if (emitted) addFrames(now);
-  }
+  // --- traverse: PacketPlanner -------------------------------------------------
 
-  // --- traverse (traverse/traverse_role.cpp) ----------------------------------
-
-  void taskArrives(double now, std::uint32_t t, TaskMessage task) {
-    TraverseState& traverse = traverses_[t];
-    if (traverse.busy) throw Error("internal error: a busy traverse process got a second task");
-    traverse.busy = true;
-    traverse.work = &scene_.tileWork(task.frame, task.rect);
-    traverse.ahead =
-        task.lookaheadFrame ? &scene_.cellsInTile(*task.lookaheadFrame, task.rect) : nullptr;
-    traverse.task = std::move(task);
-    // The prefetch walk stops at the top-level cells: charged one cell per cell found.
-    const double cells = static_cast<double>(traverse.work->cellsVisited) +
-                         (traverse.ahead ? static_cast<double>(traverse.ahead->size()) : 0.0);
-    const double seconds = p_.traverseTileSeconds + p_.traverseSecondsPerCell * cells;
-    traverse.busyIntervals.push_back({now, now + seconds});
-    schedule(now + seconds, Kind::TraverseDone, t, {});
-  }
-
-  void traverseDone(double now, std::uint32_t t) {
-    TraverseState& traverse = traverses_[t];
-    const TaskMessage& task = *traverse.task;
-    const TileWork& work = *traverse.work;
-    // The choice sees the reports that arrived before the task, as in the
-    // runtime, where reports wait in MPI while the traverse walks the tree.
-    const traverse::RenderChoice choice =
-        task.assigned ? traverse.model.assigned(*task.assigned, work.topLevelCells, work.splats)
-                      : traverse.model.choose(work.topLevelCells, work.splats, toTime(now));
-    const auto render = static_cast<std::uint32_t>(choice.render);
-
-    std::map<std::uint32_t, std::vector<std::uint32_t>> orders;
-    for (std::uint32_t cell : choice.missingCells) orders[owners_.at(cell)].push_back(cell);
-    // Prefetch along the camera path: what this rect needs a few frames on
-    // goes to the render drawing it now.
-    std::uint64_t prefetchBytes = 0;
-    if (traverse.ahead != nullptr) {
-      std::vector<std::uint32_t> prefetch;
-      for (std::uint32_t cell : traverse.model.missingCells(choice.render, *traverse.ahead)) {
-        if (std::binary_search(choice.missingCells.begin(), choice.missingCells.end(), cell)) {
-          continue;
+  void traverseMessage(double now, TraverseProcess& traverse, Delivery delivery) {
+    switch (delivery.kind) {
+      case MessageKind::TileTask: {
+        if (traverse.busy) {
+          throw Error("internal error: a busy traverse process got a second task");
         }
-        const std::uint64_t bytes = scene_.topLevel()[cell].byteSize;
-        if (prefetchBytes + bytes > traverse::kPrefetchBudgetBytes) break;
-        prefetchBytes += bytes;
-        prefetch.push_back(cell);
-        orders[owners_.at(cell)].push_back(cell);
+        const auto& task = delivery.as<v1::TileTask>();
+        traverse.busy = true;
+        traverse.work = &scene_.tileWork(task.frame_id(), task.rect());
+        traverse.ahead =
+            traverse.planner.lookaheadCamera(task)
+                ? &scene_.cellsInTile(task.frame_id() + config_.prefetchFrames, task.rect())
+                : nullptr;
+        traverse.task = task;
+        // The prefetch walk stops at the top-level cells: one cell per cell found.
+        const double cells = static_cast<double>(traverse.work->cellsVisited) +
+                             (traverse.ahead ? static_cast<double>(traverse.ahead->size()) : 0.0);
+        const double seconds = p_.traverseTileSeconds + p_.traverseSecondsPerCell * cells;
+        traverse.busyIntervals.push_back({now, now + seconds});
+        schedule(now + seconds, Step::TraverseDone, rankOf(traverse));
+        break;
       }
-      traverse.model.recordPrefetch(choice.render, prefetch);
+      case MessageKind::RenderReport:
+        // The choice sees the reports that arrived before the task, as in the
+        // runtime, where reports wait in MPI while the traverse walks the tree.
+        if (traverse.busy) {
+          traverse.deferred.push_back(std::move(delivery));
+        } else {
+          traverse.planner.applyReport(delivery.source, delivery.as<v1::RenderReport>(),
+                                       timeAfterEpoch(now));
+        }
+        break;
+      default:
+        throw Error(std::string("internal error: a traverse process got a ") +
+                    messageKindName(delivery.kind));
     }
-    for (auto& [owner, cells] : orders) {
-      schedule(
-          control(now), Kind::Order, owner,
-          std::make_shared<const OrderMessage>(OrderMessage{render, std::move(cells), task.frame}));
-    }
-    auto packet = std::make_shared<PacketMessage>();
-    packet->frame = task.frame;
-    packet->tile = task.tile;
-    packet->attempt = task.attempt;
-    packet->rect = task.rect;
-    packet->work = &work;
-    packet->traverse = t;
-    packet->packetId = ++traverse.packetsSent;
-    packet->orderedBytes = choice.missingBytes;
-    packet->prefetchBytes = prefetchBytes;
-    packet->dispatched = task.dispatched;
+  }
+
+  void traverseDone(double now, TraverseProcess& traverse) {
+    const v1::TileTask& task = *traverse.task;
+    const TileWork& work = *traverse.work;
+    Outbox out;
+    const traverse::PacketPlan plan = traverse.planner.planPacket(
+        task, traverse::TileWalk{work.topLevelCells, work.splats, {}},
+        traverse.ahead != nullptr ? std::span<const std::uint32_t>(*traverse.ahead)
+                                  : std::span<const std::uint32_t>(),
+        timeAfterEpoch(now), out);
+    trace(task.frame_id()).bytesOrdered += plan.choice.missingBytes + plan.prefetchBytes;
+    trace(task.frame_id()).bytesPrefetched += plan.prefetchBytes;
     // A render packet carries the camera, the cells and three numbers per range.
     const std::uint64_t packetBytes = 160 + 4 * work.topLevelCells.size() + 12ull * work.ranges;
-    schedule(bulk(now, traverseRank(t), renderRank(render), packetBytes), Kind::PacketArrives,
-             render, std::shared_ptr<const PacketMessage>(packet));
-    traverse.model.recordPacket(choice.render, packet->packetId, work.splats, choice.missingCells,
-                                toTime(now));
-    trace(task.frame).bytesOrdered += choice.missingBytes + prefetchBytes;
-    trace(task.frame).bytesPrefetched += prefetchBytes;
-
-    schedule(control(now), Kind::WorkRequest, t, {});
+    send(now, rankOf(traverse), out, packetBytes);
     traverse.busy = false;
     traverse.task.reset();
     traverse.work = nullptr;
     traverse.ahead = nullptr;
-    auto deferred = std::move(traverse.deferred);
-    traverse.deferred.clear();
-    for (const Event& report : deferred) applyReport(now, report);
-  }
-
-  void applyReport(double now, const Event& event) {
-    const auto& report = *std::get<std::shared_ptr<const ReportMessage>>(event.payload);
-    traverse::RenderReportView view;
-    view.workloadSplats = report.workload;
-    view.loaded = report.loaded;
-    view.evicted = report.evicted;
-    view.secondsPerSplat = report.secondsPerSplat;
-    view.secondsPerByte = report.secondsPerByte;
-    view.lastPacketFromUs = report.lastPacketFrom.at(event.target);
-    view.packetsDone = report.packetsDone;
-    traverses_[event.target].model.applyReport(report.render, view, toTime(now));
-  }
-
-  // --- data-send (datasend/datasend_role.cpp) ---------------------------------
-
-  static std::uint64_t sentKey(std::uint32_t render, std::uint32_t cell) {
-    return (static_cast<std::uint64_t>(render) << 32) | cell;
-  }
-
-  void order(double now, std::uint32_t s, const OrderMessage& message) {
-    auto& sent = sentTo_[s];
-    for (std::uint32_t cell : message.cells) {
-      if (owners_.at(cell) != s) {
-        throw Error("internal error: cell " + std::to_string(cell) +
-                    " ordered from a data-send process that does not own it");
-      }
-      // Never the same cell to the same render twice while it is there or on its way.
-      if (!sent.insert(sentKey(message.render, cell)).second) {
-        ++duplicateOrders_;
-        continue;
-      }
-      const std::uint64_t bytes = scene_.topLevel()[cell].byteSize;
-      const double arrival = bulk(now, datasendRank(s), renderRank(message.render), bytes);
-      schedule(arrival, Kind::DataArrives, message.render,
-               DataMessage{cell, bytes, static_cast<double>(bytes) / p_.bandwidthBytesPerSecond});
-      trace(message.frame).bytesMoved += bytes;
-      bytesMoved_ += bytes;
+    for (const Delivery& report : std::exchange(traverse.deferred, {})) {
+      traverse.planner.applyReport(report.source, report.as<v1::RenderReport>(),
+                                   timeAfterEpoch(now));
     }
   }
 
-  // --- render (render/render_role.cpp) ----------------------------------------
+  // --- data-send: SendLedger ---------------------------------------------------
+
+  void datasendMessage(double now, std::size_t s, const Delivery& delivery) {
+    datasend::SendLedger& ledger = ledgers_[s];
+    switch (delivery.kind) {
+      case MessageKind::SendOrder: {
+        const auto& order = delivery.as<v1::SendOrder>();
+        for (std::uint32_t cell : ledger.cellsToSend(order)) {
+          const std::uint64_t bytes = scene_.topLevel()[cell].byteSize;
+          v1::DataPacketHeader header;
+          header.set_top_level_cell(cell);
+          header.set_byte_size(bytes);
+          header.set_datasend_rank(peers_.datasends[s]);
+          const double arrival = bulk(now, peers_.datasends[s], order.render_rank(), bytes);
+          schedule(arrival, Step::Deliver, order.render_rank(),
+                   Delivery{peers_.datasends[s], MessageKind::DataPacket,
+                            std::make_shared<const v1::DataPacketHeader>(std::move(header)),
+                            static_cast<double>(bytes) / p_.bandwidthBytesPerSecond});
+          trace(order.frame_id()).bytesMoved += bytes;
+          bytesMoved_ += bytes;
+        }
+        break;
+      }
+      case MessageKind::RenderReport:
+        ledger.applyReport(delivery.source, delivery.as<v1::RenderReport>());
+        break;
+      default:
+        throw Error(std::string("internal error: a data-send process got a ") +
+                    messageKindName(delivery.kind));
+    }
+  }
+
+  // --- render: RenderCore --------------------------------------------------------
 
   void wakeRender(double now, std::uint32_t r) {
-    RenderState& render = renders_[r];
-    if (render.idlePending || render.busy) return;
-    render.idlePending = true;
-    schedule(now, Kind::RenderIdle, r, {});
+    RenderProcess& process = renders_[r];
+    if (process.idlePending || process.busy) return;
+    process.idlePending = true;
+    schedule(now, Step::RenderIdle, peers_.renders[r]);
   }
 
-  void renderMessage(double now, const Event& event) {
-    switch (event.kind) {
-      case Kind::PacketArrives:
-        handlePacket(now, event.target,
-                     std::get<std::shared_ptr<const PacketMessage>>(event.payload));
+  void renderMessage(double now, RenderProcess& process, const Delivery& delivery) {
+    render::RenderEffects effects;
+    switch (delivery.kind) {
+      case MessageKind::RenderPacket:
+        process.core.receivePacket(delivery.source, delivery.as<v1::RenderPacket>(),
+                                   timeAfterEpoch(now), effects);
         break;
-      case Kind::DataArrives:
-        handleData(now, event.target, std::get<DataMessage>(event.payload));
+      case MessageKind::DataPacket: {
+        const auto& header = delivery.as<v1::DataPacketHeader>();
+        process.core.receiveData(header.top_level_cell(), header.byte_size(),
+                                 delivery.transferSeconds, timeAfterEpoch(now), effects);
         break;
-      default:  // maintenance: the next idle step does it
-        break;
-    }
-  }
-
-  void handlePacket(double now, std::uint32_t r, std::shared_ptr<const PacketMessage> packet) {
-    RenderState& render = renders_[r];
-    render.lastPacketFrom[packet->traverse] =
-        std::max(render.lastPacketFrom[packet->traverse], packet->packetId);
-    std::map<std::uint32_t, std::vector<std::uint32_t>> requests;
-    for (std::uint32_t cell : packet->work->topLevelCells) {
-      if (render.cache.contains(cell)) {
-        ++render.hits;
-        render.cache.touch(cell, toTime(now));
-        continue;
       }
-      ++render.misses;
-      // The traverse ordered it already; asking too covers a cell evicted after
-      // the traverse last heard from us (data-send drops the duplicate).
-      if (!render.requestedAt.contains(cell)) {
-        render.requestedAt[cell] = {now, packet->frame};
-        requests[owners_.at(cell)].push_back(cell);
-      }
+      default:
+        throw Error(std::string("internal error: a render process got a ") +
+                    messageKindName(delivery.kind));
     }
-    sendRequests(now, r, requests, packet->frame);
-    render.workload += packet->work->splats;
-    render.queue.push_back({std::move(packet), now, ++render.packetsQueued, std::nullopt});
-    if (ready(render, *render.queue.back().packet)) render.queue.back().dataComplete = now;
-    render.reportDirty = true;
+    send(now, process.core.selfRank(), effects.messages);
   }
 
-  void handleData(double now, std::uint32_t r, const DataMessage& data) {
-    RenderState& render = renders_[r];
-    render.dataBytesReceived += data.bytes;
-    if (data.bytes >= 4096 && data.transferSeconds > 0.0) {
-      render.transferSamples.add(data.transferSeconds / static_cast<double>(data.bytes));
-      render.secondsPerByte = render.transferSamples.lowerQuartile();
-    }
-    render.requestedAt.erase(data.cell);
-    if (render.cache.contains(data.cell)) return;  // a late duplicate
-    if (!render.cache.pinned(data.cell) && !render.cache.canFit(data.bytes)) {
-      // Prefetched data that cannot fit beside the packet being waited for.
-      ++render.droppedPrefetches;
-      render.evicted.push_back(data.cell);
-      render.reportDirty = true;
-      return;
-    }
-    for (std::uint32_t victim : render.cache.insert(data.cell, data.bytes, toTime(now))) {
-      render.evicted.push_back(victim);
-    }
-    // Stamps the packets whose data has just become complete (data_wait_us).
-    for (QueuedPacket& queued : render.queue) {
-      if (!queued.dataComplete && ready(render, *queued.packet)) queued.dataComplete = now;
-    }
-    render.loaded.push_back(data.cell);
-    render.reportDirty = true;
-  }
-
-  void sendRequests(double now, std::uint32_t r,
-                    std::map<std::uint32_t, std::vector<std::uint32_t>>& requests,
-                    std::uint64_t frame) {
-    if (requests.empty()) return;
-    RenderState& render = renders_[r];
-    // Data-send must hear of an eviction before a request for the same cell.
-    if (!render.evicted.empty()) sendReports(now, r);
-    for (auto& [owner, cells] : requests) {
-      schedule(control(now), Kind::Order, owner,
-               std::make_shared<const OrderMessage>(OrderMessage{r, std::move(cells), frame}));
-    }
-    if (!render.maintenancePending) {
-      render.maintenancePending = true;
-      schedule(now + kRerequestSeconds + 1e-6, Kind::RenderMaintenance, r, {});
-    }
-  }
-
-  void pinHeadPacket(double now, std::uint32_t r) {
-    RenderState& render = renders_[r];
-    const std::uint64_t head = render.queue.empty() ? 0 : render.queue.front().sequence;
-    if (head == render.pinnedSequence) return;
-    for (std::uint32_t cell : render.pinnedCells) render.cache.unpin(cell);
-    render.pinnedCells.clear();
-    render.pinnedSequence = head;
-    if (render.queue.empty()) return;
-    const PacketMessage& packet = *render.queue.front().packet;
-    std::map<std::uint32_t, std::vector<std::uint32_t>> requests;
-    for (std::uint32_t cell : packet.work->topLevelCells) {
-      render.cache.pin(cell);
-      render.pinnedCells.push_back(cell);
-      if (!render.cache.contains(cell) && !render.requestedAt.contains(cell)) {
-        render.requestedAt[cell] = {now, packet.frame};
-        requests[owners_.at(cell)].push_back(cell);
-      }
-    }
-    sendRequests(now, r, requests, packet.frame);
-  }
-
-  bool ready(const RenderState& render, const PacketMessage& packet) const {
-    return std::all_of(packet.work->topLevelCells.begin(), packet.work->topLevelCells.end(),
-                       [&](std::uint32_t cell) { return render.cache.contains(cell); });
-  }
-
-  // onIdle: maintenance, pin the head packet, render the first ready packet;
-  // the report goes out after the packet, or now when nothing could render.
+  // The serve loop's idle moment: the core hands out a ready packet, which
+  // takes the modelled time to draw, or the process sleeps until its next
+  // maintenance (or a message).
   void idleStep(double now, std::uint32_t r) {
-    RenderState& render = renders_[r];
-    if (now - render.lastMaintenance > kMaintenanceSeconds) {
-      render.lastMaintenance = now;
-      for (std::uint32_t cell : render.cache.expire(toTime(now))) render.evicted.push_back(cell);
-      if (!render.evicted.empty()) render.reportDirty = true;
-      rerequestLateCells(now, r);
-    }
-    pinHeadPacket(now, r);
-    for (auto it = render.queue.begin(); it != render.queue.end(); ++it) {
-      if (!ready(render, *it->packet)) continue;
-      render.current = std::move(*it);
-      render.queue.erase(it);
-      render.busy = true;
-      render.currentSeconds =
+    RenderProcess& process = renders_[r];
+    render::RenderEffects effects;
+    auto ready = process.core.nextPacket(timeAfterEpoch(now), effects);
+    send(now, peers_.renders[r], effects.messages);
+    if (ready) {
+      process.busy = true;
+      process.currentSeconds =
           p_.packetOverheadSeconds +
-          static_cast<double>(render.current->packet->work->splats) * p_.secondsPerSplat;
-      render.busyIntervals.push_back({now, now + render.currentSeconds});
-      schedule(now + render.currentSeconds, Kind::RenderDone, r, {});
+          static_cast<double>(ready->packet.total_splats()) * p_.secondsPerSplat;
+      process.current = std::move(ready);
+      process.busyIntervals.push_back({now, now + process.currentSeconds});
+      schedule(now + process.currentSeconds, Step::RenderDone, peers_.renders[r]);
       return;
     }
-    if (render.reportDirty) sendReports(now, r);
-    if (!render.requestedAt.empty() && !render.maintenancePending) {
-      render.maintenancePending = true;
-      schedule(now + kMaintenanceSeconds + 1e-6, Kind::RenderMaintenance, r, {});
-    }
-  }
-
-  void rerequestLateCells(double now, std::uint32_t r) {
-    RenderState& render = renders_[r];
-    std::map<std::uint32_t, std::vector<std::uint32_t>> requests;
-    std::uint64_t frame = 0;
-    for (auto& [cell, asked] : render.requestedAt) {
-      if (now - asked.first > kRerequestSeconds) {
-        asked.first = now;
-        frame = asked.second;
-        requests[owners_.at(cell)].push_back(cell);
+    if (const auto due = process.core.nextMaintenance()) {
+      const double at = std::max(now, secondsSinceEpoch(*due));
+      if (!process.wakeAt || at < *process.wakeAt) {
+        process.wakeAt = at;
+        schedule(at, Step::RenderIdle, peers_.renders[r]);
       }
     }
-    sendRequests(now, r, requests, frame);
   }
 
   void renderDone(double now, std::uint32_t r) {
-    RenderState& render = renders_[r];
-    const QueuedPacket queued = std::move(*render.current);
-    render.current.reset();
-    const PacketMessage& packet = *queued.packet;
-    const std::uint64_t splats = packet.work->splats;
-    const double seconds = render.currentSeconds;
-    for (std::uint32_t cell : packet.work->topLevelCells) render.cache.touch(cell, toTime(now));
-    if (splats >= 1000 && seconds > 0.0) {
-      render.secondsPerSplat =
-          movingAverage(render.secondsPerSplat, seconds / static_cast<double>(splats));
-    }
-    render.workload -= std::min(render.workload, splats);
-    ++render.packetsDone;
-    ++trace(packet.frame).packetsRendered;
+    RenderProcess& process = renders_[r];
+    const render::ReadyPacket ready = std::move(*process.current);
+    process.current.reset();
+    const v1::RenderPacket& packet = ready.packet;
+    render::RenderEffects effects;
+    auto header = std::make_shared<const v1::TileImageHeader>(process.core.packetDrawn(
+        ready, packet.total_splats(), process.currentSeconds, timeAfterEpoch(now), effects));
+    ++trace(packet.frame_id()).packetsRendered;
     ++packetsRendered_;
-
-    auto tile = std::make_shared<TileMessage>();
-    tile->frame = packet.frame;
-    tile->tile = packet.tile;
-    tile->rect = packet.rect;
-    tile->render = r;
-    tile->splats = splats;
-    tile->seconds = seconds;
-    tile->sample.frame = packet.frame;
-    tile->sample.workloadSplats = render.workload;
-    tile->sample.cacheBytes = render.cache.bytes();
-    tile->sample.peakCacheBytes = render.cache.peakBytes();
-    tile->sample.cacheHits = render.hits;
-    tile->sample.cacheMisses = render.misses;
-    tile->sample.evictions = render.cache.evictions();
-    tile->sample.dataBytesReceived = render.dataBytesReceived;
-    display::TileRecord& record = tile->record;
-    record.frame = packet.frame;
-    record.tile = packet.tile;
-    record.attempt = packet.attempt;
-    record.renderRank = static_cast<int>(renderRank(r));
-    record.traverseRank = static_cast<int>(traverseRank(packet.traverse));
-    record.dispatchedSeconds = packet.dispatched;
-    record.queuedSeconds = now - queued.arrived;
-    record.dataWaitSeconds = queued.dataComplete.value_or(queued.arrived) - queued.arrived;
-    record.renderSeconds = seconds;
-    record.splats = splats;
-    record.pixels = static_cast<std::uint64_t>(packet.rect.width()) * packet.rect.height();
-    record.orderedBytes = packet.orderedBytes;
-    record.prefetchBytes = packet.prefetchBytes;
     const std::uint64_t imageBytes =
-        static_cast<std::uint64_t>(packet.rect.width()) * packet.rect.height() * 4 + 128;
-    schedule(bulk(now, renderRank(r), 0, imageBytes), Kind::TileArrives, 0, std::move(tile));
-    render.reportDirty = true;
-    sendReports(now, r);
-    render.busy = false;
-
-    // The serve loop drains what came while rendering, then idles again.
-    while (!render.inbox.empty()) {
-      const Event event = std::move(render.inbox.front());
-      render.inbox.pop_front();
-      renderMessage(now, event);
+        static_cast<std::uint64_t>(packet.rect().width()) * packet.rect().height() * 4 + 128;
+    schedule(bulk(now, peers_.renders[r], peers_.display, imageBytes), Step::Deliver,
+             peers_.display, Delivery{peers_.renders[r], MessageKind::TileImage, header});
+    send(now, peers_.renders[r], effects.messages);
+    process.busy = false;
+    // The serve loop drains what came while drawing, then idles again.
+    while (!process.inbox.empty()) {
+      const Delivery delivery = std::move(process.inbox.front());
+      process.inbox.pop_front();
+      renderMessage(now, process, delivery);
     }
     idleStep(now, r);
-  }
-
-  void sendReports(double now, std::uint32_t r) {
-    RenderState& render = renders_[r];
-    render.reportDirty = false;
-    auto report = std::make_shared<ReportMessage>();
-    report->render = r;
-    report->workload = render.workload;
-    report->loaded = std::move(render.loaded);
-    report->evicted = std::move(render.evicted);
-    report->secondsPerSplat = render.secondsPerSplat;
-    report->secondsPerByte = render.secondsPerByte;
-    report->packetsDone = render.packetsDone;
-    report->lastPacketFrom = render.lastPacketFrom;
-    render.loaded.clear();
-    render.evicted.clear();
-    const std::shared_ptr<const ReportMessage> shared = std::move(report);
-    for (std::uint32_t t = 0; t < config_.traverses; ++t) {
-      schedule(control(now), Kind::TraverseReport, t, shared);
-    }
-    // Data-send only reads the evictions, so a report without any is not sent.
-    if (!shared->evicted.empty()) {
-      for (std::uint32_t s = 0; s < config_.datasends; ++s) {
-        schedule(control(now), Kind::DatasendReport, s, shared);
-      }
-    }
   }
 
   // --- results -------------------------------------------------------------
@@ -900,7 +587,7 @@ class Simulation {
   SimulationResult result() {
     SimulationResult out;
     out.config = config_;
-    out.stats = std::move(stats_);
+    out.stats = std::move(assembly_.stats());
     display::RunStats& stats = out.stats;
     stats.totalSeconds = stats.frames.empty() ? 0.0 : stats.frames.back().endSeconds;
     for (display::FrameRecord& record : stats.frames) {
@@ -925,18 +612,21 @@ class Simulation {
         stats.frames.empty() ? 0.0 : tiles / static_cast<double>(stats.frames.size());
 
     Utilisation& u = out.utilisation;
-    for (const RenderState& render : renders_) {
+    for (const RenderProcess& render : renders_) {
       const double share = busyShare(render.busyIntervals, from, to);
       u.renderMean += share / static_cast<double>(renders_.size());
       u.renderMax = std::max(u.renderMax, share);
-      out.droppedPrefetches += render.droppedPrefetches;
+      out.droppedPrefetches += render.core.droppedPrefetches();
     }
-    for (const TraverseState& traverse : traverses_) {
+    for (const datasend::SendLedger& ledger : ledgers_) {
+      out.duplicateOrders += ledger.duplicatesSkipped();
+    }
+    for (const TraverseProcess& traverse : traverses_) {
       const double share = busyShare(traverse.busyIntervals, from, to);
       u.traverseMean += share / static_cast<double>(traverses_.size());
       u.traverseMax = std::max(u.traverseMax, share);
     }
-    for (std::uint32_t rank = 1; rank < ranks_; ++rank) {
+    for (std::size_t rank = 1; rank < outLinks_.size(); ++rank) {
       u.networkMax = std::max({u.networkMax, busyShare(outLinks_[rank].busy, from, to),
                                busyShare(inLinks_[rank].busy, from, to)});
     }
@@ -958,7 +648,6 @@ class Simulation {
 
     out.packetsRendered = packetsRendered_;
     out.bytesMoved = bytesMoved_;
-    out.duplicateOrders = duplicateOrders_;
     out.events = eventCount_;
     return out;
   }
@@ -966,35 +655,28 @@ class Simulation {
   const Scene& scene_;
   SimulationConfig config_;
   ModelParameters p_;
+  PeerRanks peers_;
   std::vector<std::uint32_t> owners_;
 
   std::vector<Event> events_;  // a heap ordered by (time, sequence)
   std::uint64_t sequence_ = 0;
   std::uint64_t eventCount_ = 0;
 
-  // display
-  display::FrameScheduler frames_;
-  display::TilePlanner planner_;
-  std::uint64_t framesAdded_ = 0;
-  std::map<std::uint64_t, std::vector<display::TileFeedback>> feedback_;
-  std::map<std::uint64_t, display::FrameRecord> pending_;
-  std::deque<std::uint32_t> idleTraverses_;
+  display::FrameAssembly assembly_;
+  bool checkPending_ = false;
   double displayCpuFree_ = 0.0;
   std::vector<Interval> displayCpu_;
-  display::RunStats stats_;
   std::vector<std::uint64_t> completionOrder_;
   std::map<std::uint64_t, FrameTrace> traces_;
 
-  std::uint32_t ranks_;
-  std::vector<Link> outLinks_;
+  std::vector<Link> outLinks_;  // by rank
   std::vector<Link> inLinks_;
-  std::vector<TraverseState> traverses_;
-  std::vector<std::unordered_set<std::uint64_t>> sentTo_;  // per data-send: (render, cell)
-  std::vector<RenderState> renders_;
+  std::vector<TraverseProcess> traverses_;
+  std::vector<datasend::SendLedger> ledgers_;
+  std::vector<RenderProcess> renders_;
 
   std::uint64_t packetsRendered_ = 0;
   std::uint64_t bytesMoved_ = 0;
-  std::uint64_t duplicateOrders_ = 0;
 };
 
 }  // namespace

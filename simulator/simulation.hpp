@@ -1,8 +1,9 @@
 #pragma once
 // A discrete-event model of one Pointillist job (seed 003 §4-5) that drives
-// the real, MPI-free scheduling code: the display's TilePlanner and
-// FrameScheduler, each traverse process's RenderModel (cost function) and
-// each render process's CellCache, in simulated time. Modelled instead of run:
+// the roles' own cores in simulated time: the display's FrameAssembly, each
+// traverse process's PacketPlanner, each data-send process's SendLedger and
+// each render process's RenderCore, exchanging the protocol's messages. Every
+// decision is theirs; the simulator only models time. Modelled instead of run:
 //   traverse  seconds per visited cell * cells visited (+ one per cell found by
 //             the prefetch walk) + a per-tile overhead;
 //   render    a per-packet overhead + splats * T_s, one packet at a time;
@@ -12,13 +13,14 @@
 //   display   composing a tile costs seconds per pixel on its one CPU.
 // Results are deterministic for fixed inputs.
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
-#include "display/frame_stats.hpp"
-#include "display/tile_planner.hpp"
+#include "display/core/frame_stats.hpp"
+#include "display/core/tile_planner.hpp"
 #include "simulator/scene.hpp"
-#include "traverse/render_model.hpp"
+#include "traverse/core/render_model.hpp"
 
 namespace pointillist::simulator {
 
@@ -56,6 +58,10 @@ struct SimulationConfig {
   // Cost scheduler: the traverse orders what each tile's rect needs this many
   // frames on for the render it chose (the display's --prefetch-frames; 0: off).
   std::uint32_t prefetchFrames = 0;
+  // A render process that stops drawing after some packets (the render's
+  // --stall-index / --stall-after): its tiles must be re-issued elsewhere.
+  std::optional<std::uint32_t> stalledRender;
+  std::uint64_t stallAfterPackets = 0;
 };
 
 // "cost", "cost/paper", "cost/equal", "round-robin", ...

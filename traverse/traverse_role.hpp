@@ -1,9 +1,10 @@
 #pragma once
-#include "common/mpi/job.hpp"
+// The traverse process: loads only the octree-cell-array, walks each tile the
+// display hands it and lets the PacketPlanner decide where the packet goes.
 
 namespace pointillist::traverse {
 
-// The traverse process's main loop: handshake, ready, work until shutdown.
-int runTraverseRole(Job& job, int argc, char** argv);
+// The executable's main: options, handshake, ready, work until shutdown.
+int runTraverseMain(int argc, char** argv);
 
 }  // namespace pointillist::traverse

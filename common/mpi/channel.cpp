@@ -39,42 +39,6 @@ std::chrono::microseconds envMicros(const char* name, std::chrono::microseconds 
 
 }  // namespace
 
-const char* messageKindName(MessageKind kind) {
-  switch (kind) {
-    case MessageKind::Handshake:
-      return "Handshake";
-    case MessageKind::HandshakeReply:
-      return "HandshakeReply";
-    case MessageKind::Ready:
-      return "Ready";
-    case MessageKind::Shutdown:
-      return "Shutdown";
-    case MessageKind::ShutdownAck:
-      return "ShutdownAck";
-    case MessageKind::ErrorReport:
-      return "ErrorReport";
-    case MessageKind::WorkRequest:
-      return "WorkRequest";
-    case MessageKind::TileTask:
-      return "TileTask";
-    case MessageKind::NoWork:
-      return "NoWork";
-    case MessageKind::RenderPacket:
-      return "RenderPacket";
-    case MessageKind::SendOrder:
-      return "SendOrder";
-    case MessageKind::DataPacket:
-      return "DataPacket";
-    case MessageKind::TileImage:
-      return "TileImage";
-    case MessageKind::RenderReport:
-      return "RenderReport";
-    case MessageKind::Test:
-      return "Test";
-  }
-  return "unknown";
-}
-
 void checkMpi(int code, const char* call) {
   if (code == MPI_SUCCESS) return;
   char text[MPI_MAX_ERROR_STRING] = {};
@@ -127,17 +91,20 @@ SendHandle::~SendHandle() {
   try {
     // A peer that has already shut down never receives a late message; give up
     // on it after a while instead of hanging the process on exit.
-    if (!waitFor(std::chrono::seconds(5))) {
-      for (MPI_Request& request : requests_) {
-        if (request != MPI_REQUEST_NULL) {
-          MPI_Cancel(&request);
-          MPI_Request_free(&request);
-        }
-      }
-    }
+    if (!waitFor(std::chrono::seconds(5))) cancel();
   } catch (...) {
     // Destructors must not throw; the job's error path reports transport failures.
   }
+}
+
+void SendHandle::cancel() {
+  for (MPI_Request& request : requests_) {
+    if (request != MPI_REQUEST_NULL) {
+      MPI_Cancel(&request);
+      MPI_Request_free(&request);
+    }
+  }
+  requests_.clear();
 }
 
 bool SendHandle::waitFor(std::chrono::milliseconds timeout) {
@@ -212,8 +179,13 @@ SendHandle Channel::post(int dest, MessageKind kind, const google::protobuf::Mes
                          std::shared_ptr<const std::vector<std::byte>> payload) {
   std::span<const std::byte> view;
   if (payload) view = std::span<const std::byte>(payload->data(), payload->size());
-  SendHandle handle = post(dest, kind, header, view);
-  handle.ownedPayload_ = std::move(payload);
+  return post(dest, kind, header, view, std::move(payload));
+}
+
+SendHandle Channel::post(int dest, MessageKind kind, const google::protobuf::MessageLite& header,
+                         std::span<const std::byte> payload, std::shared_ptr<const void> owner) {
+  SendHandle handle = post(dest, kind, header, payload);
+  handle.ownedPayload_ = std::move(owner);
   return handle;
 }
 

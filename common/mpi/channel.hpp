@@ -23,29 +23,9 @@
 #include <google/protobuf/message_lite.h>
 
 #include "common/errors.hpp"
+#include "common/messages.hpp"
 
 namespace pointillist {
-
-// One tag per message kind. Values are part of the protocol: never renumber.
-enum class MessageKind : int {
-  Handshake = 1,
-  HandshakeReply = 2,
-  Ready = 3,
-  Shutdown = 4,
-  ShutdownAck = 5,
-  ErrorReport = 6,
-  WorkRequest = 10,
-  TileTask = 11,
-  NoWork = 12,
-  RenderPacket = 13,
-  SendOrder = 14,
-  DataPacket = 15,
-  TileImage = 16,
-  RenderReport = 17,
-  Test = 100,
-};
-
-const char* messageKindName(MessageKind kind);
 
 // Throws TransportError with MPI_Error_string's text when code != MPI_SUCCESS.
 void checkMpi(int code, const char* call);
@@ -107,13 +87,15 @@ class SendHandle {
   bool test();  // true when complete
   void wait();
   bool waitFor(std::chrono::milliseconds timeout);  // false when still pending
+  // Gives up a send no peer will take (its receiver has ended).
+  void cancel();
   bool empty() const { return requests_.empty(); }
 
  private:
   friend class Channel;
   std::vector<MPI_Request> requests_;
   std::unique_ptr<std::string> header_;
-  std::shared_ptr<const std::vector<std::byte>> ownedPayload_;
+  std::shared_ptr<const void> ownedPayload_;
 };
 
 class Channel {
@@ -134,6 +116,9 @@ class Channel {
   // Starts a send that keeps the payload alive itself.
   SendHandle post(int dest, MessageKind kind, const google::protobuf::MessageLite& header,
                   std::shared_ptr<const std::vector<std::byte>> payload);
+  // Starts a send of `payload`, which `owner` keeps alive until the send is done.
+  SendHandle post(int dest, MessageKind kind, const google::protobuf::MessageLite& header,
+                  std::span<const std::byte> payload, std::shared_ptr<const void> owner);
   // Sends and waits for local completion (buffers reusable).
   void send(int dest, MessageKind kind, const google::protobuf::MessageLite& header,
             std::span<const std::byte> payload = {});

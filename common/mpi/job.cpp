@@ -13,13 +13,6 @@ namespace {
 constexpr int kBootstrapMagic = 0x504E5442;  // "PNTB"
 constexpr int kRoleCount = 5;                // v1::Role values 0..4
 
-// An error every process of the job has detected or been told about, so the
-// job can end with a plain non-zero exit instead of MPI_Abort.
-class CoordinatedError : public ProtocolError {
- public:
-  using ProtocolError::ProtocolError;
-};
-
 std::string hostName() {
   std::array<char, 256> name{};
   if (gethostname(name.data(), name.size() - 1) != 0) return "unknown-host";
@@ -67,7 +60,12 @@ Job::Job(int& argc, char**& argv, v1::Role role) : role_(role) {
   checkMpi(MPI_Comm_set_errhandler(MPI_COMM_WORLD, MPI_ERRORS_RETURN), "MPI_Comm_set_errhandler");
   checkMpi(MPI_Comm_rank(MPI_COMM_WORLD, &worldRank_), "MPI_Comm_rank");
   checkMpi(MPI_Comm_size(MPI_COMM_WORLD, &worldSize_), "MPI_Comm_size");
-  channel_ = std::make_unique<Channel>(MPI_COMM_WORLD);
+  MPI_Request duplicated = MPI_REQUEST_NULL;
+  checkMpi(MPI_Comm_idup(MPI_COMM_WORLD, &comm_, &duplicated), "MPI_Comm_idup");
+  Channel::waitFor(duplicated, std::chrono::seconds(120), "communicator set-up");
+  checkMpi(MPI_Comm_set_errhandler(comm_, MPI_ERRORS_RETURN), "MPI_Comm_set_errhandler");
+  channel_ = std::make_unique<Channel>(comm_);
+  sends_ = std::make_unique<SendQueue>(*channel_);
 
   int* appAttribute = nullptr;
   int found = 0;
@@ -80,7 +78,7 @@ Job::Job(int& argc, char**& argv, v1::Role role) : role_(role) {
   std::vector<int> all(static_cast<std::size_t>(worldSize_) * mine.size());
   MPI_Request request = MPI_REQUEST_NULL;
   checkMpi(MPI_Iallgather(mine.data(), static_cast<int>(mine.size()), MPI_INT, all.data(),
-                          static_cast<int>(mine.size()), MPI_INT, MPI_COMM_WORLD, &request),
+                          static_cast<int>(mine.size()), MPI_INT, comm_, &request),
            "MPI_Iallgather(roles)");
   Channel::waitFor(request, std::chrono::seconds(120), "role discovery");
 
@@ -107,7 +105,7 @@ Job::Job(int& argc, char**& argv, v1::Role role) : role_(role) {
   } catch (const ProtocolError& error) {
     throw CoordinatedError(std::string(error.what()) + " (started: " + layout_.toString() + ")");
   }
-  checkMpi(MPI_Comm_split(MPI_COMM_WORLD, static_cast<int>(role_), worldRank_, &roleComm_),
+  checkMpi(MPI_Comm_split(comm_, static_cast<int>(role_), worldRank_, &roleComm_),
            "MPI_Comm_split(role)");
 }
 
@@ -122,13 +120,25 @@ Job::~Job() {
 void Job::finalize() {
   if (finalized_) return;
   finalized_ = true;
+  if (sends_) sends_->drain(std::chrono::seconds(5));
+  sends_.reset();
   if (roleComm_ != MPI_COMM_NULL) MPI_Comm_free(&roleComm_);
   channel_.reset();
+  if (comm_ != MPI_COMM_NULL) MPI_Comm_free(&comm_);
   MPI_Finalize();
 }
 
 const std::vector<int>& Job::ranksOf(v1::Role role) const {
   return ranksByRole_.at(static_cast<std::size_t>(role));
+}
+
+PeerRanks Job::peers() const {
+  PeerRanks peers;
+  peers.display = displayRank();
+  peers.traverses = ranksOf(v1::ROLE_TRAVERSE);
+  peers.datasends = ranksOf(v1::ROLE_DATASEND);
+  peers.renders = ranksOf(v1::ROLE_RENDER);
+  return peers;
 }
 
 std::string Job::describe() const {
@@ -153,6 +163,7 @@ void Job::handshake(const HandshakeOptions& options) {
     if (!reply.accepted()) {
       throw CoordinatedError("the display refused this job: " + reply.reason());
     }
+    runSettings_ = reply.settings();
     return;
   }
 
@@ -207,6 +218,8 @@ void Job::handshake(const HandshakeOptions& options) {
   std::string reason;
   for (const auto& problem : problems) reason += (reason.empty() ? "" : "; ") + problem;
   reply.set_reason(reason);
+  *reply.mutable_settings() = options.settings;
+  runSettings_ = options.settings;
   std::vector<SendHandle> sends;
   for (int peer : peers) sends.push_back(channel.post(peer, MessageKind::HandshakeReply, reply));
   for (auto& send : sends) send.wait();
@@ -290,45 +303,6 @@ void Job::shutdownAll(const std::string& reason, std::chrono::milliseconds timeo
     }
     for (auto& send : sends) send.wait();
   }
-}
-
-int runRoleMain(int argc, char** argv, v1::Role role,
-                const std::function<int(Job&, int, char**)>& body) {
-  std::unique_ptr<Job> job;
-  const auto report = [&](const char* kind, const std::string& message) {
-    std::ostringstream line;
-    line << executableName(role);
-    if (job) line << " rank " << job->worldRank();
-    line << ": " << kind << ": " << message << '\n';
-    std::cerr << line.str() << std::flush;
-  };
-  try {
-    job = std::make_unique<Job>(argc, argv, role);
-    const int code = body(*job, argc, argv);
-    job->finalize();
-    return code;
-  } catch (const CoordinatedError& error) {
-    report(error.kind(), error.what());
-    if (job) {
-      job->finalize();
-    } else {
-      int finalized = 0;
-      MPI_Finalized(&finalized);
-      if (finalized == 0) MPI_Finalize();
-    }
-    return 3;
-  } catch (const Error& error) {
-    report(error.kind(), error.what());
-  } catch (const std::exception& error) {
-    report("unexpected error", error.what());
-  }
-  // Peers may be waiting on this process: end the whole job.
-  int initialized = 0;
-  MPI_Initialized(&initialized);
-  int finalized = 0;
-  MPI_Finalized(&finalized);
-  if (initialized != 0 && finalized == 0) MPI_Abort(MPI_COMM_WORLD, 2);
-  return 2;
 }
 
 }  // namespace pointillist

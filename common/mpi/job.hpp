@@ -17,21 +17,34 @@
 
 #include "common/job_layout.hpp"
 #include "common/mpi/channel.hpp"
+#include "common/mpi/send_queue.hpp"
+#include "common/peer_ranks.hpp"
 #include "pointillist.pb.h"
 
 namespace pointillist {
+
+// An error every process of the job has detected or been told about, so the
+// job can end with a plain non-zero exit instead of MPI_Abort.
+class CoordinatedError : public ProtocolError {
+ public:
+  using ProtocolError::ProtocolError;
+};
 
 struct HandshakeOptions {
   std::uint32_t protocolVersion = v1::PROTOCOL_VERSION_CURRENT;
   // Checked by the display when set: the counts the launcher asked for.
   std::optional<JobLayout> expectedLayout;
   std::chrono::milliseconds timeout{60'000};
+  // Display: the run's settings, sent to every process in the handshake reply.
+  v1::RunSettings settings;
 };
 
 class Job {
  public:
   // Initializes MPI (funneled threading: only the main thread calls MPI) and
   // discovers the layout. Throws ProtocolError when the layout is unusable.
+  // Pointillist talks on its own duplicate of MPI_COMM_WORLD, so a library
+  // sharing the process cannot match its messages.
   Job(int& argc, char**& argv, v1::Role role);
   ~Job();
   Job(const Job&) = delete;
@@ -45,16 +58,21 @@ class Job {
   // World ranks holding a role, in rank order.
   const std::vector<int>& ranksOf(v1::Role role) const;
   int displayRank() const { return ranksOf(v1::ROLE_DISPLAY).front(); }
+  PeerRanks peers() const;
   // This process's position among the ranks of its role (0-based).
   int indexInRole() const { return indexInRole_; }
   // A communicator holding only the ranks of this process's role.
   MPI_Comm roleComm() const { return roleComm_; }
   Channel& channel() { return *channel_; }
+  // Sends in flight; the serve loop reaps them.
+  SendQueue& sends() { return *sends_; }
   std::string describe() const;  // "pointillist-render rank 5"
 
   // Every process reports to the display, which checks protocol versions and
   // role counts and answers each one; a mismatch is a ProtocolError everywhere.
+  // The display's run settings come back in the reply (runSettings()).
   void handshake(const HandshakeOptions& options);
+  const v1::RunSettings& runSettings() const { return runSettings_; }
   // Non-display: report Ready, then wait for Shutdown while calling onMessage
   // for every other message (the role's work loop).
   // Display: send Shutdown to every other rank and collect their acks.
@@ -78,8 +96,11 @@ class Job {
   int indexInRole_ = 0;
   JobLayout layout_;
   std::vector<std::vector<int>> ranksByRole_;
+  MPI_Comm comm_ = MPI_COMM_NULL;  // our duplicate of MPI_COMM_WORLD
   MPI_Comm roleComm_ = MPI_COMM_NULL;
   std::unique_ptr<Channel> channel_;
+  std::unique_ptr<SendQueue> sends_;
+  v1::RunSettings runSettings_;
   std::vector<v1::ShutdownAck> acks_;
   double readyCpuSeconds_ = 0.0;
   std::chrono::steady_clock::time_point readyWall_;
@@ -89,12 +110,5 @@ class Job {
 const char* roleName(v1::Role role);        // "display"
 std::string executableName(v1::Role role);  // "pointillist-display"
 double processCpuSeconds();
-
-// Runs a role's main: sets up the Job, calls body, and turns any exception into
-// a message naming role and rank. Errors every peer already knows about end the
-// job with a non-zero exit; any other error aborts the whole MPI job so no peer
-// waits forever.
-int runRoleMain(int argc, char** argv, v1::Role role,
-                const std::function<int(Job&, int, char**)>& body);
 
 }  // namespace pointillist

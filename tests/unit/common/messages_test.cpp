@@ -43,7 +43,7 @@ TEST(Messages, RenderPacketRoundTripsWithAllRanges) {
   packet.mutable_rect()->set_y(180);
   packet.mutable_rect()->set_width(160);
   packet.mutable_rect()->set_height(90);
-  packet.set_mode(v1::RENDER_MODE_SPLATS);
+  packet.set_packet_id(77);
   for (std::uint32_t i = 0; i < 1000; ++i) {
     packet.add_range_top_level(i % 37);
     packet.add_range_offset(i * 64);
@@ -57,7 +57,7 @@ TEST(Messages, RenderPacketRoundTripsWithAllRanges) {
   EXPECT_EQ(parsed.range_offset(999), 999u * 64u);
   EXPECT_EQ(parsed.camera().eye().z(), 3.25f);
   EXPECT_EQ(parsed.camera().image_width(), 1280u);
-  EXPECT_EQ(parsed.mode(), v1::RENDER_MODE_SPLATS);
+  EXPECT_EQ(parsed.packet_id(), 77u);
 }
 
 TEST(Messages, ControlMessagesRoundTrip) {
@@ -93,6 +93,16 @@ TEST(Messages, ControlMessagesRoundTrip) {
   order.set_render_rank(7);
   order.add_top_level_cells(11);
   EXPECT_EQ(roundTrip(order).top_level_cells(0), 11u);
+
+  v1::HandshakeReply reply;
+  reply.set_accepted(true);
+  reply.mutable_settings()->set_mode(v1::RENDER_MODE_SPLATS);
+  reply.mutable_settings()->set_scheduler(v1::SCHEDULER_EQUALIZER);
+  reply.mutable_settings()->set_lod_pixels(1.5f);
+  const auto parsedReply = roundTrip(reply);
+  EXPECT_EQ(parsedReply.settings().mode(), v1::RENDER_MODE_SPLATS);
+  EXPECT_EQ(parsedReply.settings().scheduler(), v1::SCHEDULER_EQUALIZER);
+  EXPECT_EQ(parsedReply.settings().lod_pixels(), 1.5f);
 
   v1::TileTask task;
   task.set_frame_id(8);

@@ -1,5 +1,5 @@
 // Key figures of a run: per-frame imbalance against imbalance over the run.
-#include "display/frame_stats.hpp"
+#include "display/core/frame_stats.hpp"
 
 #include <gtest/gtest.h>
 

@@ -1,7 +1,7 @@
 // The reactive re-split: strips cover the area once and converge to equal times.
 #include <gtest/gtest.h>
 
-#include "display/load_equalizer.hpp"
+#include "display/core/load_equalizer.hpp"
 
 namespace pointillist::display {
 namespace {

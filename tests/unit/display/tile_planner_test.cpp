@@ -1,6 +1,6 @@
 // The display's tile layout per scheduler: exact cover always; for the cost
 // scheduler, tiles sized so each holds about the same measured work.
-#include "display/tile_planner.hpp"
+#include "display/core/tile_planner.hpp"
 
 #include <gtest/gtest.h>
 

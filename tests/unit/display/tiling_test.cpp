@@ -3,8 +3,8 @@
 
 #include <random>
 
-#include "display/frame_scheduler.hpp"
-#include "display/tiling.hpp"
+#include "display/core/frame_scheduler.hpp"
+#include "display/core/tiling.hpp"
 
 namespace pointillist::display {
 namespace {
@@ -80,8 +80,7 @@ TEST(FrameScheduler, HandsOutTilesOfFramesInFlightAndReleasesFramesInOrder) {
   FrameScheduler scheduler(2, 1000ms, 3);
   const Camera camera = makeCamera({0, 0, 5}, {0, 0, 0}, {0, 1, 0}, 45.0f, 0.1f, 10.0f, 8, 8);
   for (std::uint64_t f = 0; f < 3; ++f) {
-    scheduler.addFrame(f, camera, {makeTileRect(0, 0, 4, 8), makeTileRect(4, 0, 4, 8)},
-                       Image(8, 8));
+    scheduler.addFrame(f, camera, {makeTileRect(0, 0, 4, 8), makeTileRect(4, 0, 4, 8)});
   }
   const auto now = FrameScheduler::Clock::now();
   std::vector<TileTaskRef> tasks;
@@ -107,7 +106,7 @@ TEST(FrameScheduler, HandsOutTilesOfFramesInFlightAndReleasesFramesInOrder) {
 TEST(FrameScheduler, ReissuesLateTilesThenGivesUp) {
   FrameScheduler scheduler(1, 100ms, 2);
   const Camera camera = makeCamera({0, 0, 5}, {0, 0, 0}, {0, 1, 0}, 45.0f, 0.1f, 10.0f, 8, 8);
-  scheduler.addFrame(0, camera, {makeTileRect(0, 0, 8, 8)}, Image(8, 8));
+  scheduler.addFrame(0, camera, {makeTileRect(0, 0, 8, 8)});
   const auto t = FrameScheduler::Clock::now();
   ASSERT_EQ(scheduler.nextTask(t)->attempt, 0u);
   EXPECT_EQ(scheduler.checkTimeouts(t + 50ms), 0u);
@@ -128,7 +127,7 @@ TEST(FrameScheduler, ReissuesLateTilesThenGivesUp) {
 TEST(FrameScheduler, AFrameWithNothingOnScreenCompletesAtOnce) {
   FrameScheduler scheduler(2, 100ms, 2);
   const Camera camera = makeCamera({0, 0, 5}, {0, 0, 0}, {0, 1, 0}, 45.0f, 0.1f, 10.0f, 8, 8);
-  scheduler.addFrame(0, camera, {}, Image(8, 8));
+  scheduler.addFrame(0, camera, {});
   EXPECT_EQ(scheduler.popCompleteFrame()->index, 0u);
 }
 

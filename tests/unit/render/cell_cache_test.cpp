@@ -4,7 +4,7 @@
 #include <map>
 #include <random>
 
-#include "render/cell_cache.hpp"
+#include "render/core/cell_cache.hpp"
 
 namespace pointillist::render {
 namespace {

@@ -1,4 +1,4 @@
-#include "render/offscreen_context.hpp"
+#include "render/gl/offscreen_context.hpp"
 
 #include <gtest/gtest.h>
 

@@ -1,4 +1,4 @@
-#include "render/splat_renderer.hpp"
+#include "render/gl/splat_renderer.hpp"
 
 #include <gtest/gtest.h>
 

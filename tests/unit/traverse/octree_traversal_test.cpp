@@ -10,7 +10,7 @@
 #include "common/camera.hpp"
 #include "preprocess/dataset_builder.hpp"
 #include "preprocess/generator.hpp"
-#include "traverse/octree_traversal.hpp"
+#include "traverse/core/octree_traversal.hpp"
 
 namespace pointillist::traverse {
 namespace {

@@ -3,10 +3,13 @@
 
 #include <set>
 
-#include "traverse/render_model.hpp"
+#include "traverse/core/render_model.hpp"
 
 namespace pointillist::traverse {
 namespace {
+
+// Cores are told the time; these tests need only one moment.
+const RenderModel::Clock::time_point kNow{};
 
 std::vector<TopLevelCell> table(std::initializer_list<std::uint64_t> bytes) {
   std::vector<TopLevelCell> cells;
@@ -25,9 +28,9 @@ TEST(RenderModel, PrefersTheRenderThatHasTheData) {
   const auto cells = table({1'000'000, 2'000'000, 500});
   RenderModel model(3, cells);
   const std::uint32_t loaded[] = {0, 1};
-  model.applyReport(1, {.workloadSplats = 0, .loaded = loaded});
+  model.applyReport(1, {.workloadSplats = 0, .loaded = loaded}, kNow);
   const std::uint32_t needed[] = {0, 1};
-  const auto choice = model.choose(needed, 1000);
+  const auto choice = model.choose(needed, 1000, kNow);
   EXPECT_EQ(choice.render, 1u);
   EXPECT_EQ(choice.missingBytes, 0u);
   EXPECT_TRUE(choice.missingCells.empty());
@@ -38,9 +41,9 @@ TEST(RenderModel, PrefersAnIdleRenderWhenWorkOutweighsTheTransfer) {
   RenderModel model(2, cells);
   const std::uint32_t loaded[] = {0};
   // Render 0 has the data but 10 M splats queued (2 s at 5 M/s); moving 1 kB costs ~10 us.
-  model.applyReport(0, {.workloadSplats = 10'000'000, .loaded = loaded});
+  model.applyReport(0, {.workloadSplats = 10'000'000, .loaded = loaded}, kNow);
   const std::uint32_t needed[] = {0};
-  const auto choice = model.choose(needed, 100);
+  const auto choice = model.choose(needed, 100, kNow);
   EXPECT_EQ(choice.render, 1u);
   EXPECT_EQ(choice.missingBytes, 1000u);
   ASSERT_EQ(choice.missingCells.size(), 1u);
@@ -53,7 +56,8 @@ TEST(RenderModel, PaperCostIsWorkloadTimesTsPlusMissingBytesTimesTn) {
   ASSERT_EQ(model.costModel(), CostModel::Paper);  // the default
   // Measured rates replace the defaults (moving average converges).
   for (int i = 0; i < 200; ++i) {
-    model.applyReport(0, {.workloadSplats = 500, .secondsPerSplat = 1e-6, .secondsPerByte = 1e-5});
+    model.applyReport(0, {.workloadSplats = 500, .secondsPerSplat = 1e-6, .secondsPerByte = 1e-5},
+                      kNow);
   }
   EXPECT_NEAR(model.secondsPerSplat(), 1e-6, 1e-9);
   EXPECT_NEAR(model.secondsPerByte(), 1e-5, 1e-8);
@@ -68,14 +72,15 @@ TEST(RenderModel, OverlapCostLetsTheTransferHideBehindQueuedWork) {
   const auto cells = table({4000, 6000});
   RenderModel model(2, cells, CostModel::Overlap);
   for (int i = 0; i < 200; ++i) {
-    model.applyReport(0, {.workloadSplats = 500, .secondsPerSplat = 1e-6, .secondsPerByte = 1e-7});
+    model.applyReport(0, {.workloadSplats = 500, .secondsPerSplat = 1e-6, .secondsPerByte = 1e-7},
+                      kNow);
   }
   const std::uint32_t needed[] = {0, 1};
   // 10 kB at 1e-7 s/B = 1 ms arrives while the 500 queued splats (0.5 ms) are
   // drawn: the transfer is the longer of the two.
   EXPECT_NEAR(model.cost(0, needed, 100, nullptr), 10'000 * 1e-7 + 100 * 1e-6, 1e-9);
   // With 5000 splats queued (5 ms) the transfer is hidden entirely.
-  model.applyReport(0, {.workloadSplats = 5000});
+  model.applyReport(0, {.workloadSplats = 5000}, kNow);
   EXPECT_NEAR(model.cost(0, needed, 100, nullptr), (5000 + 100) * 1e-6, 1e-9);
 }
 
@@ -90,13 +95,13 @@ TEST(RenderModel, OverlapCostSendsDataToABusyRenderWhoseQueueHidesTheTransfer) {
   RenderModel overlap(2, cells, CostModel::Overlap);
   for (RenderModel* model : {&paper, &overlap}) {
     for (int i = 0; i < 200; ++i) {
-      model->applyReport(0, {.secondsPerSplat = 1e-6, .secondsPerByte = 1e-7});
+      model->applyReport(0, {.secondsPerSplat = 1e-6, .secondsPerByte = 1e-7}, kNow);
     }
-    model->applyReport(0, {.workloadSplats = 2500, .loaded = loaded});
-    model->applyReport(1, {.workloadSplats = 2000});
+    model->applyReport(0, {.workloadSplats = 2500, .loaded = loaded}, kNow);
+    model->applyReport(1, {.workloadSplats = 2000}, kNow);
   }
-  EXPECT_EQ(paper.choose(needed, 100).render, 0u);
-  const auto moved = overlap.choose(needed, 100);
+  EXPECT_EQ(paper.choose(needed, 100, kNow).render, 0u);
+  const auto moved = overlap.choose(needed, 100, kNow);
   EXPECT_EQ(moved.render, 1u);
   EXPECT_EQ(moved.missingBytes, 10'000u);
 }
@@ -104,13 +109,13 @@ TEST(RenderModel, OverlapCostSendsDataToABusyRenderWhoseQueueHidesTheTransfer) {
 TEST(RenderModel, WorkloadCountsPacketsSentSinceTheLastReport) {
   const auto cells = table({100});
   RenderModel model(1, cells);
-  model.recordPacket(0, 1, 300, {});
-  model.recordPacket(0, 2, 200, {});
+  model.recordPacket(0, 1, 300, {}, kNow);
+  model.recordPacket(0, 2, 200, {}, kNow);
   EXPECT_EQ(model.workload(0), 500u);
   // The render had seen packet 1 (and finished part of it) when it reported.
-  model.applyReport(0, {.workloadSplats = 120, .lastPacketFromUs = 1});
+  model.applyReport(0, {.workloadSplats = 120, .lastPacketFromUs = 1}, kNow);
   EXPECT_EQ(model.workload(0), 320u);
-  model.applyReport(0, {.workloadSplats = 0, .lastPacketFromUs = 2});
+  model.applyReport(0, {.workloadSplats = 0, .lastPacketFromUs = 2}, kNow);
   EXPECT_EQ(model.workload(0), 0u);
 }
 
@@ -118,14 +123,14 @@ TEST(RenderModel, OrderedCellsCountAsPresentUntilEvicted) {
   const auto cells = table({100, 100});
   RenderModel model(2, cells);
   const std::uint32_t ordered[] = {1};
-  model.recordPacket(1, 1, 10, ordered);
+  model.recordPacket(1, 1, 10, ordered, kNow);
   EXPECT_TRUE(model.hasCell(1, 1));
   const std::uint32_t loaded[] = {1};
-  model.applyReport(1, {.loaded = loaded, .lastPacketFromUs = 1});
+  model.applyReport(1, {.loaded = loaded, .lastPacketFromUs = 1}, kNow);
   EXPECT_TRUE(model.hasCell(1, 1));
   EXPECT_EQ(model.cachedCellCount(1), 1u);
   const std::uint32_t evicted[] = {1};
-  model.applyReport(1, {.evicted = evicted, .lastPacketFromUs = 1});
+  model.applyReport(1, {.evicted = evicted, .lastPacketFromUs = 1}, kNow);
   EXPECT_FALSE(model.hasCell(1, 1));
   EXPECT_EQ(model.cachedCellCount(1), 0u);
 }
@@ -134,7 +139,7 @@ TEST(RenderModel, EqualCostsSpreadOverRenders) {
   const auto cells = table({100});
   RenderModel model(4, cells);
   std::set<std::size_t> chosen;
-  for (int i = 0; i < 4; ++i) chosen.insert(model.choose({}, 0).render);
+  for (int i = 0; i < 4; ++i) chosen.insert(model.choose({}, 0, kNow).render);
   EXPECT_EQ(chosen.size(), 4u);
 }
 
@@ -148,7 +153,7 @@ TEST(RenderModel, AStalledRenderIsAvoidedEvenWhenItHasTheData) {
   using namespace std::chrono_literals;
   const auto cells = table({10'000'000, 100});
   RenderModel model(2, cells);
-  const auto t = RenderModel::Clock::now();
+  const RenderModel::Clock::time_point t{};
   const std::uint32_t loaded[] = {0};
   // Render 0 holds the big cell, has a little work and keeps finishing packets.
   model.applyReport(0, {.workloadSplats = 1000, .loaded = loaded, .packetsDone = 1}, t);

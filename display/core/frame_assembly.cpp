@@ -1,0 +1,153 @@
+#include "display/core/frame_assembly.hpp"
+
+#include <algorithm>
+
+#include "display/core/tiling.hpp"
+
+namespace pointillist::display {
+
+FrameAssembly::FrameAssembly(FrameAssemblyConfig config, PeerRanks peers, TimePoint start)
+    : config_(std::move(config)),
+      peers_(std::move(peers)),
+      start_(start),
+      frames_(config_.framesInFlight, config_.tileTimeout, config_.maxAttempts),
+      planner_(config_.plan) {
+  stats_.layout = peers_.layout().toString();
+  admitFrames();
+}
+
+// Frames are laid out when they enter the window, so a re-split from the last
+// completed frame applies to the next one.
+void FrameAssembly::admitFrames() {
+  while (framesAdded_ < config_.cameras.size() &&
+         framesAdded_ < stats_.frames.size() + std::max<std::uint32_t>(1, config_.framesInFlight)) {
+    const std::uint64_t index = framesAdded_++;
+    const Camera& camera = config_.cameras[index];
+    std::vector<TileRect> tiles;
+    if (const auto area =
+            boxOfInterest(camera, config_.bounds.min, config_.bounds.max, config_.marginWorld)) {
+      tiles = planner_.plan(*area);
+    }
+    feedback_[index].assign(tiles.size(), TileFeedback{});
+    frames_.addFrame(index, camera, std::move(tiles));
+  }
+}
+
+void FrameAssembly::workRequested(int traverseRank) {
+  peers_.indexOf(v1::ROLE_TRAVERSE, traverseRank);  // throws for a stranger
+  idleTraverses_.push_back(traverseRank);
+}
+
+std::uint32_t FrameAssembly::dispatch(TimePoint now, Outbox& out) {
+  const std::uint32_t requeued = frames_.checkTimeouts(now);
+  while (!idleTraverses_.empty()) {
+    const auto task = frames_.nextTask(now);
+    if (!task) break;
+    const FrameState* state = frames_.frame(task->frame);
+    v1::TileTask message;
+    message.set_frame_id(task->frame);
+    message.set_tile_id(task->tile);
+    *message.mutable_camera() = state->camera;
+    *message.mutable_rect() = state->tiles.at(task->tile).rect;
+    message.set_timestamp_ns(
+        std::chrono::duration_cast<std::chrono::nanoseconds>(now.time_since_epoch()).count());
+    message.set_attempt(task->attempt);
+    if (config_.plan.scheduler == SchedulerKind::Cost && config_.prefetchFrames > 0 &&
+        task->frame + config_.prefetchFrames < config_.cameras.size()) {
+      *message.mutable_lookahead_camera() = config_.cameras[task->frame + config_.prefetchFrames];
+    }
+    // Assigned as the tile is handed out: round-robin deals in that order.
+    message.set_assigned_render(planner_.assign(task->tile).value_or(0));
+    dispatchedAt_[{task->frame, task->tile}] = since(now);
+    out.send(idleTraverses_.front(), std::move(message));
+    idleTraverses_.pop_front();
+  }
+  return requeued;
+}
+
+bool FrameAssembly::tileArrived(const v1::TileImageHeader& header, TimePoint now) {
+  const int render = header.render_rank();
+  peers_.indexOf(v1::ROLE_RENDER, render);  // throws for a stranger
+  RenderSample sample;
+  sample.seconds = since(now);
+  sample.frame = header.frame_id();
+  sample.workloadSplats = header.workload_splats();
+  sample.cacheBytes = header.cache_bytes();
+  sample.peakCacheBytes = header.peak_cache_bytes();
+  sample.cacheHits = header.cache_hits();
+  sample.cacheMisses = header.cache_misses();
+  sample.evictions = header.evictions();
+  sample.dataBytesReceived = header.data_bytes_received();
+  stats_.renders[render].push_back(sample);
+
+  TileRecord tile;
+  tile.frame = header.frame_id();
+  tile.tile = header.tile_id();
+  tile.attempt = header.attempt();
+  tile.renderRank = render;
+  tile.traverseRank = header.traverse_rank();
+  tile.arrivedSeconds = sample.seconds;
+  if (const auto found = dispatchedAt_.find({header.frame_id(), header.tile_id()});
+      found != dispatchedAt_.end()) {
+    tile.dispatchedSeconds = found->second;
+    dispatchedAt_.erase(found);
+  }
+  tile.queuedSeconds = static_cast<double>(header.queued_time_us()) * 1e-6;
+  tile.dataWaitSeconds = static_cast<double>(header.data_wait_us()) * 1e-6;
+  tile.renderSeconds = static_cast<double>(header.render_time_us()) * 1e-6;
+  tile.splats = header.splats_rendered();
+  tile.pixels = static_cast<std::uint64_t>(header.rect().width()) * header.rect().height();
+  tile.orderedBytes = header.ordered_bytes();
+  tile.prefetchBytes = header.prefetch_bytes();
+  stats_.tiles.push_back(tile);
+
+  if (!frames_.tileArrived(header.frame_id(), header.tile_id(), header.rect())) {
+    ++stats_.lateTiles;
+    return false;
+  }
+  FrameRecord& record = pending_[header.frame_id()];
+  record.splats += header.splats_rendered();
+  record.bytesOrdered += header.ordered_bytes() + header.prefetch_bytes();
+  record.bytesPrefetched += header.prefetch_bytes();
+  record.splatsPerRender[render] += header.splats_rendered();
+  record.busySecondsPerRender[render] += tile.renderSeconds;
+  feedback_.at(header.frame_id()).at(header.tile_id()) =
+      TileFeedback{header.rect(), tile.renderSeconds, header.splats_rendered()};
+  return true;
+}
+
+std::vector<FinishedFrame> FrameAssembly::finishFrames(TimePoint now) {
+  std::vector<FinishedFrame> finished;
+  while (auto state = frames_.popCompleteFrame()) {
+    FinishedFrame frame;
+    FrameRecord& record = frame.record;
+    record = std::move(pending_[state->index]);
+    pending_.erase(state->index);
+    record.frame = state->index;
+    record.startSeconds = state->hasStarted ? since(state->started) : since(now);
+    record.endSeconds = since(now);
+    record.tiles = static_cast<std::uint32_t>(state->tiles.size());
+    record.reissuedTiles = frames_.reissued(state->index);
+    record.failedTiles = frames_.failed(state->index);
+    for (int render : peers_.renders) {
+      record.splatsPerRender.try_emplace(render, 0);
+      record.busySecondsPerRender.try_emplace(render, 0.0);
+    }
+    // A frame with failed tiles has no measurement for them: no re-split from it.
+    if (record.failedTiles == 0) planner_.frameDone(feedback_.at(state->index));
+    feedback_.erase(state->index);
+    for (const TileState& tile : state->tiles) {
+      if (tile.failed) frame.failedTiles.push_back(tile.rect);
+    }
+    stats_.frames.push_back(record);
+    finished.push_back(std::move(frame));
+  }
+  if (!finished.empty()) admitFrames();
+  return finished;
+}
+
+std::optional<TimePoint> FrameAssembly::nextDeadline() const {
+  return frames_.nextDeadline();
+}
+
+}  // namespace pointillist::display

@@ -1,0 +1,91 @@
+#pragma once
+// Every decision of the display (seed 003 §4.2), without MPI: which frames are
+// in flight, how each is split into tiles (TilePlanner), which tile goes to
+// which idle traverse process and when, re-issue of tiles that do not come
+// back, feedback of measured work to the planner, and the run's statistics.
+//
+// The core is told what arrived and `now` and appends what to send to an
+// Outbox; it keeps no pixels (the caller composes accepted tiles). The MPI
+// display and the simulator both drive this class.
+#include <chrono>
+#include <cstdint>
+#include <deque>
+#include <map>
+#include <optional>
+#include <vector>
+
+#include "common/camera.hpp"
+#include "common/camera_path.hpp"
+#include "common/clock.hpp"
+#include "common/messages.hpp"
+#include "common/peer_ranks.hpp"
+#include "display/core/frame_scheduler.hpp"
+#include "display/core/frame_stats.hpp"
+#include "display/core/tile_planner.hpp"
+
+namespace pointillist::display {
+
+struct FrameAssemblyConfig {
+  std::vector<Camera> cameras;  // one per frame
+  SceneBounds bounds;
+  // The box of interest grows by this much (largest splat radius x size scale).
+  float marginWorld = 0.0f;
+  std::uint32_t framesInFlight = 3;
+  std::chrono::milliseconds tileTimeout{10'000};
+  std::uint32_t maxAttempts = 3;
+  TilePlanOptions plan;
+  // Cost scheduler: tiles carry the camera this many frames on (0: none).
+  std::uint32_t prefetchFrames = 0;
+};
+
+struct FinishedFrame {
+  FrameRecord record;                 // also appended to stats().frames
+  std::vector<TileRect> failedTiles;  // never came back: the caller marks them
+};
+
+class FrameAssembly {
+ public:
+  // `start` is the time the run's statistics count from.
+  FrameAssembly(FrameAssemblyConfig config, PeerRanks peers, TimePoint start);
+
+  // A traverse process asked for work.
+  void workRequested(int traverseRank);
+  // Re-queues tiles past their deadline (or gives them up after maxAttempts),
+  // then hands waiting tiles to idle traverse processes. Returns how many
+  // tiles were re-queued.
+  std::uint32_t dispatch(TimePoint now, Outbox& out);
+  // A tile image arrived (its pixels already checked against its rect). True
+  // when its frame was waiting for it: the caller composes it then; false for
+  // a late copy of a re-issued tile, which is only counted.
+  bool tileArrived(const v1::TileImageHeader& header, TimePoint now);
+  // Frames whose every tile arrived or was given up, in order; later frames
+  // enter the window as these leave it.
+  std::vector<FinishedFrame> finishFrames(TimePoint now);
+
+  // When the oldest tile out is due back (the simulator wakes up then).
+  std::optional<TimePoint> nextDeadline() const;
+  bool done() const { return framesAdded_ == config_.cameras.size() && frames_.finished(); }
+  std::size_t frameCount() const { return config_.cameras.size(); }
+  std::size_t idleTraverses() const { return idleTraverses_.size(); }
+  const RunStats& stats() const { return stats_; }
+  RunStats& stats() { return stats_; }
+  const TilePlanner& planner() const { return planner_; }
+
+ private:
+  void admitFrames();
+  double since(TimePoint time) const { return secondsBetween(start_, time); }
+
+  FrameAssemblyConfig config_;
+  PeerRanks peers_;
+  TimePoint start_;
+  FrameScheduler frames_;
+  TilePlanner planner_;
+  std::uint64_t framesAdded_ = 0;
+  std::deque<int> idleTraverses_;
+  std::map<std::uint64_t, std::vector<TileFeedback>> feedback_;
+  std::map<std::pair<std::uint64_t, std::uint32_t>, double> dispatchedAt_;
+  std::map<std::uint64_t, FrameRecord> pending_;
+  RunStats stats_;
+};
+
+}  // namespace pointillist::display

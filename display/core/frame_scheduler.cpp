@@ -1,0 +1,137 @@
+#include "display/core/frame_scheduler.hpp"
+
+#include <algorithm>
+
+#include "common/errors.hpp"
+
+namespace pointillist::display {
+
+FrameScheduler::FrameScheduler(std::uint32_t framesInFlight, std::chrono::milliseconds tileTimeout,
+                               std::uint32_t maxAttempts)
+    : framesInFlight_(std::max<std::uint32_t>(1, framesInFlight)),
+      tileTimeout_(tileTimeout),
+      maxAttempts_(std::max<std::uint32_t>(1, maxAttempts)) {}
+
+void FrameScheduler::addFrame(std::uint64_t index, const Camera& camera,
+                              std::vector<TileRect> tiles) {
+  FrameState state;
+  state.index = index;
+  state.camera = camera;
+  state.tiles.reserve(tiles.size());
+  for (const TileRect& rect : tiles) {
+    TileState tile;
+    tile.rect = rect;
+    state.tiles.push_back(tile);
+  }
+  state.remaining = static_cast<std::uint32_t>(tiles.size());
+  frames_.push_back(std::move(state));
+  admitFrames();
+}
+
+void FrameScheduler::admitFrames() {
+  while (admitted_ < frames_.size() && admitted_ < framesInFlight_) {
+    FrameState& state = frames_[admitted_++];
+    for (std::uint32_t tile = 0; tile < state.tiles.size(); ++tile) {
+      queue_.push_back({state.index, tile, 0});
+    }
+  }
+}
+
+FrameState* FrameScheduler::frame(std::uint64_t index) {
+  for (FrameState& state : frames_) {
+    if (state.index == index) return &state;
+  }
+  return nullptr;
+}
+
+std::optional<TileTaskRef> FrameScheduler::nextTask(Clock::time_point now) {
+  while (!queue_.empty()) {
+    TileTaskRef task = queue_.front();
+    queue_.pop_front();
+    FrameState* state = frame(task.frame);
+    if (state == nullptr) continue;
+    TileState& tile = state->tiles.at(task.tile);
+    if (tile.done || tile.failed) continue;
+    if (!state->hasStarted) {
+      state->hasStarted = true;
+      state->started = now;
+    }
+    task.attempt = tile.attempts++;
+    tile.deadline = now + tileTimeout_;
+    return task;
+  }
+  return std::nullopt;
+}
+
+bool FrameScheduler::tileArrived(std::uint64_t frameIndex, std::uint32_t tileIndex,
+                                 const TileRect& rect) {
+  FrameState* state = frame(frameIndex);
+  if (state == nullptr || tileIndex >= state->tiles.size()) return false;
+  TileState& tile = state->tiles[tileIndex];
+  if (tile.done || tile.failed) return false;
+  if (tile.rect.x() != rect.x() || tile.rect.y() != rect.y() || tile.rect.width() != rect.width() ||
+      tile.rect.height() != rect.height()) {
+    return false;
+  }
+  tile.done = true;
+  --state->remaining;
+  return true;
+}
+
+std::uint32_t FrameScheduler::checkTimeouts(Clock::time_point now) {
+  std::uint32_t requeued = 0;
+  for (std::size_t i = 0; i < admitted_ && i < frames_.size(); ++i) {
+    FrameState& state = frames_[i];
+    for (std::uint32_t index = 0; index < state.tiles.size(); ++index) {
+      TileState& tile = state.tiles[index];
+      if (tile.done || tile.failed || tile.attempts == 0 || now < tile.deadline) continue;
+      const bool queued = std::any_of(queue_.begin(), queue_.end(), [&](const TileTaskRef& task) {
+        return task.frame == state.index && task.tile == index;
+      });
+      if (queued) continue;
+      if (tile.attempts >= maxAttempts_) {
+        tile.failed = true;
+        --state.remaining;
+        ++failed_[state.index];
+        continue;
+      }
+      // Re-issued tiles go first: their frame is the one holding everything up.
+      queue_.push_front({state.index, index, tile.attempts});
+      ++reissued_[state.index];
+      ++requeued;
+    }
+  }
+  return requeued;
+}
+
+std::optional<FrameScheduler::Clock::time_point> FrameScheduler::nextDeadline() const {
+  std::optional<Clock::time_point> earliest;
+  for (std::size_t i = 0; i < admitted_ && i < frames_.size(); ++i) {
+    for (const TileState& tile : frames_[i].tiles) {
+      if (tile.done || tile.failed || tile.attempts == 0) continue;
+      if (!earliest || tile.deadline < *earliest) earliest = tile.deadline;
+    }
+  }
+  return earliest;
+}
+
+std::optional<FrameState> FrameScheduler::popCompleteFrame() {
+  if (frames_.empty() || admitted_ == 0 || frames_.front().remaining != 0) return std::nullopt;
+  FrameState state = std::move(frames_.front());
+  frames_.pop_front();
+  --admitted_;
+  admitFrames();
+  return state;
+}
+
+std::uint32_t FrameScheduler::reissued(std::uint64_t frameIndex) const {
+  const auto found = reissued_.find(frameIndex);
+  return found == reissued_.end() ? 0 : found->second;
+}
+
+std::uint32_t FrameScheduler::failed(std::uint64_t frameIndex) const {
+  const auto found = failed_.find(frameIndex);
+  return found == failed_.end() ? 0 : found->second;
+}
+
+}  // namespace pointillist::display

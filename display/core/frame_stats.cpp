@@ -1,0 +1,393 @@
+#include "display/core/frame_stats.hpp"
+
+#include <algorithm>
+#include <cstdio>
+#include <fstream>
+#include <limits>
+#include <sstream>
+
+#include "common/errors.hpp"
+#include "common/job_layout.hpp"
+
+namespace pointillist::display {
+namespace {
+
+std::string number(double value) {
+  char text[64];
+  std::snprintf(text, sizeof text, "%.9g", value);
+  return text;
+}
+
+std::string optionalNumber(const std::optional<double>& value) {
+  return value ? number(*value) : std::string();
+}
+
+double ratio(double numerator, double denominator) {
+  return denominator > 0.0 ? numerator / denominator : 0.0;
+}
+
+double ratio(std::uint64_t numerator, std::uint64_t denominator) {
+  return ratio(static_cast<double>(numerator), static_cast<double>(denominator));
+}
+
+// Writes next to the target and renames, so readers never see half a file.
+void writeFile(const std::filesystem::path& file, const std::string& text, const char* what) {
+  const auto temporary = std::filesystem::path(file.string() + ".tmp");
+  {
+    std::ofstream out(temporary);
+    out << text;
+    if (!out) throw Error(file.string() + ": cannot write " + what);
+  }
+  std::filesystem::rename(temporary, file);
+}
+
+// The key figures by name, in the order of figures.csv and "key_figures" in
+// stats.json: rates per second, bytes and splats as counts, hit rates 0..1.
+std::vector<std::pair<std::string, std::string>> keyFigureFields(const KeyFigures& k) {
+  const auto count = [](std::uint64_t value) { return std::to_string(value); };
+  return {
+      {"frames", count(k.frames)},
+      {"steady_from", count(k.steadyFrom)},
+      {"render_processes", count(k.renderProcesses)},
+      {"total_seconds", number(k.totalSeconds)},
+      {"frames_per_second", number(k.framesPerSecond)},
+      {"frames_per_second_steady", number(k.framesPerSecondSteady)},
+      {"splats_per_frame", number(k.splatsPerFrame)},
+      {"splats_per_second", number(k.splatsPerSecond)},
+      {"render_splats_per_second_mean", number(k.renderSplatsPerSecondMean)},
+      {"render_splats_per_second_min", number(k.renderSplatsPerSecondMin)},
+      {"render_splats_per_second_max", number(k.renderSplatsPerSecondMax)},
+      {"imbalance_frames", count(k.imbalanceFrames)},
+      {"imbalance_busy", number(k.imbalanceBusy)},
+      {"imbalance_splats", number(k.imbalanceSplats)},
+      {"imbalance_busy_run", number(k.imbalanceBusyRun)},
+      {"bytes_total", count(k.bytesTotal)},
+      {"bytes_first_frame", count(k.bytesFirstFrame)},
+      {"bytes_per_frame_steady", number(k.bytesPerFrameSteady)},
+      {"cache_hits", count(k.cacheHits)},
+      {"cache_misses", count(k.cacheMisses)},
+      {"cache_hit_rate", number(k.cacheHitRate)},
+      {"cache_hit_rate_steady", number(k.cacheHitRateSteady)},
+      {"evictions", count(k.evictions)},
+      {"peak_cache_bytes", count(k.peakCacheBytes)},
+      {"reissued_tiles", count(k.reissuedTiles)},
+      {"failed_tiles", count(k.failedTiles)},
+      {"late_tiles", count(k.lateTiles)},
+  };
+}
+
+}  // namespace
+
+double RunStats::framesPerSecond(std::size_t first) const {
+  if (frames.size() <= first) return 0.0;
+  const double start = first == 0 ? 0.0 : frames[first - 1].endSeconds;
+  const double span = frames.back().endSeconds - start;
+  return span > 0.0 ? static_cast<double>(frames.size() - first) / span : 0.0;
+}
+
+std::size_t RunStats::steadyStart() const {
+  return frames.size() > 4 ? std::min<std::size_t>(3, frames.size() / 4) : 0;
+}
+
+std::size_t RunStats::renderProcessCount() const {
+  std::size_t count = renders.size();
+  for (const FrameRecord& f : frames) count = std::max(count, f.busySecondsPerRender.size());
+  try {
+    if (!layout.empty()) count = std::max<std::size_t>(count, JobLayout::parse(layout).render);
+  } catch (const Error&) {
+    // Not a D,T,S,R layout: count the render processes that reported.
+  }
+  return count;
+}
+
+FrameBalance RunStats::balance(const FrameRecord& frame) const {
+  FrameBalance result;
+  const auto count = static_cast<double>(renderProcessCount());
+  if (count == 0.0) return result;
+  double sumBusy = 0.0, maxSplats = 0.0, sumSplats = 0.0;
+  for (const auto& [rank, busy] : frame.busySecondsPerRender) {
+    result.maxBusySeconds = std::max(result.maxBusySeconds, busy);
+    sumBusy += busy;
+  }
+  for (const auto& [rank, splats] : frame.splatsPerRender) {
+    maxSplats = std::max(maxSplats, static_cast<double>(splats));
+    sumSplats += static_cast<double>(splats);
+  }
+  result.meanBusySeconds = sumBusy / count;
+  if (sumBusy > 0.0) result.busy = result.maxBusySeconds / result.meanBusySeconds;
+  if (sumSplats > 0.0) result.splats = maxSplats / (sumSplats / count);
+  return result;
+}
+
+KeyFigures RunStats::keyFigures() const {
+  KeyFigures k;
+  k.frames = frames.size();
+  k.steadyFrom = steadyStart();
+  k.renderProcesses = renderProcessCount();
+  k.totalSeconds = totalSeconds;
+  k.framesPerSecond = framesPerSecond(0);
+  k.framesPerSecondSteady = framesPerSecond(k.steadyFrom);
+  k.lateTiles = lateTiles;
+
+  const double steadyBegins = k.steadyFrom == 0 ? 0.0 : frames[k.steadyFrom - 1].endSeconds;
+  const double steadySpan = frames.empty() ? 0.0 : frames.back().endSeconds - steadyBegins;
+  std::uint64_t splats = 0, steadyBytes = 0;
+  std::map<int, std::uint64_t> steadySplats;
+  std::map<int, double> steadyBusy;
+  double imbalanceBusy = 0.0, imbalanceSplats = 0.0;
+  std::size_t busyFrames = 0, splatFrames = 0;
+  for (std::size_t i = 0; i < frames.size(); ++i) {
+    const FrameRecord& f = frames[i];
+    const bool steady = i >= k.steadyFrom;
+    splats += f.splats;
+    k.bytesTotal += f.bytesOrdered;
+    k.reissuedTiles += f.reissuedTiles;
+    k.failedTiles += f.failedTiles;
+    for (const auto& [rank, s] : f.splatsPerRender) {
+      k.renders[rank].splats += s;
+      if (steady) steadySplats[rank] += s;
+    }
+    for (const auto& [rank, b] : f.busySecondsPerRender) k.renders[rank].busySeconds += b;
+    if (!steady) continue;
+    for (const auto& [rank, b] : f.busySecondsPerRender) steadyBusy[rank] += b;
+    steadyBytes += f.bytesOrdered;
+    const FrameBalance b = balance(f);
+    if (b.busy) {
+      imbalanceBusy += *b.busy;
+      ++busyFrames;
+    }
+    if (b.splats) {
+      imbalanceSplats += *b.splats;
+      ++splatFrames;
+    }
+  }
+  const std::size_t steadyFrames = k.frames - std::min(k.frames, k.steadyFrom);
+  k.splatsPerFrame = ratio(static_cast<double>(splats), static_cast<double>(k.frames));
+  k.splatsPerSecond = ratio(static_cast<double>(splats), totalSeconds);
+  k.imbalanceFrames = std::max(busyFrames, splatFrames);
+  k.imbalanceBusy = ratio(imbalanceBusy, static_cast<double>(busyFrames));
+  k.imbalanceSplats = ratio(imbalanceSplats, static_cast<double>(splatFrames));
+  {
+    double most = 0.0, total = 0.0;
+    for (const auto& [rank, busy] : steadyBusy) {
+      most = std::max(most, busy);
+      total += busy;
+    }
+    const double processes = static_cast<double>(std::max(k.renderProcesses, steadyBusy.size()));
+    k.imbalanceBusyRun = total > 0.0 ? most * processes / total : 0.0;
+  }
+  if (!frames.empty()) k.bytesFirstFrame = frames.front().bytesOrdered;
+  k.bytesPerFrameSteady = ratio(steadyBytes, steadyFrames);
+
+  double sumRate = 0.0;
+  double minRate = std::numeric_limits<double>::infinity();
+  for (auto& [rank, r] : k.renders) {
+    r.splatsPerSecond = ratio(static_cast<double>(r.splats), totalSeconds);
+    r.splatsPerSecondSteady = ratio(static_cast<double>(steadySplats[rank]), steadySpan);
+    r.splatsPerBusySecond = ratio(static_cast<double>(r.splats), r.busySeconds);
+    r.busyFraction = ratio(r.busySeconds, totalSeconds);
+    sumRate += r.splatsPerSecondSteady;
+    minRate = std::min(minRate, r.splatsPerSecondSteady);
+    k.renderSplatsPerSecondMax = std::max(k.renderSplatsPerSecondMax, r.splatsPerSecondSteady);
+  }
+  // A render process of the job that never drew counts with 0 splats/s.
+  if (k.renders.size() < k.renderProcesses) minRate = 0.0;
+  k.renderSplatsPerSecondMin = k.renders.empty() ? 0.0 : minRate;
+  k.renderSplatsPerSecondMean = ratio(sumRate, static_cast<double>(k.renderProcesses));
+
+  for (const auto& [rank, samples] : renders) {
+    if (samples.empty()) continue;
+    const RenderSample& last = samples.back();
+    k.cacheHits += last.cacheHits;
+    k.cacheMisses += last.cacheMisses;
+    k.evictions += last.evictions;
+    k.peakCacheBytes = std::max(k.peakCacheBytes, last.peakCacheBytes);
+    // The counters are cumulative: subtract those reported before steady state.
+    RenderSample before;
+    for (const RenderSample& s : samples) {
+      if (k.steadyFrom == 0 || s.seconds > steadyBegins) break;
+      before = s;
+    }
+    k.cacheHitsSteady += last.cacheHits - std::min(last.cacheHits, before.cacheHits);
+    k.cacheMissesSteady += last.cacheMisses - std::min(last.cacheMisses, before.cacheMisses);
+  }
+  k.cacheHitRate = ratio(k.cacheHits, k.cacheHits + k.cacheMisses);
+  k.cacheHitRateSteady = ratio(k.cacheHitsSteady, k.cacheHitsSteady + k.cacheMissesSteady);
+  return k;
+}
+
+std::string RunStats::toJson() const {
+  std::ostringstream out;
+  out << "{\n  \"layout\": \"" << layout << "\",\n  \"dataset\": \"" << dataset
+      << "\",\n  \"camera_path\": \"" << cameraPath << "\",\n  \"width\": " << width
+      << ",\n  \"height\": " << height << ",\n  \"mode\": \"" << mode
+      << "\",\n  \"total_seconds\": " << number(totalSeconds)
+      << ",\n  \"late_tiles\": " << lateTiles << ",\n  \"key_figures\": {";
+  bool firstField = true;
+  for (const auto& [name, value] : keyFigureFields(keyFigures())) {
+    out << (firstField ? "" : ", ") << '"' << name << "\": " << value;
+    firstField = false;
+  }
+  out << "},\n  \"frames\": [\n";
+  for (std::size_t i = 0; i < frames.size(); ++i) {
+    const FrameRecord& f = frames[i];
+    out << "    {\"frame\": " << f.frame << ", \"start\": " << number(f.startSeconds)
+        << ", \"end\": " << number(f.endSeconds)
+        << ", \"seconds\": " << number(f.endSeconds - f.startSeconds)
+        << ", \"splats\": " << f.splats << ", \"tiles\": " << f.tiles
+        << ", \"reissued_tiles\": " << f.reissuedTiles << ", \"failed_tiles\": " << f.failedTiles
+        << ", \"bytes_sent\": " << f.bytesOrdered << ", \"splats_per_render\": {";
+    bool first = true;
+    for (const auto& [rank, splats] : f.splatsPerRender) {
+      out << (first ? "" : ", ") << '"' << rank << "\": " << splats;
+      first = false;
+    }
+    out << "}, \"busy_seconds_per_render\": {";
+    first = true;
+    for (const auto& [rank, busy] : f.busySecondsPerRender) {
+      out << (first ? "" : ", ") << '"' << rank << "\": " << number(busy);
+      first = false;
+    }
+    out << "}}" << (i + 1 < frames.size() ? "," : "") << "\n";
+  }
+  out << "  ],\n  \"renders\": {\n";
+  std::size_t index = 0;
+  for (const auto& [rank, samples] : renders) {
+    out << "    \"" << rank << "\": [";
+    for (std::size_t i = 0; i < samples.size(); ++i) {
+      const RenderSample& s = samples[i];
+      out << (i ? ", " : "") << "{\"t\": " << number(s.seconds) << ", \"frame\": " << s.frame
+          << ", \"workload\": " << s.workloadSplats << ", \"cache_bytes\": " << s.cacheBytes
+          << ", \"peak_cache_bytes\": " << s.peakCacheBytes << ", \"hits\": " << s.cacheHits
+          << ", \"misses\": " << s.cacheMisses << ", \"evictions\": " << s.evictions
+          << ", \"data_bytes\": " << s.dataBytesReceived << "}";
+    }
+    out << "]" << (++index < renders.size() ? "," : "") << "\n";
+  }
+  out << "  }\n}\n";
+  return out.str();
+}
+
+void RunStats::writeJson(const std::filesystem::path& file) const {
+  writeFile(file, toJson(), "statistics");
+}
+
+// Four CSV files with a header line each; times in seconds since the run
+// began, bytes and splats as counts. An imbalance is empty when undefined (no
+// render process was busy in that frame).
+//   frames.csv: frame,start,end,seconds,splats,tiles,reissued,failed,bytes_sent,
+//               max_render_busy,mean_render_busy,imbalance_busy,imbalance_splats
+//   renders.csv: t,frame,render_rank,workload,cache_bytes,hits,misses,evictions,
+//                data_bytes (one line per tile that came back, grouped by render
+//                rank, in time order; hits, misses, evictions and data_bytes are
+//                totals since the start)
+//   per_frame_render.csv: frame,render_rank,splats,busy_seconds
+//   figures.csv: one line of keyFigures(), the columns of keyFigureFields()
+void RunStats::writeCsv(const std::filesystem::path& dir) const {
+  std::ostringstream framesCsv, rendersCsv, perFrameCsv;
+  framesCsv << "frame,start,end,seconds,splats,tiles,reissued,failed,bytes_sent,max_render_busy,"
+               "mean_render_busy,imbalance_busy,imbalance_splats,bytes_prefetched\n";
+  perFrameCsv << "frame,render_rank,splats,busy_seconds\n";
+  for (const FrameRecord& f : frames) {
+    const FrameBalance b = balance(f);
+    framesCsv << f.frame << ',' << number(f.startSeconds) << ',' << number(f.endSeconds) << ','
+              << number(f.endSeconds - f.startSeconds) << ',' << f.splats << ',' << f.tiles << ','
+              << f.reissuedTiles << ',' << f.failedTiles << ',' << f.bytesOrdered << ','
+              << number(b.maxBusySeconds) << ',' << number(b.meanBusySeconds) << ','
+              << optionalNumber(b.busy) << ',' << optionalNumber(b.splats) << ','
+              << f.bytesPrefetched << '\n';
+    std::map<int, std::pair<std::uint64_t, double>> perRender;
+    for (const auto& [rank, s] : f.splatsPerRender) perRender[rank].first = s;
+    for (const auto& [rank, busy] : f.busySecondsPerRender) perRender[rank].second = busy;
+    for (const auto& [rank, work] : perRender) {
+      perFrameCsv << f.frame << ',' << rank << ',' << work.first << ',' << number(work.second)
+                  << '\n';
+    }
+  }
+  rendersCsv << "t,frame,render_rank,workload,cache_bytes,hits,misses,evictions,data_bytes\n";
+  for (const auto& [rank, samples] : renders) {
+    for (const RenderSample& s : samples) {
+      rendersCsv << number(s.seconds) << ',' << s.frame << ',' << rank << ',' << s.workloadSplats
+                 << ',' << s.cacheBytes << ',' << s.cacheHits << ',' << s.cacheMisses << ','
+                 << s.evictions << ',' << s.dataBytesReceived << '\n';
+    }
+  }
+  std::ostringstream tilesCsv;
+  tilesCsv << "frame,tile,attempt,render_rank,traverse_rank,dispatched,arrived,queued_seconds,"
+              "data_wait_seconds,render_seconds,splats,pixels,ordered_bytes,prefetch_bytes\n";
+  for (const TileRecord& t : tiles) {
+    tilesCsv << t.frame << ',' << t.tile << ',' << t.attempt << ',' << t.renderRank << ','
+             << t.traverseRank << ',' << number(t.dispatchedSeconds) << ','
+             << number(t.arrivedSeconds) << ',' << number(t.queuedSeconds) << ','
+             << number(t.dataWaitSeconds) << ',' << number(t.renderSeconds) << ',' << t.splats
+             << ',' << t.pixels << ',' << t.orderedBytes << ',' << t.prefetchBytes << '\n';
+  }
+  writeFile(dir / "tiles.csv", tilesCsv.str(), "tile statistics");
+  std::string header, row;
+  for (const auto& [name, value] : keyFigureFields(keyFigures())) {
+    header += (header.empty() ? "" : ",") + name;
+    row += (row.empty() ? "" : ",") + value;
+  }
+  writeFile(dir / "frames.csv", framesCsv.str(), "frame statistics");
+  writeFile(dir / "renders.csv", rendersCsv.str(), "render statistics");
+  writeFile(dir / "per_frame_render.csv", perFrameCsv.str(), "per-frame render statistics");
+  writeFile(dir / "figures.csv", header + "\n" + row + "\n", "key figures");
+}
+
+std::string RunStats::summary() const {
+  const KeyFigures k = keyFigures();
+  std::ostringstream out;
+  char line[512];
+  std::snprintf(
+      line, sizeof line,
+      "frames: %zu in %.2f s: %.2f frames/s overall, %.2f frames/s steady (from frame %zu)\n",
+      k.frames, k.totalSeconds, k.framesPerSecond, k.framesPerSecondSteady, k.steadyFrom);
+  out << line;
+  std::snprintf(line, sizeof line, "splats: %.2f M per frame, %.2f M splats/s overall\n",
+                k.splatsPerFrame / 1e6, k.splatsPerSecond / 1e6);
+  out << line;
+  for (const auto& [rank, r] : k.renders) {
+    std::snprintf(line, sizeof line,
+                  "  render rank %d: %.2f M splats, %.2f M splats/s of wall time (%.2f M steady), "
+                  "%.2f M splats/s while busy (%.0f%% busy)\n",
+                  rank, static_cast<double>(r.splats) / 1e6, r.splatsPerSecond / 1e6,
+                  r.splatsPerSecondSteady / 1e6, r.splatsPerBusySecond / 1e6,
+                  100.0 * r.busyFraction);
+    out << line;
+  }
+  std::snprintf(line, sizeof line,
+                "splats/s per render (steady, wall time): mean %.2f M, min %.2f M, max %.2f M "
+                "over %zu render processes\n",
+                k.renderSplatsPerSecondMean / 1e6, k.renderSplatsPerSecondMin / 1e6,
+                k.renderSplatsPerSecondMax / 1e6, k.renderProcesses);
+  out << line;
+  if (k.imbalanceFrames > 0) {
+    std::snprintf(line, sizeof line,
+                  "imbalance (steady, max/mean per frame): busy time %.2f, splats %.2f; "
+                  "busy time over the run %.2f\n",
+                  k.imbalanceBusy, k.imbalanceSplats, k.imbalanceBusyRun);
+    out << line;
+  }
+  std::snprintf(line, sizeof line,
+                "bytes sent: %.2f MiB total, first frame %.2f MiB, %.3f MiB per frame steady\n",
+                static_cast<double>(k.bytesTotal) / 1048576.0,
+                static_cast<double>(k.bytesFirstFrame) / 1048576.0,
+                k.bytesPerFrameSteady / 1048576.0);
+  out << line;
+  std::snprintf(line, sizeof line,
+                "cache: hit rate %.1f%% (%llu hits, %llu misses), %.1f%% steady, %llu evictions, "
+                "peak %.2f MiB on one render\n",
+                100.0 * k.cacheHitRate, static_cast<unsigned long long>(k.cacheHits),
+                static_cast<unsigned long long>(k.cacheMisses), 100.0 * k.cacheHitRateSteady,
+                static_cast<unsigned long long>(k.evictions),
+                static_cast<double>(k.peakCacheBytes) / 1048576.0);
+  out << line;
+  std::snprintf(line, sizeof line, "tiles: %llu re-issued, %llu failed, %llu late\n",
+                static_cast<unsigned long long>(k.reissuedTiles),
+                static_cast<unsigned long long>(k.failedTiles),
+                static_cast<unsigned long long>(k.lateTiles));
+  out << line;
+  return out.str();
+}
+
+}  // namespace pointillist::display

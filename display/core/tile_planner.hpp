@@ -1,0 +1,71 @@
+#pragma once
+// How the display lays out each frame's tiles and, for the baseline schedulers,
+// which render process draws each tile (MPI-free; the simulator drives it too).
+//
+//   cost        seed 003: tiles sized so each holds about the same work, as
+//               measured on the last completed frame; the traverse picks the
+//               render process with the cost function.
+//   round-robin equal tiles handed out in turn.
+//   static      equal tiles, tile i always to render i mod R.
+//   equalizer   one strip per render, borders moved from last frame's times.
+#include <cstdint>
+#include <optional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "common/camera.hpp"
+#include "display/core/load_equalizer.hpp"
+
+namespace pointillist::display {
+
+enum class SchedulerKind { Cost, RoundRobin, Static, Equalizer };
+
+// Throws UsageError naming the accepted names.
+SchedulerKind parseSchedulerKind(const std::string& name);
+std::string schedulerName(SchedulerKind kind);
+v1::Scheduler schedulerMessage(SchedulerKind kind);
+
+struct TilePlanOptions {
+  SchedulerKind scheduler = SchedulerKind::Cost;
+  std::uint32_t renders = 1;
+  double tilesPerRender = 2.0;
+  std::uint32_t minTileSize = 32;
+  // Cost scheduler: size tiles by last frame's measured work (off: equal grid).
+  bool balancedTiles = true;
+};
+
+// What one tile of a completed frame took.
+struct TileFeedback {
+  TileRect rect;
+  double seconds = 0.0;      // render time on its render process
+  std::uint64_t splats = 0;  // splats drawn
+};
+
+class TilePlanner {
+ public:
+  explicit TilePlanner(const TilePlanOptions& options);
+
+  // Tiles covering `area` exactly once.
+  std::vector<TileRect> plan(const TileRect& area);
+  // The render process (index among renders) that draws tile `tileIndex` of
+  // its frame, asked when the tile is handed out (round-robin deals in that
+  // order); nullopt when the traverse decides (cost).
+  std::optional<std::uint32_t> assign(std::uint32_t tileIndex);
+  // Feedback from a completed frame, tiles in the order plan() gave them.
+  void frameDone(std::span<const TileFeedback> tiles);
+
+  const TilePlanOptions& options() const { return options_; }
+
+ private:
+  std::vector<TileRect> balancedSplit(const TileRect& area, std::uint32_t target) const;
+  double estimatedWork(const TileRect& rect) const;
+
+  TilePlanOptions options_;
+  LoadEqualizer equalizer_;
+  std::uint64_t roundRobin_ = 0;
+  std::vector<TileFeedback> density_;  // last completed frame, splats spread over each rect
+  bool equalizerStrips_ = false;       // the last plan used the equalizer's strips
+};
+
+}  // namespace pointillist::display

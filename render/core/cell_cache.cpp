@@ -1,0 +1,96 @@
+#include "render/core/cell_cache.hpp"
+
+#include <algorithm>
+
+#include "common/errors.hpp"
+
+namespace pointillist::render {
+
+CellCache::CellCache(std::uint64_t capBytes, std::chrono::milliseconds timeout)
+    : capBytes_(capBytes), timeout_(timeout) {
+  if (capBytes_ == 0) throw UsageError("the render cache needs a cap above 0 bytes");
+}
+
+void CellCache::touch(std::uint32_t cell, Clock::time_point now) {
+  auto found = entries_.find(cell);
+  if (found == entries_.end()) return;
+  found->second.lastUsed = now;
+  recency_.splice(recency_.end(), recency_, found->second.position);
+}
+
+std::vector<std::uint32_t> CellCache::insert(std::uint32_t cell, std::uint64_t bytes,
+                                             Clock::time_point now) {
+  std::vector<std::uint32_t> evicted;
+  if (contains(cell)) {
+    touch(cell, now);
+    return evicted;
+  }
+  for (auto it = recency_.begin(); it != recency_.end() && bytes_ + bytes > capBytes_;) {
+    const std::uint32_t victim = *it++;
+    if (pinned(victim)) continue;
+    evicted.push_back(victim);
+    erase(victim);
+  }
+  if (bytes_ + bytes > capBytes_) ++overCapInsertions_;
+  recency_.push_back(cell);
+  entries_[cell] = Entry{bytes, now, std::prev(recency_.end())};
+  bytes_ += bytes;
+  peakBytes_ = std::max(peakBytes_, bytes_);
+  return evicted;
+}
+
+std::vector<std::uint32_t> CellCache::expire(Clock::time_point now) {
+  std::vector<std::uint32_t> evicted;
+  for (auto it = recency_.begin(); it != recency_.end();) {
+    const std::uint32_t cell = *it++;
+    const Entry& entry = entries_.at(cell);
+    if (now - entry.lastUsed <= timeout_) break;  // the rest were used more recently
+    if (pinned(cell)) continue;
+    evicted.push_back(cell);
+    erase(cell);
+  }
+  return evicted;
+}
+
+bool CellCache::canFit(std::uint64_t bytes) const {
+  std::uint64_t pinnedBytes = 0;
+  for (const auto& [cell, count] : pins_) {
+    if (const auto found = entries_.find(cell); found != entries_.end()) {
+      pinnedBytes += found->second.bytes;
+    }
+  }
+  return pinnedBytes + bytes <= capBytes_;
+}
+
+void CellCache::pin(std::uint32_t cell) {
+  ++pins_[cell];
+}
+
+void CellCache::unpin(std::uint32_t cell) {
+  auto found = pins_.find(cell);
+  if (found == pins_.end()) return;
+  if (--found->second == 0) pins_.erase(found);
+}
+
+bool CellCache::pinned(std::uint32_t cell) const {
+  return pins_.contains(cell);
+}
+
+std::vector<std::uint32_t> CellCache::lruOrder() const {
+  return {recency_.begin(), recency_.end()};
+}
+
+std::optional<CellCache::Clock::time_point> CellCache::oldestUse() const {
+  if (recency_.empty()) return std::nullopt;
+  return entries_.at(recency_.front()).lastUsed;
+}
+
+void CellCache::erase(std::uint32_t cell) {
+  auto found = entries_.find(cell);
+  bytes_ -= found->second.bytes;
+  recency_.erase(found->second.position);
+  entries_.erase(found);
+  ++evictions_;
+}
+
+}  // namespace pointillist::render

@@ -1,0 +1,68 @@
+#pragma once
+// The render process's cache of top-level cells (seed 003 §4.5): least
+// recently used cells go first when the memory cap is reached, and cells unused
+// for longer than the time-out are dropped. Cells needed by queued render
+// packets are pinned and never evicted. The cache only keeps the books; the
+// caller owns the data (GL buffers) and is told what to drop.
+#include <chrono>
+#include <cstdint>
+#include <list>
+#include <optional>
+#include <unordered_map>
+#include <vector>
+
+namespace pointillist::render {
+
+class CellCache {
+ public:
+  using Clock = std::chrono::steady_clock;
+
+  CellCache(std::uint64_t capBytes, std::chrono::milliseconds timeout);
+
+  bool contains(std::uint32_t cell) const { return entries_.contains(cell); }
+  // Marks a cell used now (moves it to the most recent end).
+  void touch(std::uint32_t cell, Clock::time_point now);
+  // Adds a cell of `bytes`, first evicting least recently used unpinned cells
+  // until it fits under the cap. Returns the evicted cells. When pinned cells
+  // alone exceed the cap the cell is still added (counted in overCapInsertions).
+  std::vector<std::uint32_t> insert(std::uint32_t cell, std::uint64_t bytes, Clock::time_point now);
+  // True when `bytes` more fit under the cap once every unpinned cell is evicted.
+  bool canFit(std::uint64_t bytes) const;
+  // Evicts unpinned cells unused for longer than the time-out.
+  std::vector<std::uint32_t> expire(Clock::time_point now);
+  // Pins count per cell; a pin may be taken before the cell arrives.
+  void pin(std::uint32_t cell);
+  void unpin(std::uint32_t cell);
+  bool pinned(std::uint32_t cell) const;
+
+  std::uint64_t bytes() const { return bytes_; }
+  std::uint64_t peakBytes() const { return peakBytes_; }
+  std::uint64_t capBytes() const { return capBytes_; }
+  std::size_t size() const { return entries_.size(); }
+  std::uint64_t evictions() const { return evictions_; }
+  std::uint64_t overCapInsertions() const { return overCapInsertions_; }
+  // Least recently used first.
+  std::vector<std::uint32_t> lruOrder() const;
+  // When the least recently used cell was last used; nullopt when empty.
+  std::optional<Clock::time_point> oldestUse() const;
+
+ private:
+  struct Entry {
+    std::uint64_t bytes = 0;
+    Clock::time_point lastUsed;
+    std::list<std::uint32_t>::iterator position;
+  };
+  void erase(std::uint32_t cell);
+
+  std::uint64_t capBytes_;
+  std::chrono::milliseconds timeout_;
+  std::list<std::uint32_t> recency_;  // front: least recently used
+  std::unordered_map<std::uint32_t, Entry> entries_;
+  std::unordered_map<std::uint32_t, std::uint32_t> pins_;
+  std::uint64_t bytes_ = 0;
+  std::uint64_t peakBytes_ = 0;
+  std::uint64_t evictions_ = 0;
+  std::uint64_t overCapInsertions_ = 0;
+};
+
+}  // namespace pointillist::render

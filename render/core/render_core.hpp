@@ -1,0 +1,162 @@
+#pragma once
+// Every decision of a render process (seed 003 §4.4-4.5), without MPI or GL:
+// the queue of render packets, the cache of top-level cells (LRU with time-out
+// and a memory cap), which cells to ask data-send for and when to ask again,
+// the measured rates T_s and T_n, and the reports to traverse and data-send.
+//
+// The core is told what arrived and `now`; it answers with what to send (an
+// Outbox) and which cells' data the caller must drop. The MPI render process
+// and the simulator both drive this class; neither decides anything itself.
+#include <chrono>
+#include <cstdint>
+#include <deque>
+#include <optional>
+#include <span>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "common/clock.hpp"
+#include "common/messages.hpp"
+#include "common/octree_cell.hpp"
+#include "common/peer_ranks.hpp"
+#include "common/rate_estimates.hpp"
+#include "render/core/cell_cache.hpp"
+
+namespace pointillist::render {
+
+struct RenderCoreConfig {
+  std::uint64_t cacheCapBytes = 1ull << 30;
+  std::chrono::milliseconds cacheTimeout{30'000};
+  // Test hook: after this many packets the process stops drawing (a stalled
+  // render process); it still takes messages and reports.
+  std::optional<std::uint64_t> stallAfterPackets;
+};
+
+// How often the cache is checked for expired cells and late data re-asked.
+inline constexpr std::chrono::milliseconds kRenderMaintenancePeriod{250};
+// Data asked for longer ago than this is asked for again.
+inline constexpr std::chrono::milliseconds kRerequestAfter{1000};
+// T_n is sampled from payloads of at least this many bytes, T_s from packets of
+// at least this many splats: smaller ones measure overheads, not rates.
+inline constexpr std::uint64_t kMinTransferSampleBytes = 4096;
+inline constexpr std::uint64_t kMinDrawSampleSplats = 1000;
+
+// What the caller must do besides sending: drop the data of these cells.
+struct RenderEffects {
+  Outbox messages;
+  std::vector<std::uint32_t> released;
+};
+
+enum class DataVerdict {
+  Store,      // keep the data (upload it)
+  Duplicate,  // already cached: ignore it
+  Dropped,    // prefetched data with no room beside the packet waited for
+};
+
+// A packet whose data is all cached, handed to the caller to draw.
+struct ReadyPacket {
+  v1::RenderPacket packet;
+  TimePoint arrived;
+  TimePoint dataComplete;
+};
+
+class RenderCore {
+ public:
+  RenderCore(const RenderCoreConfig& config, PeerRanks peers, int selfRank,
+             std::span<const TopLevelCell> topLevel, std::vector<std::uint32_t> owners);
+
+  // A render packet from traverse `sourceRank`. Cells neither cached nor asked
+  // for are asked for (the traverse ordered them already; asking too covers a
+  // cell evicted after the traverse last heard from us).
+  void receivePacket(int sourceRank, v1::RenderPacket packet, TimePoint now,
+                     RenderEffects& effects);
+
+  // The data of `cell` arrived (its checksum already checked). Throws
+  // ProtocolError when its size does not match the dataset's table.
+  DataVerdict receiveData(std::uint32_t cell, std::uint64_t bytes, double transferSeconds,
+                          TimePoint now, RenderEffects& effects);
+
+  // Between messages: maintenance (expired cells, late data asked again),
+  // pins the head packet's cells, and hands out the first packet whose data
+  // is all here. When there is none, a pending report goes out.
+  std::optional<ReadyPacket> nextPacket(TimePoint now, RenderEffects& effects);
+
+  // The caller drew `packet`: `splats` in `seconds`. Returns the tile image's
+  // header (the caller adds the pixels); the report goes out.
+  v1::TileImageHeader packetDrawn(const ReadyPacket& packet, std::uint64_t splats, double seconds,
+                                  TimePoint now, RenderEffects& effects);
+
+  // When nextPacket() next has maintenance to do (a simulated process sleeps
+  // until then); nullopt when nothing is cached or asked for.
+  std::optional<TimePoint> nextMaintenance() const;
+
+  int selfRank() const { return selfRank_; }
+  // For the summary line and tests.
+  const CellCache& cache() const { return cache_; }
+  std::size_t queuedPackets() const { return queue_.size(); }
+  std::uint64_t workloadSplats() const { return workload_; }
+  std::uint64_t packetsDone() const { return packetsDone_; }
+  std::uint64_t splatsDone() const { return splatsDone_; }
+  std::uint64_t hits() const { return hits_; }
+  std::uint64_t misses() const { return misses_; }
+  std::uint64_t dataBytesReceived() const { return dataBytesReceived_; }
+  std::uint64_t droppedPrefetches() const { return droppedPrefetches_; }
+  double busySeconds() const { return busySeconds_; }
+  double secondsPerSplat() const { return secondsPerSplat_; }
+  double secondsPerByte() const { return secondsPerByte_; }
+  bool stalled() const;
+  bool pinned(std::uint32_t cell) const { return cache_.pinned(cell); }
+  bool requested(std::uint32_t cell) const { return requestedAt_.contains(cell); }
+  std::string summary() const;
+
+ private:
+  struct QueuedPacket {
+    v1::RenderPacket packet;
+    TimePoint arrived;
+    std::optional<TimePoint> dataComplete;
+    std::uint64_t sequence = 0;
+  };
+  using Requests = std::unordered_map<std::uint32_t, std::vector<std::uint32_t>>;
+
+  void pinHeadPacket(TimePoint now, RenderEffects& effects);
+  bool ready(const v1::RenderPacket& packet) const;
+  void ask(std::uint32_t cell, std::uint64_t frame, TimePoint now, Requests& requests);
+  void sendRequests(Requests& requests, std::uint64_t frame, RenderEffects& effects);
+  void rerequestLateCells(TimePoint now, RenderEffects& effects);
+  void evict(std::uint32_t cell, RenderEffects& effects);
+  void sendReport(RenderEffects& effects);
+
+  RenderCoreConfig config_;
+  PeerRanks peers_;
+  int selfRank_;
+  std::vector<std::uint64_t> cellBytes_;
+  std::vector<std::uint32_t> owners_;
+  CellCache cache_;
+  std::deque<QueuedPacket> queue_;
+  std::uint64_t packetsQueued_ = 0;
+  std::uint64_t pinnedSequence_ = 0;
+  std::vector<std::uint32_t> pinnedCells_;
+  // cell -> when it was asked for and for which frame
+  std::unordered_map<std::uint32_t, std::pair<TimePoint, std::uint64_t>> requestedAt_;
+  std::vector<std::uint32_t> loaded_;
+  std::vector<std::uint32_t> evicted_;
+  std::vector<std::uint64_t> lastPacketFrom_;  // per traverse
+  std::optional<TimePoint> lastMaintenance_;
+  bool reportDirty_ = true;  // the first idle moment announces the process
+  std::uint64_t reportSequence_ = 0;
+  std::uint64_t orderSequence_ = 0;
+  std::uint64_t workload_ = 0;
+  std::uint64_t packetsDone_ = 0;
+  std::uint64_t splatsDone_ = 0;
+  std::uint64_t hits_ = 0;
+  std::uint64_t misses_ = 0;
+  std::uint64_t dataBytesReceived_ = 0;
+  std::uint64_t droppedPrefetches_ = 0;
+  double busySeconds_ = 0.0;
+  double secondsPerSplat_ = 0.0;
+  double secondsPerByte_ = 0.0;
+  RecentSamples transferSamples_{32};  // T_n: their lower quartile
+};
+
+}  // namespace pointillist::render

@@ -1,0 +1,190 @@
+// pointillist-bench-render: splats per second of each render path (mode x GL
+// profile) at given frame sizes, for random and for clustered splats. One
+// frame = clear + draw all splats from cached cells + glFinish; the median of
+// --frames timed frames after one warm-up frame is reported. Not a test.
+//
+// Scenes (both fill the view of a cameraForBounds camera; radii give splats of
+// about --pixels pixels across on screen):
+//   random:    uniform in a box, stored in random order (no locality);
+//   clustered: points on a wavy surface, stored in spatially coherent order
+//              (like octree leaves), so consecutive splats land close by.
+#include <CLI/CLI.hpp>
+
+#include "common/tool_entry.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <ctime>
+#include <exception>
+#include <random>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "common/camera.hpp"
+#include "common/errors.hpp"
+#include "render/gl/offscreen_context.hpp"
+#include "render/gl/splat_renderer.hpp"
+
+namespace pointillist::render {
+namespace {
+
+struct Path {
+  SplatMode mode;
+  GlProfile profile;
+  float pointSize;  // points: 0 = from radius
+  std::string name;
+};
+
+std::vector<Splat> makeScene(bool clustered, std::size_t count, std::uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  std::vector<Splat> splats(count);
+  // Side of a grid with `count` cells: clustered points walk it row by row.
+  const auto side = static_cast<std::size_t>(std::ceil(std::sqrt(static_cast<double>(count))));
+  for (std::size_t i = 0; i < count; ++i) {
+    Splat& s = splats[i];
+    glm::vec3 p, n(0.0f, 0.0f, 1.0f);
+    if (clustered) {
+      // Boustrophedon walk over a grid: neighbours in memory are neighbours on screen.
+      const std::size_t row = i / side, col = (row % 2 == 0) ? i % side : side - 1 - i % side;
+      const float x = (static_cast<float>(col) + 0.5f) / static_cast<float>(side) * 2.0f - 1.0f;
+      const float y = (static_cast<float>(row) + 0.5f) / static_cast<float>(side) * 2.0f - 1.0f;
+      const float h = 0.15f * std::sin(4.0f * x) * std::cos(3.0f * y);
+      p = {x + 0.2f * u(rng) / static_cast<float>(side), y, h};
+      n = glm::normalize(glm::vec3(-0.6f * std::cos(4.0f * x) * std::cos(3.0f * y),
+                                   0.45f * std::sin(4.0f * x) * std::sin(3.0f * y), 1.0f));
+    } else {
+      p = {u(rng), u(rng), 0.3f * u(rng)};
+      n = glm::normalize(glm::vec3(u(rng), u(rng), u(rng)) + glm::vec3(0.0f, 0.0f, 1e-3f));
+    }
+    for (int k = 0; k < 3; ++k) {
+      s.position[k] = p[k];
+      s.normal[k] = n[k];
+    }
+    s.color[0] = static_cast<std::uint8_t>(rng());
+    s.color[1] = static_cast<std::uint8_t>(rng());
+    s.color[2] = static_cast<std::uint8_t>(rng());
+    s.color[3] = 255;
+  }
+  return splats;
+}
+
+// Sets radii so splats are about `pixels` across at the scene centre's depth.
+void setRadii(std::vector<Splat>& splats, const Camera& camera, float pixels) {
+  const float depth = viewDepth(camera, cameraTarget(camera));
+  const float radius = 0.5f * pixels / pixelsPerUnit(camera, depth);
+  for (Splat& s : splats) s.radius = radius;
+}
+
+// Process CPU time (all llvmpipe threads): less sensitive than wall time to
+// other load on a shared machine.
+double cpuSeconds() {
+  timespec t{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+  return static_cast<double>(t.tv_sec) + static_cast<double>(t.tv_nsec) * 1e-9;
+}
+
+std::vector<std::string> split(const std::string& text, char sep) {
+  std::vector<std::string> parts;
+  std::stringstream stream(text);
+  for (std::string part; std::getline(stream, part, sep);) {
+    if (!part.empty()) parts.push_back(part);
+  }
+  return parts;
+}
+
+Path parsePath(const std::string& name) {
+  // <mode>[-const1]/<profile>, e.g. points/compat, points-const1/core, splats/compat
+  const auto slash = name.find('/');
+  if (slash == std::string::npos) throw UsageError("path '" + name + "': want mode/profile");
+  std::string mode = name.substr(0, slash);
+  float pointSize = 0.0f;
+  if (mode == "points-const1") {
+    mode = "points";
+    pointSize = 1.0f;
+  }
+  return {parseSplatMode(mode), parseProfile(name.substr(slash + 1)), pointSize, name};
+}
+
+int run(int argc, char** argv) {
+  CLI::App app{"Pointillist render benchmark: splats/second per render path"};
+  std::size_t count = 2'000'000;
+  int frames = 3;
+  float pixels = 1.5f;
+  std::string sizes = "1280x720,1920x1080";
+  std::string paths =
+      "points/compat,points-const1/compat,points/core,splats/compat,splats/core,blended/compat";
+  std::string scenes = "random,clustered";
+  app.add_option("-n,--count", count, "splats per frame");
+  app.add_option("--frames", frames, "timed frames per case (median reported)")
+      ->check(CLI::Range(1, 100));
+  app.add_option("--pixels", pixels, "splat diameter on screen in pixels (sets radii)");
+  app.add_option("--sizes", sizes, "frame sizes, comma-separated WxH");
+  app.add_option("--paths", paths,
+                 "mode/profile list: {points, points-const1, splats, blended}/{compat, core}");
+  app.add_option("--scenes", scenes, "random,clustered");
+  app.name("pointillist-bench-render");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  const char* threads = std::getenv("LP_NUM_THREADS");
+  std::printf("# %zu splats per frame, ~%.1f px across, median of %d frames; LP_NUM_THREADS=%s\n",
+              count, static_cast<double>(pixels), frames,
+              threads != nullptr ? threads : "(default: all cores)");
+  std::printf("%-20s %-10s %-10s %10s %12s %14s\n", "path", "size", "scene", "ms/frame",
+              "Msplats/s", "Msplats/cpu-s");
+
+  for (const std::string& pathName : split(paths, ',')) {
+    const Path path = parsePath(pathName);
+    OffscreenContext context(1, 1, path.profile);
+    SplatRenderer renderer(context);
+    for (const std::string& sceneName : split(scenes, ',')) {
+      if (sceneName != "random" && sceneName != "clustered") {
+        throw UsageError("unknown scene " + sceneName);
+      }
+      std::vector<Splat> splats = makeScene(sceneName == "clustered", count, 7);
+      for (const std::string& size : split(sizes, ',')) {
+        std::uint32_t w = 0, h = 0;
+        if (std::sscanf(size.c_str(), "%ux%u", &w, &h) != 2) throw UsageError("bad size " + size);
+        const Camera camera =
+            cameraForBounds({-1, -1, -0.3f}, {1, 1, 0.3f}, w, h, 90.0f, 90.0f, 0.75f, 45.0f);
+        setRadii(splats, camera, pixels);
+        renderer.uploadCell(0, splats);
+        RenderSettings settings;
+        settings.mode = path.mode;
+        settings.pointSize = path.pointSize;
+        const DrawRange all{0, 0, static_cast<std::uint32_t>(splats.size())};
+        renderer.render(camera, fullFrameRect(camera), {&all, 1}, settings);  // warm-up, JIT
+        std::vector<double> times, cpu;
+        for (int f = 0; f < frames; ++f) {
+          const double c0 = cpuSeconds();
+          times.push_back(
+              renderer.render(camera, fullFrameRect(camera), {&all, 1}, settings).seconds);
+          cpu.push_back(cpuSeconds() - c0);
+        }
+        std::sort(times.begin(), times.end());
+        std::sort(cpu.begin(), cpu.end());
+        const double median = times[times.size() / 2], medianCpu = cpu[cpu.size() / 2];
+        std::printf("%-20s %-10s %-10s %10.1f %12.2f %14.2f\n", path.name.c_str(), size.c_str(),
+                    sceneName.c_str(), median * 1e3, static_cast<double>(count) / median * 1e-6,
+                    static_cast<double>(count) / medianCpu * 1e-6);
+        std::fflush(stdout);
+      }
+    }
+  }
+  return 0;
+}
+
+}  // namespace
+}  // namespace pointillist::render
+
+int main(int argc, char** argv) {
+  return pointillist::runToolMain("pointillist-bench-render",
+                                  [&] { return pointillist::render::run(argc, argv); });
+}

@@ -1,0 +1,113 @@
+// pointillist-reference: renders the frames of a run in one process, with the
+// same camera path, traversal (level of detail, culling) and shaders as the
+// distributed job. It is the oracle the job's composed frames are checked
+// against (--compare), and the single-process speed baseline.
+#include <CLI/CLI.hpp>
+
+#include "common/tool_entry.hpp"
+
+#include <cstdio>
+#include <filesystem>
+
+#include "common/errors.hpp"
+#include "common/image.hpp"
+#include "common/view_options.hpp"
+#include "render/gl/reference_renderer.hpp"
+
+namespace pointillist::render {
+namespace {
+
+struct ReferenceOptions {
+  std::string datasetPath;
+  ViewOptions view;
+  std::string outDir;
+  std::string compareDir;
+  std::uint64_t maxDifferingPixels = 0;
+  std::string profile = "compat";
+};
+
+int run(int argc, char** argv) {
+  CLI::App app{"Pointillist reference renderer: whole frames in one process, no MPI"};
+  ReferenceOptions options;
+  app.add_option("--dataset", options.datasetPath, "Dataset directory")->required();
+  addViewOptions(app, options.view);
+  app.add_option("--out", options.outDir, "Directory for PNG frames");
+  app.add_option("--compare", options.compareDir,
+                 "Directory of frames (frame_NNNNN.png) to compare with the reference");
+  app.add_option("--max-differing-pixels", options.maxDifferingPixels,
+                 "Pixels a compared frame may differ in");
+  app.add_option("--gl-profile", options.profile, "OSMesa context profile: compat or core");
+  app.name("pointillist-reference");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& error) {
+    return app.exit(error);
+  }
+
+  const Dataset dataset = Dataset::open(options.datasetPath, DatasetParts::All);
+  const auto cameras = viewCameras(options.view, datasetBounds(dataset.manifest()));
+  traverse::TraversalSettings traversal;
+  traversal.lodPixels = options.view.lodPixels;
+  traversal.sizeScale = options.view.sizeScale;
+  traversal.backfaceCull = !options.view.noBackfaceCull;
+  const SplatMode mode = splatModeFromProto(parseRenderMode(options.view.mode));
+  if (!options.outDir.empty()) std::filesystem::create_directories(options.outDir);
+
+  ReferenceRenderer renderer(dataset, parseProfile(options.profile));
+  double renderSeconds = 0.0;
+  double traverseSeconds = 0.0;
+  std::uint64_t splats = 0;
+  int mismatches = 0;
+  for (std::size_t index = 0; index < cameras.size(); ++index) {
+    ReferenceFrame frame = renderer.render(cameras[index], traversal, mode);
+    renderSeconds += frame.renderSeconds;
+    traverseSeconds += frame.traverseSeconds;
+    splats += frame.splats;
+    char name[64];
+    std::snprintf(name, sizeof name, "frame_%05zu.png", index);
+    if (!options.outDir.empty()) {
+      writePng(frame.image, std::filesystem::path(options.outDir) / name, true);
+    }
+    std::printf("reference frame %4zu: %6.2f M splats, traverse %6.1f ms, render %7.1f ms", index,
+                static_cast<double>(frame.splats) / 1e6, frame.traverseSeconds * 1e3,
+                frame.renderSeconds * 1e3);
+    if (!options.compareDir.empty()) {
+      const Image other = readPng(std::filesystem::path(options.compareDir) / name);
+      // The job writes RGB PNGs; compare what both files hold.
+      const Image expected = decodePng(encodePng(frame.image, true));
+      const ImageDiff diff = compareImages(expected, other);
+      std::printf(", %llu pixels differ (max channel difference %d)",
+                  static_cast<unsigned long long>(diff.differingPixels), diff.maxChannelDifference);
+      if (diff.differingPixels > options.maxDifferingPixels) {
+        ++mismatches;
+        std::printf(" MISMATCH, first at (%u, %u)", diff.firstX, diff.firstY);
+      }
+    }
+    std::printf("\n");
+  }
+  const double seconds = renderSeconds + traverseSeconds;
+  std::printf(
+      "reference: %zu frames, %.2f frames/s, %.2f M splats/s rendering (%.2f M splats per frame)\n",
+      cameras.size(), seconds > 0.0 ? static_cast<double>(cameras.size()) / seconds : 0.0,
+      renderSeconds > 0.0 ? static_cast<double>(splats) / 1e6 / renderSeconds : 0.0,
+      cameras.empty() ? 0.0
+                      : static_cast<double>(splats) / 1e6 / static_cast<double>(cameras.size()));
+  if (mismatches > 0) {
+    std::fprintf(stderr,
+                 "pointillist-reference: %d frame(s) differ from %s by more than %llu pixels\n",
+                 mismatches, options.compareDir.c_str(),
+                 static_cast<unsigned long long>(options.maxDifferingPixels));
+    return 1;
+  }
+  if (!options.compareDir.empty())
+    std::printf("reference: every frame matches %s\n", options.compareDir.c_str());
+  return 0;
+}
+
+}  // namespace
+}  // namespace pointillist::render
+
+int main(int argc, char** argv) {
+  return pointillist::runToolMain("pointillist-reference",
+                                  [&] { return pointillist::render::run(argc, argv); });
+}

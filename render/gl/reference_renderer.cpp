@@ -1,0 +1,40 @@
+#include "render/gl/reference_renderer.hpp"
+
+#include <chrono>
+
+namespace pointillist::render {
+
+ReferenceRenderer::ReferenceRenderer(const Dataset& dataset, GlProfile profile)
+    : dataset_(dataset), context_(64, 64, profile), renderer_(context_) {
+  const auto count = static_cast<std::uint32_t>(dataset.topLevelCells().size());
+  for (std::uint32_t cell = 0; cell < count; ++cell)
+    renderer_.uploadCell(cell, dataset.packet(cell));
+}
+
+ReferenceFrame ReferenceRenderer::render(const Camera& camera,
+                                         const traverse::TraversalSettings& traversal,
+                                         SplatMode mode) {
+  using Clock = std::chrono::steady_clock;
+  const auto start = Clock::now();
+  const TileRect frame = fullFrameRect(camera);
+  const auto result = traverse::traverseTile(dataset_.cells(), camera, frame, traversal);
+  const auto traversed = Clock::now();
+
+  std::vector<DrawRange> ranges;
+  ranges.reserve(result.ranges.size());
+  for (const auto& range : result.ranges)
+    ranges.push_back({range.topLevel, range.offset, range.count});
+  RenderSettings settings;
+  settings.mode = mode;
+  settings.sizeScale = traversal.sizeScale;
+  const RenderStats stats = renderer_.render(camera, frame, ranges, settings);
+
+  ReferenceFrame out;
+  out.image = Image(camera.image_width(), camera.image_height(), context_.pixels());
+  out.splats = stats.splats;
+  out.traverseSeconds = std::chrono::duration<double>(traversed - start).count();
+  out.renderSeconds = stats.seconds;
+  return out;
+}
+
+}  // namespace pointillist::render

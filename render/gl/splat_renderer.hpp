@@ -1,0 +1,154 @@
+#pragma once
+// Draws splats into an OffscreenContext for one camera and one tile.
+//
+// Data: the render process uploads each cached top-level cell once
+// (uploadCell) and draws ranges of it per packet (DrawRange = the packet's
+// range_top_level / range_offset / range_count); releaseCell on eviction.
+//
+// Tiles: a tile is drawn with the full frame's projection and the full frame's
+// viewport shifted by (-rect.x, -rect.y) into a tile-sized framebuffer. That is
+// the tile projection of common/camera.hpp expressed in the viewport, but clip
+// coordinates (and so clipping and the shaders' arithmetic) are bit-identical
+// to the full frame's; the tile projection as a matrix would clip wide points
+// by their centre at tile borders (llvmpipe drops a point whose centre is
+// outside the clip volume) and round differently. Shaders work in full-frame
+// pixels (points snap to the full-frame pixel grid; splats ray-cast per
+// full-frame pixel), so a tile is pixel-identical to the same rectangle of a
+// full-frame render provided it is given every splat that touches it (see
+// tilePlanes' margin) in the same relative order (ranges are drawn sorted by
+// cell, then offset). The viewport also has a 128-pixel guard band around the
+// frame so points centred just outside the frame still show their inside part.
+//
+// Modes:
+//  - Points: GL_POINTS, one vertex per splat; size = the splat's projected
+//    diameter rounded to whole pixels (or a constant). Fastest with a
+//    compatibility-profile context (legacy points; core profile forces point
+//    sprites, slower on llvmpipe).
+//  - Splats: seed 002's attributed vertex cloud: one vertex per splat, the
+//    geometry shader turns it into a screen rectangle bounding the oriented
+//    disk, the fragment shader intersects the pixel's ray with the disk plane,
+//    discards outside the radius and writes that depth; flat headlight shading.
+//  - Blended: the same disks, EWA-style: a depth pass pushed back by
+//    blendDepthRadii radii, an additive pass of Gaussian-weighted colours of the
+//    splats within that offset of the visible surface (float framebuffer), and
+//    a normalization pass into the context's buffer. Smooth, ~2.5x the cost of
+//    Splats. No protocol RenderMode maps to it yet.
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <unordered_map>
+
+#include "common/camera.hpp"
+#include "common/splat.hpp"
+#include "render/gl/offscreen_context.hpp"
+
+namespace pointillist::render {
+
+enum class SplatMode { Points, Splats, Blended };
+const char* splatModeName(SplatMode mode);
+// "points" | "splats" | "blended"; UsageError otherwise.
+SplatMode parseSplatMode(const std::string& name);
+// RENDER_MODE_POINTS -> Points, RENDER_MODE_SPLATS -> Splats; UsageError otherwise.
+SplatMode splatModeFromProto(v1::RenderMode mode);
+
+struct RenderSettings {
+  SplatMode mode = SplatMode::Points;
+  std::array<float, 4> clearColor{0.0f, 0.0f, 0.0f, 1.0f};
+  // Points: > 0 draws every point this many pixels wide (rounded); 0 uses the
+  // projected diameter 2 * radius * sizeScale, rounded, in [1, maxPointSize].
+  float pointSize = 0.0f;
+  float maxPointSize = 64.0f;
+  // Multiplies splat radii (RenderPacket.point_size_scale; 0 counts as 1).
+  float sizeScale = 1.0f;
+  // Splats: on-screen radius never below this (distant splats do not vanish
+  // between pixel centres; 0.71 px always reaches one centre).
+  float minPixelRadius = 0.75f;
+  bool lighting = true;  // splats: headlight diffuse + ambient
+  float ambient = 0.3f;
+  // Blended: splats this many of their radii behind the visible surface still
+  // blend into it; farther ones are hidden.
+  float blendDepthRadii = 1.0f;
+};
+
+struct DrawRange {
+  std::uint32_t cell = 0;    // id given to uploadCell
+  std::uint32_t offset = 0;  // in splats, from the start of the cell
+  std::uint32_t count = 0;
+};
+
+struct RenderStats {
+  std::uint64_t splats = 0;     // vertices submitted
+  std::uint32_t drawCalls = 0;  // glMultiDrawArrays calls (one per cell)
+  double seconds = 0.0;         // clear to glFinish
+};
+
+class SplatRenderer {
+ public:
+  // The context must outlive the renderer and be current when it is used.
+  explicit SplatRenderer(OffscreenContext& context);
+  ~SplatRenderer();
+  SplatRenderer(const SplatRenderer&) = delete;
+  SplatRenderer& operator=(const SplatRenderer&) = delete;
+
+  // Copies the splats into a GL buffer under `id` (replacing any previous one);
+  // the span need not stay alive afterwards. Throws RenderError on GL failure.
+  void uploadCell(std::uint32_t id, std::span<const Splat> splats);
+  void releaseCell(std::uint32_t id);  // no-op for unknown ids
+  void releaseAll();
+  bool hasCell(std::uint32_t id) const { return cells_.contains(id); }
+  std::size_t cellCount() const { return cells_.size(); }
+  std::uint32_t cellSplatCount(std::uint32_t id) const;           // 0 for unknown ids
+  std::uint64_t uploadedBytes() const { return uploadedBytes_; }  // cached cells only
+
+  // Resizes the context to the tile, clears it, draws the ranges and waits for
+  // the result: afterwards context().pixels() holds the tile (RGBA8, rows
+  // bottom-up, rect.width x rect.height). Throws UsageError for an invalid
+  // camera, a rect outside the image, or a range outside its cell / an unknown
+  // cell; RenderError on GL failure.
+  RenderStats render(const Camera& camera, const TileRect& rect, std::span<const DrawRange> ranges,
+                     const RenderSettings& settings);
+  // Draws splats that are not cached (uploaded into a scratch buffer each call).
+  RenderStats renderSplats(const Camera& camera, const TileRect& rect,
+                           std::span<const Splat> splats, const RenderSettings& settings);
+
+  OffscreenContext& context() { return context_; }
+
+ private:
+  struct Programs;
+  struct Cell {
+    unsigned buffer = 0;
+    std::uint32_t count = 0;
+  };
+
+  struct Accumulation {
+    unsigned framebuffer = 0, color = 0, depth = 0;
+    std::uint32_t width = 0, height = 0;
+  };
+
+  void upload(Cell& cell, std::span<const Splat> splats);
+  void ensureAccumulation(std::uint32_t width, std::uint32_t height);
+  void destroyAccumulation();
+  void destroy(Cell& cell);
+  unsigned program(SplatMode mode);
+  std::uint32_t guardPixels(const Camera& camera) const;
+  void setUniforms(unsigned program, const Camera& camera, const TileRect& rect,
+                   const RenderSettings& settings);
+  RenderStats draw(const Camera& camera, const TileRect& rect,
+                   std::span<const std::pair<const Cell*, std::span<const DrawRange>>> groups,
+                   const RenderSettings& settings);
+
+  OffscreenContext& context_;
+  std::unique_ptr<Programs> programs_;
+  unsigned vertexArray_ = 0;
+  std::unordered_map<std::uint32_t, Cell> cells_;
+  Cell scratch_;
+  Accumulation accumulation_;
+  std::uint64_t uploadedBytes_ = 0;
+  float maxPointSizeGl_ = 1.0f;
+  std::int64_t maxViewport_ = 0;        // GL_MAX_VIEWPORT_DIMS
+  std::int64_t viewportBoundsMin_ = 0;  // GL_VIEWPORT_BOUNDS_RANGE[0]
+  std::uint32_t drawSerial_ = 0;
+};
+
+}  // namespace pointillist::render

@@ -1,0 +1,153 @@
+#include "traverse/core/octree_traversal.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include "common/geometry.hpp"
+
+namespace pointillist::traverse {
+namespace {
+
+glm::vec3 grownMin(const OctreeCell& cell, float sizeScale) {
+  const float r = cell.maxSplatRadius * sizeScale;
+  return {cell.boundsMin[0] - r, cell.boundsMin[1] - r, cell.boundsMin[2] - r};
+}
+
+glm::vec3 grownMax(const OctreeCell& cell, float sizeScale) {
+  const float r = cell.maxSplatRadius * sizeScale;
+  return {cell.boundsMax[0] + r, cell.boundsMax[1] + r, cell.boundsMax[2] + r};
+}
+
+// Sorts and merges adjacent ranges of the same top-level cell.
+void normalizeRanges(std::vector<PacketRange>& ranges) {
+  std::sort(ranges.begin(), ranges.end(), [](const PacketRange& a, const PacketRange& b) {
+    return a.topLevel != b.topLevel ? a.topLevel < b.topLevel : a.offset < b.offset;
+  });
+  std::vector<PacketRange> merged;
+  merged.reserve(ranges.size());
+  for (const PacketRange& range : ranges) {
+    if (!merged.empty() && merged.back().topLevel == range.topLevel &&
+        merged.back().offset + merged.back().count == range.offset) {
+      merged.back().count += range.count;
+    } else {
+      merged.push_back(range);
+    }
+  }
+  ranges.swap(merged);
+}
+
+}  // namespace
+
+float distanceToCell(const OctreeCell& cell, const glm::vec3& eye, float sizeScale) {
+  const glm::vec3 low = grownMin(cell, sizeScale);
+  const glm::vec3 high = grownMax(cell, sizeScale);
+  const glm::vec3 nearest = glm::clamp(eye, low, high);
+  return glm::length(nearest - eye);
+}
+
+bool cellBackfacing(const OctreeCell& cell, const glm::vec3& eye, float sizeScale) {
+  const NormalCone cone = decodeNormalCone(cell);
+  if (!cone.valid || cone.cosHalfAngle <= 0.0) return false;  // cone of 90 deg or more
+  const glm::vec3 low = grownMin(cell, sizeScale);
+  const glm::vec3 high = grownMax(cell, sizeScale);
+  const glm::vec3 centre = 0.5f * (low + high);
+  const float radius = 0.5f * glm::length(high - low);
+  const glm::vec3 toCell = centre - eye;
+  const float distance = glm::length(toCell);
+  if (distance <= radius * 1.0001f) return false;  // eye inside: some splat may face it
+  // Every splat normal n lies within coneAngle of the axis; every direction
+  // from the eye to a splat lies within viewAngle of toCell. The splat faces
+  // away when angle(n, direction) < 90 deg, guaranteed when the sum stays below.
+  const double coneAngle = std::acos(std::clamp(cone.cosHalfAngle, -1.0, 1.0));
+  const double viewAngle = std::asin(std::clamp(static_cast<double>(radius / distance), 0.0, 1.0));
+  const glm::dvec3 axis(cone.axis[0], cone.axis[1], cone.axis[2]);
+  const glm::dvec3 direction = glm::normalize(glm::dvec3(toCell));
+  const double axisAngle = std::acos(std::clamp(glm::dot(axis, direction), -1.0, 1.0));
+  constexpr double kSafety = 1e-3;  // radians, covers float rounding of bounds and normals
+  return axisAngle + coneAngle + viewAngle + kSafety < 0.5 * M_PI;
+}
+
+std::vector<std::uint32_t> topLevelCellsInTile(std::span<const OctreeCell> cells,
+                                               const Camera& camera, const TileRect& rect,
+                                               const TraversalSettings& settings) {
+  std::vector<std::uint32_t> found;
+  if (cells.empty()) return found;
+  const FrustumPlanes planes = tilePlanes(camera, rect, settings.marginPixels);
+  const glm::vec3 eye = cameraEye(camera);
+  const auto size = static_cast<std::uint32_t>(cells.size());
+  std::uint32_t index = 0;
+  while (index != kNoIndex && index < size) {
+    const OctreeCell& cell = cells[index];
+    const bool culled = boxOutside(planes, grownMin(cell, settings.sizeScale),
+                                   grownMax(cell, settings.sizeScale)) ||
+                        (settings.backfaceCull && cellBackfacing(cell, eye, settings.sizeScale));
+    if (culled) {
+      index = cell.nextSibling;
+    } else if (cell.topLevel != kNoIndex) {
+      if (cell.pointsCount + cell.splatsCount > 0) found.push_back(cell.topLevel);
+      index = cell.nextSibling;
+    } else {
+      index = cell.isLeaf() ? cell.nextSibling : index + 1;
+    }
+  }
+  std::sort(found.begin(), found.end());
+  found.erase(std::unique(found.begin(), found.end()), found.end());
+  return found;
+}
+
+TraversalResult traverseTile(std::span<const OctreeCell> cells, const Camera& camera,
+                             const TileRect& rect, const TraversalSettings& settings) {
+  TraversalResult result;
+  if (cells.empty()) return result;
+  const FrustumPlanes planes = tilePlanes(camera, rect, settings.marginPixels);
+  const glm::vec3 eye = cameraEye(camera);
+  const auto size = static_cast<std::uint32_t>(cells.size());
+
+  std::uint32_t index = 0;
+  while (index != kNoIndex && index < size) {
+    const OctreeCell& cell = cells[index];
+    ++result.cellsVisited;
+    if (boxOutside(planes, grownMin(cell, settings.sizeScale),
+                   grownMax(cell, settings.sizeScale))) {
+      ++result.cellsCulledFrustum;
+      index = cell.nextSibling;
+      continue;
+    }
+    if (settings.backfaceCull && cellBackfacing(cell, eye, settings.sizeScale)) {
+      ++result.cellsCulledBackface;
+      index = cell.nextSibling;
+      continue;
+    }
+    if (cell.topLevel == kNoIndex) {
+      // Above the top-level depth there is no data: examine the children.
+      index = cell.isLeaf() ? cell.nextSibling : index + 1;
+      continue;
+    }
+    const float distance = distanceToCell(cell, eye, settings.sizeScale);
+    const bool coarseEnough =
+        distance > 0.0f && projectedRadiusPixels(camera, cell.maxSplatRadius * settings.sizeScale,
+                                                 distance) <= settings.lodPixels;
+    if (cell.isLeaf() && !(coarseEnough && cell.splatsCount > 0)) {
+      if (cell.pointsCount > 0) {
+        result.ranges.push_back({cell.topLevel, cell.pointsOffset, cell.pointsCount});
+      }
+      index = cell.nextSibling;
+    } else if (coarseEnough && cell.splatsCount > 0) {
+      result.ranges.push_back({cell.topLevel, cell.splatsOffset, cell.splatsCount});
+      index = cell.nextSibling;
+    } else {
+      index = index + 1;  // the first child follows its parent in depth-first order
+    }
+  }
+
+  normalizeRanges(result.ranges);
+  for (const PacketRange& range : result.ranges) {
+    result.splats += range.count;
+    if (result.topLevelCells.empty() || result.topLevelCells.back() != range.topLevel) {
+      result.topLevelCells.push_back(range.topLevel);
+    }
+  }
+  return result;
+}
+
+}  // namespace pointillist::traverse

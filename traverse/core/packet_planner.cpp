@@ -1,0 +1,170 @@
+#include "traverse/core/packet_planner.hpp"
+
+#include <algorithm>
+#include <cstdio>
+#include <map>
+
+namespace pointillist::traverse {
+TileWalk walkOf(const TraversalResult& result) {
+  return TileWalk{result.topLevelCells, result.splats, result.ranges};
+}
+
+TraversalSettings traversalSettings(const v1::RunSettings& settings) {
+  TraversalSettings traversal;
+  traversal.lodPixels = settings.lod_pixels() > 0.0f ? settings.lod_pixels() : 1.0f;
+  traversal.sizeScale = settings.size_scale() > 0.0f ? settings.size_scale() : 1.0f;
+  traversal.backfaceCull = settings.backface_cull();
+  return traversal;
+}
+
+PacketPlanner::PacketPlanner(PeerRanks peers, int selfRank, const v1::RunSettings& settings,
+                             std::span<const TopLevelCell> topLevel,
+                             std::vector<std::uint32_t> owners)
+    : peers_(std::move(peers)),
+      selfRank_(selfRank),
+      selfIndex_(peers_.indexOf(v1::ROLE_TRAVERSE, selfRank)),
+      settings_(settings),
+      traversal_(traversalSettings(settings)),
+      owners_(std::move(owners)),
+      model_(peers_.renders.size(), topLevel, costModelOf(settings.cost_model())) {
+  cellBytes_.reserve(topLevel.size());
+  for (const TopLevelCell& cell : topLevel) cellBytes_.push_back(cell.byteSize);
+  if (owners_.size() != cellBytes_.size()) {
+    throw UsageError("packet planner: " + std::to_string(owners_.size()) + " owners for " +
+                     std::to_string(cellBytes_.size()) + " top-level cells");
+  }
+}
+
+void PacketPlanner::requestWork(Outbox& out) {
+  v1::WorkRequest request;
+  request.set_traverse_rank(selfRank_);
+  request.set_tasks_done(tasksDone_);
+  out.send(peers_.display, std::move(request));
+}
+
+std::optional<Camera> PacketPlanner::lookaheadCamera(const v1::TileTask& task) const {
+  if (settings_.scheduler() != v1::SCHEDULER_COST || !task.has_lookahead_camera()) {
+    return std::nullopt;
+  }
+  return task.lookahead_camera();
+}
+
+PacketPlan PacketPlanner::planPacket(const v1::TileTask& task, const TileWalk& walk,
+                                     std::span<const std::uint32_t> aheadCells, TimePoint now,
+                                     Outbox& out) {
+  for (std::uint32_t cell : walk.topLevelCells) {
+    if (cell >= cellBytes_.size()) {
+      throw ProtocolError("tile walk found top-level cell " + std::to_string(cell) +
+                          " beyond the dataset's " + std::to_string(cellBytes_.size()));
+    }
+  }
+  PacketPlan plan;
+  plan.choice = settings_.scheduler() == v1::SCHEDULER_COST
+                    ? model_.choose(walk.topLevelCells, walk.splats, now)
+                    : model_.assigned(task.assigned_render(), walk.topLevelCells, walk.splats);
+  const RenderChoice& choice = plan.choice;
+  plan.renderRank = peers_.renders.at(choice.render);
+
+  // Order what the chosen render lacks from the data-send processes owning it.
+  std::map<std::uint32_t, std::vector<std::uint32_t>> orders;
+  for (std::uint32_t cell : choice.missingCells) orders[owners_.at(cell)].push_back(cell);
+  // Prefetch along the camera path: what this rect will need a few frames on
+  // goes to the render drawing it now, which the cost function then favours
+  // for that part of the screen.
+  if (!aheadCells.empty()) {
+    for (std::uint32_t cell : model_.missingCells(choice.render, aheadCells)) {
+      if (std::binary_search(choice.missingCells.begin(), choice.missingCells.end(), cell)) {
+        continue;
+      }
+      const std::uint64_t bytes = cellBytes_.at(cell);
+      if (plan.prefetchBytes + bytes > kPrefetchBudgetBytes) break;
+      plan.prefetchBytes += bytes;
+      plan.prefetchCells.push_back(cell);
+      orders[owners_.at(cell)].push_back(cell);
+    }
+    model_.recordPrefetch(choice.render, plan.prefetchCells);
+    cellsPrefetched_ += plan.prefetchCells.size();
+    bytesPrefetched_ += plan.prefetchBytes;
+  }
+  for (auto& [owner, cells] : orders) {
+    v1::SendOrder order;
+    order.set_render_rank(plan.renderRank);
+    order.set_requester_rank(selfRank_);
+    order.set_order_id(++ordersSent_);
+    order.set_frame_id(task.frame_id());
+    for (std::uint32_t cell : cells) order.add_top_level_cells(cell);
+    out.send(peers_.datasends.at(owner), std::move(order));
+  }
+
+  v1::RenderPacket packet;
+  packet.set_frame_id(task.frame_id());
+  packet.set_tile_id(task.tile_id());
+  *packet.mutable_camera() = task.camera();
+  *packet.mutable_rect() = task.rect();
+  packet.set_timestamp_ns(task.timestamp_ns());
+  packet.set_attempt(task.attempt());
+  for (std::uint32_t cell : walk.topLevelCells) packet.add_top_level_cells(cell);
+  const int ranges = static_cast<int>(walk.ranges.size());
+  packet.mutable_range_top_level()->Reserve(ranges);
+  packet.mutable_range_offset()->Reserve(ranges);
+  packet.mutable_range_count()->Reserve(ranges);
+  for (const PacketRange& range : walk.ranges) {
+    packet.add_range_top_level(range.topLevel);
+    packet.add_range_offset(range.offset);
+    packet.add_range_count(range.count);
+  }
+  packet.set_total_splats(walk.splats);
+  packet.set_traverse_rank(selfRank_);
+  packet.set_packet_id(++packetsSent_);
+  packet.set_ordered_bytes(choice.missingBytes);
+  packet.set_chosen_cost(choice.cost);
+  packet.set_prefetch_bytes(plan.prefetchBytes);
+  out.send(plan.renderRank, std::move(packet));
+  model_.recordPacket(choice.render, packetsSent_, walk.splats, choice.missingCells, now);
+
+  ++tasksDone_;
+  std::uint64_t packetBytes = 0;
+  for (std::uint32_t cell : walk.topLevelCells) packetBytes += cellBytes_[cell];
+  maxPacketBytes_ = std::max(maxPacketBytes_, packetBytes);
+  splatsPacked_ += walk.splats;
+  cellsOrdered_ += choice.missingCells.size();
+  bytesOrdered_ += choice.missingBytes;
+  requestWork(out);
+  return plan;
+}
+
+void PacketPlanner::applyReport(int sourceRank, const v1::RenderReport& report, TimePoint now) {
+  const std::size_t render = peers_.indexOf(v1::ROLE_RENDER, sourceRank);
+  RenderReportView view;
+  view.workloadSplats = report.workload_splats();
+  view.loaded = {report.loaded_cells().data(),
+                 static_cast<std::size_t>(report.loaded_cells_size())};
+  view.evicted = {report.evicted_cells().data(),
+                  static_cast<std::size_t>(report.evicted_cells_size())};
+  view.secondsPerSplat = report.seconds_per_splat();
+  view.secondsPerByte = report.seconds_per_byte();
+  if (selfIndex_ < static_cast<std::size_t>(report.last_packet_from_traverse_size())) {
+    view.lastPacketFromUs = report.last_packet_from_traverse(static_cast<int>(selfIndex_));
+  }
+  view.packetsDone = report.packets_done();
+  model_.applyReport(render, view, now);
+}
+
+std::string PacketPlanner::summary() const {
+  char line[256];
+  std::snprintf(line, sizeof line,
+                "tasks=%llu splats=%llu ordered_cells=%llu ordered_bytes=%llu "
+                "prefetched_cells=%llu prefetched_bytes=%llu largest_tile_data=%.2fMiB "
+                "T_s=%.3gs/splat T_n=%.3gs/B",
+                static_cast<unsigned long long>(tasksDone_),
+                static_cast<unsigned long long>(splatsPacked_),
+                static_cast<unsigned long long>(cellsOrdered_),
+                static_cast<unsigned long long>(bytesOrdered_),
+                static_cast<unsigned long long>(cellsPrefetched_),
+                static_cast<unsigned long long>(bytesPrefetched_),
+                static_cast<double>(maxPacketBytes_) / 1048576.0, model_.secondsPerSplat(),
+                model_.secondsPerByte());
+  return line;
+}
+
+}  // namespace pointillist::traverse

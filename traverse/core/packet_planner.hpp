@@ -1,0 +1,94 @@
+#pragma once
+// Every decision of a traverse process (seed 003 §4.3), without MPI: for one
+// walked tile it picks the render process with the cost function (or takes
+// the display's choice), orders what that process lacks from the data-send
+// processes owning it, orders ahead along the camera path within a budget,
+// and builds the render packet; it keeps the model of every render process
+// from their reports.
+//
+// The core is told what arrived and `now` and appends what to send to an
+// Outbox. The MPI traverse process and the simulator both drive this class.
+#include <cstdint>
+#include <optional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "common/camera.hpp"
+#include "common/clock.hpp"
+#include "common/messages.hpp"
+#include "common/octree_cell.hpp"
+#include "common/peer_ranks.hpp"
+#include "traverse/core/octree_traversal.hpp"
+#include "traverse/core/render_model.hpp"
+
+namespace pointillist::traverse {
+
+// What the walk of one tile found (traverseTile's result, or the simulator's
+// memo of it, which keeps no ranges).
+struct TileWalk {
+  std::span<const std::uint32_t> topLevelCells;  // distinct, ascending
+  std::uint64_t splats = 0;
+  std::span<const PacketRange> ranges;
+};
+
+TileWalk walkOf(const TraversalResult& result);
+
+// The traversal settings of a run (level of detail, size scale, culling).
+TraversalSettings traversalSettings(const v1::RunSettings& settings);
+
+// What planPacket decided, beside the messages it queued.
+struct PacketPlan {
+  RenderChoice choice;
+  int renderRank = -1;
+  std::uint64_t prefetchBytes = 0;
+  std::vector<std::uint32_t> prefetchCells;
+};
+
+class PacketPlanner {
+ public:
+  PacketPlanner(PeerRanks peers, int selfRank, const v1::RunSettings& settings,
+                std::span<const TopLevelCell> topLevel, std::vector<std::uint32_t> owners);
+
+  const TraversalSettings& traversal() const { return traversal_; }
+  const v1::RunSettings& settings() const { return settings_; }
+
+  // Asks the display for a tile (at start-up; planPacket asks again itself).
+  void requestWork(Outbox& out);
+  // The camera whose view of the task's rect should be ordered ahead, if the
+  // run prefetches along the camera path; the caller walks it for planPacket.
+  std::optional<Camera> lookaheadCamera(const v1::TileTask& task) const;
+  // One walked tile: chooses the render process, orders missing cells and the
+  // prefetch (`aheadCells`: top-level cells of the lookahead walk), sends the
+  // render packet, and asks the display for the next tile.
+  PacketPlan planPacket(const v1::TileTask& task, const TileWalk& walk,
+                        std::span<const std::uint32_t> aheadCells, TimePoint now, Outbox& out);
+  // A render process's report of its workload, cache changes and rates.
+  void applyReport(int sourceRank, const v1::RenderReport& report, TimePoint now);
+
+  const RenderModel& model() const { return model_; }
+  std::uint64_t tasksDone() const { return tasksDone_; }
+  std::uint64_t largestTileBytes() const { return maxPacketBytes_; }
+  std::string summary() const;
+
+ private:
+  PeerRanks peers_;
+  int selfRank_;
+  std::size_t selfIndex_;
+  v1::RunSettings settings_;
+  TraversalSettings traversal_;
+  std::vector<std::uint64_t> cellBytes_;
+  std::vector<std::uint32_t> owners_;
+  RenderModel model_;
+  std::uint64_t tasksDone_ = 0;
+  std::uint64_t packetsSent_ = 0;
+  std::uint64_t ordersSent_ = 0;
+  std::uint64_t splatsPacked_ = 0;
+  std::uint64_t cellsOrdered_ = 0;
+  std::uint64_t bytesOrdered_ = 0;
+  std::uint64_t maxPacketBytes_ = 0;  // largest working set of one tile
+  std::uint64_t cellsPrefetched_ = 0;
+  std::uint64_t bytesPrefetched_ = 0;
+};
+
+}  // namespace pointillist::traverse

@@ -1,0 +1,158 @@
+#include "traverse/core/render_model.hpp"
+
+#include <algorithm>
+#include <limits>
+
+#include "common/errors.hpp"
+
+namespace pointillist::traverse {
+
+v1::CostModel costModelMessage(CostModel model) {
+  return model == CostModel::Overlap ? v1::COST_MODEL_OVERLAP : v1::COST_MODEL_PAPER;
+}
+
+CostModel costModelOf(v1::CostModel model) {
+  return model == v1::COST_MODEL_OVERLAP ? CostModel::Overlap : CostModel::Paper;
+}
+
+double blend(double average, double sample, double weight) {
+  return average + weight * (sample - average);
+}
+
+RenderModel::RenderModel(std::size_t renderCount, std::span<const TopLevelCell> topLevel,
+                         CostModel costModel)
+    : renders_(renderCount), costModel_(costModel) {
+  if (renderCount == 0) throw UsageError("a render model needs at least one render process");
+  cellBytes_.reserve(topLevel.size());
+  for (const TopLevelCell& cell : topLevel) cellBytes_.push_back(cell.byteSize);
+}
+
+std::uint64_t RenderModel::workload(std::size_t render) const {
+  const RenderState& state = renders_.at(render);
+  std::uint64_t total = state.reportedWorkload;
+  for (const auto& [id, splats] : state.unreported) total += splats;
+  return total;
+}
+
+bool RenderModel::hasCell(std::size_t render, std::uint32_t cell) const {
+  const RenderState& state = renders_.at(render);
+  return state.cached.contains(cell) || state.ordered.contains(cell);
+}
+
+std::size_t RenderModel::cachedCellCount(std::size_t render) const {
+  return renders_.at(render).cached.size();
+}
+
+double RenderModel::cost(std::size_t render, std::span<const std::uint32_t> cells,
+                         std::uint64_t splats, std::uint64_t* missingBytes) const {
+  std::uint64_t missing = 0;
+  for (std::uint32_t cell : cells) {
+    if (!hasCell(render, cell)) missing += cellBytes_.at(cell);
+  }
+  if (missingBytes != nullptr) *missingBytes = missing;
+  // The packet's own splats cost the same everywhere; they are included so the
+  // figure reads as the expected completion time on that render.
+  const double queued = static_cast<double>(workload(render)) * secondsPerSplat_;
+  const double transfer = static_cast<double>(missing) * secondsPerByte_;
+  const double own = static_cast<double>(splats) * secondsPerSplat_;
+  if (costModel_ == CostModel::Paper) return queued + transfer + own;
+  return std::max(queued, transfer) + own;
+}
+
+bool RenderModel::suspectedStalled(std::size_t render, Clock::time_point now) const {
+  const RenderState& state = renders_.at(render);
+  if (!state.waitingSince) return false;
+  const double expected = static_cast<double>(workload(render)) * secondsPerSplat_;
+  const double waited = std::chrono::duration<double>(now - *state.waitingSince).count();
+  return waited > std::max(1.0, 4.0 * expected);
+}
+
+RenderChoice RenderModel::choose(std::span<const std::uint32_t> cells, std::uint64_t splats,
+                                 Clock::time_point now) const {
+  RenderChoice best;
+  best.cost = std::numeric_limits<double>::infinity();
+  std::uint64_t bestWorkload = std::numeric_limits<std::uint64_t>::max();
+  best.missingBytes = std::numeric_limits<std::uint64_t>::max();
+  const std::size_t count = renders_.size();
+  bool allStalled = true;
+  for (std::size_t render = 0; render < count; ++render) {
+    allStalled = allStalled && suspectedStalled(render, now);
+  }
+  for (std::size_t step = 0; step < count; ++step) {
+    const std::size_t render = (rotation_ + step) % count;
+    if (!allStalled && suspectedStalled(render, now)) continue;
+    std::uint64_t missing = 0;
+    const double value = cost(render, cells, splats, &missing);
+    const std::uint64_t load = workload(render);
+    const bool tie = value == best.cost;
+    if (value < best.cost || (tie && missing < best.missingBytes) ||
+        (tie && missing == best.missingBytes && load < bestWorkload)) {
+      best.render = render;
+      best.cost = value;
+      best.missingBytes = missing;
+      bestWorkload = load;
+    }
+  }
+  rotation_ = (best.render + 1) % count;
+  best.missingCells = missingCells(best.render, cells);
+  return best;
+}
+
+RenderChoice RenderModel::assigned(std::size_t render, std::span<const std::uint32_t> cells,
+                                   std::uint64_t splats) const {
+  RenderChoice choice;
+  choice.render = render % renders_.size();
+  choice.cost = cost(choice.render, cells, splats, &choice.missingBytes);
+  choice.missingCells = missingCells(choice.render, cells);
+  return choice;
+}
+
+void RenderModel::recordPacket(std::size_t render, std::uint64_t packetId, std::uint64_t splats,
+                               std::span<const std::uint32_t> orderedCells, Clock::time_point now) {
+  RenderState& state = renders_.at(render);
+  if (!state.waitingSince) state.waitingSince = now;
+  state.unreported.emplace_back(packetId, splats);
+  for (std::uint32_t cell : orderedCells) state.ordered.insert(cell);
+}
+
+void RenderModel::recordPrefetch(std::size_t render, std::span<const std::uint32_t> orderedCells) {
+  RenderState& state = renders_.at(render);
+  for (std::uint32_t cell : orderedCells) state.ordered.insert(cell);
+}
+
+std::vector<std::uint32_t> RenderModel::missingCells(std::size_t render,
+                                                     std::span<const std::uint32_t> cells) const {
+  std::vector<std::uint32_t> missing;
+  for (std::uint32_t cell : cells) {
+    if (!hasCell(render, cell)) missing.push_back(cell);
+  }
+  return missing;
+}
+
+void RenderModel::applyReport(std::size_t render, const RenderReportView& report,
+                              Clock::time_point now) {
+  RenderState& state = renders_.at(render);
+  if (report.packetsDone > state.packetsDone || report.workloadSplats == 0) {
+    state.waitingSince.reset();  // progress, or nothing to do
+  }
+  state.packetsDone = std::max(state.packetsDone, report.packetsDone);
+  state.reportedWorkload = report.workloadSplats;
+  state.lastPacketSeen = std::max(state.lastPacketSeen, report.lastPacketFromUs);
+  std::erase_if(state.unreported,
+                [&](const auto& packet) { return packet.first <= state.lastPacketSeen; });
+  for (std::uint32_t cell : report.loaded) {
+    state.cached.insert(cell);
+    state.ordered.erase(cell);
+  }
+  for (std::uint32_t cell : report.evicted) {
+    state.cached.erase(cell);
+    state.ordered.erase(cell);
+  }
+  if (!state.waitingSince && workload(render) > 0) state.waitingSince = now;
+  if (report.secondsPerSplat > 0.0)
+    secondsPerSplat_ = blend(secondsPerSplat_, report.secondsPerSplat, 0.25);
+  if (report.secondsPerByte > 0.0)
+    secondsPerByte_ = blend(secondsPerByte_, report.secondsPerByte, 0.25);
+}
+
+}  // namespace pointillist::traverse

@@ -1,0 +1,120 @@
+#pragma once
+// A traverse process's model of every render process (seed 003 §4.3, §4.5):
+// pending work and cached top-level cells, kept from the renders' reports, and
+// the cost function that picks where a render packet goes. As the paper writes it:
+//   Cost(i) = workload(i) * T_s + missing_bytes(i) * T_n
+// As an option the transfer is taken to overlap the work already queued there
+// (data-send streams the cells while the render draws), see docs/scheduling.md:
+//   Cost(i) = max(workload(i) * T_s, missing_bytes(i) * T_n) + packet_splats * T_s
+// T_s (seconds per splat) and T_n (seconds per byte) are measured by the render
+// processes while running and averaged here.
+#include <chrono>
+#include <cstdint>
+#include <optional>
+#include <span>
+#include <unordered_map>
+#include <unordered_set>
+#include <vector>
+
+#include "common/octree_cell.hpp"
+#include "pointillist.pb.h"
+
+namespace pointillist::traverse {
+
+struct RenderReportView {
+  std::uint64_t workloadSplats = 0;
+  std::span<const std::uint32_t> loaded{};
+  std::span<const std::uint32_t> evicted{};
+  double secondsPerSplat = 0.0;  // 0: not measured yet
+  double secondsPerByte = 0.0;   // 0: not measured yet
+  // Highest packet id from this traverse the render had received when reporting.
+  std::uint64_t lastPacketFromUs = 0;
+  std::uint64_t packetsDone = 0;  // packets the render has finished in all
+};
+
+// At most this much data ordered ahead along the camera path per tile, so a
+// sharp turn of the camera cannot flood the links ahead of waiting packets.
+inline constexpr std::uint64_t kPrefetchBudgetBytes = 8ull << 20;
+
+enum class CostModel {
+  Paper,    // seed 003 as written: the transfer adds to the queue (default)
+  Overlap,  // transfers overlap the queued work
+};
+
+v1::CostModel costModelMessage(CostModel model);
+CostModel costModelOf(v1::CostModel model);
+
+struct RenderChoice {
+  std::size_t render = 0;  // index among render processes
+  double cost = 0.0;
+  std::uint64_t missingBytes = 0;
+  std::vector<std::uint32_t> missingCells;  // cells to order for it
+};
+
+class RenderModel {
+ public:
+  using Clock = std::chrono::steady_clock;
+
+  RenderModel(std::size_t renderCount, std::span<const TopLevelCell> topLevel,
+              CostModel costModel = CostModel::Paper);
+  void setCostModel(CostModel model) { costModel_ = model; }
+  CostModel costModel() const { return costModel_; }
+
+  // Cost of sending a packet of `splats` splats that needs `cells` to render i.
+  double cost(std::size_t render, std::span<const std::uint32_t> cells, std::uint64_t splats,
+              std::uint64_t* missingBytes = nullptr) const;
+  // The render with the lowest cost; ties go to the fewest missing bytes, then
+  // the lowest pending work, then rotate from the last choice so idle renders
+  // share the first frames.
+  // A render that has had work for much longer than that work should take
+  // without finishing a packet is suspected stalled and only chosen when every
+  // render is.
+  RenderChoice choose(std::span<const std::uint32_t> cells, std::uint64_t splats,
+                      Clock::time_point now) const;
+  bool suspectedStalled(std::size_t render, Clock::time_point now) const;
+  // The same figures for a render chosen by someone else (other schedulers).
+  RenderChoice assigned(std::size_t render, std::span<const std::uint32_t> cells,
+                        std::uint64_t splats) const;
+
+  // Records that a packet went to `render` with the given id, and that its
+  // missing cells were ordered (they count as present from now on).
+  void recordPacket(std::size_t render, std::uint64_t packetId, std::uint64_t splats,
+                    std::span<const std::uint32_t> orderedCells, Clock::time_point now);
+  // Cells ordered for `render` ahead of any packet (prefetch along the camera path).
+  void recordPrefetch(std::size_t render, std::span<const std::uint32_t> orderedCells);
+  // Of `cells`, those `render` neither holds nor has on order.
+  std::vector<std::uint32_t> missingCells(std::size_t render,
+                                          std::span<const std::uint32_t> cells) const;
+  void applyReport(std::size_t render, const RenderReportView& report, Clock::time_point now);
+
+  std::uint64_t workload(std::size_t render) const;  // reported + sent since the report
+  bool hasCell(std::size_t render, std::uint32_t cell) const;
+  std::size_t cachedCellCount(std::size_t render) const;
+  double secondsPerSplat() const { return secondsPerSplat_; }
+  double secondsPerByte() const { return secondsPerByte_; }
+  std::size_t renderCount() const { return renders_.size(); }
+
+ private:
+  struct RenderState {
+    std::uint64_t reportedWorkload = 0;
+    std::uint64_t lastPacketSeen = 0;
+    // Packets sent to this render after its last report: id -> splats.
+    std::vector<std::pair<std::uint64_t, std::uint64_t>> unreported;
+    std::unordered_set<std::uint32_t> cached;   // confirmed by reports
+    std::unordered_set<std::uint32_t> ordered;  // ordered by us, not yet confirmed
+    std::uint64_t packetsDone = 0;
+    // Since when the render has had work and finished nothing.
+    std::optional<Clock::time_point> waitingSince;
+  };
+  std::vector<RenderState> renders_;
+  std::vector<std::uint64_t> cellBytes_;
+  double secondsPerSplat_ = 2e-7;  // until measured: 5 M splats/s
+  double secondsPerByte_ = 1e-8;   // until measured: 100 MB/s
+  CostModel costModel_;
+  mutable std::size_t rotation_ = 0;
+};
+
+// Moving average used for T_s and T_n.
+double blend(double average, double sample, double weight);
+
+}  // namespace pointillist::traverse
