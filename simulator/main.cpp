@@ -11,8 +11,10 @@
 #include <fstream>
 #include <thread>
 
+#include "common/dataset.hpp"
 #include "common/errors.hpp"
 #include "simulator/calibration.hpp"
+#include "simulator/replay.hpp"
 #include "simulator/sweep.hpp"
 
 namespace pointillist::simulator {
@@ -51,10 +53,31 @@ void writeText(const std::string& file, const std::string& text, const char* wha
   if (!out) throw Error(file + ": cannot write the " + what);
 }
 
+// Returns 0 when every logged decision comes out the same, 1 otherwise.
+int replay(const std::string& datasetPath, const std::vector<std::string>& logs) {
+  const Dataset dataset = Dataset::open(datasetPath, DatasetParts::Cells);
+  bool same = true;
+  for (const std::string& file : logs) {
+    const traverse::DecisionLog log = traverse::readDecisionLog(file);
+    const ReplayResult result = replayDecisions(log, dataset.cells(), dataset.topLevelCells());
+    std::printf("%s: %zu tiles and %zu reports replayed; %zu of %zu tiles decided identically\n",
+                file.c_str(), result.tasks, result.reports, result.identical, result.tasks);
+    for (std::size_t i = 0; i < result.mismatches.size() && i < 5; ++i) {
+      std::printf("  decision %zu differs: %s\n", result.mismatches[i].decision,
+                  result.mismatches[i].difference.c_str());
+    }
+    same = same && result.mismatches.empty() && result.tasks > 0;
+  }
+  std::printf("replay: %s\n", same ? "every decision identical" : "DIFFERENT decisions");
+  return same ? 0 : 1;
+}
+
 int run(int argc, char** argv) {
   CLI::App app{
-      "Pointillist scheduler simulator: drives the real tile planner, frame scheduler, cost "
-      "function and render cache with modelled processes in simulated time, for many job sizes"};
+      "Pointillist scheduler simulator: drives the roles' own cores (the display's frame "
+      "assembly, the traverse's packet planner, the data-send's ledger and the render's core) "
+      "with modelled time and network, for many job sizes; or replays a real job's traverse "
+      "decisions (--replay)"};
   std::string datasetPath;
   ViewOptions view;
   view.frames = 16;
@@ -129,6 +152,11 @@ int run(int argc, char** argv) {
   app.add_option("--report-plot", reportPlots, "Image file to link from the report (repeatable)");
   app.add_option("--jobs", jobs, "Configurations simulated at once")->capture_default_str();
   app.add_flag("--quiet", quiet, "No progress lines on stderr");
+  std::vector<std::string> replayLogs;
+  app.add_option("--replay", replayLogs,
+                 "Decision logs of a real job (pointillist-traverse --decision-log): replay each "
+                 "through the simulator's traverse core and report any different choice")
+      ->check(CLI::ExistingFile);
   app.name("pointillist-simulate");
   try {
     app.parse(argc, argv);
@@ -136,6 +164,7 @@ int run(int argc, char** argv) {
     return app.exit(error);
   }
 
+  if (!replayLogs.empty()) return replay(datasetPath, replayLogs);
   sweep.renders = parseCounts("--renders", renders, false);
   sweep.traverses = parseCounts("--traverses", traverses, false);
   sweep.datasends = parseCounts("--datasends", datasends, true);

@@ -126,6 +126,7 @@ struct Link {
 // --- the processes: a core each, and what the model needs to time it --------
 
 struct TraverseProcess {
+  explicit TraverseProcess(traverse::PacketPlanner core) : planner(std::move(core)) {}
   traverse::PacketPlanner planner;
   bool busy = false;
   std::optional<v1::TileTask> task;
@@ -136,6 +137,7 @@ struct TraverseProcess {
 };
 
 struct RenderProcess {
+  explicit RenderProcess(render::RenderCore renderCore) : core(std::move(renderCore)) {}
   render::RenderCore core;
   bool busy = false;
   bool idlePending = false;
@@ -194,8 +196,8 @@ class Simulation {
     const v1::RunSettings settings = runSettings(scene, config);
     traverses_.reserve(config.traverses);
     for (int rank : peers_.traverses) {
-      traverses_.push_back(TraverseProcess{
-          traverse::PacketPlanner(peers_, rank, settings, scene.topLevel(), owners_)});
+      traverses_.emplace_back(
+          traverse::PacketPlanner(peers_, rank, settings, scene.topLevel(), owners_));
     }
     for (std::uint32_t s = 0; s < config.datasends; ++s) ledgers_.emplace_back(peers_, owners_, s);
     render::RenderCoreConfig core;

@@ -216,6 +216,9 @@ v1::TileImageHeader RenderCore::packetDrawn(const ReadyPacket& ready, std::uint6
   header.set_peak_cache_bytes(cache_.peakBytes());
   header.set_data_bytes_received(dataBytesReceived_);
   sendReport(effects);
+  // The drawn packet may have been the head: its cells need no pin any more,
+  // and the next head's missing cells are asked for now.
+  pinHeadPacket(now, effects);
   return header;
 }
 

@@ -10,6 +10,7 @@
 #include <random>
 
 #include "common/mpi/channel.hpp"
+#include "common/mpi/send_queue.hpp"
 #include "pointillist.pb.h"
 
 namespace pointillist {
@@ -115,6 +116,43 @@ TEST_F(ChannelTest, SharedPayloadOutlivesTheCaller) {
   }
   const auto envelope = channel.receiveOrThrow(1, MessageKind::TileImage, milliseconds(30'000));
   EXPECT_EQ(envelope.payload, patternBytes(100'000, 5));
+}
+
+// An outbox leaves in order, every entry to every destination; the queue
+// holds the sends (and a payload's owner) until they are done.
+TEST_F(ChannelTest, SendQueuePostsAnOutboxInOrderAndReapsFinishedSends) {
+  Channel channel(MPI_COMM_WORLD);
+  if (channel.rank() == 1) {
+    SendQueue sends(channel);
+    Outbox out;
+    v1::RenderReport report;
+    report.set_sequence(5);
+    out.send(std::vector<int>{0, 0}, report);  // the same report twice, shared
+    v1::SendOrder order;
+    order.add_top_level_cells(9);
+    out.send(0, order);
+    sends.post(out);
+    auto owner = std::make_shared<const std::vector<std::byte>>(patternBytes(4096, 3));
+    const std::span<const std::byte> bytes(*owner);
+    sends.post(0, MessageKind::TileImage, sampleHeader(8), bytes, std::move(owner));
+    EXPECT_EQ(sends.size(), 4u);
+    sends.drain(milliseconds(30'000));
+    EXPECT_FALSE(sends.pending());
+    return;
+  }
+  std::vector<MessageKind> kinds;
+  for (int i = 0; i < 4; ++i) {
+    const auto envelope = channel.receiveOrThrow(1, std::nullopt, milliseconds(30'000));
+    kinds.push_back(envelope.kind);
+    if (envelope.kind == MessageKind::RenderReport) {
+      EXPECT_EQ(envelope.as<v1::RenderReport>().sequence(), 5u);
+    }
+    if (envelope.kind == MessageKind::TileImage) {
+      EXPECT_EQ(envelope.payload, patternBytes(4096, 3));
+    }
+  }
+  EXPECT_EQ(kinds, (std::vector<MessageKind>{MessageKind::RenderReport, MessageKind::RenderReport,
+                                             MessageKind::SendOrder, MessageKind::TileImage}));
 }
 
 TEST_F(ChannelTest, ReceiveSelectsByKind) {

@@ -4,6 +4,8 @@
 
 #include "common/errors.hpp"
 #include "common/job_layout.hpp"
+#include "common/messages.hpp"
+#include "common/peer_ranks.hpp"
 #include "pointillist.pb.h"
 
 namespace pointillist {
@@ -121,6 +123,43 @@ TEST(Messages, GarbageDoesNotParse) {
 
 TEST(Messages, ProtocolVersionIsSet) {
   EXPECT_GE(static_cast<int>(v1::PROTOCOL_VERSION_CURRENT), 1);
+}
+
+TEST(Outbox, KeepsOrderSharesOneMessageAmongDestinationsAndChecksTypes) {
+  Outbox out;
+  v1::RenderReport report;
+  report.set_sequence(3);
+  out.send(std::vector<int>{1, 2, 5}, report);
+  v1::SendOrder order;
+  order.add_top_level_cells(4);
+  out.send(7, order);
+  out.send(std::vector<int>{}, order);  // nobody to tell: nothing queued
+  ASSERT_EQ(out.entries().size(), 2u);
+  EXPECT_EQ(out.entries()[0].kind, MessageKind::RenderReport);
+  EXPECT_EQ(out.entries()[0].destinations, (std::vector<int>{1, 2, 5}));
+  EXPECT_EQ(out.entries()[0].as<v1::RenderReport>().sequence(), 3u);
+  EXPECT_EQ(out.entries()[1].kind, MessageKind::SendOrder);
+  EXPECT_THROW((void)out.entries()[1].as<v1::RenderReport>(), ProtocolError);
+  const auto taken = out.take();
+  EXPECT_EQ(taken.size(), 2u);
+  EXPECT_TRUE(out.empty());
+  EXPECT_STREQ(messageKindName(MessageKind::SendOrder), "SendOrder");
+}
+
+TEST(PeerRanks, NumbersALayoutContiguouslyAndFindsEachRole) {
+  const PeerRanks peers = PeerRanks::contiguous(JobLayout{1, 2, 1, 3});
+  EXPECT_EQ(peers.display, 0);
+  EXPECT_EQ(peers.traverses, (std::vector<int>{1, 2}));
+  EXPECT_EQ(peers.datasends, (std::vector<int>{3}));
+  EXPECT_EQ(peers.renders, (std::vector<int>{4, 5, 6}));
+  EXPECT_EQ(peers.indexOf(v1::ROLE_RENDER, 6), 2u);
+  EXPECT_EQ(peers.layout().toString(), "1,2,1,3");
+  try {
+    (void)peers.indexOf(v1::ROLE_RENDER, 2);
+    FAIL() << "a traverse rank was taken for a render";
+  } catch (const ProtocolError& error) {
+    EXPECT_STREQ(error.what(), "rank 2 is not a render process");
+  }
 }
 
 TEST(JobLayout, ParsesAndPrints) {

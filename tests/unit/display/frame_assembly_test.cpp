@@ -1,0 +1,195 @@
+// The display's decisions (seed 003 §4.2), driven directly: tiles to idle
+// traverse processes, re-issue of late tiles, frames in order, feedback to
+// the tile planner only from frames that fully came back.
+#include "display/core/frame_assembly.hpp"
+
+#include <gtest/gtest.h>
+
+namespace pointillist::display {
+namespace {
+
+using namespace std::chrono_literals;
+
+// Layout 1,2,1,2: display 0, traverses 1-2, data-send 3, renders 4-5.
+const PeerRanks kPeers = PeerRanks::contiguous(JobLayout{1, 2, 1, 2});
+const TimePoint kStart = timeAfterEpoch(10.0);
+
+// The eye sits inside the data's box, so every frame's box of interest is
+// the whole 128x64 frame.
+Camera camera(float x) {
+  return makeCamera({x, 0, 0}, {x + 1, 0, 0}, {0, 0, 1}, 60.0f, 0.1f, 100.0f, 128, 64);
+}
+
+FrameAssemblyConfig config(std::size_t frames, std::uint32_t maxAttempts = 3,
+                           SchedulerKind scheduler = SchedulerKind::Cost) {
+  FrameAssemblyConfig c;
+  for (std::size_t i = 0; i < frames; ++i) c.cameras.push_back(camera(static_cast<float>(i)));
+  c.bounds = SceneBounds{{-50, -50, -50}, {50, 50, 50}};
+  c.framesInFlight = 1;
+  c.tileTimeout = 1s;
+  c.maxAttempts = maxAttempts;
+  c.plan.scheduler = scheduler;
+  c.plan.renders = 2;
+  c.plan.tilesPerRender = 2.0;
+  c.plan.minTileSize = 8;
+  return c;
+}
+
+std::vector<v1::TileTask> tasksIn(const Outbox& out) {
+  std::vector<v1::TileTask> tasks;
+  for (const Outgoing& outgoing : out.entries()) {
+    EXPECT_EQ(outgoing.kind, MessageKind::TileTask);
+    tasks.push_back(outgoing.as<v1::TileTask>());
+  }
+  return tasks;
+}
+
+// Hands every waiting tile out (one traverse asking as often as needed).
+std::vector<v1::TileTask> takeAll(FrameAssembly& assembly, TimePoint now) {
+  std::vector<v1::TileTask> tasks;
+  while (true) {
+    assembly.workRequested(1);
+    Outbox out;
+    assembly.dispatch(now, out);
+    const auto more = tasksIn(out);
+    if (more.empty()) return tasks;
+    tasks.insert(tasks.end(), more.begin(), more.end());
+  }
+}
+
+v1::TileImageHeader tile(const v1::TileTask& task, std::uint64_t splats, int render = 4) {
+  v1::TileImageHeader header;
+  header.set_frame_id(task.frame_id());
+  header.set_tile_id(task.tile_id());
+  *header.mutable_rect() = task.rect();
+  header.set_attempt(task.attempt());
+  header.set_render_rank(render);
+  header.set_splats_rendered(splats);
+  header.set_render_time_us(static_cast<std::int64_t>(splats / 10));
+  return header;
+}
+
+std::vector<std::tuple<std::uint32_t, std::uint32_t, std::uint32_t, std::uint32_t>> rects(
+    const std::vector<v1::TileTask>& tasks) {
+  std::vector<std::tuple<std::uint32_t, std::uint32_t, std::uint32_t, std::uint32_t>> result;
+  for (const auto& task : tasks) {
+    result.emplace_back(task.rect().x(), task.rect().y(), task.rect().width(),
+                        task.rect().height());
+  }
+  return result;
+}
+
+TEST(FrameAssembly, HandsTilesOnlyToTraversesThatAskedAndStampsThem) {
+  FrameAssembly assembly(config(1), kPeers, kStart);
+  Outbox none;
+  assembly.dispatch(kStart, none);
+  EXPECT_TRUE(none.empty());
+  assembly.workRequested(2);
+  Outbox out;
+  assembly.dispatch(kStart + 5ms, out);
+  ASSERT_EQ(out.entries().size(), 1u);
+  EXPECT_EQ(out.entries()[0].destinations, (std::vector<int>{2}));
+  const auto& task = out.entries()[0].as<v1::TileTask>();
+  EXPECT_EQ(task.frame_id(), 0u);
+  EXPECT_EQ(task.attempt(), 0u);
+  EXPECT_EQ(task.timestamp_ns(),
+            std::chrono::duration_cast<std::chrono::nanoseconds>((kStart + 5ms).time_since_epoch())
+                .count());
+  EXPECT_FALSE(task.has_lookahead_camera());
+  EXPECT_EQ(assembly.idleTraverses(), 0u);
+  EXPECT_THROW(assembly.workRequested(3), ProtocolError);  // a data-send process
+}
+
+TEST(FrameAssembly, ReissuesALateTileAndCountsTheLateCopyWithoutComposingIt) {
+  FrameAssembly assembly(config(1), kPeers, kStart);
+  const auto first = takeAll(assembly, kStart);
+  ASSERT_EQ(first.size(), 4u);
+  for (std::size_t i = 1; i < first.size(); ++i) {
+    EXPECT_TRUE(assembly.tileArrived(tile(first[i], 100), kStart + 100ms));
+  }
+  EXPECT_TRUE(assembly.finishFrames(kStart + 100ms).empty());
+  ASSERT_TRUE(assembly.nextDeadline());
+  EXPECT_EQ(*assembly.nextDeadline(), kStart + 1s);
+  // Not yet due.
+  assembly.workRequested(1);
+  Outbox early;
+  EXPECT_EQ(assembly.dispatch(kStart + 900ms, early), 0u);
+  EXPECT_TRUE(early.empty());
+  // Past its deadline the tile goes out again, attempt 1.
+  Outbox late;
+  EXPECT_EQ(assembly.dispatch(kStart + 1100ms, late), 1u);
+  const auto again = tasksIn(late);
+  ASSERT_EQ(again.size(), 1u);
+  EXPECT_EQ(again[0].tile_id(), first[0].tile_id());
+  EXPECT_EQ(again[0].attempt(), 1u);
+  EXPECT_TRUE(assembly.tileArrived(tile(again[0], 100), kStart + 1200ms));
+  const auto finished = assembly.finishFrames(kStart + 1200ms);
+  ASSERT_EQ(finished.size(), 1u);
+  EXPECT_EQ(finished[0].record.reissuedTiles, 1u);
+  EXPECT_EQ(finished[0].record.failedTiles, 0u);
+  EXPECT_TRUE(finished[0].failedTiles.empty());
+  EXPECT_DOUBLE_EQ(finished[0].record.startSeconds, 0.0);
+  EXPECT_DOUBLE_EQ(finished[0].record.endSeconds, 1.2);
+  // The first attempt turns up after all: counted, not composed.
+  EXPECT_FALSE(assembly.tileArrived(tile(first[0], 100), kStart + 1300ms));
+  EXPECT_EQ(assembly.stats().lateTiles, 1u);
+  EXPECT_TRUE(assembly.done());
+}
+
+TEST(FrameAssembly, GivesATileUpAfterMaxAttemptsAndDoesNotResplitFromThatFrame) {
+  using Rects = decltype(rects({}));
+  const auto run = [](bool lose) -> std::pair<Rects, Rects> {
+    FrameAssembly assembly(config(2, 1), kPeers, kStart);
+    const auto frame0 = takeAll(assembly, kStart);
+    // All the work sits in the first tile.
+    for (std::size_t i = 0; i < frame0.size(); ++i) {
+      if (lose && i == 0) continue;
+      assembly.tileArrived(tile(frame0[i], i == 0 ? 1'000'000 : 10), kStart + 10ms);
+    }
+    Outbox out;
+    assembly.dispatch(kStart + 2s, out);  // the lost tile is given up
+    const auto finished = assembly.finishFrames(kStart + 2s);
+    EXPECT_EQ(finished.size(), 1u);
+    if (lose && !finished.empty()) {
+      EXPECT_EQ(finished[0].record.failedTiles, 1u);
+      EXPECT_EQ(finished[0].failedTiles.size(), 1u);
+      if (!finished[0].failedTiles.empty()) {
+        EXPECT_EQ(finished[0].failedTiles[0].x(), frame0[0].rect().x());
+      }
+    }
+    return {rects(frame0), rects(takeAll(assembly, kStart + 2s))};
+  };
+  const auto [measured0, measured1] = run(false);
+  EXPECT_NE(measured0, measured1) << "a complete frame's work re-sizes the next frame's tiles";
+  const auto [failed0, failed1] = run(true);
+  EXPECT_EQ(failed0, measured0);
+  EXPECT_EQ(failed1, failed0) << "a frame with a lost tile measured nothing for it";
+}
+
+TEST(FrameAssembly, FinishesFramesInOrderAndLetsTheNextOneIn) {
+  FrameAssemblyConfig c = config(3);
+  c.framesInFlight = 2;
+  c.prefetchFrames = 2;
+  FrameAssembly assembly(c, kPeers, kStart);
+  const auto tasks = takeAll(assembly, kStart);
+  ASSERT_EQ(tasks.size(), 8u);                    // frames 0 and 1
+  EXPECT_TRUE(tasks[0].has_lookahead_camera());   // frame 0 looks at frame 2
+  EXPECT_FALSE(tasks[4].has_lookahead_camera());  // frame 3 does not exist
+  // Frame 1 comes back first: nothing finishes until frame 0 has.
+  for (std::size_t i = 4; i < 8; ++i) assembly.tileArrived(tile(tasks[i], 10, 5), kStart + 1ms);
+  EXPECT_TRUE(assembly.finishFrames(kStart + 1ms).empty());
+  for (std::size_t i = 0; i < 4; ++i) assembly.tileArrived(tile(tasks[i], 10, 4), kStart + 2ms);
+  const auto finished = assembly.finishFrames(kStart + 2ms);
+  ASSERT_EQ(finished.size(), 2u);
+  EXPECT_EQ(finished[0].record.frame, 0u);
+  EXPECT_EQ(finished[1].record.frame, 1u);
+  EXPECT_EQ(finished[0].record.splatsPerRender.at(4), 40u);
+  EXPECT_EQ(finished[0].record.splatsPerRender.at(5), 0u);  // every render listed
+  EXPECT_EQ(assembly.stats().frames.size(), 2u);
+  EXPECT_FALSE(assembly.done());
+  EXPECT_EQ(takeAll(assembly, kStart + 3ms).size(), 4u);  // frame 2 entered the window
+  EXPECT_THROW(assembly.tileArrived(tile(tasks[0], 1, 3), kStart), ProtocolError);
+}
+
+}  // namespace
+}  // namespace pointillist::display

@@ -1,0 +1,285 @@
+// The render process's decisions (seed 003 §4.4-4.5), driven directly: what it
+// asks data-send for and in which order, which cells it pins, what it drops,
+// when it asks again, what it reports and to whom.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+
+#include "render/core/render_core.hpp"
+
+namespace pointillist::render {
+namespace {
+
+using namespace std::chrono_literals;
+
+// Layout 1,2,2,1: display 0, traverses 1-2, data-sends 3-4, the render 5.
+const PeerRanks kPeers = PeerRanks::contiguous(JobLayout{1, 2, 2, 1});
+constexpr int kTraverse = 1;
+constexpr int kOtherTraverse = 2;
+constexpr int kSelf = 5;
+const TimePoint kStart = timeAfterEpoch(100.0);
+
+std::vector<TopLevelCell> table(std::size_t cells, std::uint64_t bytes) {
+  std::vector<TopLevelCell> topLevel(cells);
+  for (std::size_t i = 0; i < cells; ++i) {
+    topLevel[i].byteSize = bytes;
+    topLevel[i].byteOffset = i * bytes;
+  }
+  return topLevel;
+}
+
+// Cells 0-1 belong to data-send 3, cells 2-3 to data-send 4.
+const std::vector<std::uint32_t> kOwners{0, 0, 1, 1};
+
+RenderCore makeCore(std::uint64_t capCells, std::optional<std::uint64_t> stallAfter = {}) {
+  RenderCoreConfig config;
+  config.cacheCapBytes = capCells * 1000;
+  config.cacheTimeout = 30s;
+  config.stallAfterPackets = stallAfter;
+  return RenderCore(config, kPeers, kSelf, table(4, 1000), kOwners);
+}
+
+v1::RenderPacket packet(std::uint64_t id, std::vector<std::uint32_t> cells,
+                        std::uint64_t splats = 5000, std::uint64_t frame = 7) {
+  v1::RenderPacket p;
+  p.set_frame_id(frame);
+  p.set_tile_id(static_cast<std::uint32_t>(id));
+  p.set_packet_id(id);
+  p.set_traverse_rank(kTraverse);
+  p.set_total_splats(splats);
+  for (std::uint32_t cell : cells) p.add_top_level_cells(cell);
+  p.mutable_rect()->set_width(8);
+  p.mutable_rect()->set_height(4);
+  return p;
+}
+
+// The messages of an outbox, flattened to (kind, destination) in order.
+std::vector<std::pair<MessageKind, int>> sent(const Outbox& out) {
+  std::vector<std::pair<MessageKind, int>> messages;
+  for (const Outgoing& outgoing : out.entries()) {
+    for (int destination : outgoing.destinations) messages.emplace_back(outgoing.kind, destination);
+  }
+  return messages;
+}
+
+std::vector<const v1::SendOrder*> orders(const Outbox& out) {
+  std::vector<const v1::SendOrder*> found;
+  for (const Outgoing& outgoing : out.entries()) {
+    if (outgoing.kind == MessageKind::SendOrder) found.push_back(&outgoing.as<v1::SendOrder>());
+  }
+  return found;
+}
+
+std::vector<std::uint32_t> cellsOf(const v1::SendOrder& order) {
+  return {order.top_level_cells().begin(), order.top_level_cells().end()};
+}
+
+TEST(RenderCore, AsksTheOwningDataSendForMissingCellsOnceAndNamesItselfAsRequester) {
+  RenderCore core = makeCore(4);
+  RenderEffects effects;
+  core.receivePacket(kTraverse, packet(1, {0, 2, 3}), kStart, effects);
+  const auto asked = orders(effects.messages);
+  ASSERT_EQ(asked.size(), 2u);
+  EXPECT_EQ(cellsOf(*asked[0]), (std::vector<std::uint32_t>{0}));
+  EXPECT_EQ(cellsOf(*asked[1]), (std::vector<std::uint32_t>{2, 3}));
+  EXPECT_EQ(sent(effects.messages)[0].second, 3);
+  EXPECT_EQ(sent(effects.messages)[1].second, 4);
+  for (const v1::SendOrder* order : asked) {
+    EXPECT_EQ(order->render_rank(), kSelf);
+    EXPECT_EQ(order->requester_rank(), kSelf);
+    EXPECT_EQ(order->frame_id(), 7u);
+  }
+  // A second packet needing the same cells asks for nothing: they are on the way.
+  RenderEffects again;
+  core.receivePacket(kTraverse, packet(2, {0, 3}), kStart + 1ms, again);
+  EXPECT_TRUE(orders(again.messages).empty());
+  EXPECT_EQ(core.misses(), 5u);
+  EXPECT_EQ(core.workloadSplats(), 10'000u);
+}
+
+TEST(RenderCore, DrawsAPacketOnlyOnceAllItsDataIsHereAndStampsTheWait) {
+  RenderCore core = makeCore(4);
+  RenderEffects effects;
+  core.receivePacket(kTraverse, packet(1, {0, 1}), kStart, effects);
+  EXPECT_FALSE(core.nextPacket(kStart, effects));
+  EXPECT_EQ(core.receiveData(0, 1000, 1e-4, kStart + 10ms, effects), DataVerdict::Store);
+  EXPECT_FALSE(core.nextPacket(kStart + 10ms, effects));
+  EXPECT_EQ(core.receiveData(1, 1000, 1e-4, kStart + 30ms, effects), DataVerdict::Store);
+  const auto ready = core.nextPacket(kStart + 40ms, effects);
+  ASSERT_TRUE(ready);
+  const v1::TileImageHeader header = core.packetDrawn(*ready, 5000, 0.005, kStart + 45ms, effects);
+  EXPECT_EQ(header.data_wait_us(), 30'000);
+  EXPECT_EQ(header.queued_time_us(), 45'000);
+  EXPECT_EQ(header.render_rank(), kSelf);
+  EXPECT_EQ(header.traverse_rank(), kTraverse);
+  EXPECT_EQ(header.workload_splats(), 0u);
+  EXPECT_DOUBLE_EQ(core.secondsPerSplat(), 1e-6);
+  // A late duplicate of cached data is ignored.
+  EXPECT_EQ(core.receiveData(1, 1000, 1e-4, kStart + 50ms, effects), DataVerdict::Duplicate);
+  EXPECT_THROW(core.receiveData(2, 999, 1e-4, kStart, effects), ProtocolError);
+}
+
+TEST(RenderCore, ReportsEvictionsToDataSendBeforeARequestForTheSameCell) {
+  // Room for one cell: loading cell 1 evicts cell 0.
+  RenderCore core = makeCore(1);
+  RenderEffects effects;
+  core.receivePacket(kTraverse, packet(1, {0}), kStart, effects);
+  core.receiveData(0, 1000, 0.0, kStart, effects);
+  auto ready = core.nextPacket(kStart, effects);
+  ASSERT_TRUE(ready);
+  core.packetDrawn(*ready, 5000, 0.01, kStart, effects);
+  core.receivePacket(kTraverse, packet(2, {1}), kStart, effects);
+  RenderEffects loaded;
+  EXPECT_EQ(core.receiveData(1, 1000, 0.0, kStart, loaded), DataVerdict::Store);
+  EXPECT_EQ(loaded.released, (std::vector<std::uint32_t>{0}));
+  // Cell 0 is wanted again before the eviction was reported: the report goes
+  // first, or data-send would drop the request as a duplicate.
+  RenderEffects wanted;
+  core.receivePacket(kTraverse, packet(3, {0}), kStart, wanted);
+  const auto messages = sent(wanted.messages);
+  ASSERT_GE(wanted.messages.entries().size(), 2u);
+  const Outgoing& report = wanted.messages.entries()[0];
+  ASSERT_EQ(report.kind, MessageKind::RenderReport);
+  EXPECT_EQ(report.destinations, (std::vector<int>{1, 2, 3, 4}));
+  const auto& evicted = report.as<v1::RenderReport>().evicted_cells();
+  EXPECT_NE(std::find(evicted.begin(), evicted.end(), 0u), evicted.end());
+  const Outgoing& request = wanted.messages.entries()[1];
+  ASSERT_EQ(request.kind, MessageKind::SendOrder);
+  EXPECT_EQ(request.destinations, (std::vector<int>{3}));
+  EXPECT_EQ(cellsOf(request.as<v1::SendOrder>()), (std::vector<std::uint32_t>{0}));
+}
+
+TEST(RenderCore, PinsOnlyTheHeadPacketAndDropsPrefetchedDataWithNoRoomBesideIt) {
+  // Room for two cells; the head packet needs both.
+  RenderCore core = makeCore(2);
+  RenderEffects effects;
+  core.receivePacket(kTraverse, packet(1, {0, 1}), kStart, effects);
+  core.receivePacket(kTraverse, packet(2, {2}), kStart, effects);
+  EXPECT_FALSE(core.nextPacket(kStart, effects));
+  EXPECT_TRUE(core.pinned(0));
+  EXPECT_TRUE(core.pinned(1));
+  EXPECT_FALSE(core.pinned(2));
+  core.receiveData(0, 1000, 0.0, kStart, effects);
+  core.receiveData(1, 1000, 0.0, kStart, effects);
+  // Cell 2 arrives while the head packet's two cells fill the cap: dropped and
+  // reported as evicted, so that it is sent again when it is needed.
+  RenderEffects dropped;
+  EXPECT_EQ(core.receiveData(2, 1000, 0.0, kStart, dropped), DataVerdict::Dropped);
+  EXPECT_EQ(core.droppedPrefetches(), 1u);
+  EXPECT_FALSE(core.requested(2));
+  auto ready = core.nextPacket(kStart + 1ms, dropped);
+  ASSERT_TRUE(ready);
+  EXPECT_EQ(ready->packet.packet_id(), 1u);
+  // Once the head packet is drawn, packet 2 is the head: its cell is pinned
+  // and asked for again, after the report that it was dropped.
+  RenderEffects next;
+  core.packetDrawn(*ready, 5000, 0.01, kStart + 2ms, next);
+  EXPECT_FALSE(core.pinned(0));
+  EXPECT_TRUE(core.pinned(2));
+  const auto messages = next.messages.entries();
+  ASSERT_EQ(messages.size(), 2u);
+  ASSERT_EQ(messages[0].kind, MessageKind::RenderReport);
+  EXPECT_EQ(messages[0].destinations, (std::vector<int>{1, 2, 3, 4}));
+  EXPECT_EQ(messages[0].as<v1::RenderReport>().evicted_cells_size(), 1);
+  EXPECT_EQ(messages[0].as<v1::RenderReport>().evicted_cells(0), 2u);
+  ASSERT_EQ(messages[1].kind, MessageKind::SendOrder);
+  EXPECT_EQ(messages[1].destinations, (std::vector<int>{4}));
+  EXPECT_EQ(cellsOf(messages[1].as<v1::SendOrder>()), (std::vector<std::uint32_t>{2}));
+  EXPECT_FALSE(core.nextPacket(kStart + 3ms, next));
+  // Now cell 2 fits: an unpinned cell makes room for the pinned one.
+  RenderEffects loaded;
+  EXPECT_EQ(core.receiveData(2, 1000, 0.0, kStart + 4ms, loaded), DataVerdict::Store);
+  EXPECT_EQ(loaded.released.size(), 1u);
+  EXPECT_LE(core.cache().bytes(), 2000u);
+}
+
+TEST(RenderCore, AsksAgainForDataThatIsLateAndNotBefore) {
+  RenderCore core = makeCore(4);
+  RenderEffects effects;
+  core.nextPacket(kStart, effects);  // maintenance counts from here
+  core.receivePacket(kTraverse, packet(1, {3}), kStart, effects);
+  ASSERT_TRUE(core.nextMaintenance());
+  EXPECT_GT(*core.nextMaintenance(), kStart + kRerequestAfter);
+  RenderEffects early;
+  core.nextPacket(kStart + 600ms, early);
+  EXPECT_TRUE(orders(early.messages).empty());
+  RenderEffects late;
+  core.nextPacket(*core.nextMaintenance(), late);
+  const auto asked = orders(late.messages);
+  ASSERT_EQ(asked.size(), 1u);
+  EXPECT_EQ(cellsOf(*asked[0]), (std::vector<std::uint32_t>{3}));
+  EXPECT_EQ(sent(late.messages).back().second, 4);
+}
+
+TEST(RenderCore, ExpiresUnusedCellsAfterTheTimeoutAndReleasesTheirData) {
+  RenderCoreConfig config;
+  config.cacheCapBytes = 4000;
+  config.cacheTimeout = 2s;
+  RenderCore core(config, kPeers, kSelf, table(4, 1000), kOwners);
+  RenderEffects effects;
+  core.nextPacket(kStart, effects);
+  core.receivePacket(kTraverse, packet(1, {1}), kStart, effects);
+  core.receiveData(1, 1000, 0.0, kStart, effects);
+  auto ready = core.nextPacket(kStart, effects);
+  ASSERT_TRUE(ready);
+  core.packetDrawn(*ready, 100, 0.001, kStart, effects);
+  EXPECT_FALSE(core.nextPacket(kStart + 1s, effects));  // still fresh
+  EXPECT_TRUE(core.cache().contains(1));
+  const auto due = core.nextMaintenance();
+  ASSERT_TRUE(due);
+  EXPECT_GT(*due, kStart + 2s);
+  RenderEffects expired;
+  core.nextPacket(*due, expired);
+  EXPECT_EQ(expired.released, (std::vector<std::uint32_t>{1}));
+  EXPECT_FALSE(core.cache().contains(1));
+  EXPECT_FALSE(core.nextMaintenance());
+}
+
+TEST(RenderCore, ReportsGoToEveryTraverseWithEachOnesLastPacketAndToDataSendOnlyWithEvictions) {
+  RenderCore core = makeCore(4);
+  RenderEffects effects;
+  // Announces itself on its first idle moment.
+  core.nextPacket(kStart, effects);
+  ASSERT_EQ(effects.messages.entries().size(), 1u);
+  EXPECT_EQ(effects.messages.entries()[0].destinations, (std::vector<int>{1, 2}));
+  v1::RenderPacket fromOther = packet(4, {0});
+  fromOther.set_traverse_rank(kOtherTraverse);
+  RenderEffects more;
+  core.receivePacket(kTraverse, packet(9, {0}), kStart, more);
+  core.receivePacket(kOtherTraverse, fromOther, kStart, more);
+  core.receiveData(0, 1000, 0.0, kStart, more);
+  auto ready = core.nextPacket(kStart, more);
+  ASSERT_TRUE(ready);
+  RenderEffects drawn;
+  core.packetDrawn(*ready, 5000, 0.01, kStart, drawn);
+  ASSERT_EQ(drawn.messages.entries().size(), 1u);
+  const Outgoing& report = drawn.messages.entries()[0];
+  EXPECT_EQ(report.destinations, (std::vector<int>{1, 2}));
+  const auto& message = report.as<v1::RenderReport>();
+  ASSERT_EQ(message.last_packet_from_traverse_size(), 2);
+  EXPECT_EQ(message.last_packet_from_traverse(0), 9u);
+  EXPECT_EQ(message.last_packet_from_traverse(1), 4u);
+  EXPECT_EQ(message.packets_done(), 1u);
+  EXPECT_EQ(message.workload_splats(), 5000u);
+  EXPECT_EQ(message.loaded_cells_size(), 1);
+  // A packet from a process that is not a traverse is a protocol error.
+  EXPECT_THROW(core.receivePacket(3, packet(1, {0}), kStart, drawn), ProtocolError);
+  EXPECT_THROW(core.receivePacket(kTraverse, packet(1, {4}), kStart, drawn), ProtocolError);
+}
+
+TEST(RenderCore, AStalledProcessKeepsTakingMessagesButDrawsNothing) {
+  RenderCore core = makeCore(4, 1);
+  RenderEffects effects;
+  core.receivePacket(kTraverse, packet(1, {0}), kStart, effects);
+  core.receivePacket(kTraverse, packet(2, {0}), kStart, effects);
+  core.receiveData(0, 1000, 0.0, kStart, effects);
+  auto first = core.nextPacket(kStart, effects);
+  ASSERT_TRUE(first);
+  core.packetDrawn(*first, 100, 0.001, kStart, effects);
+  EXPECT_TRUE(core.stalled());
+  EXPECT_FALSE(core.nextPacket(kStart + 1s, effects));
+  EXPECT_EQ(core.queuedPackets(), 1u);
+}
+
+}  // namespace
+}  // namespace pointillist::render
