@@ -262,6 +262,38 @@ TEST(Simulator, ManyFramesInFlightAndShortTimeoutsReissueButNeverDoubleCompose) 
   EXPECT_GT(reissued, 0u);
 }
 
+// The same RenderCore and PacketPlanner as the runtime: a render process that
+// stops drawing holds up its tiles until they are re-issued, then the cost
+// function avoids it, and every frame completes.
+TEST(Simulator, AStalledRenderIsAvoidedAndEveryFrameStillCompletes) {
+  ModelParameters p = fixedParameters();
+  p.tileTimeoutSeconds = 0.5;
+  SimulationConfig c = config(SchedulerKind::Cost, 3, 2, 1);
+  c.stalledRender = 0;
+  c.stallAfterPackets = 2;
+  const auto result = simulate(cityScene(), c, p);
+  ASSERT_EQ(result.frames.size(), cityScene().cameras().size());
+  std::uint64_t reissued = 0;
+  for (std::size_t i = 0; i < result.frames.size(); ++i) {
+    EXPECT_EQ(result.stats.frames[i].failedTiles, 0u) << "frame " << i;
+    EXPECT_EQ(result.frames[i].tilesComposed, result.frames[i].tilesPlanned);
+    reissued += result.stats.frames[i].reissuedTiles;
+  }
+  EXPECT_GT(reissued, 0u);
+  // The stalled process drew its two packets and nothing else arrived from it.
+  const int stalledRank = 1 + 2 + 1;
+  std::size_t fromStalled = 0;
+  for (const auto& tile : result.stats.tiles) fromStalled += tile.renderRank == stalledRank;
+  EXPECT_EQ(fromStalled, 2u);
+  // Once suspected, it is not handed work: far fewer packets than its share.
+  std::uint64_t late = 0;
+  const double suspectedBy = result.stats.frames[result.frames.size() / 2].endSeconds;
+  for (const auto& tile : result.stats.tiles) {
+    if (tile.dispatchedSeconds > suspectedBy && tile.attempt > 0) ++late;
+  }
+  EXPECT_EQ(late, 0u) << "tiles still re-issued after the stall was suspected";
+}
+
 TEST(Simulator, RejectsBadConfigurationsAndParameters) {
   EXPECT_THROW(simulate(cityScene(), config(SchedulerKind::Cost, 0), fixedParameters()),
                UsageError);
