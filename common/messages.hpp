@@ -9,6 +9,7 @@
 #include <memory>
 #include <span>
 #include <string>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -40,35 +41,24 @@ const char* messageKindName(MessageKind kind);
 
 // The kind each message type travels as.
 template <class M>
-struct KindOf;
-template <>
-struct KindOf<v1::WorkRequest> {
-  static constexpr MessageKind value = MessageKind::WorkRequest;
-};
-template <>
-struct KindOf<v1::TileTask> {
-  static constexpr MessageKind value = MessageKind::TileTask;
-};
-template <>
-struct KindOf<v1::RenderPacket> {
-  static constexpr MessageKind value = MessageKind::RenderPacket;
-};
-template <>
-struct KindOf<v1::SendOrder> {
-  static constexpr MessageKind value = MessageKind::SendOrder;
-};
-template <>
-struct KindOf<v1::DataPacketHeader> {
-  static constexpr MessageKind value = MessageKind::DataPacket;
-};
-template <>
-struct KindOf<v1::TileImageHeader> {
-  static constexpr MessageKind value = MessageKind::TileImage;
-};
-template <>
-struct KindOf<v1::RenderReport> {
-  static constexpr MessageKind value = MessageKind::RenderReport;
-};
+constexpr MessageKind kindOf() {
+  if constexpr (std::is_same_v<M, v1::WorkRequest>)
+    return MessageKind::WorkRequest;
+  else if constexpr (std::is_same_v<M, v1::TileTask>)
+    return MessageKind::TileTask;
+  else if constexpr (std::is_same_v<M, v1::RenderPacket>)
+    return MessageKind::RenderPacket;
+  else if constexpr (std::is_same_v<M, v1::SendOrder>)
+    return MessageKind::SendOrder;
+  else if constexpr (std::is_same_v<M, v1::DataPacketHeader>)
+    return MessageKind::DataPacket;
+  else if constexpr (std::is_same_v<M, v1::TileImageHeader>)
+    return MessageKind::TileImage;
+  else if constexpr (std::is_same_v<M, v1::RenderReport>)
+    return MessageKind::RenderReport;
+  else
+    static_assert(sizeof(M) == 0, "this message type travels on no tag of its own");
+}
 
 // One message for one or more peers (world ranks); shared, never copied per peer.
 struct Outgoing {
@@ -79,9 +69,9 @@ struct Outgoing {
   // The message as its type; a ProtocolError when the kind does not match.
   template <class M>
   const M& as() const {
-    if (kind != KindOf<M>::value) {
+    if (kind != kindOf<M>()) {
       throw ProtocolError(std::string("an outgoing ") + messageKindName(kind) +
-                          " message read as " + messageKindName(KindOf<M>::value));
+                          " message read as " + messageKindName(kindOf<M>()));
     }
     return static_cast<const M&>(*message);
   }
@@ -98,7 +88,7 @@ class Outbox {
   template <class M>
   void send(std::vector<int> destinations, M message) {
     if (destinations.empty()) return;
-    entries_.push_back(Outgoing{KindOf<M>::value, std::move(destinations),
+    entries_.push_back(Outgoing{kindOf<M>(), std::move(destinations),
                                 std::make_shared<const M>(std::move(message))});
   }
 
