@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Scheduler simulator sweep: predicts frame rate, imbalance, bytes moved per
 # frame and the bottleneck for 8 to 1024 render processes and several traverse
-# counts, per scheduler, by driving the real tile planner, frame scheduler,
-# cost function and render cache with modelled processes (pointillist-simulate;
-# no MPI job is started). Prints the table with the model's assumptions.
+# counts, per scheduler, by driving the roles' own decision cores (display,
+# traverse, data-send, render) with modelled time and network
+# (pointillist-simulate; no MPI job is started). Prints the table with the
+# model's assumptions.
 #
 #   deploy/simulate.sh [--dataset D] [--camera-path orbit] [--frames 16] [--size 1280x720]
 #       [--renders 8,16,...,1024] [--traverses 1,2,4,8] [--datasends auto]

@@ -355,9 +355,11 @@ std::string formatReport(const std::vector<SweepRow>& rows, const Assumptions& a
                          const std::vector<std::string>& plots) {
   std::ostringstream out;
   out << "# Simulated scheduler sweep\n\n"
-      << "Predicted by `pointillist-simulate`: the real tile planner, frame scheduler, cost "
-         "function (RenderModel) and render cache driven by modelled processes in simulated "
-         "time. These are model figures, not measurements.\n\n## Assumptions\n\n";
+      << "Predicted by `pointillist-simulate`: the roles' own cores (the display's frame "
+         "assembly and tile planner, the traverse's packet planner and cost function, the "
+         "data-send's ledger, the render's cache and queue) driven in simulated time. Only "
+         "durations are modelled; these are model figures, not measurements.\n\n"
+         "## Assumptions\n\n";
   for (const auto& [name, value] : assumptions) out << "- **" << name << "**: " << value << '\n';
   out << "\n## Figures\n\n" << alignedTable(rows, true) << '\n';
   out << "- R, T, S: render, traverse and data-send processes (one display).\n"

@@ -20,7 +20,7 @@
 #include "common/messages.hpp"
 #include "common/octree_cell.hpp"
 #include "common/peer_ranks.hpp"
-#include "common/rate_estimates.hpp"
+#include "render/core/rate_estimates.hpp"
 #include "render/core/cell_cache.hpp"
 
 namespace pointillist::render {

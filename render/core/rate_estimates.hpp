@@ -1,6 +1,6 @@
 #pragma once
 // How render processes turn noisy timings into the T_s and T_n they report
-// (seed 003 §4.3); the simulator models the same estimates.
+// (seed 003 §4.3), in the RenderCore that the runtime and the simulator share.
 #include <algorithm>
 #include <cstddef>
 #include <deque>
