@@ -1,8 +1,9 @@
 #pragma once
 // The dataset directory written by pointillist-preprocess (SPEC "Dataset"):
 //
-//   manifest.txt          key = value lines: version, bounds, counts, options,
-//                         and one `file.<key> = <name> <bytes> <fnv1a64|->` line per file
+//   manifest.txt          key = value lines: version, bounds, largest splat radius,
+//                         counts, options, and one `file.<key> = <name> <bytes> <fnv1a64|->`
+//                         line per file (common/dataset_manifest.hpp)
 //   cells.bin             octree-cell-array: OctreeCell[cell_count], depth-first (seed 003 §4.1.1)
 //   top-level.bin         TopLevelCell[top_level_count], in depth-first order of their cells
 //   packet-checksums.bin  uint64 FNV-1a 64 of each top-level cell's packet, same order
@@ -22,7 +23,8 @@
 // splats it replaces, so coarser levels have no holes where finer ones had
 // none. OctreeCell::maxSplatRadius is the largest radius of any splat in the
 // subtree (points and level-splats; it never grows going down the tree; for a
-// cell with level-splats it is their largest radius), so
+// cell with level-splats it is their largest radius; the root's is also the
+// manifest's max_splat_radius), so
 //   - culling: a cell's splats lie inside [boundsMin - r, boundsMax + r] with
 //     r = maxSplatRadius (bounds are the tight bounds of the splat centres);
 //   - LOD: draw the cell's level-splats (splatsOffset/splatsCount) when
@@ -33,67 +35,22 @@
 #include <cstddef>
 #include <cstdint>
 #include <filesystem>
-#include <functional>
-#include <map>
-#include <optional>
 #include <span>
 #include <string>
 #include <string_view>
 #include <vector>
 
+#include "common/dataset_manifest.hpp"
+#include "common/dataset_writer.hpp"
 #include "common/octree_cell.hpp"
 #include "common/splat.hpp"
 
 namespace pointillist {
 
-inline constexpr std::uint32_t kDatasetFormatVersion = 1;
-inline constexpr std::uint64_t kFnv1a64Offset = 0xcbf29ce484222325ull;
-
-// FNV-1a 64 over bytes; pass the previous result as `state` to hash in pieces.
-std::uint64_t fnv1a64(const void* data, std::size_t size, std::uint64_t state = kFnv1a64Offset);
-
-struct DatasetFile {
-  std::string key;   // cells, top_level, packet_checksums, points, or a later stage's key
-  std::string name;  // file name inside the dataset directory
-  std::uint64_t size = 0;
-  std::optional<std::uint64_t> checksum;  // FNV-1a 64 of the whole file; none for points
-};
-
-struct DatasetManifest {
-  std::uint32_t formatVersion = kDatasetFormatVersion;
-  std::string source;              // input files or generator, for humans
-  std::string createdBy;           // tool and version
-  float boundsMin[3] = {0, 0, 0};  // tight bounds of all splat centres
-  float boundsMax[3] = {0, 0, 0};
-  std::uint64_t pointCount = 0;
-  std::uint64_t levelSplatCount = 0;
-  std::uint64_t cellCount = 0;
-  std::uint64_t topLevelCount = 0;
-  std::uint32_t topLevelDepth = 0;
-  std::uint32_t treeDepth = 0;  // deepest cell
-  std::uint32_t maxLevel = 0;   // level of the root
-  // Build options, recorded so a dataset can be reproduced.
-  std::uint32_t maxDepth = 0;
-  std::uint32_t leafPoints = 0;
-  double levelSplatReduction = 0;
-  std::uint32_t recordSize = sizeof(Splat);
-  std::uint32_t cellSize = sizeof(OctreeCell);
-  std::uint32_t topLevelEntrySize = sizeof(TopLevelCell);
-  std::vector<DatasetFile> files;
-  // Keys this version does not know; kept so later stages can add their own.
-  std::map<std::string, std::string> extra;
-
-  const DatasetFile* file(std::string_view key) const;
-  std::string toText() const;
-  // Throws InputError naming `where` and the line for malformed text, unknown
-  // format or version, and missing required keys.
-  static DatasetManifest parse(std::string_view text, const std::string& where);
-};
-
 // Which parts Dataset::open loads into memory. The manifest is always read and
 // every listed file is checked for presence and size.
 enum class DatasetParts : unsigned {
-  Manifest = 0,
+  Manifest = 0,    // bounds, counts, largest splat radius (display)
   TopLevel = 1,    // top-level table + packet checksums (data-send)
   Cells = 2 | 1,   // + octree-cell-array, validated (traverse)
   Points = 4 | 1,  // + the whole point-array, every packet verified (render, reference)
@@ -143,45 +100,10 @@ class Dataset {
 // Checks the top-level table against the manifest (contiguous packets that
 // cover the point-array, sizes) and, when `cells` is not empty, the cell array
 // (depth-first structure, nextSibling, levels, leaf flags, top-level
-// membership, data ranges inside their packet, finite bounds). Throws
-// InputError prefixed with `where`.
+// membership, data ranges inside their packet, finite bounds, the root's
+// maxSplatRadius against the manifest's). Throws InputError prefixed with
+// `where`.
 void validateDatasetStructure(const DatasetManifest& manifest, std::span<const OctreeCell> cells,
                               std::span<const TopLevelCell> topLevel, const std::string& where);
-
-// What the preprocess hands to the writer. Packets are not materialized: top-
-// level cell k's packet is its pointCount splats from `points` followed by its
-// levelSplatCount splats from `levelSplats`, both taken in table order.
-struct DatasetContent {
-  DatasetManifest manifest;  // descriptive fields; counts, files, checksums are filled in
-  std::vector<OctreeCell> cells;
-  std::vector<TopLevelCell> topLevel;  // byteOffset/byteSize are filled in
-  std::vector<Splat> points;
-  std::vector<Splat> levelSplats;
-  // Files of later stages (statistical hierarchy, transformation streams),
-  // written verbatim with a checksum and listed as file.<key>.
-  struct ExtraFile {
-    std::string key;
-    std::string name;
-    std::vector<std::byte> bytes;
-  };
-  std::vector<ExtraFile> extraFiles;
-};
-
-// Fills the manifest counts, bounds and file list (sizes; checksums are left
-// to the writer) and the table's byteOffset/byteSize, then validates the
-// structure. Throws Error("internal error: ...") when content is inconsistent.
-// writeDataset calls it; tests and in-memory users may call it directly.
-void finalizeDatasetContent(DatasetContent& content);
-
-// (bytes done, bytes total)
-using DatasetProgressFn = std::function<void(std::uint64_t, std::uint64_t)>;
-
-// Validates `content`, writes it into `<dir>.tmp-XXXXXX` next to `dir` and
-// renames that to `dir` at the end; on any failure the temporary directory is
-// removed. An existing `dir` is replaced only when `overwrite` is set (else
-// UsageError). Completes content.manifest and content.topLevel in place and
-// returns the bytes written.
-std::uint64_t writeDataset(const std::filesystem::path& dir, DatasetContent& content,
-                           bool overwrite = false, const DatasetProgressFn& progress = {});
 
 }  // namespace pointillist

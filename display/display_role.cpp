@@ -81,7 +81,7 @@ class DisplayProcess {
   DisplayProcess(Job& job, const DisplayOptions& options)
       : job_(job),
         options_(options),
-        dataset_(Dataset::open(options.datasetPath, DatasetParts::Cells)) {
+        dataset_(Dataset::open(options.datasetPath, DatasetParts::Manifest)) {
     const auto [width, height] = parseImageSize(options.view.size);
     width_ = width;
     height_ = height;
@@ -93,9 +93,8 @@ class DisplayProcess {
     }
     config_.bounds = datasetBounds(dataset_.manifest());
     config_.cameras = viewCameras(options.view, config_.bounds);
-    // The root holds the largest splat radius of the whole tree.
-    const float maxRadius = dataset_.cells().empty() ? 0.0f : dataset_.cells()[0].maxSplatRadius;
-    config_.marginWorld = maxRadius * options.view.sizeScale;
+    // The manifest carries the root's largest splat radius, so cells.bin stays unread here.
+    config_.marginWorld = dataset_.manifest().maxSplatRadius * options.view.sizeScale;
     config_.framesInFlight = options.framesInFlight;
     config_.tileTimeout =
         std::chrono::milliseconds(static_cast<long>(options.tileTimeoutSeconds * 1000.0));

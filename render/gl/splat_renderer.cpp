@@ -17,6 +17,7 @@
 #include <glm/gtc/type_ptr.hpp>
 
 #include "common/errors.hpp"
+#include "render/gl/embedded_shaders.hpp"
 
 namespace pointillist::render {
 
@@ -29,215 +30,20 @@ constexpr GLuint kColor = 1;
 constexpr GLuint kRadius = 2;
 constexpr GLuint kNormal = 3;
 
-// Points: the centre is snapped in full-frame pixels (odd sizes to the pixel
-// centre, even sizes to the pixel corner) and emitted with w = 1, so which
-// pixels a point covers does not depend on floating-point rounding of the
-// (tile-shifted) viewport transform: tiles match the full frame exactly.
-constexpr const char* kPointsVertex = R"(#version 330 core
-layout(location = 0) in vec3 inPosition;
-layout(location = 1) in vec4 inColor;
-layout(location = 2) in float inRadius;
-uniform mat4 viewProjection;
-uniform vec2 frameSize;
-uniform float guard;          // pixels of clip volume beyond each frame edge
-uniform float diameterScale;  // 2 * focal length in pixels * sizeScale
-uniform float constantSize;   // > 0: fixed size
-uniform float maxSize;
-flat out vec4 vColor;
-void main() {
-  vec4 clip = viewProjection * vec4(inPosition, 1.0);
-  vColor = inColor;
-  float size = constantSize > 0.0 ? constantSize : inRadius * diameterScale / clip.w;
-  size = clamp(floor(size + 0.5), 1.0, maxSize);
-  gl_PointSize = size;
-  if (clip.w <= 0.0) {
-    gl_Position = vec4(0.0, 0.0, 2.0, 1.0);  // behind the eye: clipped
-    return;
-  }
-  vec3 ndc = clip.xyz / clip.w;
-  vec2 window = (ndc.xy * 0.5 + 0.5) * frameSize;
-  vec2 snapped = mod(size, 2.0) == 1.0 ? floor(window) + 0.5 : floor(window + 0.5);
-  gl_Position = vec4((snapped + guard) / (frameSize + 2.0 * guard) * 2.0 - 1.0, ndc.z, 1.0);
-}
-)";
-
-constexpr const char* kPointsFragment = R"(#version 330 core
-flat in vec4 vColor;
-out vec4 fragColor;
-void main() { fragColor = vColor; }
-)";
-
-constexpr const char* kSplatsVertex = R"(#version 330 core
-layout(location = 0) in vec3 inPosition;
-layout(location = 1) in vec4 inColor;
-layout(location = 2) in float inRadius;
-layout(location = 3) in vec3 inNormal;
-out Splat {
-  vec3 position;
-  vec3 normal;
-  float radius;
-  vec4 color;
-} vSplat;
-void main() {
-  vSplat.position = inPosition;
-  vSplat.normal = inNormal;
-  vSplat.radius = inRadius;
-  vSplat.color = inColor;
-}
-)";
-
-// Seed 002's transfer function: one vertex in, the disk's screen-space bounding
-// rectangle out. Everything the fragment shader needs is flat, so each pixel's
-// result depends only on its full-frame coordinates and this splat.
-constexpr const char* kSplatsGeometry = R"(#version 330 core
-layout(points) in;
-layout(triangle_strip, max_vertices = 4) out;
-in Splat {
-  vec3 position;
-  vec3 normal;
-  float radius;
-  vec4 color;
-} vSplat[];
-uniform mat4 view;
-uniform mat4 projection;
-uniform vec2 frameSize;
-uniform float guard;        // pixels of clip volume beyond each frame edge
-uniform float focalPixels;  // pixels per world unit at eye distance 1
-uniform float radiusScale;
-uniform float minPixelRadius;
-uniform float nearPlane;
-uniform int lighting;
-uniform float ambient;
-flat out vec3 gCentre;  // eye space
-flat out vec3 gNormal;  // eye space, unit
-flat out float gRadius2;
-flat out vec4 gColor;
-
-void emitClip(vec4 clip) {
-  gl_Position = clip;
-  EmitVertex();
-}
-
-// Frame clip coordinates -> the guarded viewport's.
-vec4 guarded(vec4 clip) {
-  return vec4(clip.xy * frameSize / (frameSize + 2.0 * guard), clip.zw);
-}
-
-void main() {
-  vec3 centre = (view * vec4(vSplat[0].position, 1.0)).xyz;
-  float dist = -centre.z;
-  float radius = vSplat[0].radius * radiusScale;
-  if (dist + radius < nearPlane) return;  // wholly nearer than the near plane
-  radius = max(radius, minPixelRadius * max(dist, nearPlane) / focalPixels);
-  vec3 n = mat3(view) * vSplat[0].normal;
-  // No normal: a disk facing the eye.
-  n = dot(n, n) > 0.25 ? normalize(n) : (dist > 0.0 ? -normalize(centre) : vec3(0.0, 0.0, 1.0));
-  vec3 a = abs(n.x) < 0.9 ? vec3(1.0, 0.0, 0.0) : vec3(0.0, 1.0, 0.0);
-  vec3 u = normalize(cross(n, a));
-  vec3 v = cross(n, u);
-
-  float shade = 1.0;
-  if (lighting != 0) {
-    vec3 toEye = dist > 0.0 ? -normalize(centre) : vec3(0.0, 0.0, 1.0);
-    shade = ambient + (1.0 - ambient) * abs(dot(n, toEye));
-  }
-  gCentre = centre;
-  gNormal = n;
-  gRadius2 = radius * radius;
-  gColor = vec4(vSplat[0].color.rgb * shade, vSplat[0].color.a);
-
-  vec4 corners[4];
-  corners[0] = projection * vec4(centre + radius * (-u - v), 1.0);
-  corners[1] = projection * vec4(centre + radius * (u - v), 1.0);
-  corners[2] = projection * vec4(centre + radius * (-u + v), 1.0);
-  corners[3] = projection * vec4(centre + radius * (u + v), 1.0);
-  float minW = min(min(corners[0].w, corners[1].w), min(corners[2].w, corners[3].w));
-  if (minW > 0.5 * nearPlane) {
-    // The projected square contains the projected disk; its bounding box grown
-    // by a pixel keeps every covered pixel centre well inside the rectangle.
-    vec2 lo = vec2(1e30), hi = vec2(-1e30);
-    for (int i = 0; i < 4; ++i) {
-      vec2 window = (corners[i].xy / corners[i].w * 0.5 + 0.5) * frameSize;
-      lo = min(lo, window);
-      hi = max(hi, window);
-    }
-    lo = (lo - 1.0 + guard) / (frameSize + 2.0 * guard) * 2.0 - 1.0;
-    hi = (hi + 1.0 + guard) / (frameSize + 2.0 * guard) * 2.0 - 1.0;
-    // z = 0: depth clipping is done per pixel by the fragment shader.
-    emitClip(vec4(lo.x, lo.y, 0.0, 1.0));
-    emitClip(vec4(hi.x, lo.y, 0.0, 1.0));
-    emitClip(vec4(lo.x, hi.y, 0.0, 1.0));
-    emitClip(vec4(hi.x, hi.y, 0.0, 1.0));
-  } else {
-    // Crosses the eye plane: a slightly larger square in clip space, clipped by GL.
-    float grow = 1.1;
-    emitClip(guarded(projection * vec4(centre + grow * radius * (-u - v), 1.0)));
-    emitClip(guarded(projection * vec4(centre + grow * radius * (u - v), 1.0)));
-    emitClip(guarded(projection * vec4(centre + grow * radius * (-u + v), 1.0)));
-    emitClip(guarded(projection * vec4(centre + grow * radius * (u + v), 1.0)));
-  }
-  EndPrimitive();
-}
-)";
-
-constexpr const char* kSplatsFragment = R"(#version 330 core
-flat in vec3 gCentre;
-flat in vec3 gNormal;
-flat in float gRadius2;
-flat in vec4 gColor;
-uniform vec2 frameSize;
-uniform vec2 tileOrigin;   // full-frame pixel of the tile's bottom-left
-uniform vec2 projScale;    // projection[0][0], projection[1][1]
-uniform vec2 depthCoeff;   // projection[2][2], projection[3][2]
-uniform uint drawSerial;   // changes every draw; see setUniforms
-uniform int pass;          // 0 opaque, 1 blended visibility, 2 blended accumulation
-uniform float depthOffsetRadii;
-out vec4 fragColor;
-void main() {
-  if (drawSerial == 0xffffffffu) discard;
-  // Exact full-frame pixel centre: integers + 0.5 are exact in float.
-  vec2 ndc = (gl_FragCoord.xy + tileOrigin) / frameSize * 2.0 - 1.0;
-  vec3 dir = vec3(ndc / projScale, -1.0);  // eye-space ray, z = -1
-  float t = dot(gCentre, gNormal) / dot(dir, gNormal);
-  vec3 hit = dir * t;
-  vec3 d = hit - gCentre;
-  float q = dot(d, d) / gRadius2;  // squared distance from the centre in radii
-  if (!(t > 0.0) || !(q <= 1.0)) discard;
-  // Visibility pass: pushed back so splats of the same surface blend.
-  float z = pass == 1 ? hit.z - depthOffsetRadii * sqrt(gRadius2) : hit.z;
-  float depth = (depthCoeff.x * z + depthCoeff.y) / (-z) * 0.5 + 0.5;
-  if (!(depth >= 0.0 && depth <= 1.0)) discard;
-  gl_FragDepth = depth;
-  if (pass == 2) {
-    float w = exp(-2.0 * q);  // Gaussian reconstruction kernel, cut at the radius
-    fragColor = vec4(gColor.rgb * w, w);
-  } else {
-    fragColor = gColor;
-  }
-}
-)";
-
-// Blended mode, last pass: accumulated (sum w * colour, sum w) -> colour.
-// Texture coordinates come from a varying, not gl_FragCoord (see setUniforms).
-constexpr const char* kResolveVertex = R"(#version 330 core
-out vec2 uv;
-void main() {
-  vec2 corner = vec2(float((gl_VertexID & 1) * 2), float((gl_VertexID & 2)));
-  uv = corner;
-  gl_Position = vec4(corner * 2.0 - 1.0, 0.0, 1.0);
-}
-)";
-
-constexpr const char* kResolveFragment = R"(#version 330 core
-in vec2 uv;
-uniform sampler2D accumulation;
-uniform vec4 clearColor;
-out vec4 fragColor;
-void main() {
-  vec4 sum = texture(accumulation, uv);
-  fragColor = sum.a > 0.0 ? vec4(sum.rgb / sum.a, 1.0) : clearColor;
-}
-)";
+// The GLSL lives in render/gl/shaders/ and is compiled in (embedded_shaders.hpp):
+//   points.vert/.frag  points: the centre is snapped in full-frame pixels (odd
+//                      sizes to the pixel centre, even sizes to the pixel corner)
+//                      and emitted with w = 1, so which pixels a point covers
+//                      does not depend on floating-point rounding of the
+//                      (tile-shifted) viewport transform: tiles match the full
+//                      frame exactly.
+//   splats.vert/.geom/.frag  seed 002's transfer function: one vertex in, the
+//                      disk's screen-space bounding rectangle out. Everything
+//                      the fragment shader needs is flat, so each pixel's result
+//                      depends only on its full-frame coordinates and this splat.
+//   resolve.vert/.frag blended mode, last pass: accumulated (sum w * colour,
+//                      sum w) -> colour. Texture coordinates come from a
+//                      varying, not gl_FragCoord (see setUniforms).
 
 GLuint compileShader(GLenum type, const char* source, const char* name) {
   const GLuint shader = glCreateShader(type);
@@ -433,13 +239,14 @@ std::uint32_t SplatRenderer::guardPixels(const Camera& camera) const {
 unsigned SplatRenderer::program(SplatMode mode) {
   if (mode == SplatMode::Points) {
     if (programs_->points == 0) {
-      programs_->points = linkProgram(kPointsVertex, nullptr, kPointsFragment, "points program");
+      programs_->points =
+          linkProgram(shaders::kPointsVertex, nullptr, shaders::kPointsFragment, "points program");
     }
     return programs_->points;
   }
   if (programs_->splats == 0) {
-    programs_->splats =
-        linkProgram(kSplatsVertex, kSplatsGeometry, kSplatsFragment, "splats program");
+    programs_->splats = linkProgram(shaders::kSplatsVertex, shaders::kSplatsGeometry,
+                                    shaders::kSplatsFragment, "splats program");
   }
   return programs_->splats;
 }
@@ -646,8 +453,8 @@ RenderStats SplatRenderer::draw(
       glDisableVertexAttribArray(attribute);
     }
     if (programs_->resolve == 0) {
-      programs_->resolve =
-          linkProgram(kResolveVertex, nullptr, kResolveFragment, "blend resolve program");
+      programs_->resolve = linkProgram(shaders::kResolveVertex, nullptr, shaders::kResolveFragment,
+                                       "blend resolve program");
     }
     glUseProgram(programs_->resolve);
     glActiveTexture(GL_TEXTURE0);

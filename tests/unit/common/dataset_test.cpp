@@ -186,6 +186,7 @@ TEST_F(DatasetTest, RoundTripIsBitIdentical) {
   EXPECT_EQ(m.maxLevel, 3u);
   EXPECT_EQ(m.source, "unit test");
   EXPECT_EQ(m.boundsMax[2], 7.0f);
+  EXPECT_EQ(m.maxSplatRadius, 2.0f);
   // The manifest text itself round-trips.
   EXPECT_EQ(DatasetManifest::parse(m.toText(), "x").toText(), m.toText());
   // Nothing temporary is left next to the dataset.
@@ -253,25 +254,75 @@ TEST_F(DatasetTest, MissingFileIsRefused) {
   EXPECT_NE(errorOf(root_ / "nowhere").find("does not exist"), std::string::npos);
 }
 
+std::string versionLine(std::uint32_t version) {
+  return "format_version = " + std::to_string(version);
+}
+
 TEST_F(DatasetTest, WrongVersionIsRefused) {
   write(makeContent());
-  replaceInManifest("format_version = 1", "format_version = 2");
+  replaceInManifest(versionLine(kDatasetFormatVersion), versionLine(kDatasetFormatVersion + 1));
   const std::string msg = errorOf(dir_);
   EXPECT_NE(msg.find("manifest.txt"), std::string::npos) << msg;
-  EXPECT_NE(msg.find("unsupported format version 2"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("unsupported format version " + std::to_string(kDatasetFormatVersion + 1)),
+            std::string::npos)
+      << msg;
+}
+
+// A dataset of format 1 (no max_splat_radius) as the previous preprocess wrote it.
+TEST_F(DatasetTest, OlderVersionIsRefusedAskingToPreprocessAgain) {
+  write(makeContent());
+  replaceInManifest(versionLine(kDatasetFormatVersion), versionLine(1));
+  replaceInManifest("max_splat_radius = 2\n", "");
+  for (DatasetParts parts : {DatasetParts::Manifest, DatasetParts::Cells, DatasetParts::All}) {
+    const std::string msg = errorOf(dir_, parts);
+    EXPECT_NE(msg.find((dir_ / "manifest.txt").string()), std::string::npos) << msg;
+    EXPECT_NE(msg.find("unsupported format version 1"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("run pointillist-preprocess again"), std::string::npos) << msg;
+  }
+}
+
+TEST_F(DatasetTest, ManifestRadiusIsTheRootsLargestSplatRadius) {
+  DatasetContent content = makeContent();
+  content.cells[0].maxSplatRadius = 2.5f;  // the root's differs from every other cell's
+  write(content);
+  const Dataset cells = Dataset::open(dir_, DatasetParts::Cells);
+  EXPECT_EQ(cells.manifest().maxSplatRadius, 2.5f);
+  EXPECT_EQ(cells.manifest().maxSplatRadius, cells.cells()[0].maxSplatRadius);
+  EXPECT_EQ(Dataset::open(dir_, DatasetParts::Manifest).manifest().maxSplatRadius, 2.5f);
+
+  // A manifest that disagrees with cells.bin is refused wherever the cells are read.
+  replaceInManifest("max_splat_radius = 2.5", "max_splat_radius = 3");
+  const std::string msg = errorOf(dir_, DatasetParts::Cells);
+  EXPECT_NE(msg.find("cells.bin"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("max_splat_radius 3"), std::string::npos) << msg;
+  EXPECT_NO_THROW(Dataset::open(dir_, DatasetParts::TopLevel));
+}
+
+TEST_F(DatasetTest, BadManifestRadiusIsRefused) {
+  write(makeContent());
+  for (const char* bad : {"-1", "inf", "nan", "big", ""}) {
+    replaceInManifest("max_splat_radius = 2\n", std::string("max_splat_radius = ") + bad + "\n");
+    const std::string msg = errorOf(dir_, DatasetParts::Manifest);
+    EXPECT_NE(msg.find("manifest.txt:"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("max_splat_radius"), std::string::npos) << msg;
+    replaceInManifest(std::string("max_splat_radius = ") + bad + "\n", "max_splat_radius = 2\n");
+  }
+  replaceInManifest("max_splat_radius = 2\n", "");
+  EXPECT_NE(errorOf(dir_).find("missing key 'max_splat_radius'"), std::string::npos);
 }
 
 TEST_F(DatasetTest, ManifestSyntaxErrorsNameTheLine) {
   EXPECT_THROW(DatasetManifest::parse("format = something-else\n", "m"), InputError);
+  const std::string start =
+      "format = pointillist-dataset\n" + versionLine(kDatasetFormatVersion) + "\n";
   try {
-    DatasetManifest::parse("format = pointillist-dataset\nformat_version = 1\nno equals sign\n",
-                           "m.txt");
+    DatasetManifest::parse(start + "no equals sign\n", "m.txt");
     FAIL();
   } catch (const InputError& e) {
     EXPECT_NE(std::string(e.what()).find("m.txt:3:"), std::string::npos) << e.what();
   }
   try {
-    DatasetManifest::parse("format = pointillist-dataset\nformat_version = 1\n", "m.txt");
+    DatasetManifest::parse(start, "m.txt");
     FAIL();
   } catch (const InputError& e) {
     EXPECT_NE(std::string(e.what()).find("missing key"), std::string::npos) << e.what();
@@ -303,6 +354,7 @@ TEST_F(DatasetTest, InconsistentCellArrayIsRefused) {
   expectRefused("depth", [](DatasetContent& c) { c.cells[3].depth = 4; });
   expectRefused("bounds", [](DatasetContent& c) { c.cells[3].boundsMax[0] = 100; });
   expectRefused("maxSplatRadius", [](DatasetContent& c) { c.cells[3].maxSplatRadius = 9; });
+  expectRefused("max_splat_radius", [](DatasetContent& c) { c.manifest.maxSplatRadius = 1; });
   expectRefused("contiguous", [](DatasetContent& c) { c.topLevel[1].byteOffset += 32; });
   expectRefused("whose topLevel", [](DatasetContent& c) { c.cells[1].topLevel = kNoIndex; });
 }

@@ -1,0 +1,255 @@
+// Writing a dataset directory: everything goes into a temporary directory next
+// to the target, which is renamed into place at the end.
+#include "common/dataset_writer.hpp"
+
+#include <stdlib.h>    // mkdtemp
+#include <sys/stat.h>  // umask
+
+#include <algorithm>
+#include <cerrno>
+#include <cstring>
+#include <fstream>
+#include <system_error>
+
+#include "common/dataset.hpp"
+#include "common/dataset_internal.hpp"
+#include "common/errors.hpp"
+
+namespace pointillist {
+
+using dataset_detail::isPlainFileName;
+using dataset_detail::kCellsFile;
+using dataset_detail::kChecksumsFile;
+using dataset_detail::kManifestName;
+using dataset_detail::kPointsFile;
+using dataset_detail::kTopLevelFile;
+using dataset_detail::quoted;
+using dataset_detail::trim;
+namespace fs = std::filesystem;
+
+namespace {
+
+// Removes a temporary directory unless released.
+class TempDir {
+ public:
+  explicit TempDir(fs::path p) : path_(std::move(p)) {}
+  TempDir(const TempDir&) = delete;
+  TempDir& operator=(const TempDir&) = delete;
+  ~TempDir() {
+    if (!path_.empty()) {
+      std::error_code ec;
+      fs::remove_all(path_, ec);
+    }
+  }
+  const fs::path& path() const { return path_; }
+  void release() { path_.clear(); }
+
+ private:
+  fs::path path_;
+};
+
+fs::path makeUniqueDir(const fs::path& base, const char* suffix) {
+  std::string templ = base.string() + suffix + "XXXXXX";
+  if (mkdtemp(templ.data()) == nullptr)
+    throw Error("cannot create a directory next to " + quoted(base) + ": " + std::strerror(errno));
+  // mkdtemp makes it private; a dataset gets the usual umask permissions.
+  const mode_t mask = ::umask(0);
+  ::umask(mask);
+  std::error_code ec;
+  fs::permissions(templ, static_cast<fs::perms>(0777 & ~mask), ec);
+  return fs::path(templ);
+}
+
+class HashingWriter {
+ public:
+  explicit HashingWriter(const fs::path& p, bool hash = true)
+      : path_(p), out_(p, std::ios::binary | std::ios::trunc), hashing_(hash) {
+    if (!out_) throw Error("cannot create " + p.string() + ": " + std::strerror(errno));
+  }
+  void write(const void* data, std::size_t size) {
+    out_.write(static_cast<const char*>(data), static_cast<std::streamsize>(size));
+    if (!out_) throw Error("cannot write " + path_.string() + ": " + std::strerror(errno));
+    if (hashing_) hash_ = fnv1a64(data, size, hash_);
+    size_ += size;
+  }
+  DatasetFile finish(const char* key) {
+    out_.close();
+    if (!out_) throw Error("cannot write " + path_.string() + ": " + std::strerror(errno));
+    DatasetFile f{key, path_.filename().string(), size_, std::nullopt};
+    if (hashing_) f.checksum = hash_;
+    return f;
+  }
+
+ private:
+  fs::path path_;
+  std::ofstream out_;
+  bool hashing_;
+  std::uint64_t hash_ = kFnv1a64Offset;
+  std::uint64_t size_ = 0;
+};
+
+bool looksLikeDataset(const fs::path& dir) {
+  std::error_code ec;
+  if (fs::is_directory(dir, ec) && fs::is_empty(dir, ec)) return true;
+  std::ifstream in(dir / kManifestName);
+  std::string line;
+  while (std::getline(in, line)) {
+    const auto t = trim(line);
+    if (t.empty() || t[0] == '#') continue;
+    return t.rfind("format = pointillist-dataset", 0) == 0;
+  }
+  return false;
+}
+
+}  // namespace
+
+void finalizeDatasetContent(DatasetContent& content) {
+  DatasetManifest& m = content.manifest;
+  if (content.cells.empty() || content.topLevel.empty() || content.points.empty())
+    throw Error("refusing to write an empty dataset");
+  m.formatVersion = kDatasetFormatVersion;
+  m.recordSize = sizeof(Splat);
+  m.cellSize = sizeof(OctreeCell);
+  m.topLevelEntrySize = sizeof(TopLevelCell);
+  m.pointCount = content.points.size();
+  m.levelSplatCount = content.levelSplats.size();
+  m.cellCount = content.cells.size();
+  m.topLevelCount = content.topLevel.size();
+  m.maxLevel = content.cells[0].level;
+  m.maxSplatRadius = content.cells[0].maxSplatRadius;
+  m.treeDepth = 0;
+  for (const auto& c : content.cells) m.treeDepth = std::max<std::uint32_t>(m.treeDepth, c.depth);
+  for (int a = 0; a < 3; ++a) {
+    m.boundsMin[a] = content.cells[0].boundsMin[a];
+    m.boundsMax[a] = content.cells[0].boundsMax[a];
+  }
+  std::uint64_t offset = 0;
+  for (auto& t : content.topLevel) {
+    t.byteOffset = offset;
+    t.byteSize = (std::uint64_t{t.pointCount} + t.levelSplatCount) * sizeof(Splat);
+    offset += t.byteSize;
+  }
+  m.files = {
+      {kCellsFile.key, kCellsFile.name, m.cellCount * sizeof(OctreeCell), std::nullopt},
+      {kTopLevelFile.key, kTopLevelFile.name, m.topLevelCount * sizeof(TopLevelCell), std::nullopt},
+      {kChecksumsFile.key, kChecksumsFile.name, m.topLevelCount * 8, std::nullopt},
+      {kPointsFile.key, kPointsFile.name, offset, std::nullopt}};
+  try {
+    validateDatasetStructure(m, content.cells, content.topLevel, "(dataset content)");
+  } catch (const InputError& e) {
+    throw Error(std::string("internal error: inconsistent dataset: ") + e.what());
+  }
+}
+
+std::uint64_t writeDataset(const fs::path& dirIn, DatasetContent& content, bool overwrite,
+                           const DatasetProgressFn& progress) {
+  fs::path dir = dirIn.lexically_normal();
+  if (dir.filename().empty() && dir.has_parent_path()) dir = dir.parent_path();  // "ds/"
+  if (dir.filename().empty() || dir.filename() == "." || dir.filename() == "..")
+    throw UsageError("output " + quoted(dirIn) + " has no directory name");
+  std::error_code ec;
+  const bool exists = fs::exists(fs::symlink_status(dir, ec));
+  if (exists && !overwrite) throw UsageError("output " + quoted(dir) + " already exists");
+  if (exists && !looksLikeDataset(dir))
+    throw UsageError("refusing to replace " + quoted(dir) + ": it is not a Pointillist dataset");
+
+  finalizeDatasetContent(content);
+  DatasetManifest& m = content.manifest;
+  const std::uint64_t pointsBytes = m.file(kPointsFile.key)->size;
+
+  if (!dir.parent_path().empty()) fs::create_directories(dir.parent_path(), ec);
+  TempDir tmp(makeUniqueDir(dir, ".tmp-"));
+  const std::uint64_t total = pointsBytes + m.cellCount * sizeof(OctreeCell);
+  std::uint64_t done = 0;
+  auto report = [&] {
+    if (progress) progress(done, total);
+  };
+
+  std::vector<DatasetFile> files;
+  {
+    HashingWriter w(tmp.path() / kCellsFile.name);
+    w.write(content.cells.data(), content.cells.size() * sizeof(OctreeCell));
+    files.push_back(w.finish(kCellsFile.key));
+    done += files.back().size;
+    report();
+  }
+  std::vector<std::uint64_t> packetSums(content.topLevel.size());
+  {
+    // No whole-file hash: the packet checksums cover points.bin.
+    HashingWriter w(tmp.path() / kPointsFile.name, false);
+    std::size_t p = 0, s = 0;
+    for (std::size_t k = 0; k < content.topLevel.size(); ++k) {
+      const TopLevelCell& t = content.topLevel[k];
+      const auto* pts = content.points.data() + p;
+      const auto* lvl = content.levelSplats.data() + s;
+      w.write(pts, t.pointCount * sizeof(Splat));
+      w.write(lvl, t.levelSplatCount * sizeof(Splat));
+      packetSums[k] = fnv1a64(lvl, t.levelSplatCount * sizeof(Splat),
+                              fnv1a64(pts, t.pointCount * sizeof(Splat)));
+      p += t.pointCount;
+      s += t.levelSplatCount;
+      done += t.byteSize;
+      if ((k & 63) == 0) report();
+    }
+    files.push_back(w.finish(kPointsFile.key));
+  }
+  {
+    HashingWriter w(tmp.path() / kTopLevelFile.name);
+    w.write(content.topLevel.data(), content.topLevel.size() * sizeof(TopLevelCell));
+    files.push_back(w.finish(kTopLevelFile.key));
+  }
+  {
+    HashingWriter w(tmp.path() / kChecksumsFile.name);
+    w.write(packetSums.data(), packetSums.size() * sizeof(std::uint64_t));
+    files.push_back(w.finish(kChecksumsFile.key));
+  }
+  for (const auto& x : content.extraFiles) {
+    if (!isPlainFileName(x.name) || x.name == kManifestName || x.key.empty() ||
+        x.key.find_first_of(" \t=") != std::string::npos)
+      throw Error("bad extra dataset file '" + x.key + "' -> '" + x.name + "'");
+    for (const auto& f : files)
+      if (f.key == x.key || f.name == x.name) throw Error("duplicate dataset file '" + x.key + "'");
+    HashingWriter w(tmp.path() / x.name);
+    w.write(x.bytes.data(), x.bytes.size());
+    files.push_back(w.finish(x.key.c_str()));
+  }
+  m.files = std::move(files);
+  std::uint64_t bytes = 0;
+  for (const auto& f : m.files) bytes += f.size;
+  {
+    const std::string text = m.toText();
+    bytes += text.size();
+    std::ofstream out(tmp.path() / kManifestName, std::ios::binary | std::ios::trunc);
+    out << text;
+    out.close();
+    if (!out) throw Error("cannot write " + (tmp.path() / kManifestName).string());
+  }
+  report();
+
+  // Swap into place: the old dataset (if replacing) moves aside first.
+  if (exists) {
+    const fs::path old = makeUniqueDir(dir, ".old-");
+    fs::rename(dir, old, ec);  // replaces the empty placeholder
+    if (ec) {
+      fs::remove(old);
+      throw Error("cannot move " + quoted(dir) + " aside: " + ec.message());
+    }
+    fs::rename(tmp.path(), dir, ec);
+    if (ec) {
+      std::error_code ec2;
+      fs::rename(old, dir, ec2);
+      throw Error("cannot rename " + quoted(tmp.path()) + " to " + quoted(dir) + ": " +
+                  ec.message());
+    }
+    fs::remove_all(old, ec);
+  } else {
+    fs::rename(tmp.path(), dir, ec);
+    if (ec)
+      throw Error("cannot rename " + quoted(tmp.path()) + " to " + quoted(dir) + ": " +
+                  ec.message());
+  }
+  tmp.release();
+  return bytes;
+}
+
+}  // namespace pointillist

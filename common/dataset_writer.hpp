@@ -1,0 +1,53 @@
+#pragma once
+// What the preprocess hands to the dataset writer, and the writer itself
+// (layout of the directory: common/dataset.hpp).
+#include <cstddef>
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "common/dataset_manifest.hpp"
+#include "common/octree_cell.hpp"
+#include "common/splat.hpp"
+
+namespace pointillist {
+
+// What the preprocess hands to the writer. Packets are not materialized: top-
+// level cell k's packet is its pointCount splats from `points` followed by its
+// levelSplatCount splats from `levelSplats`, both taken in table order.
+struct DatasetContent {
+  DatasetManifest manifest;  // descriptive fields; counts, files, checksums are filled in
+  std::vector<OctreeCell> cells;
+  std::vector<TopLevelCell> topLevel;  // byteOffset/byteSize are filled in
+  std::vector<Splat> points;
+  std::vector<Splat> levelSplats;
+  // Files of later stages (statistical hierarchy, transformation streams),
+  // written verbatim with a checksum and listed as file.<key>.
+  struct ExtraFile {
+    std::string key;
+    std::string name;
+    std::vector<std::byte> bytes;
+  };
+  std::vector<ExtraFile> extraFiles;
+};
+
+// Fills the manifest counts, bounds, largest splat radius and file list
+// (sizes; checksums are left to the writer) and the table's byteOffset/byteSize, then validates the
+// structure. Throws Error("internal error: ...") when content is inconsistent.
+// writeDataset calls it; tests and in-memory users may call it directly.
+void finalizeDatasetContent(DatasetContent& content);
+
+// (bytes done, bytes total)
+using DatasetProgressFn = std::function<void(std::uint64_t, std::uint64_t)>;
+
+// Validates `content`, writes it into `<dir>.tmp-XXXXXX` next to `dir` and
+// renames that to `dir` at the end; on any failure the temporary directory is
+// removed. An existing `dir` is replaced only when `overwrite` is set (else
+// UsageError). Completes content.manifest and content.topLevel in place and
+// returns the bytes written.
+std::uint64_t writeDataset(const std::filesystem::path& dir, DatasetContent& content,
+                           bool overwrite = false, const DatasetProgressFn& progress = {});
+
+}  // namespace pointillist
