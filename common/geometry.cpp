@@ -17,50 +17,55 @@ Vec3d normalized(const Vec3d& a) {
 }
 
 Eigen3 eigenSymmetric3(const Sym3& m) {
-  double a[3][3] = {{m[0], m[1], m[2]}, {m[1], m[3], m[4]}, {m[2], m[4], m[5]}};
-  double v[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
-  for (int sweep = 0; sweep < 32; ++sweep) {
+  std::array<std::array<double, 3>, 3> a{
+      {{m[0], m[1], m[2]}, {m[1], m[3], m[4]}, {m[2], m[4], m[5]}}};
+  std::array<std::array<double, 3>, 3> v{{{1, 0, 0}, {0, 1, 0}, {0, 0, 1}}};
+  // The rotations keep the Frobenius norm, so the input's serves as a fixed
+  // convergence scale (the diagonal alone may be zero).
+  double frobenius = 0;
+  for (const auto& row : a) {
+    for (const double x : row) frobenius += x * x;
+  }
+  for (int sweep = 0; sweep < 64; ++sweep) {
     const double off = a[0][1] * a[0][1] + a[0][2] * a[0][2] + a[1][2] * a[1][2];
-    const double diag = a[0][0] * a[0][0] + a[1][1] * a[1][1] + a[2][2] * a[2][2];
-    if (off <= 1e-30 * diag || off == 0.0) break;
-    for (int p = 0; p < 2; ++p) {
-      for (int q = p + 1; q < 3; ++q) {
+    if (off <= 1e-30 * frobenius || off == 0) break;
+    for (std::size_t p = 0; p < 2; ++p) {
+      for (std::size_t q = p + 1; q < 3; ++q) {
         const double apq = a[p][q];
-        if (apq == 0.0) continue;
-        // Rotation that zeroes a[p][q] (Numerical Recipes' stable form).
-        const double theta = (a[q][q] - a[p][p]) / (2.0 * apq);
-        const double t =
-            (theta >= 0 ? 1.0 : -1.0) / (std::abs(theta) + std::sqrt(theta * theta + 1.0));
-        const double c = 1.0 / std::sqrt(t * t + 1.0);
+        if (apq == 0) continue;
+        // Rotation angle that zeroes a[p][q]; t = tan, the smaller root. hypot
+        // and the 1 / (2 theta) limit keep t finite where theta^2 would overflow.
+        const double theta = (a[q][q] - a[p][p]) / (2 * apq);
+        const double t = std::abs(theta) > 1e150 ? 0.5 / theta
+                                                 : std::copysign(1.0, theta) /
+                                                       (std::abs(theta) + std::hypot(theta, 1.0));
+        const double c = 1 / std::sqrt(t * t + 1);
         const double s = t * c;
-        for (int k = 0; k < 3; ++k) {
-          const double akp = a[k][p];
-          const double akq = a[k][q];
+        for (std::size_t k = 0; k < 3; ++k) {
+          const double akp = a[k][p], akq = a[k][q];
           a[k][p] = c * akp - s * akq;
           a[k][q] = s * akp + c * akq;
         }
-        for (int k = 0; k < 3; ++k) {
-          const double apk = a[p][k];
-          const double aqk = a[q][k];
+        for (std::size_t k = 0; k < 3; ++k) {
+          const double apk = a[p][k], aqk = a[q][k];
           a[p][k] = c * apk - s * aqk;
           a[q][k] = s * apk + c * aqk;
         }
-        for (int k = 0; k < 3; ++k) {
-          const double vkp = v[k][p];
-          const double vkq = v[k][q];
+        for (std::size_t k = 0; k < 3; ++k) {
+          const double vkp = v[k][p], vkq = v[k][q];
           v[k][p] = c * vkp - s * vkq;
           v[k][q] = s * vkp + c * vkq;
         }
       }
     }
   }
-  std::array<int, 3> order = {0, 1, 2};
-  std::sort(order.begin(), order.end(), [&](int i, int j) { return a[i][i] < a[j][j]; });
+  std::array<std::size_t, 3> order{0, 1, 2};
+  std::sort(order.begin(), order.end(),
+            [&](std::size_t i, std::size_t j) { return a[i][i] < a[j][j]; });
   Eigen3 result{};
   for (std::size_t i = 0; i < 3; ++i) {
-    const int col = order[i];
-    result.values[i] = a[col][col];
-    result.vectors[i] = normalized({v[0][col], v[1][col], v[2][col]});
+    result.values[i] = a[order[i]][order[i]];
+    for (std::size_t k = 0; k < 3; ++k) result.vectors[i][k] = v[k][order[i]];
   }
   return result;
 }
@@ -91,9 +96,6 @@ SmallestEigen3 smallestEigen3(const Sym3& m) {
   const Vec3d r0 = {m[0] - lo, m[1], m[2]};
   const Vec3d r1 = {m[1], m[3] - lo, m[4]};
   const Vec3d r2 = {m[2], m[4], m[5] - lo};
-  auto cross = [](const Vec3d& a, const Vec3d& b) -> Vec3d {
-    return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
-  };
   Vec3d best = cross(r0, r1);
   for (const Vec3d& c : {cross(r0, r2), cross(r1, r2)})
     if (dot(c, c) > dot(best, best)) best = c;
@@ -102,16 +104,26 @@ SmallestEigen3 smallestEigen3(const Sym3& m) {
   return {{lo, mid, hi}, v};
 }
 
+Vec3d majorAxis(const Sym3& m) {
+  const Vec3d cols[3] = {{m[0], m[1], m[2]}, {m[1], m[3], m[4]}, {m[2], m[4], m[5]}};
+  Vec3d v = cols[0];
+  for (const Vec3d& col : cols)
+    if (dot(col, col) > dot(v, v)) v = col;
+  for (int it = 0; it < 8; ++it) {
+    const Vec3d w = {dot(cols[0], v), dot(cols[1], v), dot(cols[2], v)};
+    const double largest = std::max({std::abs(w[0]), std::abs(w[1]), std::abs(w[2])});
+    if (!(largest > 0.0)) break;
+    v = scale(w, 1.0 / largest);
+  }
+  const Vec3d n = normalized(v);
+  return length(n) > 0.0 ? n : eigenSymmetric3(m).vectors[2];
+}
+
 void CovarianceAccumulator::add(const Vec3d& p, double weight) {
   if (count_ == 0) origin_ = p;
   const Vec3d d = sub(p, origin_);
   sum_ = pointillist::add(sum_, scale(d, weight));
-  sumSq_[0] += weight * d[0] * d[0];
-  sumSq_[1] += weight * d[0] * d[1];
-  sumSq_[2] += weight * d[0] * d[2];
-  sumSq_[3] += weight * d[1] * d[1];
-  sumSq_[4] += weight * d[1] * d[2];
-  sumSq_[5] += weight * d[2] * d[2];
+  addOuterProduct(sumSq_, d, weight);
   weight_ += weight;
   ++count_;
 }

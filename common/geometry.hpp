@@ -1,7 +1,7 @@
 #pragma once
-// Small double-precision geometry shared by the preprocess stages: a 3x3
-// symmetric eigen solver (covariance analysis for normals and level-splats)
-// and running covariance sums.
+// Small double-precision geometry shared by the preprocess stages: vector
+// helpers, the one 3x3 symmetric eigen solver (covariance analysis for normals
+// and level-splats) and running covariance sums.
 #include <array>
 #include <cstddef>
 #include <cstdint>
@@ -17,7 +17,9 @@ using Sym3 = std::array<double, 6>;
 
 struct Eigen3 {
   std::array<double, 3> values;  // ascending
-  std::array<Vec3d, 3> vectors;  // unit, orthonormal, vectors[i] belongs to values[i]
+  // Orthonormal up to rounding (products of exact rotations, not re-normalized);
+  // vectors[i] belongs to values[i].
+  std::array<Vec3d, 3> vectors;
 };
 
 // Cyclic Jacobi rotations: robust for the (near-)degenerate covariances of
@@ -33,6 +35,11 @@ struct SmallestEigen3 {
   Vec3d vector;  // unit
 };
 SmallestEigen3 smallestEigen3(const Sym3& m);
+
+// Unit direction of the largest eigenvalue by a few power-iteration steps:
+// enough for choosing a cut and much cheaper than eigenSymmetric3 (used only
+// when the iteration collapses). Not accurate when the two largest are close.
+Vec3d majorAxis(const Sym3& m);
 
 // Accumulates mean and covariance of weighted 3D samples in one pass. Sums are
 // taken relative to the first sample so large coordinates lose no precision.
@@ -64,6 +71,18 @@ inline Vec3d add(const Vec3d& a, const Vec3d& b) {
 }
 inline Vec3d scale(const Vec3d& a, double s) {
   return {a[0] * s, a[1] * s, a[2] * s};
+}
+inline Vec3d cross(const Vec3d& a, const Vec3d& b) {
+  return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+}
+// m += weight * d d^T (upper triangle).
+inline void addOuterProduct(Sym3& m, const Vec3d& d, double weight = 1.0) {
+  m[0] += weight * d[0] * d[0];
+  m[1] += weight * d[0] * d[1];
+  m[2] += weight * d[0] * d[2];
+  m[3] += weight * d[1] * d[1];
+  m[4] += weight * d[1] * d[2];
+  m[5] += weight * d[2] * d[2];
 }
 double length(const Vec3d& a);
 // Unit vector along a; {0,0,0} when a is (nearly) zero.

@@ -128,10 +128,7 @@ build_type="$(sed -n 's/^CMAKE_BUILD_TYPE:[A-Z]*=//p' "$POINTILLIST_BUILD/CMakeC
 if [[ "$dataset" == "city" ]]; then
   points="${points:-2000000}"
   dataset="$POINTILLIST_ROOT/datasets/city-$points"
-  if [[ ! -d "$dataset" ]]; then
-    say "generating the built-in city scene with $points points into $dataset"
-    "$POINTILLIST_BIN/pointillist-preprocess" --generate city --points "$points" -o "$dataset" >&2
-  fi
+  ensure_city_dataset "$dataset" "$points"
 fi
 check_dataset
 

@@ -52,3 +52,20 @@ build_all() {
     return 1
   fi
 }
+
+# Generates the built-in city scene with POINTS points into DIR unless DIR
+# already holds a sound dataset of this build's format (an older format or a
+# damaged one is rebuilt, saying why). Progress goes to stderr.
+ensure_city_dataset() {
+  local dataset="$1" points="$2" why
+  if [[ -f "$dataset/manifest.txt" ]]; then
+    if why=$("$POINTILLIST_BIN/pointillist-preprocess" --check "$dataset" 2>&1 >/dev/null); then
+      return 0
+    fi
+    log "rebuilding $dataset: ${why##*: }"
+  else
+    log "preprocessing the built-in city scene ($points points) into $dataset"
+  fi
+  "$POINTILLIST_BIN/pointillist-preprocess" --generate city --points "$points" -o "$dataset" \
+    --force >&2
+}

@@ -17,10 +17,7 @@ done
 install_packages
 build_all
 dataset="$POINTILLIST_ROOT/datasets/city-$points"
-if [[ ! -f "$dataset/manifest.txt" ]]; then
-  log "preprocessing the built-in city scene ($points points) into $dataset"
-  "$POINTILLIST_BIN/pointillist-preprocess" --generate city --points "$points" -o "$dataset" --force
-fi
+ensure_city_dataset "$dataset" "$points"
 out="$POINTILLIST_ROOT/out/demo"
 log "rendering an orbit with layout 1,2,1,4 into $out"
 bash "$POINTILLIST_ROOT/deploy/run.sh" --layout 1,2,1,4 --dataset "$dataset" \

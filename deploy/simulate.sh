@@ -104,10 +104,7 @@ build_type="$(sed -n 's/^CMAKE_BUILD_TYPE:[A-Z]*=//p' "$POINTILLIST_BUILD/CMakeC
 
 if [[ -z "$dataset" ]]; then
   dataset="$POINTILLIST_ROOT/datasets/city-$points"
-  if [[ ! -f "$dataset/manifest.txt" ]]; then
-    say "generating the built-in city scene with $points points into $dataset"
-    "$POINTILLIST_BIN/pointillist-preprocess" --generate city --points "$points" -o "$dataset" >&2
-  fi
+  ensure_city_dataset "$dataset" "$points"
 fi
 
 mkdir -p "$out"

@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "common/errors.hpp"
+#include "common/geometry.hpp"
 #include "preprocess/mesh_sampler.hpp"
 
 namespace pointillist::preprocess {
@@ -20,30 +21,7 @@ constexpr double kCoverage = 3.0;
 // Local object coordinates and copy translations are multiples of this.
 constexpr double kGrid = 1.0 / 4096.0;
 
-using V3 = std::array<double, 3>;
 using Rgba = std::array<std::uint8_t, 4>;
-
-V3 operator+(const V3& a, const V3& b) {
-  return {a[0] + b[0], a[1] + b[1], a[2] + b[2]};
-}
-V3 operator-(const V3& a, const V3& b) {
-  return {a[0] - b[0], a[1] - b[1], a[2] - b[2]};
-}
-V3 operator*(double s, const V3& a) {
-  return {s * a[0], s * a[1], s * a[2]};
-}
-double dot(const V3& a, const V3& b) {
-  return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-}
-V3 cross(const V3& a, const V3& b) {
-  return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
-}
-double length(const V3& a) {
-  return std::sqrt(dot(a, a));
-}
-V3 normalized(const V3& a) {
-  return (1.0 / length(a)) * a;
-}
 
 double quantize(double v) {
   return std::round(v / kGrid) * kGrid;
@@ -69,17 +47,17 @@ Rgba jitter(const Rgba& c, Rng& rng, double amount) {
 }
 
 struct Sample {
-  V3 p;
-  V3 n;
+  Vec3d p;
+  Vec3d n;
   // Stretch of the surface against the (u, v) grid along one direction (height
   // fields: 1 / n_z along the slope); the radius grows with it so that the
   // elongated cells stay covered.
   double stretch = 1.0;
 };
-using ColorFn = std::function<Rgba(const V3& p, const V3& n, Rng& rng)>;
+using ColorFn = std::function<Rgba(const Vec3d& p, const Vec3d& n, Rng& rng)>;
 
 ColorFn solid(Rgba c, double noise = 6.0) {
-  return [c, noise](const V3&, const V3&, Rng& rng) { return jitter(c, rng, noise); };
+  return [c, noise](const Vec3d&, const Vec3d&, Rng& rng) { return jitter(c, rng, noise); };
 }
 
 // A surface given by an area-preserving map from the unit square, so that a
@@ -94,89 +72,91 @@ struct Shape {
 };
 
 // Parallelogram origin + u*eu + v*ev; the normal points away from `inside`.
-Shape rectangle(const V3& origin, const V3& eu, const V3& ev, const V3& inside, ColorFn color) {
-  V3 n = cross(eu, ev);
+Shape rectangle(const Vec3d& origin, const Vec3d& eu, const Vec3d& ev, const Vec3d& inside,
+                ColorFn color) {
+  Vec3d n = cross(eu, ev);
   const double area = length(n);
-  n = (1.0 / area) * n;
-  const V3 centre = origin + 0.5 * eu + 0.5 * ev;
-  if (dot(n, centre - inside) < 0) n = -1.0 * n;
+  n = scale(n, 1.0 / area);
+  const Vec3d centre = add(add(origin, scale(eu, 0.5)), scale(ev, 0.5));
+  if (dot(n, sub(centre, inside)) < 0) n = scale(n, -1.0);
   return {area, length(eu) / length(ev),
           [=](double u, double v) {
-            return Sample{origin + u * eu + v * ev, n};
+            return Sample{add(add(origin, scale(eu, u)), scale(ev, v)), n};
           },
           std::move(color)};
 }
 
-Shape triangle(const V3& a, const V3& b, const V3& c, const V3& inside, ColorFn color) {
-  V3 n = cross(b - a, c - a);
+Shape triangle(const Vec3d& a, const Vec3d& b, const Vec3d& c, const Vec3d& inside, ColorFn color) {
+  Vec3d n = cross(sub(b, a), sub(c, a));
   const double area = 0.5 * length(n);
   n = normalized(n);
-  if (dot(n, (1.0 / 3.0) * (a + b + c) - inside) < 0) n = -1.0 * n;
+  if (dot(n, sub(scale(add(add(a, b), c), 1.0 / 3.0), inside)) < 0) n = scale(n, -1.0);
   return {area, 1.0,
           [=](double u, double v) {
             const double r = std::sqrt(u);
-            return Sample{(1 - r) * a + (r * (1 - v)) * b + (r * v) * c, n};
+            return Sample{add(add(scale(a, 1 - r), scale(b, r * (1 - v))), scale(c, r * v)), n};
           },
           std::move(color)};
 }
 
 // Axis-aligned box faces (no bottom when `onGround`), normals outward.
-void box(std::vector<Shape>& shapes, const V3& centre, const V3& half, bool onGround, bool withTop,
-         const ColorFn& color) {
+void box(std::vector<Shape>& shapes, const Vec3d& centre, const Vec3d& half, bool onGround,
+         bool withTop, const ColorFn& color) {
   const double a = half[0], b = half[1], h = half[2];
-  const V3 lo = centre - half;
-  shapes.push_back(rectangle(lo + V3{2 * a, 0, 0}, {0, 2 * b, 0}, {0, 0, 2 * h}, centre, color));
+  const Vec3d lo = sub(centre, half);
+  shapes.push_back(rectangle(add(lo, {2 * a, 0, 0}), {0, 2 * b, 0}, {0, 0, 2 * h}, centre, color));
   shapes.push_back(rectangle(lo, {0, 2 * b, 0}, {0, 0, 2 * h}, centre, color));
-  shapes.push_back(rectangle(lo + V3{0, 2 * b, 0}, {2 * a, 0, 0}, {0, 0, 2 * h}, centre, color));
+  shapes.push_back(rectangle(add(lo, {0, 2 * b, 0}), {2 * a, 0, 0}, {0, 0, 2 * h}, centre, color));
   shapes.push_back(rectangle(lo, {2 * a, 0, 0}, {0, 0, 2 * h}, centre, color));
   if (withTop) {
-    shapes.push_back(rectangle(lo + V3{0, 0, 2 * h}, {2 * a, 0, 0}, {0, 2 * b, 0}, centre, color));
+    shapes.push_back(
+        rectangle(add(lo, {0, 0, 2 * h}), {2 * a, 0, 0}, {0, 2 * b, 0}, centre, color));
   }
   if (!onGround) shapes.push_back(rectangle(lo, {2 * a, 0, 0}, {0, 2 * b, 0}, centre, color));
 }
 
 // Side of a vertical cylinder.
-Shape cylinder(const V3& base, double r, double h, ColorFn color) {
+Shape cylinder(const Vec3d& base, double r, double h, ColorFn color) {
   return {2 * kPi * r * h, 2 * kPi * r / h,
           [=](double u, double v) {
             const double phi = 2 * kPi * u;
-            const V3 n{std::cos(phi), std::sin(phi), 0};
-            return Sample{base + V3{r * n[0], r * n[1], v * h}, n};
+            const Vec3d n{std::cos(phi), std::sin(phi), 0};
+            return Sample{add(base, {r * n[0], r * n[1], v * h}), n};
           },
           std::move(color)};
 }
 
 // Sphere cap above z = zCut * r (zCut = -1: whole sphere, 0: upper hemisphere);
 // z uniform is area-preserving (Archimedes' hat-box theorem).
-Shape sphere(const V3& centre, double r, double zCut, ColorFn color) {
+Shape sphere(const Vec3d& centre, double r, double zCut, ColorFn color) {
   return {2 * kPi * r * r * (1 - zCut), 2 * kPi / (1 - zCut),
           [=](double u, double v) {
             const double z = zCut + (1 - zCut) * v, phi = 2 * kPi * u;
             const double s = std::sqrt(std::max(0.0, 1 - z * z));
-            const V3 n{s * std::cos(phi), s * std::sin(phi), z};
-            return Sample{centre + r * n, n};
+            const Vec3d n{s * std::cos(phi), s * std::sin(phi), z};
+            return Sample{add(centre, scale(n, r)), n};
           },
           std::move(color)};
 }
 
 // Side of an upright cone (base radius at `base`, apex h above).
-Shape cone(const V3& base, double radius, double h, ColorFn color) {
+Shape cone(const Vec3d& base, double radius, double h, ColorFn color) {
   const double slant = std::sqrt(radius * radius + h * h);
   return {kPi * radius * slant, kPi * radius / slant,
           [=](double u, double v) {
             const double f = std::sqrt(v);  // distance from the apex, area-weighted
             const double phi = 2 * kPi * u;
             const double c = std::cos(phi), s = std::sin(phi);
-            const V3 p = base + V3{f * radius * c, f * radius * s, (1 - f) * h};
-            return Sample{p, V3{c * h / slant, s * h / slant, radius / slant}};
+            const Vec3d p = add(base, {f * radius * c, f * radius * s, (1 - f) * h});
+            return Sample{p, Vec3d{c * h / slant, s * h / slant, radius / slant}};
           },
           std::move(color)};
 }
 
 // Torus (or an arc of it, phi in [phi0, phi1]) around axis e3 through `centre`,
 // ring in the plane of e1, e2. theta inverts the area CDF (theta + k sin theta) / 2pi.
-Shape torus(const V3& centre, const V3& e1, const V3& e2, const V3& e3, double big, double small,
-            double phi0, double phi1, ColorFn color) {
+Shape torus(const Vec3d& centre, const Vec3d& e1, const Vec3d& e2, const Vec3d& e3, double big,
+            double small, double phi0, double phi1, ColorFn color) {
   const double k = small / big;
   return {(phi1 - phi0) * 2 * kPi * small * big, (phi1 - phi0) * big / (2 * kPi * small),
           [=](double u, double v) {
@@ -189,9 +169,9 @@ Shape torus(const V3& centre, const V3& e1, const V3& e2, const V3& e3, double b
               if (std::abs(step) < 1e-13) break;
             }
             const double phi = phi0 + (phi1 - phi0) * u;
-            const V3 radial = std::cos(phi) * e1 + std::sin(phi) * e2;
-            const V3 n = std::cos(theta) * radial + std::sin(theta) * e3;
-            return Sample{centre + big * radial + small * n, n};
+            const Vec3d radial = add(scale(e1, std::cos(phi)), scale(e2, std::sin(phi)));
+            const Vec3d n = add(scale(radial, std::cos(theta)), scale(e3, std::sin(theta)));
+            return Sample{add(add(centre, scale(radial, big)), scale(n, small)), n};
           },
           std::move(color)};
 }
@@ -258,9 +238,9 @@ std::vector<Splat> sampleShapes(const std::vector<Shape>& shapes, std::size_t co
 }
 
 // Appends one exact translated copy per offset (offsets are quantized too).
-void placeCopies(const std::vector<Splat>& local, const std::vector<V3>& offsets,
+void placeCopies(const std::vector<Splat>& local, const std::vector<Vec3d>& offsets,
                  std::vector<Splat>& out) {
-  for (const V3& offset : offsets) {
+  for (const Vec3d& offset : offsets) {
     const float t[3] = {static_cast<float>(quantize(offset[0])),
                         static_cast<float>(quantize(offset[1])),
                         static_cast<float>(quantize(offset[2]))};
@@ -275,7 +255,7 @@ void placeCopies(const std::vector<Splat>& local, const std::vector<V3>& offsets
 
 // Windows and a door on house walls, chosen from local coordinates.
 ColorFn wallColor(Rgba wall, double windowSpacing, double doorHalfWidth) {
-  return [=](const V3& p, const V3& n, Rng& rng) {
+  return [=](const Vec3d& p, const Vec3d& n, Rng& rng) {
     const double along = std::abs(n[0]) > 0.5 ? p[1] : p[0];
     const double cell = along / windowSpacing - std::floor(along / windowSpacing);
     const bool door = n[1] < -0.5 && std::abs(p[0]) < doorHalfWidth && p[2] < 2.2;
@@ -289,13 +269,13 @@ ColorFn wallColor(Rgba wall, double windowSpacing, double doorHalfWidth) {
 
 std::vector<Shape> gableHouse() {
   std::vector<Shape> shapes;
-  const V3 inside{0, 0, 2};
+  const Vec3d inside{0, 0, 2};
   const double a = 6, b = 4, h = 5, ridge = 8, overhang = 0.5;
   const ColorFn walls = wallColor(rgb(226, 214, 188), 3.0, 0.8);
   box(shapes, {0, 0, h / 2}, {a, b, h / 2}, true, false, walls);
   shapes.push_back(triangle({a, -b, h}, {a, b, h}, {a, 0, ridge}, inside, walls));
   shapes.push_back(triangle({-a, -b, h}, {-a, b, h}, {-a, 0, ridge}, inside, walls));
-  const ColorFn tiles = [](const V3& p, const V3&, Rng& rng) {
+  const ColorFn tiles = [](const Vec3d& p, const Vec3d&, Rng& rng) {
     const double row = std::fmod(p[2] * 4.0, 1.0);
     return jitter(row < 0.15 ? rgb(130, 50, 38) : rgb(176, 74, 52), rng, 8);
   };
@@ -317,7 +297,7 @@ std::vector<Shape> towerHouse() {
                              solid(rgb(105, 105, 110), 10)));  // gravel roof
   // Parapet and a small observatory dome on the flat roof.
   box(shapes, {0, 0, h + 0.4}, {a, a, 0.4}, true, false, solid(rgb(120, 125, 135)));
-  shapes.push_back(sphere({0, 0, h}, 2.4, 0.0, [](const V3& p, const V3&, Rng& rng) {
+  shapes.push_back(sphere({0, 0, h}, 2.4, 0.0, [](const Vec3d& p, const Vec3d&, Rng& rng) {
     return jitter(mix(rgb(200, 205, 215), rgb(240, 242, 246), (p[2] - 11) / 2.4), rng, 4);
   }));
   return shapes;
@@ -327,7 +307,7 @@ ColorFn bark() {
   return solid(rgb(98, 70, 45), 8);
 }
 ColorFn foliage(Rgba base) {
-  return [base](const V3& p, const V3&, Rng& rng) {
+  return [base](const Vec3d& p, const Vec3d&, Rng& rng) {
     // Lighter towards the top, as if lit from above.
     const double light = std::clamp((p[2] - 3.0) * 10.0, -25.0, 35.0);
     return jitter(rgb(base[0] + light * 0.5, base[1] + light, base[2] + light * 0.4), rng, 14);
@@ -352,7 +332,7 @@ std::vector<Shape> conifer() {
 
 std::vector<Shape> column() {
   std::vector<Shape> shapes;
-  const ColorFn marble = [](const V3& p, const V3&, Rng& rng) {
+  const ColorFn marble = [](const Vec3d& p, const Vec3d&, Rng& rng) {
     // Fluting: darker grooves every 1/20 turn.
     const double phi = std::atan2(p[1], p[0]) / (2 * kPi) * 20.0;
     const double groove = phi - std::floor(phi);
@@ -392,7 +372,7 @@ class City {
     return mask * h;
   }
 
-  V3 terrainNormal(double x, double y) const {
+  Vec3d terrainNormal(double x, double y) const {
     const double e = 0.05;
     const double dx = (height(x + e, y) - height(x - e, y)) / (2 * e);
     const double dy = (height(x, y + e) - height(x, y - e)) / (2 * e);
@@ -411,11 +391,12 @@ class City {
         ((ix + iy) % 2 == 0 ? gableSpots_ : towerSpots_).push_back({x, y, 0});
       }
     }
-    std::vector<V3> broadleafSpots, coniferSpots;
+    std::vector<Vec3d> broadleafSpots, coniferSpots;
     for (int k = -5; k <= 5; ++k) {  // street trees just inside the town edge
       if (k == 0) continue;          // where the main roads leave town
       const double t = 15.0 * k;
-      for (const V3& spot : {V3{t, -96, 0}, V3{t, 96, 0}, V3{-96, t, 0}, V3{96, t, 0}}) {
+      for (const Vec3d& spot :
+           {Vec3d{t, -96, 0}, Vec3d{t, 96, 0}, Vec3d{-96, t, 0}, Vec3d{96, t, 0}}) {
         broadleafSpots.push_back(spot);
       }
     }
@@ -427,11 +408,11 @@ class City {
       } while (std::max(std::abs(x), std::abs(y)) < 115);
       (k % 3 == 0 ? broadleafSpots : coniferSpots).push_back({x, y, height(x, y)});
     }
-    const std::vector<V3> columnSpots = ring(16, 28.0);
+    const std::vector<Vec3d> columnSpots = ring(16, 28.0);
 
     std::vector<Splat> splats;
     splats.reserve(target);
-    const auto instanced = [&](const std::vector<Shape>& shapes, const std::vector<V3>& spots,
+    const auto instanced = [&](const std::vector<Shape>& shapes, const std::vector<Vec3d>& spots,
                                double fraction) {
       const std::size_t each = share(fraction) / spots.size();
       const std::vector<Splat> local = sampleShapes(shapes, each, rng_, true);
@@ -458,8 +439,8 @@ class City {
     out.insert(out.end(), more.begin(), more.end());
   }
 
-  static std::vector<V3> ring(int n, double r) {
-    std::vector<V3> spots;
+  static std::vector<Vec3d> ring(int n, double r) {
+    std::vector<Vec3d> spots;
     for (int i = 0; i < n; ++i) {
       const double a = 2 * kPi * i / n;
       spots.push_back({r * std::cos(a), r * std::sin(a), 0});
@@ -470,14 +451,14 @@ class City {
   static std::vector<Shape> domeBuilding() {
     std::vector<Shape> shapes;
     const double r = kDrumRadius, drum = 8;
-    shapes.push_back(cylinder({0, 0, 0}, r, drum, [](const V3& p, const V3&, Rng& rng) {
+    shapes.push_back(cylinder({0, 0, 0}, r, drum, [](const Vec3d& p, const Vec3d&, Rng& rng) {
       const double a = std::atan2(p[1], p[0]) / (2 * kPi) * 24.0;
       const double cell = a - std::floor(a);
       const bool window = cell > 0.35 && cell < 0.65 && p[2] > 3 && p[2] < 6.2;
       if (window) return jitter(rgb(50, 60, 80), rng, 4);
       return jitter(p[2] > 7.4 ? rgb(170, 140, 100) : rgb(206, 178, 128), rng, 7);
     }));
-    shapes.push_back(sphere({0, 0, drum}, r, 0.0, [](const V3& p, const V3&, Rng& rng) {
+    shapes.push_back(sphere({0, 0, drum}, r, 0.0, [](const Vec3d& p, const Vec3d&, Rng& rng) {
       const double a = std::atan2(p[1], p[0]) / (2 * kPi) * 16.0;
       const double rib = std::abs(a - std::round(a));
       if (rib < 0.04) return jitter(rgb(214, 172, 70), rng, 6);  // gilded ribs
@@ -493,7 +474,7 @@ class City {
     std::vector<Shape> shapes;
     shapes.push_back(torus({0, 0, 11.0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}, 28.0, 0.9, 0, 2 * kPi,
                            solid(rgb(225, 218, 200))));
-    const ColorFn stone = [](const V3& p, const V3&, Rng& rng) {
+    const ColorFn stone = [](const Vec3d& p, const Vec3d&, Rng& rng) {
       const double course = std::fmod(std::abs(p[2]) * 2.0, 1.0);
       return jitter(course < 0.12 ? rgb(140, 120, 105) : rgb(186, 164, 140), rng, 6);
     };
@@ -507,7 +488,7 @@ class City {
     return shapes;
   }
 
-  Rgba terrainColor(double x, double y, double h, const V3& n) {
+  Rgba terrainColor(double x, double y, double h, const Vec3d& n) {
     const double d = std::max(std::abs(x), std::abs(y));
     if (d < 100) {
       const double rr = std::sqrt(x * x + y * y);
@@ -552,10 +533,10 @@ class City {
       shape.weight = weight;
       shape.at = [this, x0, x1, y0, y1](double u, double v) {
         const double x = x0 + (x1 - x0) * u, y = y0 + (y1 - y0) * v;
-        const V3 n = terrainNormal(x, y);
+        const Vec3d n = terrainNormal(x, y);
         return Sample{{x, y, height(x, y)}, n, 1.0 / n[2]};
       };
-      shape.color = [this](const V3& p, const V3& n, Rng&) {
+      shape.color = [this](const Vec3d& p, const Vec3d& n, Rng&) {
         return terrainColor(p[0], p[1], p[2], n);
       };
       patches.push_back(std::move(shape));
@@ -596,10 +577,10 @@ class City {
   // Ground hidden under buildings is not sampled (nor would a scanner see it).
   bool occupied(double x, double y) const {
     if (x * x + y * y < kDrumRadius * kDrumRadius) return true;
-    for (const V3& s : gableSpots_) {
+    for (const Vec3d& s : gableSpots_) {
       if (std::abs(x - s[0]) < 6 && std::abs(y - s[1]) < 4) return true;
     }
-    for (const V3& s : towerSpots_) {
+    for (const Vec3d& s : towerSpots_) {
       if (std::abs(x - s[0]) < 5 && std::abs(y - s[1]) < 5) return true;
     }
     return false;
@@ -608,7 +589,7 @@ class City {
   static constexpr double kDrumRadius = 18;
   Rng rng_;
   std::vector<Hill> hills_;
-  std::vector<V3> gableSpots_, towerSpots_;
+  std::vector<Vec3d> gableSpots_, towerSpots_;
 };
 
 PointCloud simpleShape(const std::vector<Shape>& shapes, std::size_t count, std::uint64_t seed,
@@ -622,7 +603,7 @@ PointCloud simpleShape(const std::vector<Shape>& shapes, std::size_t count, std:
 }
 
 // Colour from the normal, so orientation problems show.
-Rgba normalColor(const V3&, const V3& n, Rng&) {
+Rgba normalColor(const Vec3d&, const Vec3d& n, Rng&) {
   return rgb(127.5 * (n[0] + 1), 127.5 * (n[1] + 1), 127.5 * (n[2] + 1));
 }
 

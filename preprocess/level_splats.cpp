@@ -66,23 +66,6 @@ Gaussian makeGaussian(const CovarianceAccumulator& acc, double eps) {
   return g;
 }
 
-// Direction of largest variance by power iteration: enough for choosing a cut
-// and much cheaper than a full eigen-decomposition.
-Vec3d majorAxis(const Sym3& c) {
-  const Vec3d cols[3] = {{c[0], c[1], c[2]}, {c[1], c[3], c[4]}, {c[2], c[4], c[5]}};
-  Vec3d v = cols[0];
-  for (const Vec3d& col : cols)
-    if (dot(col, col) > dot(v, v)) v = col;
-  for (int it = 0; it < 8; ++it) {
-    const Vec3d w = {dot(cols[0], v), dot(cols[1], v), dot(cols[2], v)};
-    const double m = std::max({std::abs(w[0]), std::abs(w[1]), std::abs(w[2])});
-    if (!(m > 0.0)) break;
-    v = scale(w, 1.0 / m);
-  }
-  const Vec3d n = normalized(v);
-  return length(n) > 0.0 ? n : eigenSymmetric3(c).vectors[2];
-}
-
 float roundUp(double v) {
   float f = static_cast<float>(v);
   if (static_cast<double>(f) < v) f = std::nextafter(f, std::numeric_limits<float>::infinity());

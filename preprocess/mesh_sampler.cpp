@@ -9,7 +9,8 @@
 #include <vector>
 
 #include "common/errors.hpp"
-#include "preprocess/readers.hpp"
+#include "common/geometry.hpp"
+#include "preprocess/reader_toolkit.hpp"
 
 namespace pointillist::preprocess {
 
@@ -24,18 +25,6 @@ std::uint64_t splitMix(std::uint64_t& state) {
 
 std::uint64_t rotl(std::uint64_t x, int k) {
   return (x << k) | (x >> (64 - k));
-}
-
-using Vec3 = std::array<double, 3>;
-
-Vec3 sub(const Vec3& a, const Vec3& b) {
-  return {a[0] - b[0], a[1] - b[1], a[2] - b[2]};
-}
-Vec3 cross(const Vec3& a, const Vec3& b) {
-  return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
-}
-double norm(const Vec3& a) {
-  return std::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
 }
 
 }  // namespace
@@ -74,15 +63,15 @@ PointCloud sampleMesh(const TriangleMesh& mesh, std::size_t count, std::uint64_t
 
   // Zero area is judged relative to the mesh size so that scale does not matter.
   const double inf = std::numeric_limits<double>::infinity();
-  Vec3 lo{inf, inf, inf}, hi{-inf, -inf, -inf};
-  for (const Vec3& v : mesh.vertices) {
+  Vec3d lo{inf, inf, inf}, hi{-inf, -inf, -inf};
+  for (const Vec3d& v : mesh.vertices) {
     if (!std::isfinite(v[0]) || !std::isfinite(v[1]) || !std::isfinite(v[2])) continue;
     for (std::size_t k = 0; k < 3; ++k) {
       lo[k] = std::min(lo[k], v[k]);
       hi[k] = std::max(hi[k], v[k]);
     }
   }
-  const double diagonal = norm(sub(hi, lo));
+  const double diagonal = length(sub(hi, lo));
   const double minArea = 1e-14 * diagonal * diagonal;
 
   std::vector<std::uint32_t> used;  // triangles with positive area
@@ -92,9 +81,9 @@ PointCloud sampleMesh(const TriangleMesh& mesh, std::size_t count, std::uint64_t
   double total = 0.0;
   for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
     const auto& tri = mesh.triangles[t];
-    const Vec3& a = mesh.vertices[tri[0]];
+    const Vec3d& a = mesh.vertices[tri[0]];
     const double area =
-        0.5 * norm(cross(sub(mesh.vertices[tri[1]], a), sub(mesh.vertices[tri[2]], a)));
+        0.5 * length(cross(sub(mesh.vertices[tri[1]], a), sub(mesh.vertices[tri[2]], a)));
     if (!(area > minArea)) continue;
     total += area;
     used.push_back(static_cast<std::uint32_t>(t));
@@ -125,19 +114,21 @@ PointCloud sampleMesh(const TriangleMesh& mesh, std::size_t count, std::uint64_t
     while (u + 1 < used.size() && cumulative[u] <= target) ++u;
     const std::uint32_t t = used[u];
     const auto& tri = mesh.triangles[t];
-    const Vec3& a = mesh.vertices[tri[0]];
-    const Vec3& b = mesh.vertices[tri[1]];
-    const Vec3& c = mesh.vertices[tri[2]];
+    const Vec3d& a = mesh.vertices[tri[0]];
+    const Vec3d& b = mesh.vertices[tri[1]];
+    const Vec3d& c = mesh.vertices[tri[2]];
     const double r1 = std::sqrt(rng.uniform());
     const double r2 = rng.uniform();
     const double wa = 1.0 - r1, wb = r1 * (1.0 - r2), wc = r1 * r2;
-    const Vec3 n = cross(sub(b, a), sub(c, a));
-    const double length = norm(n);
+    const Vec3d p = add(add(scale(a, wa), scale(b, wb)), scale(c, wc));
+    const Vec3d n = cross(sub(b, a), sub(c, a));
+    const double len = length(n);
 
     Splat& s = cloud.splats[i];
     for (std::size_t k = 0; k < 3; ++k) {
-      s.position[k] = static_cast<float>(wa * a[k] + wb * b[k] + wc * c[k]);
-      s.normal[k] = static_cast<float>(n[k] / length);
+      s.position[k] = static_cast<float>(p[k]);
+      // Divided, not normalized(): its reciprocal would change last bits.
+      s.normal[k] = static_cast<float>(n[k] / len);
     }
     s.radius = radius;
     if (vertexColors) {

@@ -8,12 +8,13 @@
 #include <string>
 #include <vector>
 
+#include "common/geometry.hpp"
 #include "preprocess/point_cloud.hpp"
 
 namespace pointillist::preprocess {
 
 struct TriangleMesh {
-  std::vector<std::array<double, 3>> vertices;
+  std::vector<Vec3d> vertices;
   std::vector<std::array<std::uint8_t, 4>> vertexColors;    // empty or one per vertex
   std::vector<std::array<float, 3>> vertexNormals;          // empty or one per vertex
   std::vector<std::array<std::uint32_t, 3>> triangles;      // indices already range-checked

@@ -12,59 +12,9 @@
 #include <vector>
 
 #include "common/errors.hpp"
-#include "preprocess/readers.hpp"
+#include "common/geometry.hpp"
 
 namespace pointillist::preprocess {
-
-SymmetricEigen3 symmetricEigen3(const std::array<std::array<double, 3>, 3>& matrix) {
-  auto a = matrix;
-  std::array<std::array<double, 3>, 3> v{{{1, 0, 0}, {0, 1, 0}, {0, 0, 1}}};
-  double scale = 0;
-  for (const auto& row : a) {
-    for (const double x : row) scale += x * x;
-  }
-  for (int sweep = 0; sweep < 64; ++sweep) {
-    const double off = a[0][1] * a[0][1] + a[0][2] * a[0][2] + a[1][2] * a[1][2];
-    if (off <= 1e-30 * scale || off == 0) break;
-    for (std::size_t p = 0; p < 2; ++p) {
-      for (std::size_t q = p + 1; q < 3; ++q) {
-        const double apq = a[p][q];
-        if (apq == 0) continue;
-        // Rotation angle that zeroes a[p][q]; t = tan, the smaller root.
-        const double theta = (a[q][q] - a[p][p]) / (2 * apq);
-        const double t = std::abs(theta) > 1e150 ? 0.5 / theta
-                                                 : std::copysign(1.0, theta) /
-                                                       (std::abs(theta) + std::hypot(theta, 1.0));
-        const double c = 1 / std::sqrt(t * t + 1);
-        const double s = t * c;
-        for (std::size_t k = 0; k < 3; ++k) {
-          const double akp = a[k][p], akq = a[k][q];
-          a[k][p] = c * akp - s * akq;
-          a[k][q] = s * akp + c * akq;
-        }
-        for (std::size_t k = 0; k < 3; ++k) {
-          const double apk = a[p][k], aqk = a[q][k];
-          a[p][k] = c * apk - s * aqk;
-          a[q][k] = s * apk + c * aqk;
-        }
-        for (std::size_t k = 0; k < 3; ++k) {
-          const double vkp = v[k][p], vkq = v[k][q];
-          v[k][p] = c * vkp - s * vkq;
-          v[k][q] = s * vkp + c * vkq;
-        }
-      }
-    }
-  }
-  std::array<std::size_t, 3> order{0, 1, 2};
-  std::sort(order.begin(), order.end(),
-            [&](std::size_t i, std::size_t j) { return a[i][i] < a[j][j]; });
-  SymmetricEigen3 result{};
-  for (std::size_t i = 0; i < 3; ++i) {
-    result.values[i] = a[order[i]][order[i]];
-    for (std::size_t k = 0; k < 3; ++k) result.vectors[i][k] = v[k][order[i]];
-  }
-  return result;
-}
 
 namespace {
 
@@ -83,6 +33,10 @@ struct CloudAdaptor {
 using KdTree =
     nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, CloudAdaptor>,
                                         CloudAdaptor, 3, std::uint32_t>;
+
+Vec3d position(const Splat& s) {
+  return {s.position[0], s.position[1], s.position[2]};
+}
 
 bool hasNormal(const Splat& s) {
   return s.normal[0] != 0.0f || s.normal[1] != 0.0f || s.normal[2] != 0.0f;
@@ -311,30 +265,22 @@ void estimateNormalsAndRadii(PointCloud& cloud, const NormalOptions& options) {
       }
       if (needRadius[i]) splats[i].radius = std::sqrt(distance[m - 1]) * radiusFactor;
       if (needNormal[i]) {
-        double mean[3];
-        for (std::size_t d = 0; d < 3; ++d) mean[d] = static_cast<double>(splats[i].position[d]);
-        for (std::size_t j = 0; j < m; ++j) {
-          for (std::size_t d = 0; d < 3; ++d)
-            mean[d] += static_cast<double>(splats[index[j]].position[d]);
-        }
+        // Two passes (mean, then centred products) rather than
+        // CovarianceAccumulator: its one-pass sums would change the normals' bits.
+        Vec3d mean = position(splats[i]);
+        for (std::size_t j = 0; j < m; ++j) mean = add(mean, position(splats[index[j]]));
         for (double& c : mean) c /= static_cast<double>(m + 1);
-        std::array<std::array<double, 3>, 3> cov{};
-        const auto accumulate = [&](const Splat& s) {
-          double d[3];
-          for (std::size_t c = 0; c < 3; ++c) d[c] = static_cast<double>(s.position[c]) - mean[c];
-          for (std::size_t r = 0; r < 3; ++r) {
-            for (std::size_t c = 0; c < 3; ++c) cov[r][c] += d[r] * d[c];
-          }
-        };
-        accumulate(splats[i]);
-        for (std::size_t j = 0; j < m; ++j) accumulate(splats[index[j]]);
-        const SymmetricEigen3 eigen = symmetricEigen3(cov);
-        const auto& normal =
-            eigen.values[2] > 0 ? eigen.vectors[0] : std::array<double, 3>{0, 0, 1};
-        const double length =
-            std::sqrt(normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2]);
+        Sym3 cov{};
+        addOuterProduct(cov, sub(position(splats[i]), mean));
+        for (std::size_t j = 0; j < m; ++j)
+          addOuterProduct(cov, sub(position(splats[index[j]]), mean));
+        const Eigen3 eigen = eigenSymmetric3(cov);
+        const Vec3d& normal = eigen.values[2] > 0 ? eigen.vectors[0] : Vec3d{0, 0, 1};
+        // Divided, not multiplied by a reciprocal as normalized() does: the
+        // stored normals keep their exact bits.
+        const double len = length(normal);
         for (std::size_t d = 0; d < 3; ++d) {
-          splats[i].normal[d] = static_cast<float>(normal[d] / length);
+          splats[i].normal[d] = static_cast<float>(normal[d] / len);
         }
         std::copy(index.begin(), index.begin() + static_cast<std::ptrdiff_t>(k),
                   neighbours.begin() + static_cast<std::ptrdiff_t>(i * k));

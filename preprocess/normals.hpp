@@ -4,7 +4,7 @@
 //
 // Per point, over its k nearest neighbours (a nanoflann kd-tree):
 //  - normal: the eigenvector of the smallest eigenvalue of the neighbourhood
-//    covariance (own Jacobi solver, no Eigen);
+//    covariance (eigenSymmetric3 of common/geometry.hpp, no Eigen);
 //  - orientation: propagated along a minimum spanning tree of the neighbour
 //    graph, most parallel normals first (weight 1 - |n_i . n_j|, Hoppe et al.
 //    1992), but only across edges within 60 degrees: at creases and where
@@ -25,8 +25,6 @@
 // Colours: readers already give grey to points without colour; when the cloud
 // has no colours, splats left all zero (RGBA 0,0,0,0, never written) get that
 // grey too.
-#include <array>
-
 #include "preprocess/point_cloud.hpp"
 
 namespace pointillist::preprocess {
@@ -41,13 +39,5 @@ struct NormalOptions {
 
 // Afterwards hasNormals and hasRadii are true.
 void estimateNormalsAndRadii(PointCloud& cloud, const NormalOptions& options);
-
-// Eigen-decomposition of a symmetric 3x3 matrix by cyclic Jacobi rotations:
-// values ascending, vectors[i] the unit eigenvector of values[i].
-struct SymmetricEigen3 {
-  std::array<double, 3> values;
-  std::array<std::array<double, 3>, 3> vectors;
-};
-SymmetricEigen3 symmetricEigen3(const std::array<std::array<double, 3>, 3>& matrix);
 
 }  // namespace pointillist::preprocess

@@ -11,7 +11,7 @@
 #include <vector>
 
 #include "preprocess/mesh_sampler.hpp"
-#include "preprocess/readers.hpp"
+#include "preprocess/reader_toolkit.hpp"
 
 namespace pointillist::preprocess {
 namespace {

@@ -19,6 +19,10 @@ struct PointCloud {
   std::string source;  // file name or generator name, for messages
 };
 
+// The grey given to points whose input has no colour (readers, and splats
+// that normal estimation finds never written).
+inline constexpr std::uint8_t kDefaultGrey = 128;
+
 // Progress callback: (work done, work total); total 0 when unknown.
 using ProgressFn = std::function<void(std::uint64_t done, std::uint64_t total)>;
 

@@ -5,7 +5,7 @@
 #include <string>
 #include <vector>
 
-#include "preprocess/readers.hpp"
+#include "preprocess/reader_toolkit.hpp"
 
 namespace pointillist::preprocess {
 namespace {

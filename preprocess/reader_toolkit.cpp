@@ -1,0 +1,255 @@
+#include "preprocess/reader_toolkit.hpp"
+
+#include <algorithm>
+#include <cerrno>
+#include <charconv>
+#include <cmath>
+#include <cstring>
+#include <iostream>
+#include <string>
+#include <system_error>
+#include <utility>
+
+#include "common/errors.hpp"
+
+namespace pointillist::preprocess {
+namespace detail {
+
+namespace {
+constexpr std::size_t kInitialBuffer = std::size_t{1} << 20;
+// A "line" longer than this is not text: refuse rather than grow without bound.
+constexpr std::size_t kMaxLine = std::size_t{64} << 20;
+}  // namespace
+
+void failFile(const std::filesystem::path& file, std::string_view message) {
+  throw InputError(file.string() + ": " + std::string(message));
+}
+
+void failAtLine(const std::filesystem::path& file, std::uint64_t line, std::string_view message) {
+  throw InputError(file.string() + ": line " + std::to_string(line) + ": " + std::string(message));
+}
+
+void failAtByte(const std::filesystem::path& file, std::uint64_t byte, std::string_view message) {
+  throw InputError(file.string() + ": byte " + std::to_string(byte) + ": " + std::string(message));
+}
+
+FileReader::FileReader(const std::filesystem::path& file) : path_(file) {
+  std::error_code ec;
+  const auto status = std::filesystem::status(file, ec);
+  if (ec || !std::filesystem::exists(status)) failFile(file, "no such file");
+  if (std::filesystem::is_directory(status)) failFile(file, "is a directory, not a file");
+  file_ = std::fopen(file.c_str(), "rb");
+  if (file_ == nullptr) failFile(file, std::string("cannot open: ") + std::strerror(errno));
+  size_ = std::filesystem::file_size(file, ec);
+  if (ec) size_ = 0;
+  buffer_.resize(kInitialBuffer);
+}
+
+FileReader::~FileReader() {
+  if (file_ != nullptr) std::fclose(file_);
+}
+
+bool FileReader::refill() {
+  if (pos_ > 0) {
+    std::memmove(buffer_.data(), buffer_.data() + pos_, end_ - pos_);
+    end_ -= pos_;
+    pos_ = 0;
+  }
+  if (end_ == buffer_.size()) {
+    if (buffer_.size() >= kMaxLine) failAtLine(path_, line_ + 1, "line too long (binary data?)");
+    buffer_.resize(buffer_.size() * 2);
+  }
+  const std::size_t got = std::fread(buffer_.data() + end_, 1, buffer_.size() - end_, file_);
+  if (got == 0 && std::ferror(file_) != 0) {
+    failAtByte(path_, fileOffset_, std::string("read error: ") + std::strerror(errno));
+  }
+  end_ += got;
+  fileOffset_ += got;
+  return got > 0;
+}
+
+bool FileReader::readLine(std::string_view& line) {
+  std::size_t scanFrom = pos_;
+  for (;;) {
+    const char* begin = buffer_.data() + scanFrom;
+    const void* nl = std::memchr(begin, '\n', end_ - scanFrom);
+    if (nl != nullptr) {
+      const std::size_t at =
+          static_cast<std::size_t>(static_cast<const char*>(nl) - buffer_.data());
+      std::size_t stop = at;
+      if (stop > pos_ && buffer_[stop - 1] == '\r') --stop;
+      line = std::string_view(buffer_.data() + pos_, stop - pos_);
+      pos_ = at + 1;
+      ++line_;
+      return true;
+    }
+    const std::size_t scanned = end_ - pos_;
+    if (!refill()) {
+      if (pos_ == end_) return false;
+      std::size_t stop = end_;
+      if (buffer_[stop - 1] == '\r') --stop;
+      line = std::string_view(buffer_.data() + pos_, stop - pos_);
+      pos_ = end_;
+      ++line_;
+      return true;
+    }
+    scanFrom = pos_ + scanned;
+  }
+}
+
+std::size_t FileReader::read(void* destination, std::size_t n) {
+  auto* out = static_cast<char*>(destination);
+  std::size_t done = 0;
+  while (done < n) {
+    if (pos_ == end_ && !refill()) break;
+    const std::size_t take = std::min(n - done, end_ - pos_);
+    std::memcpy(out + done, buffer_.data() + pos_, take);
+    pos_ += take;
+    done += take;
+  }
+  return done;
+}
+
+std::uint64_t FileReader::skip(std::uint64_t n) {
+  const std::uint64_t inBuffer = std::min<std::uint64_t>(n, end_ - pos_);
+  pos_ += static_cast<std::size_t>(inBuffer);
+  std::uint64_t rest = n - inBuffer;
+  if (rest == 0) return n;
+  rest = std::min(rest, size_ > fileOffset_ ? size_ - fileOffset_ : 0);
+  if (rest > 0 && fseeko(file_, static_cast<off_t>(rest), SEEK_CUR) != 0) {
+    failAtByte(path_, fileOffset_, std::string("seek failed: ") + std::strerror(errno));
+  }
+  fileOffset_ += rest;
+  return inBuffer + rest;
+}
+
+CloudBuilder::CloudBuilder(std::filesystem::path file, const ReadOptions& options)
+    : file_(std::move(file)), options_(options) {
+  cloud_.source = file_.string();
+}
+
+void CloudBuilder::reserve(std::uint64_t expected, std::uint64_t limit) {
+  // Never trust a header count for allocation: cap it by what the file can hold.
+  cloud_.splats.reserve(static_cast<std::size_t>(std::min(expected, limit)));
+}
+
+void CloudBuilder::add(const Splat& splat, std::uint64_t line, std::uint64_t byte) {
+  if (!isFinite(splat)) {
+    if (!options_.dropNonFinite) {
+      const std::string message = "non-finite value (NaN or Inf) in point " +
+                                  std::to_string(cloud_.splats.size() + dropped_) +
+                                  " (pass --drop-non-finite to drop such points)";
+      if (line > 0) failAtLine(file_, line, message);
+      failAtByte(file_, byte, message);
+    }
+    if (dropped_ == 0) {
+      firstDropLine_ = line;
+      firstDropByte_ = byte;
+    }
+    ++dropped_;
+    return;
+  }
+  Splat s = splat;
+  const auto nx = static_cast<double>(s.normal[0]), ny = static_cast<double>(s.normal[1]),
+             nz = static_cast<double>(s.normal[2]);
+  const double length = std::sqrt(nx * nx + ny * ny + nz * nz);
+  if (length > 0.0) {
+    s.normal[0] = static_cast<float>(nx / length);
+    s.normal[1] = static_cast<float>(ny / length);
+    s.normal[2] = static_cast<float>(nz / length);
+  }
+  if (!(s.radius > 0.0f)) s.radius = 0.0f;
+  cloud_.splats.push_back(s);
+}
+
+void CloudBuilder::progress(std::uint64_t done, std::uint64_t total) {
+  if (!options_.progress) return;
+  const std::uint64_t step = std::max<std::uint64_t>(total / 100, std::uint64_t{1} << 16);
+  if (done == total || done >= lastProgress_ + step) {
+    lastProgress_ = done;
+    options_.progress(done, total);
+  }
+}
+
+PointCloud CloudBuilder::finish(bool hasNormals, bool hasColors, bool hasRadii) {
+  if (dropped_ > 0) {
+    std::cerr << "warning: " << file_.string() << ": dropped " << dropped_
+              << " point(s) with NaN/Inf values (first at "
+              << (firstDropLine_ > 0 ? "line " + std::to_string(firstDropLine_)
+                                     : "byte " + std::to_string(firstDropByte_))
+              << ")\n";
+  }
+  if (cloud_.splats.empty()) {
+    if (dropped_ > 0) failFile(file_, "every point has NaN/Inf values; nothing left");
+    failFile(file_, "contains no points");
+  }
+  cloud_.hasNormals =
+      hasNormals && std::all_of(cloud_.splats.begin(), cloud_.splats.end(), [](const Splat& s) {
+        return s.normal[0] != 0.0f || s.normal[1] != 0.0f || s.normal[2] != 0.0f;
+      });
+  cloud_.hasColors = hasColors;
+  cloud_.hasRadii = hasRadii && std::all_of(cloud_.splats.begin(), cloud_.splats.end(),
+                                            [](const Splat& s) { return s.radius > 0.0f; });
+  return std::move(cloud_);
+}
+
+bool isFinite(const Splat& s) {
+  for (int i = 0; i < 3; ++i) {
+    if (!std::isfinite(s.position[i]) || !std::isfinite(s.normal[i])) return false;
+  }
+  return std::isfinite(s.radius);
+}
+
+Splat greySplat() {
+  Splat s{};
+  s.color[0] = s.color[1] = s.color[2] = kDefaultGrey;
+  s.color[3] = 255;
+  return s;
+}
+
+void splitFields(std::string_view line, std::vector<std::string_view>& fields) {
+  fields.clear();
+  const auto isBlank = [](char c) {
+    return c == ' ' || c == '\t' || c == '\r' || c == ',' || c == '\v' || c == '\f';
+  };
+  std::size_t i = 0;
+  const std::size_t n = line.size();
+  while (i < n) {
+    while (i < n && isBlank(line[i])) ++i;
+    if (i == n) break;
+    const std::size_t start = i;
+    while (i < n && !isBlank(line[i])) ++i;
+    fields.push_back(line.substr(start, i - start));
+  }
+}
+
+bool parseDouble(std::string_view field, double& value) {
+  if (!field.empty() && field.front() == '+') field.remove_prefix(1);
+  if (field.empty()) return false;
+  const char* end = field.data() + field.size();
+  const auto result = std::from_chars(field.data(), end, value);
+  return result.ec == std::errc() && result.ptr == end;
+}
+
+bool parseUnsigned(std::string_view field, std::uint64_t& value) {
+  if (!field.empty() && field.front() == '+') field.remove_prefix(1);
+  if (field.empty()) return false;
+  const char* end = field.data() + field.size();
+  const auto result = std::from_chars(field.data(), end, value);
+  return result.ec == std::errc() && result.ptr == end;
+}
+
+std::uint8_t colorFromUnit(double value) {
+  if (!(value > 0.0)) return 0;
+  if (value >= 1.0) return 255;
+  return static_cast<std::uint8_t>(value * 255.0 + 0.5);
+}
+
+std::uint8_t colorFromByte(double value) {
+  if (!(value > 0.0)) return 0;
+  if (value >= 255.0) return 255;
+  return static_cast<std::uint8_t>(value + 0.5);
+}
+
+}  // namespace detail
+}  // namespace pointillist::preprocess

@@ -1,0 +1,99 @@
+#pragma once
+// What the format readers (PLY, XYZ/PTS, LAS, OFF) share: errors that name the
+// file and the place, a buffered line/byte reader, strict number parsing,
+// colour conversion and the point collector. Dispatching on the file type is
+// readers.hpp's job; format readers include only this.
+#include <cstddef>
+#include <cstdint>
+#include <cstdio>
+#include <filesystem>
+#include <string_view>
+#include <vector>
+
+#include "common/splat.hpp"
+#include "preprocess/point_cloud.hpp"
+
+namespace pointillist::preprocess {
+namespace detail {
+
+// Error helpers: "<file>: <where>: <message>".
+[[noreturn]] void failFile(const std::filesystem::path& file, std::string_view message);
+[[noreturn]] void failAtLine(const std::filesystem::path& file, std::uint64_t line,
+                             std::string_view message);
+[[noreturn]] void failAtByte(const std::filesystem::path& file, std::uint64_t byte,
+                             std::string_view message);
+
+// Buffered reader over one file that serves both text lines (with line numbers)
+// and raw bytes (with byte offsets), so PLY can switch from header to body.
+class FileReader {
+ public:
+  explicit FileReader(const std::filesystem::path& file);
+  ~FileReader();
+  FileReader(const FileReader&) = delete;
+  FileReader& operator=(const FileReader&) = delete;
+
+  const std::filesystem::path& path() const { return path_; }
+  std::uint64_t size() const { return size_; }
+  // Bytes consumed so far (the offset of the next unread byte).
+  std::uint64_t offset() const { return fileOffset_ - (end_ - pos_); }
+  // Number of the line last returned by readLine (1-based).
+  std::uint64_t lineNumber() const { return line_; }
+
+  // Next line without its "\n" / "\r\n"; false at end of file. The view stays
+  // valid until the next call.
+  bool readLine(std::string_view& line);
+  // Copies up to n bytes; returns how many were available.
+  std::size_t read(void* destination, std::size_t n);
+  // Skips n bytes; returns how many were available.
+  std::uint64_t skip(std::uint64_t n);
+
+ private:
+  bool refill();  // keeps [pos_, end_) and appends more; false when nothing was added
+
+  std::filesystem::path path_;
+  std::FILE* file_ = nullptr;
+  std::uint64_t size_ = 0;
+  std::uint64_t fileOffset_ = 0;  // bytes pulled from the file into buffer_
+  std::vector<char> buffer_;
+  std::size_t pos_ = 0;
+  std::size_t end_ = 0;
+  std::uint64_t line_ = 0;
+};
+
+// Collects points, checks coordinates for NaN/Inf (refuses, or drops with a
+// warning under ReadOptions::dropNonFinite), reports progress, refuses empty
+// clouds.
+class CloudBuilder {
+ public:
+  CloudBuilder(std::filesystem::path file, const ReadOptions& options);
+
+  void reserve(std::uint64_t expected, std::uint64_t limit);
+  // `line` or `byte` (one is 0) locates the point for messages.
+  void add(const Splat& splat, std::uint64_t line, std::uint64_t byte);
+  // Throttled progress callback.
+  void progress(std::uint64_t done, std::uint64_t total);
+  std::size_t size() const { return cloud_.splats.size(); }
+  PointCloud finish(bool hasNormals, bool hasColors, bool hasRadii);
+
+ private:
+  std::filesystem::path file_;
+  const ReadOptions& options_;
+  PointCloud cloud_;
+  std::uint64_t dropped_ = 0;
+  std::uint64_t firstDropLine_ = 0;
+  std::uint64_t firstDropByte_ = 0;
+  std::uint64_t lastProgress_ = 0;
+};
+
+bool isFinite(const Splat& splat);
+Splat greySplat();  // zero normal, zero radius, grey colour
+// Splits on blanks (and commas, used by some XYZ exporters).
+void splitFields(std::string_view line, std::vector<std::string_view>& fields);
+// Strict number parsing of a whole field (accepts nan/inf so they can be refused).
+bool parseDouble(std::string_view field, double& value);
+bool parseUnsigned(std::string_view field, std::uint64_t& value);
+std::uint8_t colorFromUnit(double value);  // 0..1 -> 0..255, clamped
+std::uint8_t colorFromByte(double value);  // 0..255, rounded and clamped (NaN -> 0)
+
+}  // namespace detail
+}  // namespace pointillist::preprocess
