@@ -47,62 +47,6 @@ std::vector<Splat> patch(std::size_t n, std::uint32_t seed, float z0 = 0.0f) {
   return out;
 }
 
-TEST(Eigen3, DecomposesRotatedDiagonalMatrices) {
-  std::mt19937 rng(4);
-  std::normal_distribution<double> g(0.0, 1.0);
-  for (int trial = 0; trial < 200; ++trial) {
-    // Random orthonormal basis by Gram-Schmidt, random (sometimes repeated) eigenvalues.
-    Vec3d a = {g(rng), g(rng), g(rng)}, b = {g(rng), g(rng), g(rng)};
-    a = normalized(a);
-    b = normalized(sub(b, scale(a, dot(a, b))));
-    const Vec3d c = {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
-                     a[0] * b[1] - a[1] * b[0]};
-    double l[3] = {std::abs(g(rng)), std::abs(g(rng)), trial % 3 == 0 ? 0.0 : std::abs(g(rng))};
-    if (trial % 5 == 0) l[1] = l[0];
-    const Vec3d* v[3] = {&a, &b, &c};
-    Sym3 m{};
-    const int idx[6][2] = {{0, 0}, {0, 1}, {0, 2}, {1, 1}, {1, 2}, {2, 2}};
-    for (int e = 0; e < 6; ++e)
-      for (int k = 0; k < 3; ++k)
-        m[static_cast<std::size_t>(e)] += l[k] * (*v[k])[static_cast<std::size_t>(idx[e][0])] *
-                                          (*v[k])[static_cast<std::size_t>(idx[e][1])];
-    const Eigen3 r = eigenSymmetric3(m);
-    std::vector<double> expected(l, l + 3);
-    std::sort(expected.begin(), expected.end());
-    for (std::size_t k = 0; k < 3; ++k) {
-      EXPECT_NEAR(r.values[k], expected[k], 1e-9);
-      EXPECT_NEAR(length(r.vectors[k]), 1.0, 1e-12);
-      // A v = lambda v
-      const Vec3d& x = r.vectors[k];
-      const Vec3d ax = {m[0] * x[0] + m[1] * x[1] + m[2] * x[2],
-                        m[1] * x[0] + m[3] * x[1] + m[4] * x[2],
-                        m[2] * x[0] + m[4] * x[1] + m[5] * x[2]};
-      EXPECT_NEAR(length(sub(ax, scale(x, r.values[k]))), 0.0, 1e-9);
-    }
-    EXPECT_NEAR(dot(r.vectors[0], r.vectors[1]), 0.0, 1e-9);
-    EXPECT_NEAR(dot(r.vectors[1], r.vectors[2]), 0.0, 1e-9);
-    // The closed form agrees (its values lose digits near repeated roots, and
-    // the vector is only defined for a simple smallest value).
-    const SmallestEigen3 f = smallestEigen3(m);
-    for (std::size_t k = 0; k < 3; ++k) EXPECT_NEAR(f.values[k], expected[k], 1e-6);
-    if (expected[1] - expected[0] > 1e-3) {
-      EXPECT_NEAR(std::abs(dot(f.vector, r.vectors[0])), 1.0, 1e-9);
-    }
-    EXPECT_NEAR(length(f.vector), 1.0, 1e-12);
-  }
-  const Eigen3 zero = eigenSymmetric3(Sym3{});
-  EXPECT_EQ(zero.values[2], 0.0);
-  EXPECT_NEAR(length(zero.vectors[0]), 1.0, 1e-12);
-}
-
-TEST(Covariance, MeanAndCovarianceFarFromTheOrigin) {
-  CovarianceAccumulator acc;
-  for (double x : {1e6 + 1.0, 1e6 - 1.0}) acc.add({x, 5.0, -3.0});
-  EXPECT_DOUBLE_EQ(acc.mean()[0], 1e6);
-  EXPECT_DOUBLE_EQ(acc.covariance()[0], 1.0);
-  EXPECT_DOUBLE_EQ(acc.covariance()[3], 0.0);
-}
-
 TEST(LevelSplats, TargetIsAQuarterWithinLimits) {
   LevelSplatOptions o;
   EXPECT_EQ(levelSplatTarget(0, o), 0u);

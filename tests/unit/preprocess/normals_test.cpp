@@ -19,33 +19,6 @@ using namespace pointillist::preprocess;
 
 namespace {
 
-using Matrix = std::array<std::array<double, 3>, 3>;
-
-// The solver of common/geometry.hpp on a full (symmetric) matrix.
-pointillist::Eigen3 eigenOf(const Matrix& m) {
-  return pointillist::eigenSymmetric3({m[0][0], m[0][1], m[0][2], m[1][1], m[1][2], m[2][2]});
-}
-
-void expectEigenPairs(const Matrix& m, const pointillist::Eigen3& e) {
-  EXPECT_LE(e.values[0], e.values[1]);
-  EXPECT_LE(e.values[1], e.values[2]);
-  double scale = 1e-300;
-  for (const auto& row : m) {
-    for (const double x : row) scale = std::max(scale, std::abs(x));
-  }
-  for (std::size_t i = 0; i < 3; ++i) {
-    const auto& v = e.vectors[i];
-    for (std::size_t r = 0; r < 3; ++r) {
-      const double mv = m[r][0] * v[0] + m[r][1] * v[1] + m[r][2] * v[2];
-      EXPECT_NEAR(mv, e.values[i] * v[r], 1e-10 * scale) << "pair " << i;
-    }
-    for (std::size_t j = 0; j < 3; ++j) {
-      const auto& w = e.vectors[j];
-      EXPECT_NEAR(v[0] * w[0] + v[1] * w[1] + v[2] * w[2], i == j ? 1.0 : 0.0, 1e-12);
-    }
-  }
-}
-
 // Cloud with zero normals and radii (what a plain XYZ file gives).
 PointCloud stripped(PointCloud cloud) {
   for (Splat& s : cloud.splats) {
@@ -65,32 +38,6 @@ double angleDegrees(const Splat& s, const std::array<double, 3>& direction) {
 }
 
 }  // namespace
-
-TEST(SymmetricEigen3, DiagonalRepeatedAndRandom) {
-  expectEigenPairs({{{3, 0, 0}, {0, 1, 0}, {0, 0, 2}}},
-                   eigenOf({{{3, 0, 0}, {0, 1, 0}, {0, 0, 2}}}));
-  const auto diag = eigenOf({{{3, 0, 0}, {0, 1, 0}, {0, 0, 2}}});
-  EXPECT_DOUBLE_EQ(diag.values[0], 1);
-  EXPECT_DOUBLE_EQ(std::abs(diag.vectors[0][1]), 1);
-  const Matrix repeated{{{2, 1, 1}, {1, 2, 1}, {1, 1, 2}}};  // eigenvalues 1, 1, 4
-  const auto e = eigenOf(repeated);
-  expectEigenPairs(repeated, e);
-  EXPECT_NEAR(e.values[0], 1, 1e-12);
-  EXPECT_NEAR(e.values[2], 4, 1e-12);
-  expectEigenPairs(Matrix{}, eigenOf(Matrix{}));
-  Rng rng(5);
-  for (int t = 0; t < 200; ++t) {
-    Matrix m{};
-    const double scale = std::pow(10.0, rng.uniform(-8, 8));
-    for (std::size_t r = 0; r < 3; ++r) {
-      for (std::size_t c = r; c < 3; ++c) m[r][c] = m[c][r] = scale * rng.uniform(-1, 1);
-    }
-    expectEigenPairs(m, eigenOf(m));
-  }
-  // A nearly flat covariance: the normal is the thin direction.
-  const auto flat = eigenOf({{{4, 0.001, 0}, {0.001, 3, 0.002}, {0, 0.002, 1e-6}}});
-  EXPECT_GT(std::abs(flat.vectors[0][2]), 0.9999);
-}
 
 TEST(Normals, SphereNormalsPointOutward) {
   // An offset sphere, so "outward" is not just "away from the origin".

@@ -120,13 +120,6 @@ std::vector<Splat> subtreeSplats(const DatasetContent& c, std::uint32_t i) {
   return out;
 }
 
-TEST(OctreeRecords, Sizes) {
-  static_assert(sizeof(OctreeCell) == 64);
-  EXPECT_EQ(sizeof(OctreeCell), 64u);
-  EXPECT_EQ(sizeof(TopLevelCell), 32u);
-  EXPECT_EQ(sizeof(Splat), 32u);
-}
-
 TEST(Octree, EveryPointInExactlyOneLeaf) {
   const Built b = build(6000, smallOptions());
   const Octree& t = b.tree;
