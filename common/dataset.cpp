@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstring>
 #include <fstream>
+#include <limits>
 #include <system_error>
 
 #include "common/dataset_internal.hpp"
@@ -259,10 +260,22 @@ Dataset Dataset::open(const fs::path& dir, DatasetParts parts) {
                        std::to_string(f->size) + " does not match the counts (" +
                        std::to_string(size) + " bytes expected)");
   };
-  expectSize(kCellsFile, m.cellCount * sizeof(OctreeCell));
-  expectSize(kTopLevelFile, m.topLevelCount * sizeof(TopLevelCell));
-  expectSize(kChecksumsFile, m.topLevelCount * sizeof(std::uint64_t));
-  expectSize(kPointsFile, (m.pointCount + m.levelSplatCount) * sizeof(Splat));
+  // Counts times record sizes, refused where the product wraps: 2^58 cells of
+  // 64 bytes would otherwise match an empty file.
+  auto bytesFor = [&](const char* key, std::uint64_t count, std::uint64_t record) {
+    if (count > std::numeric_limits<std::uint64_t>::max() / record) {
+      throw InputError(manifestPath.string() + ": " + key + " " + std::to_string(count) +
+                       " is more than any file can hold");
+    }
+    return count * record;
+  };
+  if (m.pointCount > std::numeric_limits<std::uint64_t>::max() - m.levelSplatCount) {
+    throw InputError(manifestPath.string() + ": point_count and level_splat_count overflow");
+  }
+  expectSize(kCellsFile, bytesFor("cell_count", m.cellCount, sizeof(OctreeCell)));
+  expectSize(kTopLevelFile, bytesFor("top_level_count", m.topLevelCount, sizeof(TopLevelCell)));
+  expectSize(kChecksumsFile, bytesFor("top_level_count", m.topLevelCount, sizeof(std::uint64_t)));
+  expectSize(kPointsFile, bytesFor("point_count", m.pointCount + m.levelSplatCount, sizeof(Splat)));
 
   auto loadChecked = [&](const FileSpec& spec) {
     const DatasetFile* f = m.file(spec.key);

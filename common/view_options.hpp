@@ -26,7 +26,7 @@ struct ViewOptions {
 
 void addViewOptions(CLI::App& app, ViewOptions& options);
 
-v1::RenderMode parseRenderMode(const std::string& name);  // points | splats
+v1::RenderMode parseRenderMode(const std::string& name);  // points | splats | blended
 glm::vec3 parseUpAxis(const std::string& name, const SceneBounds& bounds);
 SceneBounds datasetBounds(const DatasetManifest& manifest);
 

@@ -13,6 +13,7 @@
 #include "common/dataset.hpp"
 #include "common/image.hpp"
 #include "common/mpi/role_program.hpp"
+#include "common/run_settings.hpp"
 #include "common/view_options.hpp"
 #include "display/core/frame_assembly.hpp"
 #include "display/core/frame_stats.hpp"
@@ -39,16 +40,10 @@ struct DisplayOptions {
   std::uint32_t maxAttempts = 3;
   std::string scheduler = "cost";
   bool equalTiles = false;
-  std::string costModel = "paper";
+  std::string costModel = costModelName(kDefaultCostModel);
   std::uint32_t prefetchFrames = 0;
   bool quiet = false;
 };
-
-v1::CostModel parseCostModel(const std::string& name) {
-  if (name == "overlap") return v1::COST_MODEL_OVERLAP;
-  if (name == "paper") return v1::COST_MODEL_PAPER;
-  throw UsageError("cost model '" + name + "' is not one of: overlap, paper");
-}
 
 TilePlanOptions tilePlanOptions(const DisplayOptions& options, std::uint32_t renders) {
   TilePlanOptions plan;
@@ -191,11 +186,10 @@ class DisplayProcess {
 
   void emit(const FinishedFrame& frame) {
     const FrameRecord& record = frame.record;
-    Image image(width_, height_, kBackground);
-    if (auto found = images_.find(record.frame); found != images_.end()) {
-      image = std::move(found->second);
-      images_.erase(found);
-    }
+    const auto found = images_.find(record.frame);
+    Image image =
+        found != images_.end() ? std::move(found->second) : Image(width_, height_, kBackground);
+    if (found != images_.end()) images_.erase(found);
     for (const TileRect& rect : frame.failedTiles) {
       for (std::uint32_t y = 0; y < rect.height(); ++y) {
         for (std::uint32_t x = 0; x < rect.width(); ++x) {

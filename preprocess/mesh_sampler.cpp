@@ -267,12 +267,12 @@ TriangleMesh readOffMesh(const std::filesystem::path& file, const ReadOptions& o
       mesh.vertexColors.push_back(color);
     }
     bool finite = true;
-    for (std::size_t k = 0; k < numbers; ++k) finite = finite && std::isfinite(v[k]);
+    for (std::size_t k = 0; k < numbers; ++k) finite = finite && detail::fitsFloat(v[k]);
     if (!finite) {
       if (!options.dropNonFinite) {
         failAtLine(file, at,
-                   "non-finite value (NaN or Inf) in vertex " + std::to_string(i) +
-                       " (pass --drop-non-finite to drop such points)");
+                   "non-finite value (NaN, Inf or beyond float range) in vertex " +
+                       std::to_string(i) + " (pass --drop-non-finite to drop such points)");
       }
       mesh.badVertices.resize(static_cast<std::size_t>(vertexCount), false);
       mesh.badVertices[static_cast<std::size_t>(i)] = true;
@@ -300,7 +300,8 @@ TriangleMesh readOffMesh(const std::filesystem::path& file, const ReadOptions& o
     if (!detail::parseUnsigned(f[0], n)) {
       failAtLine(file, at, "expected a face vertex count, got '" + std::string(f[0]) + "'");
     }
-    if (f.size() < n + 1) {
+    // Compared without arithmetic on n: a count near 2^64 must not wrap.
+    if (n > f.size() - 1) {
       failAtLine(file, at,
                  "face " + std::to_string(i) + " lists " + std::to_string(f.size() - 1) +
                      " indices, expected " + std::to_string(n));

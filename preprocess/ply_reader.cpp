@@ -4,6 +4,7 @@
 #include <array>
 #include <bit>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <iostream>
 #include <limits>
@@ -431,15 +432,17 @@ class PlyParser {
       const std::uint64_t at = reader_.offset();
       const std::size_t countSize = typeSize(p.countType);
       if (reader_.read(b, countSize) != countSize) truncated(element, index, start);
-      const double count = decode(b, p.countType);
-      if (count < 0) failAtByte(file_, at, "negative list length in " + element.name);
-      const auto n = static_cast<std::uint64_t>(count);
+      std::uint64_t n = 0;
+      if (!detail::wholeCount(decode(b, p.countType), n)) {
+        failAtByte(file_, at, "bad list length in " + element.name + " " + std::to_string(index));
+      }
       const std::size_t itemSize = typeSize(p.type);
+      // Compared by division: n * itemSize may wrap.
+      if (n > reader_.size() / itemSize) truncated(element, index, start);
       if (!keep || p.role != Role::Indices) {
         if (reader_.skip(n * itemSize) != n * itemSize) truncated(element, index, start);
         continue;
       }
-      if (n > reader_.size() / itemSize) truncated(element, index, start);
       for (std::uint64_t k = 0; k < n; ++k) {
         if (reader_.read(b, itemSize) != itemSize) truncated(element, index, start);
         indices_.push_back(decode(b, p.type));
@@ -474,10 +477,10 @@ class PlyParser {
         continue;
       }
       take(value);
-      if (value < 0 || value != std::floor(value)) {
+      std::uint64_t n = 0;
+      if (!detail::wholeCount(value, n)) {
         failAtLine(file_, at, "bad list length in " + element.name + " " + std::to_string(index));
       }
-      const auto n = static_cast<std::uint64_t>(value);
       for (std::uint64_t k = 0; k < n; ++k) {
         take(value);
         if (p.role == Role::Indices) indices_.push_back(value);
@@ -510,10 +513,7 @@ class PlyParser {
     if (isMesh_) {
       const std::array<double, 3> v{value(Role::X), value(Role::Y), value(Role::Z)};
       const bool finite =
-          std::isfinite(v[0]) && std::isfinite(v[1]) && std::isfinite(v[2]) &&
-          std::abs(v[0]) <= static_cast<double>(std::numeric_limits<float>::max()) &&
-          std::abs(v[1]) <= static_cast<double>(std::numeric_limits<float>::max()) &&
-          std::abs(v[2]) <= static_cast<double>(std::numeric_limits<float>::max());
+          detail::fitsFloat(v[0]) && detail::fitsFloat(v[1]) && detail::fitsFloat(v[2]);
       if (!finite) {
         const std::string message =
             "non-finite vertex coordinate (NaN or Inf) (pass --drop-non-finite to skip it)";
@@ -552,17 +552,19 @@ class PlyParser {
     const std::uint64_t vertexCount = vertex_->count;
     std::uint32_t corners[3] = {};
     for (std::size_t k = 0; k < indices_.size(); ++k) {
-      const double index = indices_[k];
-      if (!(index >= 0) || index >= static_cast<double>(vertexCount) ||
-          index != std::floor(index)) {
-        const std::string message = "face vertex index " + std::to_string(std::llround(index)) +
+      std::uint64_t whole = 0;
+      if (!detail::wholeCount(indices_[k], whole) || whole >= vertexCount ||
+          whole > std::numeric_limits<std::uint32_t>::max()) {
+        char shown[32];
+        std::snprintf(shown, sizeof shown, "%.17g", indices_[k]);
+        const std::string message = std::string("face vertex index ") + shown +
                                     " out of range (the mesh has " + std::to_string(vertexCount) +
                                     " vertices)";
         if (line > 0) failAtLine(file_, line, message);
         failAtByte(file_, byte, message);
       }
       // Fan triangulation: (v0, v[k-1], v[k]).
-      const auto i = static_cast<std::uint32_t>(index);
+      const auto i = static_cast<std::uint32_t>(whole);
       if (k == 0) {
         corners[0] = i;
       } else if (k == 1) {

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstring>
 #include <iostream>
+#include <limits>
 #include <string>
 #include <system_error>
 #include <utility>
@@ -198,6 +199,20 @@ bool isFinite(const Splat& s) {
     if (!std::isfinite(s.position[i]) || !std::isfinite(s.normal[i])) return false;
   }
   return std::isfinite(s.radius);
+}
+
+bool fitsFloat(double value) {
+  return std::isfinite(value) &&
+         std::abs(value) <= static_cast<double>(std::numeric_limits<float>::max());
+}
+
+bool wholeCount(double value, std::uint64_t& count) {
+  // 2^64 is exact in a double; every double below it converts without overflow.
+  if (!(value >= 0.0) || !(value < 18446744073709551616.0) || value != std::floor(value)) {
+    return false;
+  }
+  count = static_cast<std::uint64_t>(value);
+  return true;
 }
 
 Splat greySplat() {

@@ -86,6 +86,12 @@ class CloudBuilder {
 };
 
 bool isFinite(const Splat& splat);
+// A coordinate a float can hold: finite and within float range.
+bool fitsFloat(double value);
+// A count or index read as a number: true when `value` is a whole number in
+// [0, 2^64), stored in `count`; false for negative, fractional, NaN or huge ones
+// (a plain cast of those is undefined behaviour).
+bool wholeCount(double value, std::uint64_t& count);
 Splat greySplat();  // zero normal, zero radius, grey colour
 // Splits on blanks (and commas, used by some XYZ exporters).
 void splitFields(std::string_view line, std::vector<std::string_view>& fields);

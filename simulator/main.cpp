@@ -13,6 +13,7 @@
 
 #include "common/dataset.hpp"
 #include "common/errors.hpp"
+#include "common/run_settings.hpp"
 #include "simulator/calibration.hpp"
 #include "simulator/replay.hpp"
 #include "simulator/sweep.hpp"
@@ -85,7 +86,7 @@ int run(int argc, char** argv) {
   std::vector<std::string> traverses{"1", "2", "4", "8"};
   std::vector<std::string> datasends{"auto"};
   std::vector<std::string> schedulers{"cost", "round-robin", "static", "equalizer"};
-  std::vector<std::string> costModels{"paper"};
+  std::vector<std::string> costModels{costModelName(kDefaultCostModel)};
   bool equalTiles = false;
   SweepOptions sweep;
   ModelParameters& p = sweep.parameters;
@@ -174,13 +175,7 @@ int run(int argc, char** argv) {
   }
   sweep.costModels.clear();
   for (const std::string& name : costModels) {
-    if (name == "overlap") {
-      sweep.costModels.push_back(traverse::CostModel::Overlap);
-    } else if (name == "paper") {
-      sweep.costModels.push_back(traverse::CostModel::Paper);
-    } else {
-      throw UsageError("--cost-model '" + name + "' is not one of: overlap, paper");
-    }
+    sweep.costModels.push_back(traverse::costModelOf(parseCostModel(name)));
   }
   sweep.balancedTiles = !equalTiles;
   if (jobs == 0) throw UsageError("--jobs must be at least 1");

@@ -17,6 +17,7 @@
 #include <string>
 #include <vector>
 
+#include "common/run_settings.hpp"
 #include "display/core/frame_stats.hpp"
 #include "display/core/tile_planner.hpp"
 #include "simulator/scene.hpp"
@@ -53,7 +54,7 @@ struct SimulationConfig {
   std::uint32_t minTileSize = 32;
   // Cost scheduler only: how the traverse counts missing data, and whether
   // tiles are sized by last frame's work (the display's --equal-tiles off).
-  traverse::CostModel costModel = traverse::CostModel::Overlap;
+  traverse::CostModel costModel = traverse::costModelOf(kDefaultCostModel);
   bool balancedTiles = true;
   // Cost scheduler: the traverse orders what each tile's rect needs this many
   // frames on for the render it chose (the display's --prefetch-frames; 0: off).

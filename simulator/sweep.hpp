@@ -8,6 +8,7 @@
 #include <utility>
 #include <vector>
 
+#include "common/run_settings.hpp"
 #include "simulator/simulation.hpp"
 
 namespace pointillist::simulator {
@@ -20,7 +21,7 @@ struct SweepOptions {
       display::SchedulerKind::Cost, display::SchedulerKind::RoundRobin,
       display::SchedulerKind::Static, display::SchedulerKind::Equalizer};
   // Cost rows are repeated for each cost model (paper is the runtime default).
-  std::vector<traverse::CostModel> costModels{traverse::CostModel::Overlap};
+  std::vector<traverse::CostModel> costModels{traverse::costModelOf(kDefaultCostModel)};
   bool balancedTiles = true;         // cost scheduler: tiles sized by last frame's work
   std::uint32_t prefetchFrames = 0;  // cost scheduler: order data this many frames ahead
   double tilesPerRender = 2.0;

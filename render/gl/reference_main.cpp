@@ -6,6 +6,7 @@
 
 #include "common/tool_entry.hpp"
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 
@@ -23,8 +24,25 @@ struct ReferenceOptions {
   std::string outDir;
   std::string compareDir;
   std::uint64_t maxDifferingPixels = 0;
+  // A compared frame must show something: two blank images would match.
+  double minLitFraction = 0.0;
+  std::uint64_t minSplats = 0;
   std::string profile = "compat";
 };
+
+// Share of pixels that are not the background colour.
+double litFraction(const Image& image) {
+  const Rgba8 background{0, 0, 0, 255};
+  std::uint64_t lit = 0;
+  for (std::uint32_t y = 0; y < image.height(); ++y) {
+    for (std::uint32_t x = 0; x < image.width(); ++x) {
+      const Rgba8 pixel = image.at(x, y);
+      lit += pixel[0] != background[0] || pixel[1] != background[1] || pixel[2] != background[2];
+    }
+  }
+  const double pixels = static_cast<double>(image.width()) * image.height();
+  return pixels > 0.0 ? static_cast<double>(lit) / pixels : 0.0;
+}
 
 int run(int argc, char** argv) {
   CLI::App app{"Pointillist reference renderer: whole frames in one process, no MPI"};
@@ -36,6 +54,11 @@ int run(int argc, char** argv) {
                  "Directory of frames (frame_NNNNN.png) to compare with the reference");
   app.add_option("--max-differing-pixels", options.maxDifferingPixels,
                  "Pixels a compared frame may differ in");
+  app.add_option("--min-lit-fraction", options.minLitFraction,
+                 "With --compare: every frame (ours and theirs) must have at least this share "
+                 "of pixels off the background");
+  app.add_option("--min-splats", options.minSplats,
+                 "With --compare: every frame must draw at least this many splats");
   app.add_option("--gl-profile", options.profile, "OSMesa context profile: compat or core");
   app.name("pointillist-reference");
   try {
@@ -82,6 +105,13 @@ int run(int argc, char** argv) {
         ++mismatches;
         std::printf(" MISMATCH, first at (%u, %u)", diff.firstX, diff.firstY);
       }
+      const double lit = std::min(litFraction(expected), litFraction(other));
+      std::printf(", %.1f%% lit", lit * 100.0);
+      if (lit < options.minLitFraction || frame.splats < options.minSplats) {
+        ++mismatches;
+        std::printf(" TOO EMPTY (need %.1f%% lit and %llu splats)", options.minLitFraction * 100.0,
+                    static_cast<unsigned long long>(options.minSplats));
+      }
     }
     std::printf("\n");
   }
@@ -94,7 +124,8 @@ int run(int argc, char** argv) {
                       : static_cast<double>(splats) / 1e6 / static_cast<double>(cameras.size()));
   if (mismatches > 0) {
     std::fprintf(stderr,
-                 "pointillist-reference: %d frame(s) differ from %s by more than %llu pixels\n",
+                 "pointillist-reference: %d frame(s) differ from %s by more than %llu pixels or "
+                 "show too little\n",
                  mismatches, options.compareDir.c_str(),
                  static_cast<unsigned long long>(options.maxDifferingPixels));
     return 1;

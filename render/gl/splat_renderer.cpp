@@ -132,6 +132,8 @@ SplatMode splatModeFromProto(v1::RenderMode mode) {
       return SplatMode::Points;
     case v1::RENDER_MODE_SPLATS:
       return SplatMode::Splats;
+    case v1::RENDER_MODE_BLENDED:
+      return SplatMode::Blended;
     default:
       throw UsageError("render mode " + v1::RenderMode_Name(mode) +
                        " is not drawn by SplatRenderer");

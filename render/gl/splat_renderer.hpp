@@ -32,7 +32,7 @@
 //    blendDepthRadii radii, an additive pass of Gaussian-weighted colours of the
 //    splats within that offset of the visible surface (float framebuffer), and
 //    a normalization pass into the context's buffer. Smooth, ~2.5x the cost of
-//    Splats. No protocol RenderMode maps to it yet.
+//    Splats (RENDER_MODE_BLENDED, --mode blended).
 #include <array>
 #include <cstdint>
 #include <memory>
@@ -49,7 +49,7 @@ enum class SplatMode { Points, Splats, Blended };
 const char* splatModeName(SplatMode mode);
 // "points" | "splats" | "blended"; UsageError otherwise.
 SplatMode parseSplatMode(const std::string& name);
-// RENDER_MODE_POINTS -> Points, RENDER_MODE_SPLATS -> Splats; UsageError otherwise.
+// RENDER_MODE_POINTS -> Points, _SPLATS -> Splats, _BLENDED -> Blended; UsageError otherwise.
 SplatMode splatModeFromProto(v1::RenderMode mode);
 
 struct RenderSettings {

@@ -7,9 +7,14 @@
 #   EXPECT_OUTPUT         a regex the job's output must match (e.g. re-issued tiles)
 #   CACHE_CAP_MB          the render cache cap given to the job: evictions must
 #                         happen and the peak cache must stay within it
+#   MIN_LIT_FRACTION      every frame, the job's and the reference's, must have at
+#   MIN_SPLATS            least this share of pixels off the background and draw
+#                         this many splats: two blank frames would match (required,
+#                         set per scene in tests/mpi/CMakeLists.txt)
 set -euo pipefail
 bin="$1" dataset="$2" layout="$3" path="$4" frames="$5" size="$6" mode="$7"
 shift 7
+: "${MIN_LIT_FRACTION:?set the scene's floor of lit pixels}" "${MIN_SPLATS:?set the scene's floor of splats}"
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
@@ -50,4 +55,5 @@ if [[ -n "${CACHE_CAP_MB:-}" ]]; then
 fi
 "$bin/pointillist-reference" --dataset "$dataset" --camera-path "$path" --frames "$frames" \
   --size "$size" --mode "$mode" --out "$work/reference" --compare "$work/job" \
-  --max-differing-pixels "${MAX_DIFFERING_PIXELS:-0}"
+  --max-differing-pixels "${MAX_DIFFERING_PIXELS:-0}" \
+  --min-lit-fraction "$MIN_LIT_FRACTION" --min-splats "$MIN_SPLATS"

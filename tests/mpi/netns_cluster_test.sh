@@ -59,4 +59,5 @@ if [[ -z "$crossed" ]] || ((crossed < min_cross_bytes)); then
 fi
 
 "$bin/pointillist-reference" --dataset "$dataset" --camera-path "$path" --frames "$frames" \
-  --size "$size" --mode points --out "$work/reference" --compare "$work/job"
+  --size "$size" --mode points --out "$work/reference" --compare "$work/job" \
+  --min-lit-fraction 0.10 --min-splats 30000

@@ -15,10 +15,6 @@ CostModel costModelOf(v1::CostModel model) {
   return model == v1::COST_MODEL_OVERLAP ? CostModel::Overlap : CostModel::Paper;
 }
 
-double blend(double average, double sample, double weight) {
-  return average + weight * (sample - average);
-}
-
 RenderModel::RenderModel(std::size_t renderCount, std::span<const TopLevelCell> topLevel,
                          CostModel costModel)
     : renders_(renderCount), costModel_(costModel) {
@@ -43,6 +39,44 @@ std::size_t RenderModel::cachedCellCount(std::size_t render) const {
   return renders_.at(render).cached.size();
 }
 
+namespace {
+
+// Mean of the measured values (> 0), or `fallback` when none is.
+template <class Get>
+double meanMeasured(const auto& renders, Get get, double fallback) {
+  double sum = 0.0;
+  std::size_t measured = 0;
+  for (const auto& state : renders) {
+    if (get(state) > 0.0) {
+      sum += get(state);
+      ++measured;
+    }
+  }
+  return measured > 0 ? sum / static_cast<double>(measured) : fallback;
+}
+
+}  // namespace
+
+double RenderModel::secondsPerSplat() const {
+  return meanMeasured(
+      renders_, [](const RenderState& s) { return s.secondsPerSplat; }, kDefaultSecondsPerSplat);
+}
+
+double RenderModel::secondsPerByte() const {
+  return meanMeasured(
+      renders_, [](const RenderState& s) { return s.secondsPerByte; }, kDefaultSecondsPerByte);
+}
+
+double RenderModel::secondsPerSplat(std::size_t render) const {
+  const double own = renders_.at(render).secondsPerSplat;
+  return own > 0.0 ? own : secondsPerSplat();
+}
+
+double RenderModel::secondsPerByte(std::size_t render) const {
+  const double own = renders_.at(render).secondsPerByte;
+  return own > 0.0 ? own : secondsPerByte();
+}
+
 double RenderModel::cost(std::size_t render, std::span<const std::uint32_t> cells,
                          std::uint64_t splats, std::uint64_t* missingBytes) const {
   std::uint64_t missing = 0;
@@ -52,9 +86,10 @@ double RenderModel::cost(std::size_t render, std::span<const std::uint32_t> cell
   if (missingBytes != nullptr) *missingBytes = missing;
   // The packet's own splats cost the same everywhere; they are included so the
   // figure reads as the expected completion time on that render.
-  const double queued = static_cast<double>(workload(render)) * secondsPerSplat_;
-  const double transfer = static_cast<double>(missing) * secondsPerByte_;
-  const double own = static_cast<double>(splats) * secondsPerSplat_;
+  const double splatSeconds = secondsPerSplat(render);
+  const double queued = static_cast<double>(workload(render)) * splatSeconds;
+  const double transfer = static_cast<double>(missing) * secondsPerByte(render);
+  const double own = static_cast<double>(splats) * splatSeconds;
   if (costModel_ == CostModel::Paper) return queued + transfer + own;
   return std::max(queued, transfer) + own;
 }
@@ -62,7 +97,7 @@ double RenderModel::cost(std::size_t render, std::span<const std::uint32_t> cell
 bool RenderModel::suspectedStalled(std::size_t render, Clock::time_point now) const {
   const RenderState& state = renders_.at(render);
   if (!state.waitingSince) return false;
-  const double expected = static_cast<double>(workload(render)) * secondsPerSplat_;
+  const double expected = static_cast<double>(workload(render)) * secondsPerSplat(render);
   const double waited = std::chrono::duration<double>(now - *state.waitingSince).count();
   return waited > std::max(1.0, 4.0 * expected);
 }
@@ -149,10 +184,9 @@ void RenderModel::applyReport(std::size_t render, const RenderReportView& report
     state.ordered.erase(cell);
   }
   if (!state.waitingSince && workload(render) > 0) state.waitingSince = now;
-  if (report.secondsPerSplat > 0.0)
-    secondsPerSplat_ = blend(secondsPerSplat_, report.secondsPerSplat, 0.25);
-  if (report.secondsPerByte > 0.0)
-    secondsPerByte_ = blend(secondsPerByte_, report.secondsPerByte, 0.25);
+  // Already smoothed by the render process (common to its T_s and T_n).
+  if (report.secondsPerSplat > 0.0) state.secondsPerSplat = report.secondsPerSplat;
+  if (report.secondsPerByte > 0.0) state.secondsPerByte = report.secondsPerByte;
 }
 
 }  // namespace pointillist::traverse

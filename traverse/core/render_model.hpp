@@ -6,8 +6,10 @@
 // As an option the transfer is taken to overlap the work already queued there
 // (data-send streams the cells while the render draws), see docs/scheduling.md:
 //   Cost(i) = max(workload(i) * T_s, missing_bytes(i) * T_n) + packet_splats * T_s
-// T_s (seconds per splat) and T_n (seconds per byte) are measured by the render
-// processes while running and averaged here.
+// T_s (seconds per splat) and T_n (seconds per byte) are measured by each
+// render process while running and kept per process, so a render process on a
+// slower node (or behind a slower link) gets proportionally less work; one not
+// measured yet counts as the mean of those that are.
 #include <chrono>
 #include <cstdint>
 #include <optional>
@@ -17,6 +19,7 @@
 #include <vector>
 
 #include "common/octree_cell.hpp"
+#include "common/run_settings.hpp"
 #include "pointillist.pb.h"
 
 namespace pointillist::traverse {
@@ -56,7 +59,7 @@ class RenderModel {
   using Clock = std::chrono::steady_clock;
 
   RenderModel(std::size_t renderCount, std::span<const TopLevelCell> topLevel,
-              CostModel costModel = CostModel::Paper);
+              CostModel costModel = costModelOf(kDefaultCostModel));
   void setCostModel(CostModel model) { costModel_ = model; }
   CostModel costModel() const { return costModel_; }
 
@@ -90,8 +93,12 @@ class RenderModel {
   std::uint64_t workload(std::size_t render) const;  // reported + sent since the report
   bool hasCell(std::size_t render, std::uint32_t cell) const;
   std::size_t cachedCellCount(std::size_t render) const;
-  double secondsPerSplat() const { return secondsPerSplat_; }
-  double secondsPerByte() const { return secondsPerByte_; }
+  // T_s and T_n of one render process as the cost function uses them.
+  double secondsPerSplat(std::size_t render) const;
+  double secondsPerByte(std::size_t render) const;
+  // Means over the render processes that have reported them (or the defaults).
+  double secondsPerSplat() const;
+  double secondsPerByte() const;
   std::size_t renderCount() const { return renders_.size(); }
 
  private:
@@ -105,16 +112,15 @@ class RenderModel {
     std::uint64_t packetsDone = 0;
     // Since when the render has had work and finished nothing.
     std::optional<Clock::time_point> waitingSince;
+    double secondsPerSplat = 0.0;  // as last reported; 0: not measured yet
+    double secondsPerByte = 0.0;
   };
+  static constexpr double kDefaultSecondsPerSplat = 2e-7;  // until measured: 5 M splats/s
+  static constexpr double kDefaultSecondsPerByte = 1e-8;   // until measured: 100 MB/s
   std::vector<RenderState> renders_;
   std::vector<std::uint64_t> cellBytes_;
-  double secondsPerSplat_ = 2e-7;  // until measured: 5 M splats/s
-  double secondsPerByte_ = 1e-8;   // until measured: 100 MB/s
   CostModel costModel_;
   mutable std::size_t rotation_ = 0;
 };
-
-// Moving average used for T_s and T_n.
-double blend(double average, double sample, double weight);
 
 }  // namespace pointillist::traverse

@@ -243,6 +243,23 @@ TEST_F(DatasetTest, TruncatedFileIsRefusedForEveryPart) {
   }
 }
 
+// 2^58 cells of 64 bytes wrap a 64-bit size to 0, which an emptied cells.bin
+// would match: the counts must be refused, not read as an empty dataset.
+TEST_F(DatasetTest, AbsurdCountsAreRefusedInsteadOfWrapping) {
+  const DatasetContent content = makeContent();
+  write(content);
+  const std::string cells = std::to_string(content.cells.size());
+  const std::string cellBytes = std::to_string(content.cells.size() * sizeof(OctreeCell));
+  fs::resize_file(dir_ / "cells.bin", 0);
+  replaceInManifest("cell_count = " + cells + "\n", "cell_count = 288230376151711744\n");
+  replaceInManifest("cells.bin " + cellBytes + " ", "cells.bin 0 ");
+  for (DatasetParts parts : {DatasetParts::Manifest, DatasetParts::TopLevel, DatasetParts::Cells}) {
+    const std::string msg = errorOf(dir_, parts);
+    EXPECT_NE(msg.find("manifest.txt"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("cell_count 288230376151711744"), std::string::npos) << msg;
+  }
+}
+
 TEST_F(DatasetTest, MissingFileIsRefused) {
   write(makeContent());
   fs::remove(dir_ / "top-level.bin");

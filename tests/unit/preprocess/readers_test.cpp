@@ -732,8 +732,8 @@ void putLe(std::string& out, std::size_t at, T value) {
 std::string makeLas(int minor, int format, const std::vector<LasPoint>& points,
                     std::uint8_t formatFlags = 0) {
   const std::size_t headerSize = minor >= 4 ? 375 : minor == 3 ? 235 : 227;
-  const std::size_t baseLength[] = {20, 28, 26, 34, 57, 63, 30, 36, 38};
-  const int rgbAt[] = {-1, -1, 20, 28, -1, 28, -1, 30, 30};
+  const std::size_t baseLength[] = {20, 28, 26, 34, 57, 63, 30, 36, 38, 59, 67};
+  const int rgbAt[] = {-1, -1, 20, 28, -1, 28, -1, 30, 30, -1, 30};
   const std::size_t recordLength = baseLength[format] + 2;
   const std::size_t vlrSize = 54 + 10;
   std::string out(headerSize + vlrSize, '\0');
@@ -787,8 +787,11 @@ std::vector<LasPoint> lasPoints(std::size_t n, bool sixteenBit) {
 
 TEST(LasReader, FormatsAndVersionsWithScaleAndOffset) {
   TempDir dir;
-  const std::vector<std::pair<int, int>> cases = {{2, 0}, {2, 1}, {2, 2}, {2, 3}, {3, 0}, {3, 3},
-                                                  {4, 1}, {4, 2}, {4, 6}, {4, 7}, {4, 8}};
+  // Every version 1.0-1.4 and point format 0-10 the README claims (4, 5, 9 and
+  // 10 carry waveform packets, which are skipped).
+  const std::vector<std::pair<int, int>> cases = {
+      {0, 0}, {0, 1}, {1, 0}, {1, 1}, {2, 0}, {2, 1}, {2, 2}, {2, 3}, {3, 0}, {3, 3},
+      {3, 4}, {3, 5}, {4, 1}, {4, 2}, {4, 6}, {4, 7}, {4, 8}, {4, 9}, {4, 10}};
   for (const auto& [minor, format] : cases) {
     SCOPED_TRACE("LAS 1." + std::to_string(minor) + " format " + std::to_string(format));
     for (const bool sixteen : {true, false}) {
@@ -796,7 +799,8 @@ TEST(LasReader, FormatsAndVersionsWithScaleAndOffset) {
       const auto file = dir.write("p.LAS", makeLas(minor, format, points));
       const PointCloud cloud = readPointCloud(file, defaults());
       ASSERT_EQ(cloud.splats.size(), points.size());
-      const bool rgb = format == 2 || format == 3 || format == 7 || format == 8;
+      const bool rgb =
+          format == 2 || format == 3 || format == 5 || format == 7 || format == 8 || format == 10;
       EXPECT_EQ(cloud.hasColors, rgb);
       EXPECT_FALSE(cloud.hasNormals);
       for (std::size_t i = 0; i < points.size(); ++i) {
@@ -1115,6 +1119,42 @@ TEST(BadInput, NonFiniteRefusedOrDropped) {
                        defaults());
       },
       {"nan.off", "line 4"});
+}
+
+// Counts and numbers from a file are checked before any arithmetic or cast
+// that could wrap or be undefined.
+TEST(BadInput, CountsThatWouldWrapAndValuesBeyondFloatAreRefused) {
+  TempDir dir;
+  ReadOptions options = defaults();
+  options.meshSamplePoints = 100;
+  // n + 1 wraps to 0 for this count: the face must still be refused, by line.
+  expectInputError(
+      [&] {
+        readPointCloud(dir.write("wrap.off",
+                                 "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n"
+                                 "18446744073709551615 0 1 2\n"),
+                       options);
+      },
+      {"wrap.off", "line 6", "face 0"});
+  // Beyond float range, yet finite as a double.
+  expectInputError(
+      [&] {
+        readPointCloud(dir.write("big.off", "OFF\n3 1 0\n0 0 0\n1e39 0 0\n0 1 0\n3 0 1 2\n"),
+                       options);
+      },
+      {"big.off", "line 4", "float range"});
+  // ASCII PLY list lengths and indices that no integer holds.
+  const std::string header =
+      "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+      "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+      "0 0 0\n1 0 0\n0 1 0\n";
+  expectInputError([&] { readPointCloud(dir.write("len.ply", header + "1e30 0 1 2\n"), options); },
+                   {"len.ply", "line 13", "bad list length"});
+  expectInputError([&] { readPointCloud(dir.write("nan.ply", header + "nan 0 1 2\n"), options); },
+                   {"nan.ply", "line 13", "bad list length"});
+  expectInputError(
+      [&] { readPointCloud(dir.write("idx.ply", header + "3 0 1 1e300\n"), options); },
+      {"idx.ply", "line 13", "face vertex index 1.0000000000000001e+300 out of range"});
 }
 
 TEST(BadInput, XyzLayouts) {

@@ -70,22 +70,34 @@ TEST(CellCache, ExpiresCellsUnusedLongerThanTheTimeout) {
   EXPECT_EQ(cache.expire(t + 230ms), (std::vector<std::uint32_t>{1}));
 }
 
+// After every operation: the books add up, and the cap holds unless pinned
+// cells (and the cell just inserted) alone exceed it.
 TEST(CellCache, RandomWorkloadKeepsItsInvariants) {
   CellCache cache(5000, 50ms);
   std::mt19937 random(11);
   auto t = Clock::now();
   std::map<std::uint32_t, int> pins;
+  std::map<std::uint32_t, std::uint64_t> sizes;  // what the cache should hold
+  std::size_t overCapSteps = 0;
   for (int step = 0; step < 20'000; ++step) {
     t += std::chrono::microseconds(random() % 200);
     const std::uint32_t cell = random() % 64;
+    const std::uint64_t before = cache.bytes();
+    bool inserted = false;
     switch (random() % 5) {
       case 0:
-      case 1:
-        for (auto victim : cache.insert(cell, 100 + random() % 900, t)) {
-          EXPECT_FALSE(cache.pinned(victim));
-          EXPECT_FALSE(cache.contains(victim));
+      case 1: {
+        const std::uint64_t bytes = 100 + random() % 900;
+        inserted = !cache.contains(cell);  // a cached cell is only touched
+        for (auto victim : cache.insert(cell, bytes, t)) {
+          ASSERT_FALSE(cache.pinned(victim));
+          ASSERT_FALSE(cache.contains(victim));
+          ASSERT_NE(victim, cell);
+          sizes.erase(victim);
         }
+        sizes.try_emplace(cell, bytes);
         break;
+      }
       case 2:
         cache.touch(cell, t);
         break;
@@ -99,14 +111,33 @@ TEST(CellCache, RandomWorkloadKeepsItsInvariants) {
         }
         break;
       default:
-        for (auto victim : cache.expire(t)) EXPECT_FALSE(cache.pinned(victim));
+        for (auto victim : cache.expire(t)) {
+          ASSERT_FALSE(cache.pinned(victim));
+          sizes.erase(victim);
+        }
     }
-    if (cache.overCapInsertions() == 0) {
-      ASSERT_LE(cache.bytes(), cache.capBytes());
+    std::uint64_t held = 0;
+    std::uint64_t evictable = 0;  // unpinned, and not the cell just inserted
+    for (const auto& [id, bytes] : sizes) {
+      ASSERT_TRUE(cache.contains(id)) << "cell " << id;
+      held += bytes;
+      if (!cache.pinned(id) && !(inserted && id == cell)) evictable += bytes;
     }
+    ASSERT_EQ(cache.bytes(), held);
+    ASSERT_EQ(cache.size(), sizes.size());
     ASSERT_EQ(cache.lruOrder().size(), cache.size());
+    ASSERT_LE(cache.bytes(), cache.peakBytes());
+    if (inserted) {
+      if (cache.bytes() > cache.capBytes()) {
+        ++overCapSteps;
+        ASSERT_EQ(evictable, 0u) << "over the cap with evictable cells left, step " << step;
+      }
+    } else {
+      ASSERT_LE(cache.bytes(), before) << "only an insert of a new cell adds bytes, step " << step;
+    }
   }
   EXPECT_GT(cache.evictions(), 0u);
+  EXPECT_EQ(cache.overCapInsertions(), overCapSteps);
 }
 
 }  // namespace

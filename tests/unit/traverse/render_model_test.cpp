@@ -170,5 +170,33 @@ TEST(RenderModel, AStalledRenderIsAvoidedEvenWhenItHasTheData) {
   EXPECT_EQ(model.choose(needed, 10, t + 2700ms).render, 0u);
 }
 
+// Seed 003's cost is per process: T_s of a slower render process counts for it
+// alone, so it is given proportionally less work.
+TEST(RenderModel, ASlowerRenderGetsProportionallyLessWork) {
+  const auto cells = table({1000});
+  RenderModel model(2, cells);
+  const std::uint32_t loaded[] = {0};
+  model.applyReport(0, {.loaded = loaded, .secondsPerSplat = 4e-7}, kNow);
+  model.applyReport(1, {.loaded = loaded, .secondsPerSplat = 1e-7}, kNow);
+  EXPECT_DOUBLE_EQ(model.secondsPerSplat(0), 4e-7);
+  EXPECT_DOUBLE_EQ(model.secondsPerSplat(1), 1e-7);
+  EXPECT_DOUBLE_EQ(model.secondsPerSplat(), 2.5e-7);
+  const std::uint32_t needed[] = {0};
+  std::size_t packets[2] = {};
+  for (std::uint64_t id = 1; id <= 500; ++id) {
+    const auto choice = model.choose(needed, 10'000, kNow);
+    ++packets[choice.render];
+    model.recordPacket(choice.render, id, 10'000, choice.missingCells, kNow);
+  }
+  // Equal finishing times: four times the packets to the four times faster one.
+  EXPECT_NEAR(static_cast<double>(packets[1]) / static_cast<double>(packets[0]), 4.0, 0.1);
+  // A render that has not measured yet counts as the mean of those that have.
+  RenderModel fresh(3, cells);
+  fresh.applyReport(0, {.secondsPerSplat = 1e-7, .secondsPerByte = 2e-9}, kNow);
+  fresh.applyReport(1, {.secondsPerSplat = 3e-7, .secondsPerByte = 4e-9}, kNow);
+  EXPECT_DOUBLE_EQ(fresh.secondsPerSplat(2), 2e-7);
+  EXPECT_DOUBLE_EQ(fresh.secondsPerByte(2), 3e-9);
+}
+
 }  // namespace
 }  // namespace pointillist::traverse

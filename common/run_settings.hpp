@@ -1,0 +1,18 @@
+#pragma once
+// Names and defaults of the settings a run hands every process once
+// (v1::RunSettings), so the runtime, the simulator and their command lines
+// share one default.
+#include <string>
+
+#include "pointillist.pb.h"
+
+namespace pointillist {
+
+// Seed 003's cost as written: the transfer adds to the queue (docs/scheduling.md).
+inline constexpr v1::CostModel kDefaultCostModel = v1::COST_MODEL_PAPER;
+
+// "paper" | "overlap"; a UsageError names the accepted ones.
+v1::CostModel parseCostModel(const std::string& name);
+const char* costModelName(v1::CostModel model);
+
+}  // namespace pointillist
