@@ -54,6 +54,7 @@ class RenderProcess final : public WorkerProcess {
     settings_.mode = splatModeFromProto(
         settings.mode() == v1::RENDER_MODE_UNSPECIFIED ? v1::RENDER_MODE_POINTS : settings.mode());
     settings_.sizeScale = settings.size_scale() > 0.0f ? settings.size_scale() : 1.0f;
+    renderer_.warmUp(settings_);
   }
 
   void onMessage(Envelope& envelope) override {

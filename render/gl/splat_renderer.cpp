@@ -527,4 +527,14 @@ RenderStats SplatRenderer::renderSplats(const Camera& camera, const TileRect& re
   return draw(camera, rect, {&group, 1}, settings);
 }
 
+void SplatRenderer::warmUp(const RenderSettings& settings) {
+  const Camera camera = makeCamera({0.0f, 0.0f, 2.0f}, {0.0f, 0.0f, 0.0f}, {0.0f, 1.0f, 0.0f},
+                                   60.0f, 0.1f, 10.0f, 8, 8);
+  Splat splat{};
+  splat.normal[2] = 1.0f;
+  splat.radius = 0.1f;
+  splat.color[0] = splat.color[3] = 255;
+  renderSplats(camera, makeTileRect(0, 0, 8, 8), {&splat, 1}, settings);
+}
+
 }  // namespace pointillist::render

@@ -108,6 +108,9 @@ class SplatRenderer {
   // cell; RenderError on GL failure.
   RenderStats render(const Camera& camera, const TileRect& rect, std::span<const DrawRange> ranges,
                      const RenderSettings& settings);
+  // Compiles and runs the mode's shaders once on a tiny tile, so that the first
+  // real packet is not timed with llvmpipe's shader compilation (T_s).
+  void warmUp(const RenderSettings& settings);
   // Draws splats that are not cached (uploaded into a scratch buffer each call).
   RenderStats renderSplats(const Camera& camera, const TileRect& rect,
                            std::span<const Splat> splats, const RenderSettings& settings);

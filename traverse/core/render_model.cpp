@@ -67,14 +67,17 @@ double RenderModel::secondsPerByte() const {
       renders_, [](const RenderState& s) { return s.secondsPerByte; }, kDefaultSecondsPerByte);
 }
 
+// A process with nothing queued counts at the mean: its own figure may date
+// from a moment of contention that has passed, and only work it is given can
+// measure it again (otherwise one slow sample would starve it for good).
 double RenderModel::secondsPerSplat(std::size_t render) const {
   const double own = renders_.at(render).secondsPerSplat;
-  return own > 0.0 ? own : secondsPerSplat();
+  return own > 0.0 && workload(render) > 0 ? own : secondsPerSplat();
 }
 
 double RenderModel::secondsPerByte(std::size_t render) const {
   const double own = renders_.at(render).secondsPerByte;
-  return own > 0.0 ? own : secondsPerByte();
+  return own > 0.0 && workload(render) > 0 ? own : secondsPerByte();
 }
 
 double RenderModel::cost(std::size_t render, std::span<const std::uint32_t> cells,

@@ -8,8 +8,9 @@
 //   Cost(i) = max(workload(i) * T_s, missing_bytes(i) * T_n) + packet_splats * T_s
 // T_s (seconds per splat) and T_n (seconds per byte) are measured by each
 // render process while running and kept per process, so a render process on a
-// slower node (or behind a slower link) gets proportionally less work; one not
-// measured yet counts as the mean of those that are.
+// slower node (or behind a slower link) gets proportionally less work while it
+// has work; one that is idle or not measured yet counts as the mean of those
+// that are (a stale figure must not keep work from it for good).
 #include <chrono>
 #include <cstdint>
 #include <optional>

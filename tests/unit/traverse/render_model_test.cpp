@@ -178,8 +178,6 @@ TEST(RenderModel, ASlowerRenderGetsProportionallyLessWork) {
   const std::uint32_t loaded[] = {0};
   model.applyReport(0, {.loaded = loaded, .secondsPerSplat = 4e-7}, kNow);
   model.applyReport(1, {.loaded = loaded, .secondsPerSplat = 1e-7}, kNow);
-  EXPECT_DOUBLE_EQ(model.secondsPerSplat(0), 4e-7);
-  EXPECT_DOUBLE_EQ(model.secondsPerSplat(1), 1e-7);
   EXPECT_DOUBLE_EQ(model.secondsPerSplat(), 2.5e-7);
   const std::uint32_t needed[] = {0};
   std::size_t packets[2] = {};
@@ -190,12 +188,36 @@ TEST(RenderModel, ASlowerRenderGetsProportionallyLessWork) {
   }
   // Equal finishing times: four times the packets to the four times faster one.
   EXPECT_NEAR(static_cast<double>(packets[1]) / static_cast<double>(packets[0]), 4.0, 0.1);
+  EXPECT_DOUBLE_EQ(model.secondsPerSplat(0), 4e-7);  // while it has work, its own figure
+  EXPECT_DOUBLE_EQ(model.secondsPerSplat(1), 1e-7);
   // A render that has not measured yet counts as the mean of those that have.
   RenderModel fresh(3, cells);
   fresh.applyReport(0, {.secondsPerSplat = 1e-7, .secondsPerByte = 2e-9}, kNow);
   fresh.applyReport(1, {.secondsPerSplat = 3e-7, .secondsPerByte = 4e-9}, kNow);
   EXPECT_DOUBLE_EQ(fresh.secondsPerSplat(2), 2e-7);
   EXPECT_DOUBLE_EQ(fresh.secondsPerByte(2), 3e-9);
+}
+
+// One slow sample (a first draw that compiled shaders, a moment of contention)
+// must not starve a process: with nothing queued it counts as the mean, gets
+// work, and is measured again.
+TEST(RenderModel, AnIdleRenderWithAStaleSlowFigureStillGetsWork) {
+  const auto cells = table({1000});
+  RenderModel model(2, cells);
+  const std::uint32_t loaded[] = {0};
+  model.applyReport(0, {.loaded = loaded, .secondsPerSplat = 1e-5}, kNow);
+  model.applyReport(1, {.loaded = loaded, .secondsPerSplat = 1e-7}, kNow);
+  EXPECT_DOUBLE_EQ(model.secondsPerSplat(0), model.secondsPerSplat());
+  const std::uint32_t needed[] = {0};
+  std::size_t toSlow = 0;
+  for (std::uint64_t id = 1; id <= 20; ++id) {
+    const auto choice = model.choose(needed, 10'000, kNow);
+    toSlow += choice.render == 0;
+    model.recordPacket(choice.render, id, 10'000, {}, kNow);
+    // Each packet is done before the next tile: both report an empty queue.
+    model.applyReport(choice.render, {.workloadSplats = 0, .lastPacketFromUs = id}, kNow);
+  }
+  EXPECT_GT(toSlow, 0u);
 }
 
 }  // namespace
