@@ -14,4 +14,32 @@ const char* costModelName(v1::CostModel model) {
   return model == v1::COST_MODEL_OVERLAP ? "overlap" : "paper";
 }
 
+v1::Renderer parseRenderer(const std::string& name) {
+  if (name == "auto") return v1::RENDERER_AUTO;
+  if (name == "gl") return v1::RENDERER_GL;
+  if (name == "cpu") return v1::RENDERER_CPU;
+  throw UsageError("renderer '" + name + "' is not one of: auto, gl, cpu");
+}
+
+const char* rendererName(v1::Renderer renderer) {
+  switch (renderer) {
+    case v1::RENDERER_GL:
+      return "gl";
+    case v1::RENDERER_CPU:
+      return "cpu";
+    default:
+      return "auto";
+  }
+}
+
+v1::Renderer resolveRenderer(v1::Renderer renderer, v1::RenderMode mode) {
+  const bool points = mode == v1::RENDER_MODE_POINTS || mode == v1::RENDER_MODE_UNSPECIFIED;
+  if (renderer == v1::RENDERER_CPU && !points) {
+    throw UsageError("the cpu renderer draws points only; mode " + v1::RenderMode_Name(mode) +
+                     " needs --renderer gl (or auto)");
+  }
+  if (renderer == v1::RENDERER_GL || renderer == v1::RENDERER_CPU) return renderer;
+  return points ? v1::RENDERER_CPU : v1::RENDERER_GL;
+}
+
 }  // namespace pointillist

@@ -15,4 +15,11 @@ inline constexpr v1::CostModel kDefaultCostModel = v1::COST_MODEL_PAPER;
 v1::CostModel parseCostModel(const std::string& name);
 const char* costModelName(v1::CostModel model);
 
+// What draws: "auto" | "gl" | "cpu"; a UsageError names the accepted ones.
+v1::Renderer parseRenderer(const std::string& name);
+const char* rendererName(v1::Renderer renderer);
+// The renderer that draws `mode`: auto is the cpu point kernel for points and
+// OSMesa for the rest; a UsageError when the cpu kernel is asked for another mode.
+v1::Renderer resolveRenderer(v1::Renderer renderer, v1::RenderMode mode);
+
 }  // namespace pointillist

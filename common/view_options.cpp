@@ -17,6 +17,11 @@ void addViewOptions(CLI::App& app, ViewOptions& options) {
                  "Use a cell's level-splats once its splats project to this radius in pixels");
   app.add_option("--size-scale", options.sizeScale, "Multiplies splat radii");
   app.add_flag("--no-backface-cull", options.noBackfaceCull, "Keep cells that face away");
+  app.add_flag("--unlit", options.unlit,
+               "Flat colours: no headlight shading from the splat normals");
+  app.add_option("--renderer", options.renderer,
+                 "What draws: cpu (a point kernel, points mode only), gl (OSMesa, every mode) or "
+                 "auto (cpu for points, gl otherwise)");
 }
 
 v1::RenderMode parseRenderMode(const std::string& name) {

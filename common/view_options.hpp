@@ -22,6 +22,8 @@ struct ViewOptions {
   float lodPixels = 1.0f;
   float sizeScale = 1.0f;
   bool noBackfaceCull = false;
+  bool unlit = false;             // flat colours: no headlight shading
+  std::string renderer = "auto";  // auto | gl | cpu
 };
 
 void addViewOptions(CLI::App& app, ViewOptions& options);

@@ -68,6 +68,9 @@ v1::RunSettings runSettings(const DisplayOptions& options) {
   settings.set_backface_cull(!options.view.noBackfaceCull);
   settings.set_scheduler(schedulerMessage(parseSchedulerKind(options.scheduler)));
   settings.set_cost_model(parseCostModel(options.costModel));
+  settings.set_unlit(options.view.unlit);
+  settings.set_renderer(parseRenderer(options.view.renderer));
+  (void)resolveRenderer(settings.renderer(), settings.mode());  // a mismatch fails here
   return settings;
 }
 
@@ -134,14 +137,24 @@ class DisplayProcess {
       }
     }
     stats.totalSeconds = since(start, Clock::now());
-    std::printf("%s", stats.summary().c_str());
+    stats_ = std::move(stats);
+  }
+
+  // After shutdown, with every process's CPU time: the summary and the files.
+  void report(const std::vector<v1::ShutdownAck>& acks, const ProcessCpu& display) {
+    stats_.processes.push_back(display);
+    for (const auto& ack : acks) {
+      stats_.processes.push_back({roleName(ack.role()), ack.world_rank(),
+                                  ack.cpu_seconds_since_ready(), ack.wall_seconds_since_ready()});
+    }
+    std::printf("%s", stats_.summary().c_str());
     const std::string statsFile = !options_.statsFile.empty() ? options_.statsFile
                                   : !options_.outDir.empty()  ? options_.outDir + "/stats.json"
                                                               : std::string();
     if (!statsFile.empty()) {
-      stats.writeJson(statsFile);
+      stats_.writeJson(statsFile);
       const auto csvDir = std::filesystem::path(statsFile).parent_path();
-      stats.writeCsv(csvDir.empty() ? std::filesystem::path(".") : csvDir);
+      stats_.writeCsv(csvDir.empty() ? std::filesystem::path(".") : csvDir);
       std::printf("display: statistics in %s and the CSV files beside it\n", statsFile.c_str());
     }
     std::fflush(stdout);
@@ -244,6 +257,7 @@ class DisplayProcess {
   FrameAssemblyConfig config_;
   std::uint32_t width_ = 0;
   std::uint32_t height_ = 0;
+  RunStats stats_;
   std::map<std::uint64_t, Image> images_;  // frames with tiles composed so far
   std::vector<Image> spareImages_;
 };
@@ -307,12 +321,14 @@ int runDisplayMain(int argc, char** argv) {
     std::fflush(stdout);
 
     const double displayCpuBefore = processCpuSeconds();
+    const auto displayStart = Clock::now();
     if (process) {
       process->run();
     } else {
       stayIdle(options.idleSeconds);
     }
     const double displayCpu = processCpuSeconds() - displayCpuBefore;
+    const double displayWall = since(displayStart, Clock::now());
 
     job.shutdownAll(
         "job complete",
@@ -332,6 +348,9 @@ int runDisplayMain(int argc, char** argv) {
         "ranks (display %.3f)\n",
         peerCpu + displayCpu, peerWall, job.worldSize(), displayCpu);
     std::fflush(stdout);
+    if (process) {
+      process->report(job.lastAcks(), {"display", job.worldRank(), displayCpu, displayWall});
+    }
     return 0;
   });
 }

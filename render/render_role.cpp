@@ -7,8 +7,9 @@
 #include "common/dataset.hpp"
 #include "common/mpi/worker.hpp"
 #include "common/ownership.hpp"
+#include "common/run_settings.hpp"
 #include "render/core/render_core.hpp"
-#include "render/gl/splat_renderer.hpp"
+#include "render/gl/tile_renderers.hpp"
 
 namespace pointillist::render {
 namespace {
@@ -17,6 +18,7 @@ struct RenderOptions {
   double cacheMegabytes = 1024.0;
   double cacheTimeoutSeconds = 30.0;
   std::string profile = "compat";
+  unsigned drawThreads = 1;
   // Test hooks: a slow or stalled render process.
   double slowMillisecondsPerPacket = 0.0;
   int stallIndex = -1;  // which render process (index among renders) stalls
@@ -41,20 +43,24 @@ class RenderProcess final : public WorkerProcess {
         options_(options),
         dataset_(Dataset::open(datasetPath, DatasetParts::TopLevel)),
         core_(coreConfig(options, job), job.peers(), job.worldRank(), dataset_.topLevelCells(),
-              assignOwners(dataset_.topLevelCells(), job.layout().datasend)),
-        context_(64, 64, parseProfile(options.profile)),
-        renderer_(context_) {}
+              assignOwners(dataset_.topLevelCells(), job.layout().datasend)) {
+    // Fail before the handshake on an option that cannot work.
+    (void)parseProfile(options.profile);
+  }
 
   std::string readyDetail() const override {
-    return std::string("GL ") + context_.versionString() + " on " + context_.rendererString() +
-           ", cache cap " + std::to_string(core_.cache().capBytes() >> 20) + " MiB";
+    return renderer_->describe() + ", cache cap " + std::to_string(core_.cache().capBytes() >> 20) +
+           " MiB";
   }
 
   void begin(const v1::RunSettings& settings) override {
     settings_.mode = splatModeFromProto(
         settings.mode() == v1::RENDER_MODE_UNSPECIFIED ? v1::RENDER_MODE_POINTS : settings.mode());
     settings_.sizeScale = settings.size_scale() > 0.0f ? settings.size_scale() : 1.0f;
-    renderer_.warmUp(settings_);
+    settings_.lighting = !settings.unlit();
+    const v1::Renderer kind = resolveRenderer(settings.renderer(), settings.mode());
+    renderer_ = makeTileRenderer(kind, parseProfile(options_.profile), options_.drawThreads);
+    renderer_->warmUp(settings_);
   }
 
   void onMessage(Envelope& envelope) override {
@@ -107,10 +113,10 @@ class RenderProcess final : public WorkerProcess {
                                                   envelope.payloadSeconds, Clock::now(), effects);
     if (verdict != DataVerdict::Store) return;
     // Evicted cells' buffers go first, then the new one is uploaded.
-    for (std::uint32_t victim : effects.released) renderer_.releaseCell(victim);
+    for (std::uint32_t victim : effects.released) renderer_->releaseCell(victim);
     effects.released.clear();
-    renderer_.uploadCell(cell, {reinterpret_cast<const Splat*>(envelope.payload.data()),
-                                envelope.payload.size() / sizeof(Splat)});
+    renderer_->uploadCell(cell, {reinterpret_cast<const Splat*>(envelope.payload.data()),
+                                 envelope.payload.size() / sizeof(Splat)});
   }
 
   void draw(const ReadyPacket& ready) {
@@ -124,11 +130,11 @@ class RenderProcess final : public WorkerProcess {
       std::this_thread::sleep_for(
           std::chrono::duration<double, std::milli>(options_.slowMillisecondsPerPacket));
     }
-    const RenderStats stats = renderer_.render(packet.camera(), packet.rect(), ranges, settings_);
+    const RenderStats stats = renderer_->render(packet.camera(), packet.rect(), ranges, settings_);
     RenderEffects effects;
     const v1::TileImageHeader header =
         core_.packetDrawn(ready, stats.splats, stats.seconds, Clock::now(), effects);
-    const auto pixels = context_.pixels();
+    const auto pixels = renderer_->pixels();
     auto payload = std::make_shared<const std::vector<std::byte>>(
         reinterpret_cast<const std::byte*>(pixels.data()),
         reinterpret_cast<const std::byte*>(pixels.data()) + pixels.size());
@@ -140,7 +146,7 @@ class RenderProcess final : public WorkerProcess {
 
   // Frees what the core dropped and sends what it asked for.
   void apply(RenderEffects& effects) {
-    for (std::uint32_t cell : effects.released) renderer_.releaseCell(cell);
+    for (std::uint32_t cell : effects.released) renderer_->releaseCell(cell);
     job_.sends().post(effects.messages);
   }
 
@@ -148,8 +154,7 @@ class RenderProcess final : public WorkerProcess {
   RenderOptions options_;
   Dataset dataset_;
   RenderCore core_;
-  OffscreenContext context_;
-  SplatRenderer renderer_;
+  std::unique_ptr<TileRenderer> renderer_;  // made once the run's settings are known
   RenderSettings settings_;
 };
 
@@ -167,6 +172,9 @@ int runRenderMain(int argc, char** argv) {
                        "Seconds after which an unused cell is dropped")
             ->check(CLI::PositiveNumber);
         app.add_option("--gl-profile", options.profile, "OSMesa context profile: compat or core");
+        app.add_option("--draw-threads", options.drawThreads,
+                       "Threads drawing each tile with the cpu renderer")
+            ->check(CLI::Range(1, 64));
         app.add_option("--slow-ms", options.slowMillisecondsPerPacket)->group("");
         app.add_option("--stall-index", options.stallIndex)->group("");
         app.add_option("--stall-after", options.stallAfterPackets)->group("");

@@ -54,8 +54,8 @@ int runWorkerMain(
     std::unique_ptr<WorkerProcess> process;
     if (!datasetPath.empty()) process = start(job, datasetPath);
     job.handshake(handshakeOptions(common));
-    job.reportReady(process ? process->readyDetail() : std::string("no dataset"));
     if (process) process->begin(job.runSettings());
+    job.reportReady(process ? process->readyDetail() : std::string("no dataset"));
     serveUntilShutdown(job, process.get());
     // Sends still in flight may read the process's memory.
     job.sends().drain(std::chrono::seconds(5));

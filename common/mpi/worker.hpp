@@ -16,10 +16,10 @@ namespace pointillist {
 class WorkerProcess {
  public:
   virtual ~WorkerProcess() = default;
-  // One line for the display's start-up report.
-  virtual std::string readyDetail() const = 0;
-  // After the handshake and Ready, with the run's settings from the display.
+  // After the handshake, with the run's settings from the display.
   virtual void begin(const v1::RunSettings& settings) = 0;
+  // One line for the display's start-up report (after begin).
+  virtual std::string readyDetail() const = 0;
   // Every message except Shutdown and ErrorReport.
   virtual void onMessage(Envelope& envelope) = 0;
   // Called when no message is waiting; true if it did useful work (the loop

@@ -43,6 +43,11 @@ void writeFile(const std::filesystem::path& file, const std::string& text, const
 
 // The key figures by name, in the order of figures.csv and "key_figures" in
 // stats.json: rates per second, bytes and splats as counts, hit rates 0..1.
+double cpuOf(const KeyFigures& k, const std::string& role) {
+  const auto found = k.cpuPerFrame.find(role);
+  return found == k.cpuPerFrame.end() ? 0.0 : found->second;
+}
+
 std::vector<std::pair<std::string, std::string>> keyFigureFields(const KeyFigures& k) {
   const auto count = [](std::uint64_t value) { return std::to_string(value); };
   return {
@@ -73,6 +78,12 @@ std::vector<std::pair<std::string, std::string>> keyFigureFields(const KeyFigure
       {"reissued_tiles", count(k.reissuedTiles)},
       {"failed_tiles", count(k.failedTiles)},
       {"late_tiles", count(k.lateTiles)},
+      {"cpu_per_frame_display", number(cpuOf(k, "display"))},
+      {"cpu_per_frame_traverse", number(cpuOf(k, "traverse"))},
+      {"cpu_per_frame_datasend", number(cpuOf(k, "datasend"))},
+      {"cpu_per_frame_render", number(cpuOf(k, "render"))},
+      {"draw_per_frame", number(k.drawPerFrame)},
+      {"cpu_per_frame_total", number(k.cpuPerFrameTotal)},
   };
 }
 
@@ -128,6 +139,18 @@ KeyFigures RunStats::keyFigures() const {
   k.framesPerSecond = framesPerSecond(0);
   k.framesPerSecondSteady = framesPerSecond(k.steadyFrom);
   k.lateTiles = lateTiles;
+  if (!frames.empty()) {
+    const auto frameCount = static_cast<double>(frames.size());
+    for (const ProcessCpu& process : processes) {
+      k.cpuPerFrame[process.role] += process.cpuSeconds / frameCount;
+      k.cpuPerFrameTotal += process.cpuSeconds / frameCount;
+    }
+    double busy = 0.0;
+    for (const FrameRecord& f : frames) {
+      for (const auto& [rank, seconds] : f.busySecondsPerRender) busy += seconds;
+    }
+    k.drawPerFrame = busy / frameCount;
+  }
 
   const double steadyBegins = k.steadyFrom == 0 ? 0.0 : frames[k.steadyFrom - 1].endSeconds;
   const double steadySpan = frames.empty() ? 0.0 : frames.back().endSeconds - steadyBegins;
@@ -173,8 +196,8 @@ KeyFigures RunStats::keyFigures() const {
       most = std::max(most, busy);
       total += busy;
     }
-    const double processes = static_cast<double>(std::max(k.renderProcesses, steadyBusy.size()));
-    k.imbalanceBusyRun = total > 0.0 ? most * processes / total : 0.0;
+    const double renderCount = static_cast<double>(std::max(k.renderProcesses, steadyBusy.size()));
+    k.imbalanceBusyRun = total > 0.0 ? most * renderCount / total : 0.0;
   }
   if (!frames.empty()) k.bytesFirstFrame = frames.front().bytesOrdered;
   k.bytesPerFrameSteady = ratio(steadyBytes, steadyFrames);
@@ -264,7 +287,14 @@ std::string RunStats::toJson() const {
     }
     out << "]" << (++index < renders.size() ? "," : "") << "\n";
   }
-  out << "  }\n}\n";
+  out << "  },\n  \"processes\": [";
+  for (std::size_t i = 0; i < processes.size(); ++i) {
+    const ProcessCpu& p = processes[i];
+    out << (i ? ", " : "") << "{\"role\": \"" << p.role << "\", \"rank\": " << p.rank
+        << ", \"cpu_seconds\": " << number(p.cpuSeconds)
+        << ", \"wall_seconds\": " << number(p.wallSeconds) << "}";
+  }
+  out << "]\n}\n";
   return out.str();
 }
 
@@ -387,6 +417,14 @@ std::string RunStats::summary() const {
                 static_cast<unsigned long long>(k.failedTiles),
                 static_cast<unsigned long long>(k.lateTiles));
   out << line;
+  if (!processes.empty()) {
+    std::snprintf(line, sizeof line,
+                  "cpu per frame: %.1f core-ms in all: display %.1f, traverse %.1f, data-send "
+                  "%.1f, render %.1f (of which drawing %.1f)\n",
+                  1e3 * k.cpuPerFrameTotal, 1e3 * cpuOf(k, "display"), 1e3 * cpuOf(k, "traverse"),
+                  1e3 * cpuOf(k, "datasend"), 1e3 * cpuOf(k, "render"), 1e3 * k.drawPerFrame);
+    out << line;
+  }
   return out.str();
 }
 

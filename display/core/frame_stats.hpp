@@ -54,6 +54,15 @@ struct TileRecord {
   std::uint64_t prefetchBytes = 0;
 };
 
+// What one process spent between Ready and Shutdown (from its ShutdownAck):
+// where the CPU of a run goes.
+struct ProcessCpu {
+  std::string role;  // display, traverse, datasend, render
+  int rank = 0;
+  double cpuSeconds = 0.0;
+  double wallSeconds = 0.0;
+};
+
 // How evenly one frame's work was spread over the render processes: max/mean
 // over all render processes of the job (1 is perfect balance).
 struct FrameBalance {
@@ -111,6 +120,11 @@ struct KeyFigures {
   std::uint64_t reissuedTiles = 0;
   std::uint64_t failedTiles = 0;
   std::uint64_t lateTiles = 0;
+  // Core-seconds per frame by role over the whole run (0 when not known), and
+  // of the render processes' time the part spent drawing.
+  std::map<std::string, double> cpuPerFrame;
+  double drawPerFrame = 0.0;
+  double cpuPerFrameTotal = 0.0;
 };
 
 struct RunStats {
@@ -125,6 +139,7 @@ struct RunStats {
   std::vector<TileRecord> tiles;                     // in arrival order
   std::uint64_t lateTiles = 0;  // arrived after their frame was done or re-issued
   double totalSeconds = 0.0;
+  std::vector<ProcessCpu> processes;  // filled once the job has shut down
 
   // Frames per second over frames [first, end).
   double framesPerSecond(std::size_t first) const;

@@ -1,7 +1,8 @@
 // pointillist-bench-render: splats per second of each render path (mode x GL
-// profile) at given frame sizes, for random and for clustered splats. One
-// frame = clear + draw all splats from cached cells + glFinish; the median of
-// --frames timed frames after one warm-up frame is reported. Not a test.
+// profile, or the CPU point kernel with N threads) at given frame sizes, for
+// random and for clustered splats. One frame = clear + draw all splats from
+// cached cells + the result readable; the median of --frames timed frames
+// after one warm-up frame is reported. Not a test.
 //
 // Scenes (both fill the view of a cameraForBounds camera; radii give splats of
 // about --pixels pixels across on screen):
@@ -27,15 +28,17 @@
 #include "common/camera.hpp"
 #include "common/errors.hpp"
 #include "render/gl/offscreen_context.hpp"
-#include "render/gl/splat_renderer.hpp"
+#include "render/gl/tile_renderers.hpp"
 
 namespace pointillist::render {
 namespace {
 
 struct Path {
   SplatMode mode;
+  v1::Renderer renderer;
   GlProfile profile;
-  float pointSize;  // points: 0 = from radius
+  unsigned threads;  // cpu renderer
+  float pointSize;   // points: 0 = from radius
   std::string name;
 };
 
@@ -98,7 +101,8 @@ std::vector<std::string> split(const std::string& text, char sep) {
 }
 
 Path parsePath(const std::string& name) {
-  // <mode>[-const1]/<profile>, e.g. points/compat, points-const1/core, splats/compat
+  // <mode>[-const1]/<profile | cpu[-THREADS]>, e.g. points/compat,
+  // points-const1/core, splats/compat, points/cpu, points-const1/cpu-2
   const auto slash = name.find('/');
   if (slash == std::string::npos) throw UsageError("path '" + name + "': want mode/profile");
   std::string mode = name.substr(0, slash);
@@ -107,7 +111,15 @@ Path parsePath(const std::string& name) {
     mode = "points";
     pointSize = 1.0f;
   }
-  return {parseSplatMode(mode), parseProfile(name.substr(slash + 1)), pointSize, name};
+  const std::string drawer = name.substr(slash + 1);
+  if (drawer.rfind("cpu", 0) == 0) {
+    unsigned threads = 1;
+    if (drawer.size() > 4 && drawer[3] == '-')
+      threads = static_cast<unsigned>(std::stoul(drawer.substr(4)));
+    return {
+        parseSplatMode(mode), v1::RENDERER_CPU, GlProfile::Compatibility, threads, pointSize, name};
+  }
+  return {parseSplatMode(mode), v1::RENDERER_GL, parseProfile(drawer), 1, pointSize, name};
 }
 
 int run(int argc, char** argv) {
@@ -117,7 +129,8 @@ int run(int argc, char** argv) {
   float pixels = 1.5f;
   std::string sizes = "1280x720,1920x1080";
   std::string paths =
-      "points/compat,points-const1/compat,points/core,splats/compat,splats/core,blended/compat";
+      "points/cpu,points-const1/cpu,points/cpu-2,points/compat,points-const1/compat,points/core,"
+      "splats/compat,splats/core,blended/compat";
   std::string scenes = "random,clustered";
   app.add_option("-n,--count", count, "splats per frame");
   app.add_option("--frames", frames, "timed frames per case (median reported)")
@@ -125,7 +138,8 @@ int run(int argc, char** argv) {
   app.add_option("--pixels", pixels, "splat diameter on screen in pixels (sets radii)");
   app.add_option("--sizes", sizes, "frame sizes, comma-separated WxH");
   app.add_option("--paths", paths,
-                 "mode/profile list: {points, points-const1, splats, blended}/{compat, core}");
+                 "mode/drawer list: {points, points-const1, splats, blended}/{compat, core} for "
+                 "OSMesa, {points, points-const1}/cpu[-THREADS] for the CPU point kernel");
   app.add_option("--scenes", scenes, "random,clustered");
   app.name("pointillist-bench-render");
   try {
@@ -142,8 +156,8 @@ int run(int argc, char** argv) {
 
   for (const std::string& pathName : split(paths, ',')) {
     const Path path = parsePath(pathName);
-    OffscreenContext context(1, 1, path.profile);
-    SplatRenderer renderer(context);
+    const auto drawer = makeTileRenderer(path.renderer, path.profile, path.threads);
+    TileRenderer& renderer = *drawer;
     for (const std::string& sceneName : split(scenes, ',')) {
       if (sceneName != "random" && sceneName != "clustered") {
         throw UsageError("unknown scene " + sceneName);

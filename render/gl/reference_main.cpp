@@ -9,9 +9,11 @@
 #include <algorithm>
 #include <cstdio>
 #include <filesystem>
+#include <thread>
 
 #include "common/errors.hpp"
 #include "common/image.hpp"
+#include "common/run_settings.hpp"
 #include "common/view_options.hpp"
 #include "render/gl/reference_renderer.hpp"
 
@@ -28,6 +30,7 @@ struct ReferenceOptions {
   double minLitFraction = 0.0;
   std::uint64_t minSplats = 0;
   std::string profile = "compat";
+  unsigned threads = std::max(1u, std::thread::hardware_concurrency());
 };
 
 // Share of pixels that are not the background colour.
@@ -60,6 +63,9 @@ int run(int argc, char** argv) {
   app.add_option("--min-splats", options.minSplats,
                  "With --compare: every frame must draw at least this many splats");
   app.add_option("--gl-profile", options.profile, "OSMesa context profile: compat or core");
+  app.add_option("--threads", options.threads,
+                 "Threads drawing each frame with the cpu renderer (default: the cores)")
+      ->check(CLI::Range(1, 256));
   app.name("pointillist-reference");
   try {
     app.parse(argc, argv);
@@ -73,16 +79,21 @@ int run(int argc, char** argv) {
   traversal.lodPixels = options.view.lodPixels;
   traversal.sizeScale = options.view.sizeScale;
   traversal.backfaceCull = !options.view.noBackfaceCull;
-  const SplatMode mode = splatModeFromProto(parseRenderMode(options.view.mode));
+  RenderSettings settings;
+  settings.mode = splatModeFromProto(parseRenderMode(options.view.mode));
+  settings.lighting = !options.view.unlit;
+  const v1::Renderer kind =
+      resolveRenderer(parseRenderer(options.view.renderer), parseRenderMode(options.view.mode));
   if (!options.outDir.empty()) std::filesystem::create_directories(options.outDir);
 
-  ReferenceRenderer renderer(dataset, parseProfile(options.profile));
+  ReferenceRenderer renderer(dataset, kind, parseProfile(options.profile), options.threads);
+  std::printf("reference: drawing with %s\n", renderer.renderer().describe().c_str());
   double renderSeconds = 0.0;
   double traverseSeconds = 0.0;
   std::uint64_t splats = 0;
   int mismatches = 0;
   for (std::size_t index = 0; index < cameras.size(); ++index) {
-    ReferenceFrame frame = renderer.render(cameras[index], traversal, mode);
+    ReferenceFrame frame = renderer.render(cameras[index], traversal, settings);
     renderSeconds += frame.renderSeconds;
     traverseSeconds += frame.traverseSeconds;
     splats += frame.splats;

@@ -2,18 +2,22 @@
 
 #include <chrono>
 
+#include "render/gl/tile_renderers.hpp"
+
 namespace pointillist::render {
 
-ReferenceRenderer::ReferenceRenderer(const Dataset& dataset, GlProfile profile)
-    : dataset_(dataset), context_(64, 64, profile), renderer_(context_) {
+ReferenceRenderer::ReferenceRenderer(const Dataset& dataset, v1::Renderer kind, GlProfile profile,
+                                     unsigned cpuThreads)
+    : dataset_(dataset), renderer_(makeTileRenderer(kind, profile, cpuThreads)) {
   const auto count = static_cast<std::uint32_t>(dataset.topLevelCells().size());
-  for (std::uint32_t cell = 0; cell < count; ++cell)
-    renderer_.uploadCell(cell, dataset.packet(cell));
+  for (std::uint32_t cell = 0; cell < count; ++cell) {
+    renderer_->uploadCell(cell, dataset.packet(cell));
+  }
 }
 
 ReferenceFrame ReferenceRenderer::render(const Camera& camera,
                                          const traverse::TraversalSettings& traversal,
-                                         SplatMode mode) {
+                                         const RenderSettings& settings) {
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
   const TileRect frame = fullFrameRect(camera);
@@ -22,15 +26,15 @@ ReferenceFrame ReferenceRenderer::render(const Camera& camera,
 
   std::vector<DrawRange> ranges;
   ranges.reserve(result.ranges.size());
-  for (const auto& range : result.ranges)
+  for (const auto& range : result.ranges) {
     ranges.push_back({range.topLevel, range.offset, range.count});
-  RenderSettings settings;
-  settings.mode = mode;
-  settings.sizeScale = traversal.sizeScale;
-  const RenderStats stats = renderer_.render(camera, frame, ranges, settings);
+  }
+  RenderSettings frameSettings = settings;
+  frameSettings.sizeScale = traversal.sizeScale;
+  const RenderStats stats = renderer_->render(camera, frame, ranges, frameSettings);
 
   ReferenceFrame out;
-  out.image = Image(camera.image_width(), camera.image_height(), context_.pixels());
+  out.image = Image(camera.image_width(), camera.image_height(), renderer_->pixels());
   out.splats = stats.splats;
   out.traverseSeconds = std::chrono::duration<double>(traversed - start).count();
   out.renderSeconds = stats.seconds;

@@ -1,13 +1,16 @@
 #pragma once
 // The single-process oracle: the same traversal (level of detail, culling) and
-// the same renderer as the distributed job, over the whole frame at once.
-// Frames the job composes from tiles are compared against these.
+// the same renderer as the distributed job (GL or the CPU point kernel), over
+// the whole frame at once. Frames the job composes from tiles are compared
+// against these.
 #include <cstdint>
+#include <memory>
 
 #include "common/camera.hpp"
 #include "common/dataset.hpp"
 #include "common/image.hpp"
-#include "render/gl/splat_renderer.hpp"
+#include "render/gl/offscreen_context.hpp"
+#include "render/raster/tile_renderer.hpp"
 #include "traverse/core/octree_traversal.hpp"
 
 namespace pointillist::render {
@@ -22,16 +25,18 @@ struct ReferenceFrame {
 class ReferenceRenderer {
  public:
   // The dataset must have its points loaded (DatasetParts::All); every
-  // top-level cell is uploaded once.
-  ReferenceRenderer(const Dataset& dataset, GlProfile profile = GlProfile::Compatibility);
+  // top-level cell is uploaded once. `kind` is resolved (Gl or Cpu);
+  // `cpuThreads` draw each frame of the CPU renderer.
+  ReferenceRenderer(const Dataset& dataset, v1::Renderer kind,
+                    GlProfile profile = GlProfile::Compatibility, unsigned cpuThreads = 1);
 
   ReferenceFrame render(const Camera& camera, const traverse::TraversalSettings& traversal,
-                        SplatMode mode);
+                        const RenderSettings& settings);
+  const TileRenderer& renderer() const { return *renderer_; }
 
  private:
   const Dataset& dataset_;
-  OffscreenContext context_;
-  SplatRenderer renderer_;
+  std::unique_ptr<TileRenderer> renderer_;
 };
 
 }  // namespace pointillist::render

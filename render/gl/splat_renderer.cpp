@@ -107,39 +107,6 @@ struct SplatRenderer::Programs {
   GLuint resolve = 0;  // blended mode's normalization
 };
 
-const char* splatModeName(SplatMode mode) {
-  switch (mode) {
-    case SplatMode::Splats:
-      return "splats";
-    case SplatMode::Blended:
-      return "blended";
-    case SplatMode::Points:
-      break;
-  }
-  return "points";
-}
-
-SplatMode parseSplatMode(const std::string& name) {
-  if (name == "points") return SplatMode::Points;
-  if (name == "splats") return SplatMode::Splats;
-  if (name == "blended") return SplatMode::Blended;
-  throw UsageError("unknown render mode '" + name + "' (points, splats or blended)");
-}
-
-SplatMode splatModeFromProto(v1::RenderMode mode) {
-  switch (mode) {
-    case v1::RENDER_MODE_POINTS:
-      return SplatMode::Points;
-    case v1::RENDER_MODE_SPLATS:
-      return SplatMode::Splats;
-    case v1::RENDER_MODE_BLENDED:
-      return SplatMode::Blended;
-    default:
-      throw UsageError("render mode " + v1::RenderMode_Name(mode) +
-                       " is not drawn by SplatRenderer");
-  }
-}
-
 SplatRenderer::SplatRenderer(OffscreenContext& context)
     : context_(context), programs_(std::make_unique<Programs>()) {
   context_.makeCurrent();
@@ -271,6 +238,9 @@ void SplatRenderer::setUniforms(unsigned prog, const Camera& camera, const TileR
     glUniform1f(uniform(prog, "constantSize"), std::max(settings.pointSize, 0.0f));
     glUniform1f(uniform(prog, "maxSize"),
                 std::clamp(std::floor(settings.maxPointSize), 1.0f, maxPointSizeGl_));
+    glUniform1i(uniform(prog, "lighting"), settings.lighting ? 1 : 0);
+    glUniform1f(uniform(prog, "ambient"), std::clamp(settings.ambient, 0.0f, 1.0f));
+    glUniform3f(uniform(prog, "eye"), camera.eye().x(), camera.eye().y(), camera.eye().z());
     return;
   }
   glUniformMatrix4fv(uniform(prog, "view"), 1, GL_FALSE, glm::value_ptr(view));
@@ -386,11 +356,7 @@ RenderStats SplatRenderer::draw(
   glEnableVertexAttribArray(kPosition);
   glEnableVertexAttribArray(kColor);
   glEnableVertexAttribArray(kRadius);
-  if (points) {
-    glDisableVertexAttribArray(kNormal);
-  } else {
-    glEnableVertexAttribArray(kNormal);
-  }
+  glEnableVertexAttribArray(kNormal);
 
   RenderStats stats;
   std::vector<GLint> firsts;
@@ -413,10 +379,8 @@ RenderStats SplatRenderer::draw(
                             byteOffset(offsetof(Splat, color)));
       glVertexAttribPointer(kRadius, 1, GL_FLOAT, GL_FALSE, stride,
                             byteOffset(offsetof(Splat, radius)));
-      if (!points) {
-        glVertexAttribPointer(kNormal, 3, GL_FLOAT, GL_FALSE, stride,
-                              byteOffset(offsetof(Splat, normal)));
-      }
+      glVertexAttribPointer(kNormal, 3, GL_FLOAT, GL_FALSE, stride,
+                            byteOffset(offsetof(Splat, normal)));
       glMultiDrawArrays(GL_POINTS, firsts.data(), counts.data(),
                         static_cast<GLsizei>(firsts.size()));
       ++stats.drawCalls;
@@ -525,6 +489,10 @@ RenderStats SplatRenderer::renderSplats(const Camera& camera, const TileRect& re
   const DrawRange all{0, 0, scratch_.count};
   const std::pair<const Cell*, std::span<const DrawRange>> group{&scratch_, {&all, 1}};
   return draw(camera, rect, {&group, 1}, settings);
+}
+
+std::string SplatRenderer::describe() const {
+  return "gl: GL " + context_.versionString() + " on " + context_.rendererString();
 }
 
 void SplatRenderer::warmUp(const RenderSettings& settings) {

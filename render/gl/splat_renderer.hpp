@@ -21,7 +21,7 @@
 //
 // Modes:
 //  - Points: GL_POINTS, one vertex per splat; size = the splat's projected
-//    diameter rounded to whole pixels (or a constant). Fastest with a
+//    diameter rounded to whole pixels (or a constant); headlight shading. Fastest with a
 //    compatibility-profile context (legacy points; core profile forces point
 //    sprites, slower on llvmpipe).
 //  - Splats: seed 002's attributed vertex cloud: one vertex per splat, the
@@ -42,59 +42,22 @@
 #include "common/camera.hpp"
 #include "common/splat.hpp"
 #include "render/gl/offscreen_context.hpp"
+#include "render/raster/tile_renderer.hpp"
 
 namespace pointillist::render {
 
-enum class SplatMode { Points, Splats, Blended };
-const char* splatModeName(SplatMode mode);
-// "points" | "splats" | "blended"; UsageError otherwise.
-SplatMode parseSplatMode(const std::string& name);
-// RENDER_MODE_POINTS -> Points, _SPLATS -> Splats, _BLENDED -> Blended; UsageError otherwise.
-SplatMode splatModeFromProto(v1::RenderMode mode);
-
-struct RenderSettings {
-  SplatMode mode = SplatMode::Points;
-  std::array<float, 4> clearColor{0.0f, 0.0f, 0.0f, 1.0f};
-  // Points: > 0 draws every point this many pixels wide (rounded); 0 uses the
-  // projected diameter 2 * radius * sizeScale, rounded, in [1, maxPointSize].
-  float pointSize = 0.0f;
-  float maxPointSize = 64.0f;
-  // Multiplies splat radii (RenderPacket.point_size_scale; 0 counts as 1).
-  float sizeScale = 1.0f;
-  // Splats: on-screen radius never below this (distant splats do not vanish
-  // between pixel centres; 0.71 px always reaches one centre).
-  float minPixelRadius = 0.75f;
-  bool lighting = true;  // splats: headlight diffuse + ambient
-  float ambient = 0.3f;
-  // Blended: splats this many of their radii behind the visible surface still
-  // blend into it; farther ones are hidden.
-  float blendDepthRadii = 1.0f;
-};
-
-struct DrawRange {
-  std::uint32_t cell = 0;    // id given to uploadCell
-  std::uint32_t offset = 0;  // in splats, from the start of the cell
-  std::uint32_t count = 0;
-};
-
-struct RenderStats {
-  std::uint64_t splats = 0;     // vertices submitted
-  std::uint32_t drawCalls = 0;  // glMultiDrawArrays calls (one per cell)
-  double seconds = 0.0;         // clear to glFinish
-};
-
-class SplatRenderer {
+class SplatRenderer final : public TileRenderer {
  public:
   // The context must outlive the renderer and be current when it is used.
   explicit SplatRenderer(OffscreenContext& context);
-  ~SplatRenderer();
+  ~SplatRenderer() override;
   SplatRenderer(const SplatRenderer&) = delete;
   SplatRenderer& operator=(const SplatRenderer&) = delete;
 
   // Copies the splats into a GL buffer under `id` (replacing any previous one);
   // the span need not stay alive afterwards. Throws RenderError on GL failure.
-  void uploadCell(std::uint32_t id, std::span<const Splat> splats);
-  void releaseCell(std::uint32_t id);  // no-op for unknown ids
+  void uploadCell(std::uint32_t id, std::span<const Splat> splats) override;
+  void releaseCell(std::uint32_t id) override;  // no-op for unknown ids
   void releaseAll();
   bool hasCell(std::uint32_t id) const { return cells_.contains(id); }
   std::size_t cellCount() const { return cells_.size(); }
@@ -107,10 +70,12 @@ class SplatRenderer {
   // camera, a rect outside the image, or a range outside its cell / an unknown
   // cell; RenderError on GL failure.
   RenderStats render(const Camera& camera, const TileRect& rect, std::span<const DrawRange> ranges,
-                     const RenderSettings& settings);
+                     const RenderSettings& settings) override;
+  std::span<const std::uint8_t> pixels() const override { return context_.pixels(); }
   // Compiles and runs the mode's shaders once on a tiny tile, so that the first
   // real packet is not timed with llvmpipe's shader compilation (T_s).
-  void warmUp(const RenderSettings& settings);
+  void warmUp(const RenderSettings& settings) override;
+  std::string describe() const override;
   // Draws splats that are not cached (uploaded into a scratch buffer each call).
   RenderStats renderSplats(const Camera& camera, const TileRect& rect,
                            std::span<const Splat> splats, const RenderSettings& settings);

@@ -7,6 +7,8 @@
 #   EXPECT_OUTPUT         a regex the job's output must match (e.g. re-issued tiles)
 #   CACHE_CAP_MB          the render cache cap given to the job: evictions must
 #                         happen and the peak cache must stay within it
+#   RENDERER, UNLIT       --renderer RENDERER and (when set) --unlit, given to both
+#                         the job and the reference
 #   MIN_LIT_FRACTION      every frame, the job's and the reference's, must have at
 #   MIN_SPLATS            least this share of pixels off the background and draw
 #                         this many splats: two blank frames would match (required,
@@ -20,13 +22,21 @@ work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
 extra=()
+# Options the job and the reference must share: the drawing kernel and shading.
+view=()
+if [[ -n "${RENDERER:-}" ]]; then
+  view+=(--renderer "$RENDERER")
+fi
+if [[ -n "${UNLIT:-}" ]]; then
+  view+=(--unlit)
+fi
 if [[ -n "${CACHE_CAP_MB:-}" ]]; then
   extra+=(--cache-mb "$CACHE_CAP_MB")
 fi
 set +e
 POINTILLIST_BUILD="$(dirname "$bin")" timeout --kill-after=10 240 \
   bash "$root/deploy/run.sh" --layout "$layout" --dataset "$dataset" --camera-path "$path" \
-  --frames "$frames" --size "$size" --mode "$mode" --out "$work/job" "${extra[@]}" "$@" \
+  --frames "$frames" --size "$size" --mode "$mode" --out "$work/job" "${view[@]}" "${extra[@]}" "$@" \
   >"$work/job.log" 2>&1
 code=$?
 set -e
@@ -54,6 +64,6 @@ if [[ -n "${CACHE_CAP_MB:-}" ]]; then
   fi
 fi
 "$bin/pointillist-reference" --dataset "$dataset" --camera-path "$path" --frames "$frames" \
-  --size "$size" --mode "$mode" --out "$work/reference" --compare "$work/job" \
+  --size "$size" --mode "$mode" "${view[@]}" --out "$work/reference" --compare "$work/job" \
   --max-differing-pixels "${MAX_DIFFERING_PIXELS:-0}" \
   --min-lit-fraction "$MIN_LIT_FRACTION" --min-splats "$MIN_SPLATS"

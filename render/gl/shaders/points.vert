@@ -2,16 +2,28 @@
 layout(location = 0) in vec3 inPosition;
 layout(location = 1) in vec4 inColor;
 layout(location = 2) in float inRadius;
+layout(location = 3) in vec3 inNormal;
 uniform mat4 viewProjection;
 uniform vec2 frameSize;
 uniform float guard;          // pixels of clip volume beyond each frame edge
 uniform float diameterScale;  // 2 * focal length in pixels * sizeScale
 uniform float constantSize;   // > 0: fixed size
 uniform float maxSize;
+uniform int lighting;         // headlight: ambient + (1 - ambient) * |n . toEye|
+uniform float ambient;
+uniform vec3 eye;
 flat out vec4 vColor;
 void main() {
   vec4 clip = viewProjection * vec4(inPosition, 1.0);
-  vColor = inColor;
+  float shade = 1.0;
+  if (lighting != 0 && dot(inNormal, inNormal) > 0.25) {  // no normal: unshaded
+    vec3 toEye = eye - inPosition;
+    float distance = length(toEye);
+    if (distance > 0.0) {
+      shade = ambient + (1.0 - ambient) * abs(dot(normalize(inNormal), toEye / distance));
+    }
+  }
+  vColor = vec4(inColor.rgb * shade, inColor.a);
   float size = constantSize > 0.0 ? constantSize : inRadius * diameterScale / clip.w;
   size = clamp(floor(size + 0.5), 1.0, maxSize);
   gl_PointSize = size;

@@ -1,0 +1,40 @@
+#include "render/raster/tile_renderer.hpp"
+
+#include "common/errors.hpp"
+
+namespace pointillist::render {
+
+const char* splatModeName(SplatMode mode) {
+  switch (mode) {
+    case SplatMode::Splats:
+      return "splats";
+    case SplatMode::Blended:
+      return "blended";
+    case SplatMode::Points:
+      break;
+  }
+  return "points";
+}
+
+SplatMode parseSplatMode(const std::string& name) {
+  if (name == "points") return SplatMode::Points;
+  if (name == "splats") return SplatMode::Splats;
+  if (name == "blended") return SplatMode::Blended;
+  throw UsageError("unknown render mode '" + name + "' (points, splats or blended)");
+}
+
+SplatMode splatModeFromProto(v1::RenderMode mode) {
+  switch (mode) {
+    case v1::RENDER_MODE_POINTS:
+      return SplatMode::Points;
+    case v1::RENDER_MODE_SPLATS:
+      return SplatMode::Splats;
+    case v1::RENDER_MODE_BLENDED:
+      return SplatMode::Blended;
+    default:
+      throw UsageError("render mode " + v1::RenderMode_Name(mode) +
+                       " is not drawn by the splat renderers");
+  }
+}
+
+}  // namespace pointillist::render

@@ -1,0 +1,78 @@
+#pragma once
+// What a render process draws with: one tile of one camera from ranges of
+// cached top-level cells. Two renderers implement it:
+//   gl   SplatRenderer (render/gl/): OSMesa/llvmpipe, every mode;
+//   cpu  CpuPointRenderer (render/raster/): a point kernel on the CPU, points
+//        mode only, several times llvmpipe's rate.
+// Tiles are drawn in full-frame pixel coordinates, so a tile equals the same
+// rectangle of a whole-frame render by the same renderer (common/camera.hpp).
+#include <array>
+#include <cstdint>
+#include <span>
+#include <string>
+
+#include "common/camera.hpp"
+#include "common/splat.hpp"
+
+namespace pointillist::render {
+
+enum class SplatMode { Points, Splats, Blended };
+const char* splatModeName(SplatMode mode);
+// "points" | "splats" | "blended"; UsageError otherwise.
+SplatMode parseSplatMode(const std::string& name);
+// RENDER_MODE_POINTS -> Points, _SPLATS -> Splats, _BLENDED -> Blended; UsageError otherwise.
+SplatMode splatModeFromProto(v1::RenderMode mode);
+
+struct RenderSettings {
+  SplatMode mode = SplatMode::Points;
+  std::array<float, 4> clearColor{0.0f, 0.0f, 0.0f, 1.0f};
+  // Points: > 0 draws every point this many pixels wide (rounded); 0 uses the
+  // projected diameter 2 * radius * sizeScale, rounded, in [1, maxPointSize].
+  float pointSize = 0.0f;
+  float maxPointSize = 64.0f;
+  // Multiplies splat radii (RenderPacket.point_size_scale; 0 counts as 1).
+  float sizeScale = 1.0f;
+  // Splats: on-screen radius never below this (distant splats do not vanish
+  // between pixel centres; 0.71 px always reaches one centre).
+  float minPixelRadius = 0.75f;
+  // Headlight diffuse + ambient from the splat normals (points and splats);
+  // splats without a normal keep their colour.
+  bool lighting = true;
+  float ambient = 0.3f;
+  // Blended: splats this many of their radii behind the visible surface still
+  // blend into it; farther ones are hidden.
+  float blendDepthRadii = 1.0f;
+};
+
+struct DrawRange {
+  std::uint32_t cell = 0;    // id given to uploadCell
+  std::uint32_t offset = 0;  // in splats, from the start of the cell
+  std::uint32_t count = 0;
+};
+
+struct RenderStats {
+  std::uint64_t splats = 0;     // vertices submitted
+  std::uint32_t drawCalls = 0;  // glMultiDrawArrays calls (one per cell)
+  double seconds = 0.0;         // clear to glFinish
+};
+class TileRenderer {
+ public:
+  virtual ~TileRenderer() = default;
+
+  // Keeps a cell's splats under `id` (replacing any previous ones); the span
+  // need not stay alive afterwards.
+  virtual void uploadCell(std::uint32_t id, std::span<const Splat> splats) = 0;
+  virtual void releaseCell(std::uint32_t id) = 0;  // no-op for unknown ids
+  // Draws the ranges into the tile `rect` of `camera`'s frame; afterwards
+  // pixels() holds it. Throws UsageError for an invalid camera, a rect outside
+  // the image, a range outside its cell or an unknown cell.
+  virtual RenderStats render(const Camera& camera, const TileRect& rect,
+                             std::span<const DrawRange> ranges, const RenderSettings& settings) = 0;
+  // The last tile: RGBA8, rows bottom-up, rect.width x rect.height.
+  virtual std::span<const std::uint8_t> pixels() const = 0;
+  // Whatever the first draw would pay once (shader compilation), paid now.
+  virtual void warmUp(const RenderSettings& settings) = 0;
+  virtual std::string describe() const = 0;
+};
+
+}  // namespace pointillist::render
