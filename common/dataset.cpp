@@ -11,6 +11,7 @@
 #include <limits>
 #include <system_error>
 
+#include "common/checksum.hpp"
 #include "common/dataset_internal.hpp"
 #include "common/errors.hpp"
 
@@ -281,7 +282,7 @@ Dataset Dataset::open(const fs::path& dir, DatasetParts parts) {
     const DatasetFile* f = m.file(spec.key);
     const fs::path p = dir / f->name;
     auto bytes = readWholeFile(p, f->size);
-    const std::uint64_t sum = fnv1a64(bytes.data(), bytes.size());
+    const std::uint64_t sum = checksum64(bytes.data(), bytes.size());
     if (f->checksum && *f->checksum != sum)
       throw InputError(p.string() + ": checksum mismatch (damaged file; manifest " +
                        hex64(*f->checksum) + ", file " + hex64(sum) + ")");
@@ -301,7 +302,7 @@ Dataset Dataset::open(const fs::path& dir, DatasetParts parts) {
     ds.points_ = asRecords<Splat>(readWholeFile(p, f->size));
     for (std::uint32_t k = 0; k < ds.topLevel_.size(); ++k) {
       const auto s = ds.packet(k);
-      const std::uint64_t sum = fnv1a64(s.data(), s.size_bytes());
+      const std::uint64_t sum = checksum64(s.data(), s.size_bytes());
       if (sum != ds.packetChecksums_[k])
         throw InputError(p.string() + ": top-level cell " + std::to_string(k) + " (bytes " +
                          std::to_string(ds.topLevel_[k].byteOffset) + "+" +
@@ -341,7 +342,7 @@ std::vector<std::byte> Dataset::readFile(std::string_view key) const {
     throw InputError(p.string() + ": " + std::to_string(size) + " bytes, manifest says " +
                      std::to_string(f->size) + " (truncated or damaged)");
   const auto bytes = readWholeFile(p, f->size);
-  if (f->checksum && fnv1a64(bytes.data(), bytes.size()) != *f->checksum)
+  if (f->checksum && checksum64(bytes.data(), bytes.size()) != *f->checksum)
     throw InputError(p.string() + ": checksum mismatch (damaged file)");
   std::vector<std::byte> out(bytes.size());
   if (!out.empty()) std::memcpy(out.data(), bytes.data(), out.size());
@@ -362,7 +363,7 @@ std::vector<Splat> Dataset::readTopLevel(std::uint32_t topLevel) const {
   if (!in || static_cast<std::uint64_t>(in.gcount()) != t.byteSize)
     throw InputError(p.string() + ": top-level cell " + std::to_string(topLevel) +
                      ": short read (truncated file)");
-  const std::uint64_t sum = fnv1a64(out.data(), out.size() * sizeof(Splat));
+  const std::uint64_t sum = checksum64(out.data(), out.size() * sizeof(Splat));
   if (sum != packetChecksums_[topLevel])
     throw InputError(p.string() + ": top-level cell " + std::to_string(topLevel) + " (bytes " +
                      std::to_string(t.byteOffset) + "+" + std::to_string(t.byteSize) +

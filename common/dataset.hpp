@@ -2,12 +2,12 @@
 // The dataset directory written by pointillist-preprocess (SPEC "Dataset"):
 //
 //   manifest.txt          key = value lines: version, bounds, largest splat radius,
-//                         counts, options, and one `file.<key> = <name> <bytes> <fnv1a64|->`
+//                         counts, options, and one `file.<key> = <name> <bytes> <xxh3-64|->`
 //                         line per file (common/dataset_manifest.hpp)
 //   cells.bin             octree-cell-array: OctreeCell[cell_count], depth-first (seed 003 §4.1.1)
 //   top-level.bin         TopLevelCell[top_level_count], in depth-first order of their cells
-//   packet-checksums.bin  uint64 FNV-1a 64 of each top-level cell's packet, same order
-//   points.bin            point-array: the packets back to back; a packet is the
+//   packet-checksums.bin  uint64 XXH3-64 (common/checksum.hpp) of each top-level cell's packet,
+//   same order points.bin            point-array: the packets back to back; a packet is the
 //                         top-level cell's original points (depth-first leaf order)
 //                         followed by the level-splats of every cell beneath it
 //                         (cells in depth-first order, each cell's own splats

@@ -99,16 +99,6 @@ std::string oneLine(std::string s) {
 
 }  // namespace
 
-std::uint64_t fnv1a64(const void* data, std::size_t size, std::uint64_t state) {
-  const auto* p = static_cast<const unsigned char*>(data);
-  constexpr std::uint64_t kPrime = 0x100000001b3ull;
-  for (std::size_t i = 0; i < size; ++i) {
-    state ^= p[i];
-    state *= kPrime;
-  }
-  return state;
-}
-
 const DatasetFile* DatasetManifest::file(std::string_view key) const {
   for (const auto& f : files)
     if (f.key == key) return &f;
@@ -144,7 +134,7 @@ std::string DatasetManifest::toText() const {
   o << "max_depth = " << maxDepth << "\n";
   o << "leaf_points = " << leafPoints << "\n";
   o << "level_splat_reduction = " << levelSplatReduction << "\n";
-  o << "checksum = fnv1a64\n";
+  o << "checksum = " << kChecksumName << "\n";
   for (const auto& [k, v] : extra) o << k << " = " << oneLine(v) << "\n";
   for (const auto& f : files)
     o << "file." << f.key << " = " << f.name << " " << f.size << " "
@@ -281,7 +271,7 @@ DatasetManifest DatasetManifest::parse(std::string_view text, const std::string&
   }
   {
     auto [algo, at] = take("checksum");
-    if (algo != "fnv1a64") throw InputError(at + "unknown checksum algorithm '" + algo + "'");
+    if (algo != kChecksumName) throw InputError(at + "unknown checksum algorithm '" + algo + "'");
   }
   for (auto& [k, v] : values) m.extra.emplace(k, v.first);
   m.files = std::move(files);

@@ -2,7 +2,7 @@
 // manifest.txt of a dataset directory (see common/dataset.hpp for the files it
 // lists): `key = value` lines with the format version, bounds, the largest
 // splat radius, counts, build options, and one
-// `file.<key> = <name> <bytes> <fnv1a64|->` line per file.
+// `file.<key> = <name> <bytes> <checksum|->` line per file.
 #include <cstddef>
 #include <cstdint>
 #include <map>
@@ -17,17 +17,15 @@
 namespace pointillist {
 
 // 2: max_splat_radius, so a process that needs only the manifest need not load cells.bin.
-inline constexpr std::uint32_t kDatasetFormatVersion = 2;
-inline constexpr std::uint64_t kFnv1a64Offset = 0xcbf29ce484222325ull;
-
-// FNV-1a 64 over bytes; pass the previous result as `state` to hash in pieces.
-std::uint64_t fnv1a64(const void* data, std::size_t size, std::uint64_t state = kFnv1a64Offset);
+// 3: checksums are XXH3-64 (common/checksum.hpp) instead of FNV-1a 64.
+inline constexpr std::uint32_t kDatasetFormatVersion = 3;
+inline constexpr const char* kChecksumName = "xxh3-64";
 
 struct DatasetFile {
   std::string key;   // cells, top_level, packet_checksums, points, or a later stage's key
   std::string name;  // file name inside the dataset directory
   std::uint64_t size = 0;
-  std::optional<std::uint64_t> checksum;  // FNV-1a 64 of the whole file; none for points
+  std::optional<std::uint64_t> checksum;  // checksum64 of the whole file; none for points
 };
 
 struct DatasetManifest {

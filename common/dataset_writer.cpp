@@ -11,6 +11,7 @@
 #include <fstream>
 #include <system_error>
 
+#include "common/checksum.hpp"
 #include "common/dataset.hpp"
 #include "common/dataset_internal.hpp"
 #include "common/errors.hpp"
@@ -69,14 +70,14 @@ class HashingWriter {
   void write(const void* data, std::size_t size) {
     out_.write(static_cast<const char*>(data), static_cast<std::streamsize>(size));
     if (!out_) throw Error("cannot write " + path_.string() + ": " + std::strerror(errno));
-    if (hashing_) hash_ = fnv1a64(data, size, hash_);
+    if (hashing_) hash_.update(data, size);
     size_ += size;
   }
   DatasetFile finish(const char* key) {
     out_.close();
     if (!out_) throw Error("cannot write " + path_.string() + ": " + std::strerror(errno));
     DatasetFile f{key, path_.filename().string(), size_, std::nullopt};
-    if (hashing_) f.checksum = hash_;
+    if (hashing_) f.checksum = hash_.digest();
     return f;
   }
 
@@ -84,7 +85,7 @@ class HashingWriter {
   fs::path path_;
   std::ofstream out_;
   bool hashing_;
-  std::uint64_t hash_ = kFnv1a64Offset;
+  ChecksumStream hash_;
   std::uint64_t size_ = 0;
 };
 
@@ -184,8 +185,10 @@ std::uint64_t writeDataset(const fs::path& dirIn, DatasetContent& content, bool 
       const auto* lvl = content.levelSplats.data() + s;
       w.write(pts, t.pointCount * sizeof(Splat));
       w.write(lvl, t.levelSplatCount * sizeof(Splat));
-      packetSums[k] = fnv1a64(lvl, t.levelSplatCount * sizeof(Splat),
-                              fnv1a64(pts, t.pointCount * sizeof(Splat)));
+      ChecksumStream packetSum;
+      packetSum.update(pts, t.pointCount * sizeof(Splat));
+      packetSum.update(lvl, t.levelSplatCount * sizeof(Splat));
+      packetSums[k] = packetSum.digest();
       p += t.pointCount;
       s += t.levelSplatCount;
       done += t.byteSize;

@@ -3,10 +3,12 @@
 #include <png.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
 #include <iterator>
+#include <limits>
 #include <memory>
 #include <string>
 #include <system_error>
@@ -203,6 +205,38 @@ ImageDiff compareImages(const Image& a, const Image& b, int tolerance) {
     }
   }
   return diff;
+}
+
+ImageQuality measureQuality(const Image& frame, const Image& truth, Rgba8 background) {
+  if (frame.width() != truth.width() || frame.height() != truth.height()) {
+    throw UsageError("measureQuality: sizes differ");
+  }
+  ImageQuality quality;
+  const auto isBackground = [&](const std::uint8_t* p) {
+    return p[0] == background[0] && p[1] == background[1] && p[2] == background[2];
+  };
+  double squaredError = 0.0;
+  for (std::uint32_t y = 0; y < frame.height(); ++y) {
+    for (std::uint32_t x = 0; x < frame.width(); ++x) {
+      const std::uint8_t* p = frame.pixel(x, y);
+      const std::uint8_t* q = truth.pixel(x, y);
+      bool same = true;
+      for (int c = 0; c < 3; ++c) {
+        const double d = static_cast<double>(p[c]) - static_cast<double>(q[c]);
+        squaredError += d * d;
+        same = same && p[c] == q[c];
+      }
+      if (!isBackground(p) || !isBackground(q)) {
+        ++quality.covered;
+        quality.identical += same ? 1u : 0u;
+      }
+    }
+  }
+  const double samples = 3.0 * static_cast<double>(frame.width()) * frame.height();
+  const double mse = samples > 0.0 ? squaredError / samples : 0.0;
+  quality.psnr =
+      mse > 0.0 ? 10.0 * std::log10(255.0 * 255.0 / mse) : std::numeric_limits<double>::infinity();
+  return quality;
 }
 
 }  // namespace pointillist

@@ -77,4 +77,18 @@ struct ImageDiff {
 // Throws UsageError when the sizes differ.
 ImageDiff compareImages(const Image& a, const Image& b, int tolerance = 0);
 
+// How close a frame comes to a truth frame of the same camera (e.g. a level of
+// detail against full detail), over RGB.
+struct ImageQuality {
+  double psnr = 0.0;            // dB over every pixel; infinity when identical
+  std::uint64_t covered = 0;    // pixels off the background in either frame
+  std::uint64_t identical = 0;  // of those, pixels with equal RGB
+  double identicalShare() const {
+    return covered > 0 ? static_cast<double>(identical) / static_cast<double>(covered) : 1.0;
+  }
+};
+// Throws UsageError when the sizes differ.
+ImageQuality measureQuality(const Image& frame, const Image& truth,
+                            Rgba8 background = {0, 0, 0, 255});
+
 }  // namespace pointillist

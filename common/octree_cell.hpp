@@ -63,7 +63,7 @@ namespace pointillist {
 // (pointCount splats, depth-first leaf order), then the level-splats of the
 // cell itself and every cell beneath it (levelSplatCount splats, cells in
 // depth-first order, so a subtree's level-splats are contiguous too).
-// Its FNV-1a 64 checksum is in the dataset (Dataset::packetChecksum).
+// Its checksum (common/checksum.hpp) is in the dataset (Dataset::packetChecksum).
 struct TopLevelCell {
   std::uint32_t cellIndex;  // index in the octree-cell-array
   std::uint32_t pointCount;

@@ -111,12 +111,21 @@ class DisplayProcess {
     stats.height = height_;
     stats.mode = options_.view.mode;
     Backoff backoff;
+    CpuActivities::Meter meter(job_.activities(), "poll");
     while (!assembly.done()) {
       bool worked = false;
-      while (auto envelope = job_.channel().tryReceive()) {
+      while (true) {
+        meter.switchTo("receive");
+        auto envelope = job_.channel().tryReceive();
+        if (!envelope) {
+          meter.relabel("poll");
+          break;
+        }
+        meter.switchTo(std::string("handle ") + messageKindName(envelope->kind));
         handle(assembly, *envelope);
         worked = true;
       }
+      meter.switchTo("schedule");
       Outbox out;
       const std::uint32_t requeued = assembly.dispatch(Clock::now(), out);
       if (requeued > 0) {
@@ -124,8 +133,10 @@ class DisplayProcess {
                      requeued, options_.tileTimeoutSeconds);
       }
       worked = worked || requeued > 0 || !out.empty();
+      meter.switchTo("send");
       job_.sends().post(out);
       job_.sends().reap();
+      meter.switchTo("finish frames");
       for (FinishedFrame& frame : assembly.finishFrames(Clock::now())) {
         emit(frame);
         worked = true;
@@ -133,6 +144,7 @@ class DisplayProcess {
       if (worked) {
         backoff.reset();
       } else {
+        meter.relabel("poll");
         backoff.wait();
       }
     }
@@ -144,8 +156,15 @@ class DisplayProcess {
   void report(const std::vector<v1::ShutdownAck>& acks, const ProcessCpu& display) {
     stats_.processes.push_back(display);
     for (const auto& ack : acks) {
-      stats_.processes.push_back({roleName(ack.role()), ack.world_rank(),
-                                  ack.cpu_seconds_since_ready(), ack.wall_seconds_since_ready()});
+      ProcessCpu process{roleName(ack.role()),
+                         ack.world_rank(),
+                         ack.cpu_seconds_since_ready(),
+                         ack.wall_seconds_since_ready(),
+                         {}};
+      for (const auto& [activity, seconds] : ack.cpu_seconds_by_activity()) {
+        process.activities[activity] = seconds;
+      }
+      stats_.processes.push_back(std::move(process));
     }
     std::printf("%s", stats_.summary().c_str());
     const std::string statsFile = !options_.statsFile.empty() ? options_.statsFile
@@ -349,7 +368,8 @@ int runDisplayMain(int argc, char** argv) {
         peerCpu + displayCpu, peerWall, job.worldSize(), displayCpu);
     std::fflush(stdout);
     if (process) {
-      process->report(job.lastAcks(), {"display", job.worldRank(), displayCpu, displayWall});
+      process->report(job.lastAcks(), {"display", job.worldRank(), displayCpu, displayWall,
+                                       job.activities().totals()});
     }
     return 0;
   });

@@ -4,6 +4,7 @@
 #include <memory>
 #include <thread>
 
+#include "common/checksum.hpp"
 #include "common/dataset.hpp"
 #include "common/mpi/worker.hpp"
 #include "common/ownership.hpp"
@@ -90,6 +91,7 @@ class RenderProcess final : public WorkerProcess {
     return true;
   }
 
+  std::string idleActivity() const override { return "draw and send tiles"; }
   std::string summary() const override { return core_.summary(); }
 
  private:
@@ -104,7 +106,7 @@ class RenderProcess final : public WorkerProcess {
           std::to_string(header.byte_size()) + " bytes of " + std::to_string(sizeof(Splat)));
     }
     if (cell < dataset_.topLevelCells().size() &&
-        (fnv1a64(envelope.payload.data(), envelope.payload.size()) != header.checksum() ||
+        (checksum64(envelope.payload.data(), envelope.payload.size()) != header.checksum() ||
          header.checksum() != dataset_.packetChecksum(cell))) {
       throw ProtocolError("data packet for top-level cell " + std::to_string(cell) + " from rank " +
                           std::to_string(envelope.source) + " fails its checksum");

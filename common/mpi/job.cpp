@@ -228,6 +228,7 @@ void Job::handshake(const HandshakeOptions& options) {
 
 void Job::markReady() {
   readyCpuSeconds_ = processCpuSeconds();
+  activities_ = CpuActivities();
   readyWall_ = std::chrono::steady_clock::now();
 }
 
@@ -265,6 +266,9 @@ void Job::acknowledgeShutdown(const std::string& summary) {
   ack.set_world_rank(worldRank_);
   ack.set_summary(summary);
   ack.set_cpu_seconds_since_ready(processCpuSeconds() - readyCpuSeconds_);
+  for (const auto& [activity, seconds] : activities_.totals()) {
+    (*ack.mutable_cpu_seconds_by_activity())[activity] = seconds;
+  }
   ack.set_wall_seconds_since_ready(
       std::chrono::duration<double>(std::chrono::steady_clock::now() - readyWall_).count());
   channel_->send(displayRank(), MessageKind::ShutdownAck, ack);

@@ -15,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "common/cpu_activity.hpp"
 #include "common/job_layout.hpp"
 #include "common/mpi/channel.hpp"
 #include "common/mpi/send_queue.hpp"
@@ -66,6 +67,8 @@ class Job {
   Channel& channel() { return *channel_; }
   // Sends in flight; the serve loop reaps them.
   SendQueue& sends() { return *sends_; }
+  // The main thread's CPU time per activity since Ready, sent with the shutdown ack.
+  CpuActivities& activities() { return activities_; }
   std::string describe() const;  // "pointillist-render rank 5"
 
   // Every process reports to the display, which checks protocol versions and
@@ -103,6 +106,7 @@ class Job {
   v1::RunSettings runSettings_;
   std::vector<v1::ShutdownAck> acks_;
   double readyCpuSeconds_ = 0.0;
+  CpuActivities activities_;
   std::chrono::steady_clock::time_point readyWall_;
   bool finalized_ = false;
 };

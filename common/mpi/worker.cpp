@@ -8,9 +8,15 @@ void serveUntilShutdown(Job& job, WorkerProcess* process) {
   Channel& channel = job.channel();
   SendQueue& sends = job.sends();
   Backoff backoff;
+  // Each pass is charged to what it did: polling when nothing came or was done.
+  CpuActivities::Meter meter(job.activities(), "poll");
   while (true) {
+    meter.switchTo("send");
     sends.reap();
-    if (auto envelope = channel.tryReceive()) {
+    meter.switchTo("receive");
+    auto envelope = channel.tryReceive();
+    if (!envelope) meter.relabel("poll");
+    if (envelope) {
       backoff.reset();
       if (envelope->kind == MessageKind::Shutdown) {
         job.acknowledgeShutdown(process != nullptr ? process->summary() : std::string());
@@ -25,12 +31,17 @@ void serveUntilShutdown(Job& job, WorkerProcess* process) {
         throw ProtocolError(std::string("unexpected ") + messageKindName(envelope->kind) +
                             " message from rank " + std::to_string(envelope->source));
       }
+      meter.switchTo(std::string("handle ") + messageKindName(envelope->kind));
       process->onMessage(*envelope);
       continue;
     }
-    if (process != nullptr && process->onIdle()) {
-      backoff.reset();
-      continue;
+    if (process != nullptr) {
+      meter.switchTo(process->idleActivity());
+      if (process->onIdle()) {
+        backoff.reset();
+        continue;
+      }
+      meter.relabel("poll");
     }
     if (sends.pending()) {
       backoff.wait(kTransferPoll);

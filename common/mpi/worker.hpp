@@ -25,6 +25,8 @@ class WorkerProcess {
   // Called when no message is waiting; true if it did useful work (the loop
   // then polls again at once instead of sleeping).
   virtual bool onIdle() { return false; }
+  // What the CPU time of an onIdle that did work is charged to.
+  virtual std::string idleActivity() const { return "idle work"; }
   // Sent back with the ShutdownAck.
   virtual std::string summary() const = 0;
 };

@@ -144,6 +144,15 @@ KeyFigures RunStats::keyFigures() const {
     for (const ProcessCpu& process : processes) {
       k.cpuPerFrame[process.role] += process.cpuSeconds / frameCount;
       k.cpuPerFrameTotal += process.cpuSeconds / frameCount;
+      if (!process.activities.empty()) {
+        auto& byActivity = k.cpuPerFrameByActivity[process.role];
+        double covered = 0.0;
+        for (const auto& [activity, seconds] : process.activities) {
+          byActivity[activity] += seconds / frameCount;
+          covered += seconds;
+        }
+        byActivity["other threads"] += std::max(0.0, process.cpuSeconds - covered) / frameCount;
+      }
     }
     double busy = 0.0;
     for (const FrameRecord& f : frames) {
@@ -292,7 +301,13 @@ std::string RunStats::toJson() const {
     const ProcessCpu& p = processes[i];
     out << (i ? ", " : "") << "{\"role\": \"" << p.role << "\", \"rank\": " << p.rank
         << ", \"cpu_seconds\": " << number(p.cpuSeconds)
-        << ", \"wall_seconds\": " << number(p.wallSeconds) << "}";
+        << ", \"wall_seconds\": " << number(p.wallSeconds) << ", \"activities\": {";
+    bool first = true;
+    for (const auto& [activity, seconds] : p.activities) {
+      out << (first ? "" : ", ") << "\"" << activity << "\": " << number(seconds);
+      first = false;
+    }
+    out << "}}";
   }
   out << "]\n}\n";
   return out.str();
@@ -424,6 +439,19 @@ std::string RunStats::summary() const {
                   1e3 * k.cpuPerFrameTotal, 1e3 * cpuOf(k, "display"), 1e3 * cpuOf(k, "traverse"),
                   1e3 * cpuOf(k, "datasend"), 1e3 * cpuOf(k, "render"), 1e3 * k.drawPerFrame);
     out << line;
+    for (const auto& [role, activities] : k.cpuPerFrameByActivity) {
+      // Largest first: where the role's CPU goes.
+      std::vector<std::pair<double, std::string>> sorted;
+      for (const auto& [activity, seconds] : activities) sorted.emplace_back(seconds, activity);
+      std::sort(sorted.rbegin(), sorted.rend());
+      out << "  " << role << " core-ms per frame:";
+      for (std::size_t i = 0; i < sorted.size(); ++i) {
+        std::snprintf(line, sizeof line, "%s %s %.1f", i == 0 ? "" : ",", sorted[i].second.c_str(),
+                      1e3 * sorted[i].first);
+        out << line;
+      }
+      out << "\n";
+    }
   }
   return out.str();
 }

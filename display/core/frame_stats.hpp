@@ -61,6 +61,9 @@ struct ProcessCpu {
   int rank = 0;
   double cpuSeconds = 0.0;
   double wallSeconds = 0.0;
+  // The main thread's CPU seconds per activity (receive, handle <message>,
+  // poll, ...); cpuSeconds minus their sum went to other threads.
+  std::map<std::string, double> activities;
 };
 
 // How evenly one frame's work was spread over the render processes: max/mean
@@ -125,6 +128,9 @@ struct KeyFigures {
   std::map<std::string, double> cpuPerFrame;
   double drawPerFrame = 0.0;
   double cpuPerFrameTotal = 0.0;
+  // role -> activity -> CPU seconds per frame, with "other threads" for what
+  // the activities do not cover.
+  std::map<std::string, std::map<std::string, double>> cpuPerFrameByActivity;
 };
 
 struct RunStats {

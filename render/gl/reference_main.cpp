@@ -7,6 +7,7 @@
 #include "common/tool_entry.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <thread>
@@ -31,6 +32,7 @@ struct ReferenceOptions {
   std::uint64_t minSplats = 0;
   std::string profile = "compat";
   unsigned threads = std::max(1u, std::thread::hardware_concurrency());
+  bool quality = false;
 };
 
 // Share of pixels that are not the background colour.
@@ -66,6 +68,9 @@ int run(int argc, char** argv) {
   app.add_option("--threads", options.threads,
                  "Threads drawing each frame with the cpu renderer (default: the cores)")
       ->check(CLI::Range(1, 256));
+  app.add_flag("--quality", options.quality,
+               "Also draw each frame at full detail (every point, no level-splats) and print "
+               "the PSNR and the share of identical covered pixels against it");
   app.name("pointillist-reference");
   try {
     app.parse(argc, argv);
@@ -88,6 +93,11 @@ int run(int argc, char** argv) {
 
   ReferenceRenderer renderer(dataset, kind, parseProfile(options.profile), options.threads);
   std::printf("reference: drawing with %s\n", renderer.renderer().describe().c_str());
+  traverse::TraversalSettings fullDetail = traversal;
+  fullDetail.lodPixels = 0.0f;  // level-splats never project to 0 px: always the leaves' points
+  double psnrSum = 0.0;
+  std::uint64_t covered = 0, identical = 0;
+  std::size_t identicalFrames = 0;
   double renderSeconds = 0.0;
   double traverseSeconds = 0.0;
   std::uint64_t splats = 0;
@@ -105,6 +115,20 @@ int run(int argc, char** argv) {
     std::printf("reference frame %4zu: %6.2f M splats, traverse %6.1f ms, render %7.1f ms", index,
                 static_cast<double>(frame.splats) / 1e6, frame.traverseSeconds * 1e3,
                 frame.renderSeconds * 1e3);
+    if (options.quality) {
+      const ReferenceFrame truth = renderer.render(cameras[index], fullDetail, settings);
+      const ImageQuality quality = measureQuality(frame.image, truth.image);
+      if (std::isinf(quality.psnr)) {
+        ++identicalFrames;
+      } else {
+        psnrSum += quality.psnr;
+      }
+      covered += quality.covered;
+      identical += quality.identical;
+      std::printf(", full detail %.2f M splats: PSNR %.1f dB, %.1f%% identical",
+                  static_cast<double>(truth.splats) / 1e6, quality.psnr,
+                  quality.identicalShare() * 100.0);
+    }
     if (!options.compareDir.empty()) {
       const Image other = readPng(std::filesystem::path(options.compareDir) / name);
       // The job writes RGB PNGs; compare what both files hold.
@@ -133,6 +157,16 @@ int run(int argc, char** argv) {
       renderSeconds > 0.0 ? static_cast<double>(splats) / 1e6 / renderSeconds : 0.0,
       cameras.empty() ? 0.0
                       : static_cast<double>(splats) / 1e6 / static_cast<double>(cameras.size()));
+  if (options.quality && !cameras.empty()) {
+    // Mean PSNR over the frames that differ at all; identical ones are counted apart.
+    const std::size_t differing = cameras.size() - identicalFrames;
+    std::printf(
+        "quality: mean PSNR %.1f dB over %zu frame(s) differing from full detail (%zu "
+        "identical), %.2f%% of covered pixels identical\n",
+        differing > 0 ? psnrSum / static_cast<double>(differing) : 0.0, differing, identicalFrames,
+        covered > 0 ? 100.0 * static_cast<double>(identical) / static_cast<double>(covered)
+                    : 100.0);
+  }
   if (mismatches > 0) {
     std::fprintf(stderr,
                  "pointillist-reference: %d frame(s) differ from %s by more than %llu pixels or "

@@ -9,6 +9,7 @@
 #include <fstream>
 #include <string>
 
+#include "common/checksum.hpp"
 #include "common/errors.hpp"
 
 namespace pointillist {
@@ -128,11 +129,19 @@ class DatasetTest : public ::testing::Test {
   fs::path dir_;
 };
 
-TEST(Fnv1a64, KnownVectorsAndStreaming) {
-  EXPECT_EQ(fnv1a64("", 0), 0xcbf29ce484222325ull);
-  EXPECT_EQ(fnv1a64("a", 1), 0xaf63dc4c8601ec8cull);
-  EXPECT_EQ(fnv1a64("foobar", 6), 0x85944171f73967e8ull);
-  EXPECT_EQ(fnv1a64("bar", 3, fnv1a64("foo", 3)), fnv1a64("foobar", 6));
+TEST(Checksum64, KnownVectorAndStreaming) {
+  EXPECT_EQ(checksum64("", 0), 0x2d06800538d394c2ull);  // XXH3-64 of nothing, seed 0
+  std::vector<unsigned char> bytes(5000);
+  for (std::size_t i = 0; i < bytes.size(); ++i) bytes[i] = static_cast<unsigned char>(i * 131 + 7);
+  // Pieces across XXH3's internal block and stripe sizes give the one-shot value.
+  for (const std::size_t cut : {std::size_t{0}, std::size_t{1}, std::size_t{239}, std::size_t{240},
+                                std::size_t{1024}, std::size_t{4999}}) {
+    ChecksumStream stream;
+    stream.update(bytes.data(), cut);
+    stream.update(bytes.data() + cut, bytes.size() - cut);
+    EXPECT_EQ(stream.digest(), checksum64(bytes.data(), bytes.size())) << cut;
+  }
+  EXPECT_NE(checksum64(bytes.data(), 4999), checksum64(bytes.data(), 5000));
 }
 
 TEST(DatasetRecords, Sizes) {
@@ -172,7 +181,7 @@ TEST_F(DatasetTest, RoundTripIsBitIdentical) {
     const auto read = ds.readTopLevel(k);
     ASSERT_EQ(read.size(), expected.size());
     EXPECT_EQ(std::memcmp(read.data(), expected.data(), expected.size() * sizeof(Splat)), 0);
-    EXPECT_EQ(ds.packetChecksum(k), fnv1a64(expected.data(), expected.size() * sizeof(Splat)));
+    EXPECT_EQ(ds.packetChecksum(k), checksum64(expected.data(), expected.size() * sizeof(Splat)));
   }
 
   const DatasetManifest& m = ds.manifest();
@@ -389,7 +398,7 @@ TEST_F(DatasetTest, InconsistentCellFileIsRefusedAtLoad) {
   char old[17], now[17];
   std::snprintf(old, sizeof old, "%016llx", static_cast<unsigned long long>(*f->checksum));
   std::snprintf(now, sizeof now, "%016llx",
-                static_cast<unsigned long long>(fnv1a64(c.cells.data(), c.cells.size() * 64)));
+                static_cast<unsigned long long>(checksum64(c.cells.data(), c.cells.size() * 64)));
   replaceInManifest(old, now);
   const std::string msg = errorOf(dir_, DatasetParts::Cells);
   EXPECT_NE(msg.find("cells.bin: cell 1: nextSibling"), std::string::npos) << msg;

@@ -4,6 +4,7 @@
 #include <png.h>
 
 #include <unistd.h>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <string>
@@ -112,6 +113,40 @@ TEST(Image, BlitCropAndCompare) {
   EXPECT_THROW(blit(gradient(5, 5), frame, 16, 0), UsageError);
   EXPECT_THROW(compareImages(frame, gradient(3, 3)), UsageError);
   EXPECT_THROW(crop(frame, 15, 0, 6, 1), UsageError);
+}
+
+}  // namespace
+}  // namespace pointillist
+
+namespace pointillist {
+namespace {
+
+TEST(ImageQuality, IdenticalFramesHaveInfinitePsnr) {
+  Image truth(8, 4, {0, 0, 0, 255});
+  truth.set(1, 1, {10, 20, 30, 255});
+  const ImageQuality quality = measureQuality(truth, truth);
+  EXPECT_TRUE(std::isinf(quality.psnr));
+  EXPECT_EQ(quality.covered, 1u);
+  EXPECT_EQ(quality.identical, 1u);
+  EXPECT_DOUBLE_EQ(quality.identicalShare(), 1.0);
+}
+
+TEST(ImageQuality, PsnrAndSharesFollowTheirDefinitions) {
+  Image truth(10, 10, {0, 0, 0, 255}), frame(10, 10, {0, 0, 0, 255});
+  for (std::uint32_t x = 0; x < 4; ++x) {
+    truth.set(x, 0, {100, 100, 100, 255});
+    frame.set(x, 0, {100, 100, 100, 255});
+  }
+  frame.set(3, 0, {110, 100, 100, 255});  // one channel off by 10
+  frame.set(9, 9, {0, 0, 51, 255});       // a pixel the truth does not cover
+  const ImageQuality quality = measureQuality(frame, truth);
+  EXPECT_EQ(quality.covered, 5u);
+  EXPECT_EQ(quality.identical, 3u);
+  EXPECT_DOUBLE_EQ(quality.identicalShare(), 0.6);
+  // MSE over 300 samples: (10^2 + 51^2) / 300.
+  const double mse = (100.0 + 51.0 * 51.0) / 300.0;
+  EXPECT_NEAR(quality.psnr, 10.0 * std::log10(255.0 * 255.0 / mse), 1e-9);
+  EXPECT_THROW(measureQuality(frame, Image(10, 9)), UsageError);
 }
 
 }  // namespace
