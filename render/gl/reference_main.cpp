@@ -125,9 +125,11 @@ int run(int argc, char** argv) {
       }
       covered += quality.covered;
       identical += quality.identical;
-      std::printf(", full detail %.2f M splats: PSNR %.1f dB, %.1f%% identical",
-                  static_cast<double>(truth.splats) / 1e6, quality.psnr,
-                  quality.identicalShare() * 100.0);
+      std::printf(
+          ", full detail %.2f M splats: PSNR %.1f dB, %.1f%% of %.2f M covered pixels "
+          "identical",
+          static_cast<double>(truth.splats) / 1e6, quality.psnr, quality.identicalShare() * 100.0,
+          static_cast<double>(quality.covered) / 1e6);
     }
     if (!options.compareDir.empty()) {
       const Image other = readPng(std::filesystem::path(options.compareDir) / name);

@@ -1,0 +1,156 @@
+#!/usr/bin/env bash
+# Interactive-speed benchmark (the goals of "30 frames/s on a 10 M-point scan"):
+# for each scene, the job and the single-process reference on the same frames,
+# with a quality figure for the level of detail, and where the CPU goes.
+#
+#   deploy/bench-speed.sh [--scenes bunny-10M,city] [--layout 1,2,1,4] [--frames 48]
+#       [--size 1280x720] [--camera-path orbit] [--repeat 1] [--out DIR]
+#       [-- options for both job and reference, e.g. --lod-pixels 2 --renderer gl]
+#
+# Scenes: bunny-10M is Debian's bunny00.off (libcgal-demo) sampled to 10 M
+# points with normals; city is the built-in generated scene (2 M points). Both
+# are made once into datasets/. Per scene it prints one table: goal, measured,
+# met; the job's CPU per role and activity; and writes OUT/<scene>/ (stats.json
+# of each job run, reference.log) and OUT/goals.md with every table.
+# --repeat N runs the job N times and reports the run with the median steady
+# frame rate (this machine's speed drifts; see the range printed beside it).
+# Environment: POINTILLIST_BUILD (default build-release, configured as Release).
+set -euo pipefail
+source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
+export POINTILLIST_BUILD="${POINTILLIST_BUILD:-$POINTILLIST_ROOT/build-release}"
+POINTILLIST_BIN="$POINTILLIST_BUILD/bin"
+
+scenes="bunny-10M,city"
+layout="1,2,1,4"
+frames=48
+size="1280x720"
+camera_path="orbit"
+repeat=1
+out="$POINTILLIST_ROOT/out/bench-speed"
+extra=()
+die() { echo "bench-speed: $*" >&2; exit 2; }
+while (($#)); do
+  case "$1" in
+    --scenes) scenes="$2"; shift 2 ;;
+    --layout) layout="$2"; shift 2 ;;
+    --frames) frames="$2"; shift 2 ;;
+    --size) size="$2"; shift 2 ;;
+    --camera-path) camera_path="$2"; shift 2 ;;
+    --repeat) repeat="$2"; shift 2 ;;
+    --out) out="$2"; shift 2 ;;
+    -h|--help) sed -n '2,18p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    --) shift; extra=("$@"); break ;;
+    *) die "unknown option '$1' (options for the job and reference go after --)" ;;
+  esac
+done
+[[ "$frames" =~ ^[1-9][0-9]*$ ]] || die "--frames '$frames' is not a positive count"
+[[ "$repeat" =~ ^[1-9][0-9]*$ ]] || die "--repeat '$repeat' is not a positive count"
+[[ "$size" =~ ^[1-9][0-9]*x[1-9][0-9]*$ ]] || die "--size '$size' is not WIDTHxHEIGHT"
+
+install_packages
+if [[ ! -f "$POINTILLIST_BUILD/CMakeCache.txt" ]]; then
+  log "configuring a Release build in $POINTILLIST_BUILD"
+  cmake -S "$POINTILLIST_ROOT" -B "$POINTILLIST_BUILD" -DCMAKE_BUILD_TYPE=Release \
+    -DPOINTILLIST_BUILD_TESTS=OFF >/dev/null
+fi
+cmake --build "$POINTILLIST_BUILD" -j "$(nproc)" >/dev/null
+
+# Makes a scene's dataset unless it is there in the current format.
+dataset_for() {
+  local scene="$1" dir
+  case "$scene" in
+    bunny-10M)
+      dir="$POINTILLIST_ROOT/datasets/bunny-10M"
+      if ! "$POINTILLIST_BIN/pointillist-preprocess" --check "$dir" >/dev/null 2>&1; then
+        bash "$POINTILLIST_ROOT/deploy/fetch-test-data.sh"
+        log "sampling bunny00.off to 10 M points into $dir"
+        "$POINTILLIST_BIN/pointillist-preprocess" \
+          "$POINTILLIST_ROOT/.cache/cgal-data/data/meshes/bunny00.off" --points 10000000 \
+          -o "$dir" --force --quiet >&2
+      fi ;;
+    city)
+      dir="$POINTILLIST_ROOT/datasets/city-2000000"
+      if ! "$POINTILLIST_BIN/pointillist-preprocess" --check "$dir" >/dev/null 2>&1; then
+        log "generating the city (2 M points) into $dir"
+        "$POINTILLIST_BIN/pointillist-preprocess" --generate city --points 2000000 \
+          -o "$dir" --force --quiet >&2
+      fi ;;
+    *) die "unknown scene '$scene' (bunny-10M or city)" ;;
+  esac
+  echo "$dir"
+}
+
+mkdir -p "$out"
+report="$out/goals.md"
+{
+  echo "# bench-speed: $(date -u +%Y-%m-%dT%H:%MZ), $(nproc) cores, layout $layout, $size, $camera_path, $frames frames"
+  echo "options: ${extra[*]:-(defaults)}; commit $(git -C "$POINTILLIST_ROOT" rev-parse --short HEAD 2>/dev/null || echo '?')"
+} >"$report"
+
+IFS=, read -r -a scene_list <<<"$scenes"
+for scene in "${scene_list[@]}"; do
+  dataset=$(dataset_for "$scene")
+  dir="$out/$scene"
+  mkdir -p "$dir"
+  for ((run = 1; run <= repeat; run++)); do
+    log "$scene: job run $run of $repeat"
+    bash "$POINTILLIST_ROOT/deploy/run.sh" --layout "$layout" --dataset "$dataset" \
+      --camera-path "$camera_path" --frames "$frames" --size "$size" --quiet \
+      --stats "$dir/stats-$run.json" "${extra[@]}" >"$dir/job-$run.log" 2>&1 ||
+      { cat "$dir/job-$run.log" >&2; die "$scene: the job failed (log above)"; }
+  done
+  log "$scene: reference, then its frames at full detail for the quality figures"
+  "$POINTILLIST_BIN/pointillist-reference" --dataset "$dataset" --camera-path "$camera_path" \
+    --frames "$frames" --size "$size" "${extra[@]}" >"$dir/reference.log" 2>&1 ||
+    { cat "$dir/reference.log" >&2; die "$scene: the reference failed"; }
+  "$POINTILLIST_BIN/pointillist-reference" --dataset "$dataset" --camera-path "$camera_path" \
+    --frames "$frames" --size "$size" --quality "${extra[@]}" >"$dir/quality.log" 2>&1 ||
+    { cat "$dir/quality.log" >&2; die "$scene: the quality run failed"; }
+  python3 - "$scene" "$dir" "$repeat" "$dataset" >>"$report" <<'EOF'
+import json, re, statistics, sys
+scene, folder, repeat, dataset = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4]
+runs = [json.load(open(f"{folder}/stats-{i}.json")) for i in range(1, repeat + 1)]
+fps = [r["key_figures"]["frames_per_second_steady"] for r in runs]
+median = sorted(range(len(runs)), key=lambda i: fps[i])[len(runs) // 2]
+k = runs[median]["key_figures"]
+ref = open(f"{folder}/reference.log").read()
+m = re.search(r"reference: \d+ frames, ([0-9.]+) frames/s, ([0-9.]+) M splats/s rendering \(([0-9.]+) M splats per frame\)", ref)
+ref_fps, ref_splats = float(m.group(1)), float(m.group(3))
+q = open(f"{folder}/quality.log").read()
+qm = re.search(r"quality: mean PSNR ([0-9.]+) dB over (\d+) frame.*?\((\d+) identical\), ([0-9.]+)% of covered", q)
+full = re.findall(r"full detail ([0-9.]+) M splats", q)
+full_splats = sum(map(float, full)) / len(full) if full else 0.0
+first = k["bytes_first_frame"] / 2**20
+steady = k["bytes_per_frame_steady"] / 2**20
+rows = [
+    ("job frames/s (steady)", f"{k['frames_per_second_steady']:.2f}" + (f" (runs {min(fps):.2f}-{max(fps):.2f})" if repeat > 1 else ""), ">= 30", k["frames_per_second_steady"] >= 30),
+    ("reference frames/s", f"{ref_fps:.2f}", ">= 60", ref_fps >= 60),
+    ("job / reference", f"{k['frames_per_second_steady'] / ref_fps:.2f}", ">= 0.9", k["frames_per_second_steady"] >= 0.9 * ref_fps),
+    ("splats per frame (job / reference / full detail)", f"{k['splats_per_frame'] / 1e6:.2f} M / {ref_splats:.2f} M / {full_splats:.2f} M", "~ covered pixels", None),
+    ("quality vs full detail", f"PSNR {qm.group(1)} dB, {qm.group(4)} % of covered pixels identical", "shown", None),
+    ("bytes first frame", f"{first:.1f} MiB", "only the LOD drawn", None),
+    ("bytes per frame steady", f"{steady:.2f} MiB ({100 * steady / first if first else 0:.1f} % of first)", "<= 2 %", first > 0 and steady <= 0.02 * first),
+    ("cache hit rate steady", f"{100 * k['cache_hit_rate_steady']:.1f} %", "", None),
+    ("CPU per frame", f"{1e3 * k['cpu_per_frame_total']:.0f} core-ms (display {1e3 * k['cpu_per_frame_display']:.0f}, traverse {1e3 * k['cpu_per_frame_traverse']:.0f}, data-send {1e3 * k['cpu_per_frame_datasend']:.0f}, render {1e3 * k['cpu_per_frame_render']:.0f}, of which drawing {1e3 * k['draw_per_frame']:.0f})", "", None),
+]
+print(f"\n## {scene} ({dataset})\n")
+print("| figure | measured | goal | met |\n|---|---|---|---|")
+for name, value, goal, met in rows:
+    print(f"| {name} | {value} | {goal} | {'' if met is None else ('yes' if met else 'no')} |")
+print("\nCPU per frame by role and activity, core-ms (whole run, warm-up included):\n")
+by_role = {}
+frames = k["frames"]
+for p in runs[median]["processes"]:
+    acts = by_role.setdefault(p["role"], {})
+    covered = 0.0
+    for a, s in p.get("activities", {}).items():
+        acts[a] = acts.get(a, 0.0) + s
+        covered += s
+    acts["other threads"] = acts.get("other threads", 0.0) + max(0.0, p["cpu_seconds"] - covered)
+for role, acts in sorted(by_role.items()):
+    parts = ", ".join(f"{a} {1e3 * s / frames:.1f}" for a, s in sorted(acts.items(), key=lambda x: -x[1]) if s > 0)
+    print(f"- {role}: {parts}")
+EOF
+done
+cat "$report"
+log "report in $report"
