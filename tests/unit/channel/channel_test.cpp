@@ -1,7 +1,9 @@
 // Runs on exactly two ranks (mpiexec -n 2): rank 1 sends, rank 0 receives,
 // unless a test says otherwise. Both ranks run every test in the same order.
 #include <gtest/gtest.h>
+
 #include <mpi.h>
+#include <algorithm>
 
 #include <chrono>
 #include <climits>
@@ -79,7 +81,9 @@ TEST_F(ChannelTest, PayloadSplitIntoChunksArrivesIntact) {
   for (std::size_t i = 0; i < sizes.size(); ++i) {
     const auto envelope = channel.receiveOrThrow(1, MessageKind::DataPacket, milliseconds(30'000));
     EXPECT_EQ(envelope.as<v1::TileImageHeader>().frame_id(), i) << "messages stay in order";
-    EXPECT_EQ(envelope.payload, patternBytes(sizes[i], static_cast<std::uint32_t>(i)));
+    const std::vector<std::byte> expected = patternBytes(sizes[i], static_cast<std::uint32_t>(i));
+    EXPECT_TRUE(std::equal(envelope.payload.begin(), envelope.payload.end(), expected.begin(),
+                           expected.end()));
   }
 }
 
@@ -115,7 +119,9 @@ TEST_F(ChannelTest, SharedPayloadOutlivesTheCaller) {
     return;
   }
   const auto envelope = channel.receiveOrThrow(1, MessageKind::TileImage, milliseconds(30'000));
-  EXPECT_EQ(envelope.payload, patternBytes(100'000, 5));
+  const std::vector<std::byte> expected = patternBytes(100'000, 5);
+  EXPECT_TRUE(std::equal(envelope.payload.begin(), envelope.payload.end(), expected.begin(),
+                         expected.end()));
 }
 
 // An outbox leaves in order, every entry to every destination; the queue
@@ -148,7 +154,9 @@ TEST_F(ChannelTest, SendQueuePostsAnOutboxInOrderAndReapsFinishedSends) {
       EXPECT_EQ(envelope.as<v1::RenderReport>().sequence(), 5u);
     }
     if (envelope.kind == MessageKind::TileImage) {
-      EXPECT_EQ(envelope.payload, patternBytes(4096, 3));
+      const std::vector<std::byte> expected = patternBytes(4096, 3);
+      EXPECT_TRUE(std::equal(envelope.payload.begin(), envelope.payload.end(), expected.begin(),
+                             expected.end()));
     }
   }
   EXPECT_EQ(kinds, (std::vector<MessageKind>{MessageKind::RenderReport, MessageKind::RenderReport,
