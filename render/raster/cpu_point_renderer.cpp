@@ -163,8 +163,7 @@ class Scatter {
     hn::StoreU(hn::Compress(height, drawn), di, height_ + count_);
     hn::StoreU(hn::Compress(depth, hn::RebindMask(du, drawn)), du, depth_ + count_);
     hn::StoreU(hn::Compress(color, hn::RebindMask(du, drawn)), du, color_ + count_);
-    // Width and height are >= 1 where drawn: their maximum is a bitwise or.
-    extent_ = hn::Or(extent_, hn::IfThenElseZero(drawn, hn::Or(width, height)));
+    extent_ = hn::Max(extent_, hn::IfThenElseZero(drawn, hn::Max(width, height)));
     count_ += hn::CountTrue(di, drawn);
     if (count_ >= kBatch) flush();
   }
@@ -173,13 +172,19 @@ class Scatter {
     const DI di;
     const std::int32_t extent = hn::GetLane(hn::MaxOfLanes(di, extent_));
     extent_ = hn::Zero(di);
-    if (extent <= 1) {  // all 1x1: the common case for distant points
+    if (extent <= 1) {  // all 1x1: distant points, or a constant size of 1
       for (std::size_t k = 0; k < count_; ++k) {
         std::uint64_t& pixel = buffer_[index_[k]];
         pixel = std::min(pixel, word(k));
       }
     } else {
-      for (std::size_t k = 0; k < count_; ++k) drawSquare(k);
+      for (std::size_t k = 0; k < count_; ++k) {
+        if (width_[k] <= 2 && height_[k] <= 2) {
+          drawSmall(k);
+        } else {
+          drawSquare(k);
+        }
+      }
     }
     count_ = 0;
   }
@@ -190,6 +195,20 @@ class Scatter {
 
   std::uint64_t word(std::size_t k) const {
     return (static_cast<std::uint64_t>(depth_[k]) << 32) | color_[k];
+  }
+
+  // 1x1 to 2x2 without a branch on the size: the corners, some of them the
+  // same pixel, all read before any is written (the minimum is idempotent).
+  void drawSmall(std::size_t k) {
+    const std::uint64_t w = word(k);
+    std::uint64_t* p = buffer_ + index_[k];
+    const auto dx = static_cast<std::size_t>(width_[k] - 1);
+    const auto dy = static_cast<std::size_t>(height_[k] - 1) * static_cast<std::size_t>(stride_);
+    const std::uint64_t a = p[0], b = p[dx], c = p[dy], d = p[dy + dx];
+    p[0] = std::min(a, w);
+    p[dx] = std::min(b, w);
+    p[dy] = std::min(c, w);
+    p[dy + dx] = std::min(d, w);
   }
 
   void drawSquare(std::size_t k) {
