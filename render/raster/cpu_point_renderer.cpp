@@ -15,6 +15,7 @@
 #include <hwy/foreach_target.h>  // IWYU pragma: keep
 // foreach_target.h must come first.
 #include <hwy/highway.h>
+#include <hwy/cache_control.h>
 
 // The kernel must round exactly as the scalar reference does: explicit Mul
 // then Add (never MulAdd; the file is built with -ffp-contract=off), exact Div
@@ -174,11 +175,14 @@ class Scatter {
     extent_ = hn::Zero(di);
     if (extent <= 1) {  // all 1x1: distant points, or a constant size of 1
       for (std::size_t k = 0; k < count_; ++k) {
+        hwy::Prefetch(buffer_ + index_[k + kAhead]);
         std::uint64_t& pixel = buffer_[index_[k]];
         pixel = std::min(pixel, word(k));
       }
     } else {
       for (std::size_t k = 0; k < count_; ++k) {
+        hwy::Prefetch(buffer_ + index_[k + kAhead]);
+        hwy::Prefetch(buffer_ + index_[k + kAhead] + stride_);
         if (width_[k] <= 2 && height_[k] <= 2) {
           drawSmall(k);
         } else {
@@ -191,7 +195,8 @@ class Scatter {
 
  private:
   static constexpr std::size_t kBatch = 256;
-  static constexpr std::size_t kRoom = kBatch + HWY_MAX_BYTES / 4;
+  static constexpr std::size_t kAhead = 32;
+  static constexpr std::size_t kRoom = kBatch + kAhead + HWY_MAX_BYTES / 4;
 
   std::uint64_t word(std::size_t k) const {
     return (static_cast<std::uint64_t>(depth_[k]) << 32) | color_[k];
@@ -224,7 +229,8 @@ class Scatter {
   std::int32_t stride_;
   std::size_t count_ = 0;
   VI extent_ = hn::Zero(DI());
-  HWY_ALIGN std::int32_t index_[kRoom];
+  // Past count_: zeros or earlier pixels, which the prefetches may touch.
+  HWY_ALIGN std::int32_t index_[kRoom] = {};
   HWY_ALIGN std::int32_t width_[kRoom];
   HWY_ALIGN std::int32_t height_[kRoom];
   HWY_ALIGN std::uint32_t depth_[kRoom];
