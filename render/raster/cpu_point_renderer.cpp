@@ -14,8 +14,8 @@
 #define HWY_TARGET_INCLUDE "render/raster/cpu_point_renderer.cpp"
 #include <hwy/foreach_target.h>  // IWYU pragma: keep
 // foreach_target.h must come first.
-#include <hwy/highway.h>
 #include <hwy/cache_control.h>
+#include <hwy/highway.h>
 
 // The kernel must round exactly as the scalar reference does: explicit Mul
 // then Add (never MulAdd; the file is built with -ffp-contract=off), exact Div
@@ -118,14 +118,11 @@ HWY_INLINE void projectSplats(const PointRaster& r, const PointCell& c, std::siz
       MF lit = hn::And(drawn, hn::Gt(lengthSquared, quarter));
       if (!hn::AllFalse(df, lit)) {
         const VF tx = hn::Sub(eyeX, x), ty = hn::Sub(eyeY, y), tz = hn::Sub(eyeZ, z);
-        const VF distance =
-            hn::Sqrt(hn::Add(hn::Add(hn::Mul(tx, tx), hn::Mul(ty, ty)), hn::Mul(tz, tz)));
-        lit = hn::And(lit, hn::Gt(distance, zero));
-        const VF inverseLength = hn::Div(one, hn::Sqrt(lengthSquared));
-        const VF cosine =
-            hn::Add(hn::Add(hn::Mul(hn::Mul(nnx, inverseLength), hn::Div(tx, distance)),
-                            hn::Mul(hn::Mul(nny, inverseLength), hn::Div(ty, distance))),
-                    hn::Mul(hn::Mul(nnz, inverseLength), hn::Div(tz, distance)));
+        const VF distanceSquared =
+            hn::Add(hn::Add(hn::Mul(tx, tx), hn::Mul(ty, ty)), hn::Mul(tz, tz));
+        lit = hn::And(lit, hn::Gt(distanceSquared, zero));
+        const VF dot = hn::Add(hn::Add(hn::Mul(nnx, tx), hn::Mul(nny, ty)), hn::Mul(nnz, tz));
+        const VF cosine = hn::Div(dot, hn::Sqrt(hn::Mul(lengthSquared, distanceSquared)));
         // Unlit lanes get shade 1, which keeps their channels (and no NaN).
         const VF shade =
             hn::IfThenElse(lit, hn::Add(ambient, hn::Mul(diffuse, hn::Abs(cosine))), one);
@@ -405,19 +402,17 @@ PointFootprint pointFootprintScalar(const PointRaster& r, const Splat& s) {
   f.x1 = static_cast<std::int32_t>(std::min(x0f + size, tileRight)) - r.tileX;
   f.y1 = static_cast<std::int32_t>(std::min(y0f + size, tileTop)) - r.tileY;
 
-  // Headlight: |cos| between the normal and the direction to the eye, in
-  // glm's order of operations (dot, length, normalize).
+  // Headlight: |cos| between the normal and the direction to the eye, with
+  // one square root and one division (as the kernel computes it).
   float shade = 1.0f;
   const float n0 = s.normal[0], n1 = s.normal[1], n2 = s.normal[2];
   const float lengthSquared = n0 * n0 + n1 * n1 + n2 * n2;
   if (r.lighting && lengthSquared > 0.25f) {  // no normal: unshaded
     const float tx = r.eye.x - x, ty = r.eye.y - y, tz = r.eye.z - z;
-    const float distance = std::sqrt(tx * tx + ty * ty + tz * tz);
-    if (distance > 0.0f) {
-      const float inverseLength = 1.0f / std::sqrt(lengthSquared);
-      const float cosine = n0 * inverseLength * (tx / distance) +
-                           n1 * inverseLength * (ty / distance) +
-                           n2 * inverseLength * (tz / distance);
+    const float distanceSquared = tx * tx + ty * ty + tz * tz;
+    if (distanceSquared > 0.0f) {
+      const float cosine =
+          (n0 * tx + n1 * ty + n2 * tz) / std::sqrt(lengthSquared * distanceSquared);
       shade = r.ambient + (1.0f - r.ambient) * std::abs(cosine);
     }
   }
