@@ -10,8 +10,7 @@ POINTILLIST_PACKAGES=(
   openmpi-bin libopenmpi-dev
   libosmesa6-dev libglm-dev libfftw3-dev
   libzmq3-dev cppzmq-dev libprotobuf-dev protobuf-compiler
-  libgtest-dev libpng-dev libnanoflann-dev libcli11-dev
-  libxxhash-dev
+  libgtest-dev libpng-dev libnanoflann-dev libcli11-dev libhwy-dev libxxhash-dev
   gnuplot-nox iproute2 procps
 )
 

@@ -10,7 +10,15 @@
 // so the result does not depend on the order splats are drawn in. That makes
 // a tile equal the same rectangle of the whole frame, and lets several threads
 // draw parts of one tile into their own buffers and merge them by minimum.
+//
+// rasterizePoints is a SIMD kernel (Highway, dispatched at run time to the
+// best target the CPU has); rasterizePointsScalar is its reference. Both give
+// every splat the same pixels and the same word, bit for bit, whatever the
+// target and wherever the splat falls in a batch: job tiles are compared
+// pixel for pixel with a full frame drawn elsewhere.
+#include <cstddef>
 #include <cstdint>
+#include <new>
 #include <span>
 #include <string>
 #include <unordered_map>
@@ -45,10 +53,63 @@ PointRaster pointRaster(const Camera& camera, const TileRect& rect, const Render
 // The packed word of an empty pixel.
 inline constexpr std::uint64_t kEmptyPixel = ~std::uint64_t{0};
 
-// Draws `splats` into `buffer` (tileWidth x tileHeight words, rows bottom-up),
-// keeping the minimum word per pixel.
-void rasterizePoints(const PointRaster& raster, std::span<const Splat> splats,
-                     std::uint64_t* buffer);
+// Where one splat lands: pixels [x0, x1) x [y0, y1) of the tile, and its word.
+// All zero when it is not drawn.
+struct PointFootprint {
+  std::int32_t x0 = 0, y0 = 0, x1 = 0, y1 = 0;
+  std::uint64_t word = 0;
+  bool operator==(const PointFootprint&) const = default;
+};
+
+PointFootprint pointFootprintScalar(const PointRaster& raster, const Splat& splat);
+
+// The reference kernel: draws `splats` into `buffer` (tileWidth x tileHeight
+// words, rows bottom-up), keeping the minimum word per pixel.
+void rasterizePointsScalar(const PointRaster& raster, std::span<const Splat> splats,
+                           std::uint64_t* buffer);
+
+template <class T>
+struct CacheLineAllocator {
+  using value_type = T;
+  CacheLineAllocator() = default;
+  template <class U>
+  explicit CacheLineAllocator(const CacheLineAllocator<U>&) {}
+  T* allocate(std::size_t n) {
+    return static_cast<T*>(::operator new (n * sizeof(T), std::align_val_t{64}));
+  }
+  void deallocate(T* p, std::size_t) { ::operator delete (p, std::align_val_t{64}); }
+  bool operator==(const CacheLineAllocator&) const = default;
+};
+template <class T>
+using CacheLineVector = std::vector<T, CacheLineAllocator<T>>;
+
+// A cell as the SIMD kernel streams it: one array per field, each padded to a
+// multiple of kPad (the widest vector) with zeros.
+struct PointCell {
+  static constexpr std::size_t kPad = 16;
+  std::size_t count = 0;
+  bool hasNormals = false;  // any normal long enough to shade with
+  CacheLineVector<float> x, y, z, radius, nx, ny, nz;
+  CacheLineVector<std::uint32_t> color;  // RGBA8, R in the low byte
+};
+
+PointCell makePointCell(std::span<const Splat> splats);
+
+// Draws splats [from, to) of `cell` as rasterizePointsScalar would.
+void rasterizePoints(const PointRaster& raster, const PointCell& cell, std::size_t from,
+                     std::size_t to, std::uint64_t* buffer);
+
+// What the SIMD kernel computes for splats [from, to) of `cell`, one per
+// splat, before drawing (for tests).
+std::vector<PointFootprint> pointFootprints(const PointRaster& raster, const PointCell& cell,
+                                            std::size_t from, std::size_t to);
+
+// The Highway target the kernel dispatches to, e.g. "AVX3", and the ones it
+// could use on this CPU (Highway target bits), best first. For tests,
+// forcePointKernelTarget(t) makes the kernel use target `t` (0: the best again).
+std::string pointKernelTargetName();
+std::vector<std::int64_t> pointKernelTargets();
+void forcePointKernelTarget(std::int64_t target);
 
 class CpuPointRenderer final : public TileRenderer {
  public:
@@ -68,7 +129,7 @@ class CpuPointRenderer final : public TileRenderer {
 
  private:
   unsigned threads_;
-  std::unordered_map<std::uint32_t, std::vector<Splat>> cells_;
+  std::unordered_map<std::uint32_t, PointCell> cells_;
   std::vector<std::uint64_t> buffers_;  // one tile-sized buffer per thread
   std::vector<std::uint8_t> pixels_;
 };

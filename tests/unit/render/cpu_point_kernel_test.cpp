@@ -1,0 +1,245 @@
+// The SIMD point kernel against its scalar reference, bit for bit, on every
+// Highway target this CPU runs: jobs compare tiles drawn by one process with a
+// full frame drawn by another, so any difference would show as wrong pixels.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdint>
+#include <random>
+#include <set>
+#include <string>
+#include <vector>
+
+#include <glm/glm.hpp>
+
+#include "render/raster/cpu_point_renderer.hpp"
+#include "render_test_util.hpp"
+
+namespace pointillist::render {
+namespace {
+
+using testing::makeSplat;
+
+constexpr std::uint32_t kWidth = 320, kHeight = 200;
+
+// Oblique, so that no matrix entry is 0 or 1 and every product rounds.
+Camera kernelCamera() {
+  return makeCamera({1.3f, 2.1f, 4.6f}, {0.1f, -0.2f, 0.3f}, {0.1f, 1.0f, 0.05f}, 40.0f, 1.0f,
+                    10.0f, kWidth, kHeight);
+}
+
+// Points anywhere around the view (behind the eye, before the near and beyond
+// the far plane, outside the frame), points on the near and far planes and on
+// pixel boundaries, with and without normals, 1 to 10 px wide and beyond.
+std::vector<Splat> edgeScene(std::size_t count, std::uint32_t seed) {
+  const Camera camera = kernelCamera();
+  const glm::mat4 inverse = glm::inverse(viewProjectionMatrix(camera));
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f), r01(0.0f, 1.0f);
+  std::uniform_int_distribution<int> kind(0, 9), pixel(-20, 340);
+  std::vector<Splat> splats;
+  splats.reserve(count);
+  for (std::size_t i = 0; i < count; ++i) {
+    glm::vec3 p;
+    switch (kind(rng)) {
+      case 0: {  // on the near or far plane (up to rounding)
+        const glm::vec4 h = inverse * glm::vec4(u(rng), u(rng), i % 2 == 0 ? -1.0f : 1.0f, 1.0f);
+        p = glm::vec3(h) / h.w;
+        break;
+      }
+      case 1: {  // on a pixel edge or centre in window coordinates
+        const float wx = static_cast<float>(pixel(rng)) + 0.5f * static_cast<float>(i % 2);
+        const float wy = static_cast<float>(pixel(rng)) + 0.5f * static_cast<float>(i % 3 == 0);
+        const glm::vec4 h = inverse * glm::vec4(wx / kWidth * 2.0f - 1.0f,
+                                                wy / kHeight * 2.0f - 1.0f, u(rng), 1.0f);
+        p = glm::vec3(h) / h.w;
+        break;
+      }
+      case 2:  // anywhere, also behind the eye (z > 5)
+        p = {8.0f * u(rng), 8.0f * u(rng), 8.0f * u(rng)};
+        break;
+      default:
+        p = {2.0f * u(rng), 2.0f * u(rng), 3.0f * u(rng)};
+    }
+    glm::vec3 n(0.0f);
+    switch (i % 4) {
+      case 0:
+        n = glm::normalize(glm::vec3(u(rng), u(rng), u(rng)) + glm::vec3(1e-3f));
+        break;
+      case 1:
+        n = glm::vec3(u(rng), u(rng), u(rng)) * 0.8f;  // not unit; some below 0.5
+        break;
+      default:
+        break;  // no normal
+    }
+    // Diameters of 1 to ~10 px at the middle of the view; some far larger.
+    float radius = (0.003f + 0.03f * r01(rng) * r01(rng)) * (i % 97 == 0 ? 30.0f : 1.0f);
+    if (i % 101 == 0) radius = -radius;
+    if (i % 103 == 0) radius = 0.0f;
+    splats.push_back(makeSplat(p.x, p.y, p.z, radius, static_cast<std::uint8_t>(rng()),
+                               static_cast<std::uint8_t>(rng()), static_cast<std::uint8_t>(rng()),
+                               n.x, n.y, n.z));
+    splats.back().color[3] = static_cast<std::uint8_t>(rng());
+  }
+  return splats;
+}
+
+std::vector<RenderSettings> settingsVariants() {
+  std::vector<RenderSettings> variants;
+  for (const bool lighting : {true, false}) {
+    for (const float pointSize : {0.0f, 1.0f, 2.0f, 3.4f}) {
+      RenderSettings s;
+      s.lighting = lighting;
+      s.pointSize = pointSize;
+      variants.push_back(s);
+    }
+  }
+  RenderSettings small;
+  small.maxPointSize = 5.0f;
+  small.ambient = 0.0f;
+  small.sizeScale = 1.7f;
+  variants.push_back(small);
+  return variants;
+}
+
+// Runs `check` once per Highway target the kernel can use here, with the
+// kernel forced to it.
+template <class Check>
+void forEachTarget(Check check) {
+  const std::vector<std::int64_t> targets = pointKernelTargets();
+  ASSERT_FALSE(targets.empty());
+  std::set<std::string> names;
+  for (const std::int64_t target : targets) {
+    forcePointKernelTarget(target);
+    const std::string name = pointKernelTargetName();
+    names.insert(name);
+    SCOPED_TRACE(name);
+    check();
+  }
+  forcePointKernelTarget(0);
+  EXPECT_EQ(names.size(), targets.size()) << "forcing a target did not change the kernel";
+}
+
+TileRect randomTile(std::mt19937& rng) {
+  std::uniform_int_distribution<std::uint32_t> x(0, kWidth - 1), y(0, kHeight - 1);
+  const std::uint32_t x0 = x(rng), y0 = y(rng);
+  std::uniform_int_distribution<std::uint32_t> w(1, kWidth - x0), h(1, kHeight - y0);
+  return makeTileRect(x0, y0, w(rng), h(rng));
+}
+
+void expectSameFootprints(const PointRaster& raster, std::span<const Splat> splats,
+                          const PointCell& cell, std::size_t from, std::size_t to) {
+  const std::vector<PointFootprint> simd = pointFootprints(raster, cell, from, to);
+  ASSERT_EQ(simd.size(), to - from);
+  std::size_t differ = 0, drawn = 0;
+  for (std::size_t i = from; i < to; ++i) {
+    const PointFootprint expected = pointFootprintScalar(raster, splats[i]);
+    drawn += expected.x1 > expected.x0 ? 1u : 0u;
+    if (simd[i - from] == expected) continue;
+    if (++differ <= 5) {
+      const PointFootprint& got = simd[i - from];
+      ADD_FAILURE() << "splat " << i << ": expected [" << expected.x0 << "," << expected.x1 << ")x["
+                    << expected.y0 << "," << expected.y1 << ") " << std::hex << expected.word
+                    << std::dec << ", got [" << got.x0 << "," << got.x1 << ")x[" << got.y0 << ","
+                    << got.y1 << ") " << std::hex << got.word;
+    }
+  }
+  EXPECT_EQ(differ, 0u);
+  if (to - from > 1000 && raster.tileWidth == static_cast<std::int32_t>(kWidth)) {
+    EXPECT_GT(drawn, (to - from) / 10);  // the scene is not all culled
+  }
+}
+
+TEST(CpuPointKernel, EverySplatGetsTheReferenceWordAndPixels) {
+  const std::vector<Splat> splats = edgeScene(120000, 17);
+  const PointCell cell = makePointCell(splats);
+  const Camera camera = kernelCamera();
+  std::mt19937 rng(5);
+  forEachTarget([&] {
+    for (const RenderSettings& settings : settingsVariants()) {
+      expectSameFootprints(pointRaster(camera, fullFrameRect(camera), settings), splats, cell, 0,
+                           splats.size());
+      const TileRect tile = randomTile(rng);
+      expectSameFootprints(pointRaster(camera, tile, settings), splats, cell, 3, splats.size() - 5);
+    }
+  });
+}
+
+std::vector<std::uint64_t> drawScalar(const PointRaster& raster, std::span<const Splat> splats) {
+  std::vector<std::uint64_t> buffer(
+      static_cast<std::size_t>(raster.tileWidth) * static_cast<std::size_t>(raster.tileHeight),
+      kEmptyPixel);
+  rasterizePointsScalar(raster, splats, buffer.data());
+  return buffer;
+}
+
+std::vector<std::uint64_t> drawSimd(const PointRaster& raster, const PointCell& cell,
+                                    std::size_t from, std::size_t to) {
+  std::vector<std::uint64_t> buffer(
+      static_cast<std::size_t>(raster.tileWidth) * static_cast<std::size_t>(raster.tileHeight),
+      kEmptyPixel);
+  rasterizePoints(raster, cell, from, to, buffer.data());
+  return buffer;
+}
+
+// Odd counts and offsets put splats in every lane and in partial vectors.
+TEST(CpuPointKernel, OddCountsAndOffsetsDrawAsTheReference) {
+  const std::vector<Splat> splats = edgeScene(3000, 23);
+  const PointCell cell = makePointCell(splats);
+  const Camera camera = kernelCamera();
+  const std::size_t counts[] = {1, 2, 3, 7, 8, 9, 15, 16, 17, 31, 33, 63, 65, 255, 257, 1001};
+  const std::size_t offsets[] = {0, 1, 5, 15, 16, 17, 1000};
+  forEachTarget([&] {
+    for (const RenderSettings& settings : {settingsVariants()[0], settingsVariants()[4]}) {
+      const PointRaster raster = pointRaster(camera, fullFrameRect(camera), settings);
+      for (const std::size_t count : counts) {
+        for (const std::size_t offset : offsets) {
+          const std::span<const Splat> part(splats.data() + offset, count);
+          EXPECT_TRUE(drawSimd(raster, cell, offset, offset + count) == drawScalar(raster, part))
+              << count << " splats from " << offset;
+          expectSameFootprints(raster, splats, cell, offset, offset + count);
+        }
+      }
+    }
+  });
+}
+
+TEST(CpuPointKernel, SubTilesDrawAsTheReference) {
+  const std::vector<Splat> splats = edgeScene(100000, 29);
+  const PointCell cell = makePointCell(splats);
+  const Camera camera = kernelCamera();
+  std::mt19937 rng(31);
+  forEachTarget([&] {
+    for (const RenderSettings& settings : settingsVariants()) {
+      for (int i = 0; i < 4; ++i) {
+        const TileRect tile = randomTile(rng);
+        const PointRaster raster = pointRaster(camera, tile, settings);
+        EXPECT_TRUE(drawSimd(raster, cell, 0, splats.size()) == drawScalar(raster, splats))
+            << "tile " << tile.x() << "," << tile.y() << " " << tile.width() << "x"
+            << tile.height();
+      }
+    }
+  });
+}
+
+// One pixel per point everywhere: the batched 1x1 path.
+TEST(CpuPointKernel, ConstantOnePixelDrawsAsTheReference) {
+  const std::vector<Splat> splats = edgeScene(50001, 37);
+  const PointCell cell = makePointCell(splats);
+  const Camera camera = kernelCamera();
+  RenderSettings settings;
+  settings.pointSize = 1.0f;
+  forEachTarget([&] {
+    const PointRaster raster = pointRaster(camera, fullFrameRect(camera), settings);
+    EXPECT_TRUE(drawSimd(raster, cell, 0, splats.size()) == drawScalar(raster, splats));
+  });
+}
+
+TEST(CpuPointKernel, DescribeNamesTheTarget) {
+  const CpuPointRenderer renderer;
+  EXPECT_NE(renderer.describe().find("(" + pointKernelTargetName() + ")"), std::string::npos)
+      << renderer.describe();
+}
+
+}  // namespace
+}  // namespace pointillist::render
