@@ -20,8 +20,8 @@
 #include "common/messages.hpp"
 #include "common/octree_cell.hpp"
 #include "common/peer_ranks.hpp"
-#include "render/core/rate_estimates.hpp"
 #include "render/core/cell_cache.hpp"
+#include "render/core/rate_estimates.hpp"
 
 namespace pointillist::render {
 
