@@ -240,7 +240,8 @@ void SplatRenderer::setUniforms(unsigned prog, const Camera& camera, const TileR
                 std::clamp(std::floor(settings.maxPointSize), 1.0f, maxPointSizeGl_));
     glUniform1i(uniform(prog, "lighting"), settings.lighting ? 1 : 0);
     glUniform1f(uniform(prog, "ambient"), std::clamp(settings.ambient, 0.0f, 1.0f));
-    glUniform3f(uniform(prog, "eye"), camera.eye().x(), camera.eye().y(), camera.eye().z());
+    const glm::vec3 eye = cameraEye(camera);  // the CPU kernel's eye, for the same shading
+    glUniform3f(uniform(prog, "eye"), eye.x, eye.y, eye.z);
     return;
   }
   glUniformMatrix4fv(uniform(prog, "view"), 1, GL_FALSE, glm::value_ptr(view));
