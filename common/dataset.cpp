@@ -169,6 +169,10 @@ void validateDatasetStructure(const DatasetManifest& m, std::span<const OctreeCe
                        std::to_string(cells[ci].topLevel));
   }
   std::vector<std::uint64_t> leafRun(topLevel.size(), 0);  // next expected leaf offset per packet
+  struct LevelRange {
+    std::uint32_t offset, count, level;
+  };
+  std::vector<std::vector<LevelRange>> layers(topLevel.size());  // level-splat ranges per packet
   for (std::size_t i = 0; i < n; ++i) {
     const OctreeCell& c = cells[i];
     const std::uint32_t p = parent[i];
@@ -192,20 +196,20 @@ void validateDatasetStructure(const DatasetManifest& m, std::span<const OctreeCe
       if (!(c.depth == m.topLevelDepth || (children[i] == 0 && c.depth < m.topLevelDepth)))
         fail(i, "top-level cell at depth " + std::to_string(c.depth) + " (top-level depth " +
                     std::to_string(m.topLevelDepth) + ")");
-      if (c.pointsOffset != 0 || c.pointsCount != t.pointCount)
+      if (c.pointsOffset != t.levelSplatCount || c.pointsCount != t.pointCount)
         fail(i, "top-level cell's points range is not its whole point part");
     } else if (p == kNoIndex || cells[p].topLevel != c.topLevel) {
       fail(i, "topLevel differs from its parent's");
     }
     const std::uint64_t P = t.pointCount, L = t.levelSplatCount;
     if (c.pointsCount == 0) fail(i, "empty cell");
-    if (std::uint64_t{c.pointsOffset} + c.pointsCount > P)
-      fail(i, "points range outside its packet");
-    if (c.splatsCount != 0 &&
-        (c.splatsOffset < P || std::uint64_t{c.splatsOffset} + c.splatsCount > P + L))
+    if (c.pointsOffset < L || std::uint64_t{c.pointsOffset} + c.pointsCount > L + P)
+      fail(i, "points range outside its packet's points");
+    if (c.splatsCount != 0 && std::uint64_t{c.splatsOffset} + c.splatsCount > L)
       fail(i, "level-splat range outside its packet's level-splats");
+    if (c.splatsCount != 0) layers[c.topLevel].push_back({c.splatsOffset, c.splatsCount, c.level});
     if (children[i] == 0) {
-      if (c.pointsOffset != leafRun[c.topLevel])
+      if (c.pointsOffset != L + leafRun[c.topLevel])
         fail(i, "leaf points are not contiguous in depth-first order");
       leafRun[c.topLevel] += c.pointsCount;
     } else if (cells[i + 1].pointsOffset != c.pointsOffset) {
@@ -216,11 +220,32 @@ void validateDatasetStructure(const DatasetManifest& m, std::span<const OctreeCe
             cells[p].pointsOffset + std::uint64_t{cells[p].pointsCount})
       fail(i, "points range not inside its parent's");
   }
-  for (std::size_t k = 0; k < topLevel.size(); ++k)
+  for (std::size_t k = 0; k < topLevel.size(); ++k) {
+    const std::string at = tlWhere + ": entry " + std::to_string(k) + ": ";
     if (leafRun[k] != topLevel[k].pointCount)
-      throw InputError(tlWhere + ": entry " + std::to_string(k) + ": its leaves hold " +
-                       std::to_string(leafRun[k]) + " of its " +
+      throw InputError(at + "its leaves hold " + std::to_string(leafRun[k]) + " of its " +
                        std::to_string(topLevel[k].pointCount) + " points");
+    // Coarse-first layers: the cells' level-splat ranges tile [0, levelSplatCount)
+    // without gaps or overlaps, and levels never rise along the packet.
+    auto& ranges = layers[k];
+    std::sort(ranges.begin(), ranges.end(),
+              [](const LevelRange& a, const LevelRange& b) { return a.offset < b.offset; });
+    std::uint64_t end = 0;
+    for (std::size_t r = 0; r < ranges.size(); ++r) {
+      if (ranges[r].offset != end)
+        throw InputError(at + "level-splats at " + std::to_string(ranges[r].offset) +
+                         (ranges[r].offset < end ? " overlap" : " leave a gap") +
+                         " (expected offset " + std::to_string(end) + ")");
+      if (r > 0 && ranges[r].level > ranges[r - 1].level)
+        throw InputError(at + "level-splats of level " + std::to_string(ranges[r].level) +
+                         " follow level " + std::to_string(ranges[r - 1].level) +
+                         " (packets must be layered coarse-first)");
+      end += ranges[r].count;
+    }
+    if (end != topLevel[k].levelSplatCount)
+      throw InputError(at + "its cells hold " + std::to_string(end) + " of its " +
+                       std::to_string(topLevel[k].levelSplatCount) + " level-splats");
+  }
 }
 
 // ---------------------------------------------------------------- loading

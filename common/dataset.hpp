@@ -7,11 +7,16 @@
 //   cells.bin             octree-cell-array: OctreeCell[cell_count], depth-first (seed 003 §4.1.1)
 //   top-level.bin         TopLevelCell[top_level_count], in depth-first order of their cells
 //   packet-checksums.bin  uint64 XXH3-64 (common/checksum.hpp) of each top-level cell's packet,
-//   same order points.bin            point-array: the packets back to back; a packet is the
-//                         top-level cell's original points (depth-first leaf order)
-//                         followed by the level-splats of every cell beneath it
-//                         (cells in depth-first order, each cell's own splats
-//                         contiguous), so one packet is one contiguous byte range.
+//                         same order
+//   points.bin            point-array: the packets back to back; a packet is one
+//                         contiguous byte range, layered coarse-first: the
+//                         level-splats of every cell beneath the top-level cell by
+//                         level from the highest down (one layer per level; cells
+//                         of a layer in depth-first order, each cell's own splats
+//                         contiguous), then the original points (depth-first leaf
+//                         order). A prefix that ends on a layer boundary holds
+//                         every cell of those levels, so a render process that
+//                         draws a cell coarsely holds and receives only a prefix.
 //
 // All binary files are little-endian raw records (Splat 32 B, OctreeCell 64 B,
 // TopLevelCell 32 B). points.bin has no whole-file checksum: the per-packet

@@ -18,7 +18,9 @@ namespace pointillist {
 
 // 2: max_splat_radius, so a process that needs only the manifest need not load cells.bin.
 // 3: checksums are XXH3-64 (common/checksum.hpp) instead of FNV-1a 64.
-inline constexpr std::uint32_t kDatasetFormatVersion = 3;
+// 4: packets are layered coarse-first (level-splats by level, then the points),
+//    so a prefix of a packet is a level of detail (common/dataset.hpp).
+inline constexpr std::uint32_t kDatasetFormatVersion = 4;
 inline constexpr const char* kChecksumName = "xxh3-64";
 
 struct DatasetFile {

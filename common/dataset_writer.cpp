@@ -183,11 +183,11 @@ std::uint64_t writeDataset(const fs::path& dirIn, DatasetContent& content, bool 
       const TopLevelCell& t = content.topLevel[k];
       const auto* pts = content.points.data() + p;
       const auto* lvl = content.levelSplats.data() + s;
-      w.write(pts, t.pointCount * sizeof(Splat));
       w.write(lvl, t.levelSplatCount * sizeof(Splat));
+      w.write(pts, t.pointCount * sizeof(Splat));
       ChecksumStream packetSum;
-      packetSum.update(pts, t.pointCount * sizeof(Splat));
       packetSum.update(lvl, t.levelSplatCount * sizeof(Splat));
+      packetSum.update(pts, t.pointCount * sizeof(Splat));
       packetSums[k] = packetSum.digest();
       p += t.pointCount;
       s += t.levelSplatCount;

@@ -15,8 +15,9 @@
 namespace pointillist {
 
 // What the preprocess hands to the writer. Packets are not materialized: top-
-// level cell k's packet is its pointCount splats from `points` followed by its
-// levelSplatCount splats from `levelSplats`, both taken in table order.
+// level cell k's packet is its levelSplatCount splats from `levelSplats`
+// (already layered coarse-first) followed by its pointCount splats from
+// `points`, both taken in table order.
 struct DatasetContent {
   DatasetManifest manifest;  // descriptive fields; counts, files, checksums are filled in
   std::vector<OctreeCell> cells;

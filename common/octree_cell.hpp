@@ -31,9 +31,9 @@ struct OctreeCell {
   // splat of its top-level cell (seed 003 fig. 3: "added start index").
   std::uint32_t pointsOffset;
   std::uint32_t pointsCount;
-  // This cell's own level-splats, same relative addressing (they follow the
-  // packet's points, so splatsOffset >= the packet's pointCount). Cells above
-  // the top-level depth have all four fields zero.
+  // This cell's own level-splats, same relative addressing (they precede the
+  // packet's points, so splatsOffset + splatsCount <= the packet's
+  // levelSplatCount). Cells above the top-level depth have all four fields zero.
   std::uint32_t splatsOffset;
   std::uint32_t splatsCount;
   // Largest radius of any splat in the subtree (points and level-splats);
@@ -59,10 +59,12 @@ static_assert(std::is_trivially_copyable_v<OctreeCell>);
 namespace pointillist {
 
 // One entry of the top-level table: where a top-level cell's data packet lives
-// in the point-array file. The packet holds the cell's original points first
-// (pointCount splats, depth-first leaf order), then the level-splats of the
-// cell itself and every cell beneath it (levelSplatCount splats, cells in
-// depth-first order, so a subtree's level-splats are contiguous too).
+// in the point-array file. The packet is layered coarse-first: the level-splats
+// of the cell itself and every cell beneath it come first (levelSplatCount
+// splats, by level from the highest down, cells of one level in depth-first
+// order), then the cell's original points (pointCount splats, depth-first leaf
+// order). A prefix of the packet is therefore a level of detail: the traversal
+// of a distant cell draws from its first layers only, and only those travel.
 // Its checksum (common/checksum.hpp) is in the dataset (Dataset::packetChecksum).
 struct TopLevelCell {
   std::uint32_t cellIndex;  // index in the octree-cell-array

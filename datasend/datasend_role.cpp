@@ -5,6 +5,7 @@
 #include <map>
 #include <memory>
 
+#include "common/checksum.hpp"
 #include "common/dataset.hpp"
 #include "common/mpi/worker.hpp"
 #include "common/ownership.hpp"
@@ -58,8 +59,10 @@ class DataSendProcess final : public WorkerProcess {
 
   std::string summary() const override {
     char line[200];
-    std::snprintf(line, sizeof line, "packets_sent=%llu bytes_sent=%llu duplicates_skipped=%llu",
+    std::snprintf(line, sizeof line,
+                  "packets_sent=%llu extensions=%llu bytes_sent=%llu duplicates_skipped=%llu",
                   static_cast<unsigned long long>(packetsSent_),
+                  static_cast<unsigned long long>(extensionsSent_),
                   static_cast<unsigned long long>(bytesSent_),
                   static_cast<unsigned long long>(ledger_.duplicatesSkipped()));
     return line;
@@ -67,19 +70,34 @@ class DataSendProcess final : public WorkerProcess {
 
  private:
   void send(const v1::SendOrder& order) {
-    for (std::uint32_t cell : ledger_.cellsToSend(order)) {
-      const auto& splats = packets_.at(cell);
+    for (int i = 0; i < order.top_level_cells_size() && i < order.top_level_splats_size(); ++i) {
+      const auto found = packets_.find(order.top_level_cells(i));
+      if (found != packets_.end() && order.top_level_splats(i) > found->second->size()) {
+        throw ProtocolError("rank " + std::to_string(order.requester_rank()) + " ordered " +
+                            std::to_string(order.top_level_splats(i)) +
+                            " splats of top-level cell " + std::to_string(found->first) +
+                            ", which holds " + std::to_string(found->second->size()));
+      }
+    }
+    for (const SplatRange& range : ledger_.rangesToSend(order)) {
+      const auto& splats = packets_.at(range.cell);
+      const std::span<const std::byte> bytes(
+          reinterpret_cast<const std::byte*>(splats->data() + range.first),
+          std::size_t{range.count} * sizeof(Splat));
       v1::DataPacketHeader header;
-      header.set_top_level_cell(cell);
-      header.set_splat_count(splats->size());
-      header.set_byte_size(splats->size() * sizeof(Splat));
+      header.set_top_level_cell(range.cell);
+      header.set_first_splat(range.first);
+      header.set_splat_count(range.count);
+      header.set_byte_size(bytes.size());
       header.set_record_size(sizeof(Splat));
-      header.set_checksum(dataset_.packetChecksum(cell));
+      // The whole packet's checksum was verified at load; a part gets its own.
+      header.set_checksum(range.first == 0 && range.count == splats->size()
+                              ? dataset_.packetChecksum(range.cell)
+                              : checksum64(bytes.data(), bytes.size()));
       header.set_datasend_rank(job_.worldRank());
-      const std::span<const std::byte> bytes(reinterpret_cast<const std::byte*>(splats->data()),
-                                             splats->size() * sizeof(Splat));
       job_.sends().post(order.render_rank(), MessageKind::DataPacket, header, bytes, splats);
       ++packetsSent_;
+      if (range.first > 0) ++extensionsSent_;
       bytesSent_ += bytes.size();
     }
   }
@@ -91,6 +109,7 @@ class DataSendProcess final : public WorkerProcess {
   std::uint64_t bytesHeld_ = 0;
   double loadSeconds_ = 0.0;
   std::uint64_t packetsSent_ = 0;
+  std::uint64_t extensionsSent_ = 0;
   std::uint64_t bytesSent_ = 0;
 };
 

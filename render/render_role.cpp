@@ -1,6 +1,7 @@
 #include "render/render_role.hpp"
 
 #include <chrono>
+#include <limits>
 #include <memory>
 #include <thread>
 
@@ -98,27 +99,35 @@ class RenderProcess final : public WorkerProcess {
   void receiveData(const Envelope& envelope, RenderEffects& effects) {
     const auto header = envelope.as<v1::DataPacketHeader>();
     const std::uint32_t cell = header.top_level_cell();
-    if (header.byte_size() != envelope.payload.size() || header.record_size() != sizeof(Splat)) {
-      throw ProtocolError(
-          "data packet for top-level cell " + std::to_string(cell) + " from rank " +
-          std::to_string(envelope.source) + " has " + std::to_string(envelope.payload.size()) +
-          " bytes of " + std::to_string(header.record_size()) + "-byte records; its header says " +
-          std::to_string(header.byte_size()) + " bytes of " + std::to_string(sizeof(Splat)));
+    const std::string what = "data packet for top-level cell " + std::to_string(cell) +
+                             " from rank " + std::to_string(envelope.source);
+    if (header.byte_size() != envelope.payload.size() || header.record_size() != sizeof(Splat) ||
+        header.splat_count() * sizeof(Splat) != header.byte_size() ||
+        header.splat_count() > std::numeric_limits<std::uint32_t>::max() ||
+        header.first_splat() > std::numeric_limits<std::uint32_t>::max()) {
+      throw ProtocolError(what + " has " + std::to_string(envelope.payload.size()) + " bytes of " +
+                          std::to_string(header.record_size()) + "-byte records; its header says " +
+                          std::to_string(header.splat_count()) + " splats, " +
+                          std::to_string(header.byte_size()) + " bytes of " +
+                          std::to_string(sizeof(Splat)));
     }
-    if (cell < dataset_.topLevelCells().size() &&
-        (checksum64(envelope.payload.data(), envelope.payload.size()) != header.checksum() ||
-         header.checksum() != dataset_.packetChecksum(cell))) {
-      throw ProtocolError("data packet for top-level cell " + std::to_string(cell) + " from rank " +
-                          std::to_string(envelope.source) + " fails its checksum");
+    const auto first = static_cast<std::uint32_t>(header.first_splat());
+    const auto count = static_cast<std::uint32_t>(header.splat_count());
+    const bool wholePacket =
+        cell < dataset_.topLevelCells().size() && first == 0 && count == core_.packetSplats(cell);
+    if (checksum64(envelope.payload.data(), envelope.payload.size()) != header.checksum() ||
+        (wholePacket && header.checksum() != dataset_.packetChecksum(cell))) {
+      throw ProtocolError(what + " (splats " + std::to_string(first) + "+" + std::to_string(count) +
+                          ") fails its checksum");
     }
-    const DataVerdict verdict = core_.receiveData(cell, envelope.payload.size(),
-                                                  envelope.payloadSeconds, Clock::now(), effects);
-    if (verdict != DataVerdict::Store) return;
-    // Evicted cells' buffers go first, then the new one is uploaded.
+    const DataIntake intake =
+        core_.receiveData(cell, first, count, envelope.payloadSeconds, Clock::now(), effects);
+    // Evicted cells' buffers go first (the cell itself when it was dropped).
     for (std::uint32_t victim : effects.released) renderer_->releaseCell(victim);
     effects.released.clear();
-    renderer_->uploadCell(cell, {reinterpret_cast<const Splat*>(envelope.payload.data()),
-                                 envelope.payload.size() / sizeof(Splat)});
+    if (intake.verdict != DataVerdict::Store) return;
+    const auto* splats = reinterpret_cast<const Splat*>(envelope.payload.data());
+    renderer_->appendToCell(cell, {splats + intake.skip, intake.count});
   }
 
   void draw(const ReadyPacket& ready) {

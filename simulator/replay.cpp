@@ -33,8 +33,9 @@ std::string compare(const google::protobuf::RepeatedPtrField<v1::DecisionOutput>
 ReplayResult replayDecisions(const traverse::DecisionLog& log, std::span<const OctreeCell> cells,
                              std::span<const TopLevelCell> topLevel) {
   const PeerRanks peers = traverse::peersOf(log.start);
+  const auto layers = std::make_shared<const traverse::PacketLayers>(cells, topLevel);
   traverse::PacketPlanner planner(
-      peers, log.start.self_rank(), log.start.settings(), topLevel,
+      peers, log.start.self_rank(), log.start.settings(), layers,
       assignOwners(topLevel, static_cast<std::uint32_t>(peers.datasends.size())));
   ReplayResult result;
   for (std::size_t index = 0; index < log.decisions.size(); ++index) {
@@ -50,9 +51,10 @@ ReplayResult replayDecisions(const traverse::DecisionLog& log, std::span<const O
     const v1::TileTask& task = decision.task();
     const traverse::TraversalResult walk =
         traverse::traverseTile(cells, task.camera(), task.rect(), planner.traversal());
-    std::vector<std::uint32_t> ahead;
+    std::vector<CellPrefix> ahead;
     if (const auto camera = planner.lookaheadCamera(task)) {
-      ahead = traverse::topLevelCellsInTile(cells, *camera, task.rect(), planner.traversal());
+      ahead =
+          traverse::topLevelCellsInTile(cells, *layers, *camera, task.rect(), planner.traversal());
     }
     Outbox out;
     planner.planPacket(task, traverse::walkOf(walk), ahead, now, out);

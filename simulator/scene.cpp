@@ -13,6 +13,7 @@ Scene::Scene(std::string name, std::vector<OctreeCell> cells, std::vector<TopLev
     : name_(std::move(name)),
       cells_(std::move(cells)),
       topLevel_(std::move(topLevel)),
+      layers_(std::make_shared<const traverse::PacketLayers>(cells_, topLevel_)),
       bounds_(bounds),
       cameras_(std::move(cameras)),
       traversal_(traversal) {
@@ -72,7 +73,7 @@ const TileWork& Scene::tileWork(std::uint64_t frame, const TileRect& rect) const
   const traverse::TraversalResult result =
       traverse::traverseTile(cells_, cameras_.at(frame), rect, traversal_);
   TileWork work;
-  work.topLevelCells = result.topLevelCells;
+  work.needs = result.needs;
   work.splats = result.splats;
   work.cellsVisited = result.cellsVisited;
   work.ranges = static_cast<std::uint32_t>(result.ranges.size());
@@ -80,14 +81,14 @@ const TileWork& Scene::tileWork(std::uint64_t frame, const TileRect& rect) const
   return memo_.emplace(key, std::move(work)).first->second;
 }
 
-const std::vector<std::uint32_t>& Scene::cellsInTile(std::uint64_t frame,
-                                                     const TileRect& rect) const {
+const std::vector<CellPrefix>& Scene::cellsInTile(std::uint64_t frame, const TileRect& rect) const {
   const Key key{frame, rect.x(), rect.y(), rect.width(), rect.height()};
   {
     const std::lock_guard lock(mutex_);
     if (const auto found = cellsMemo_.find(key); found != cellsMemo_.end()) return found->second;
   }
-  auto cells = traverse::topLevelCellsInTile(cells_, cameras_.at(frame), rect, traversal_);
+  auto cells =
+      traverse::topLevelCellsInTile(cells_, *layers_, cameras_.at(frame), rect, traversal_);
   const std::lock_guard lock(mutex_);
   return cellsMemo_.emplace(key, std::move(cells)).first->second;
 }
@@ -96,7 +97,9 @@ std::uint64_t Scene::frameWorkingSetBytes(std::uint64_t frame) const {
   const Camera& camera = cameras_.at(frame);
   const TileWork& work = tileWork(frame, fullFrameRect(camera));
   std::uint64_t bytes = 0;
-  for (std::uint32_t cell : work.topLevelCells) bytes += topLevel_.at(cell).byteSize;
+  for (const CellPrefix& need : work.needs) {
+    bytes += std::uint64_t{layers_->roundUp(need.cell, need.splats)} * sizeof(Splat);
+  }
   return bytes;
 }
 

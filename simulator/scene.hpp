@@ -4,6 +4,7 @@
 // (traverse/octree_traversal.hpp), memoized because the same tiles recur
 // across the configurations of a sweep.
 #include <cstdint>
+#include <memory>
 #include <mutex>
 #include <span>
 #include <string>
@@ -20,7 +21,7 @@ namespace pointillist::simulator {
 
 // The part of a tile's traversal the model needs.
 struct TileWork {
-  std::vector<std::uint32_t> topLevelCells;  // distinct, ascending
+  std::vector<CellPrefix> needs;  // distinct cells, ascending (TraversalResult::needs)
   std::uint64_t splats = 0;
   std::uint64_t cellsVisited = 0;
   std::uint32_t ranges = 0;  // draw ranges in the render packet
@@ -56,8 +57,10 @@ class Scene {
   const TileWork& tileWork(std::uint64_t frame, const TileRect& rect) const;
   // The top-level cells reaching into `rect` of frame `frame` (the traverse's
   // prefetch walk, topLevelCellsInTile); thread-safe, computed once.
-  const std::vector<std::uint32_t>& cellsInTile(std::uint64_t frame, const TileRect& rect) const;
-  // Bytes of the top-level cells a whole-frame traversal of `frame` needs.
+  const std::vector<CellPrefix>& cellsInTile(std::uint64_t frame, const TileRect& rect) const;
+  // The layers of every top-level packet (shared with the simulated traverses).
+  const std::shared_ptr<const traverse::PacketLayers>& layers() const { return layers_; }
+  // Bytes of the layer-aligned prefixes a whole-frame traversal of `frame` needs.
   std::uint64_t frameWorkingSetBytes(std::uint64_t frame) const;
   // Times whole-frame traversals of the first frames: seconds per visited cell.
   double measureTraverseSecondsPerCell() const;
@@ -75,13 +78,14 @@ class Scene {
   std::string name_;
   std::vector<OctreeCell> cells_;
   std::vector<TopLevelCell> topLevel_;
+  std::shared_ptr<const traverse::PacketLayers> layers_;
   SceneBounds bounds_;
   std::vector<Camera> cameras_;
   traverse::TraversalSettings traversal_;
   mutable std::mutex mutex_;
   // Node-based: references stay valid while other tiles are added.
   mutable std::unordered_map<Key, TileWork, KeyHash> memo_;
-  mutable std::unordered_map<Key, std::vector<std::uint32_t>, KeyHash> cellsMemo_;
+  mutable std::unordered_map<Key, std::vector<CellPrefix>, KeyHash> cellsMemo_;
 };
 
 }  // namespace pointillist::simulator

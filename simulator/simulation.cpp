@@ -131,8 +131,8 @@ struct TraverseProcess {
   bool busy = false;
   std::optional<v1::TileTask> task;
   const TileWork* work = nullptr;
-  const std::vector<std::uint32_t>* ahead = nullptr;  // cells of the lookahead walk
-  std::vector<Delivery> deferred;                     // reports that came while walking
+  const std::vector<CellPrefix>* ahead = nullptr;  // cells of the lookahead walk
+  std::vector<Delivery> deferred;                  // reports that came while walking
   std::vector<Interval> busyIntervals;
 };
 
@@ -197,7 +197,7 @@ class Simulation {
     traverses_.reserve(config.traverses);
     for (int rank : peers_.traverses) {
       traverses_.emplace_back(
-          traverse::PacketPlanner(peers_, rank, settings, scene.topLevel(), owners_));
+          traverse::PacketPlanner(peers_, rank, settings, scene.layers(), owners_));
     }
     for (std::uint32_t s = 0; s < config.datasends; ++s) ledgers_.emplace_back(peers_, owners_, s);
     render::RenderCoreConfig core;
@@ -452,14 +452,14 @@ class Simulation {
     const TileWork& work = *traverse.work;
     Outbox out;
     const traverse::PacketPlan plan = traverse.planner.planPacket(
-        task, traverse::TileWalk{work.topLevelCells, work.splats, {}},
-        traverse.ahead != nullptr ? std::span<const std::uint32_t>(*traverse.ahead)
-                                  : std::span<const std::uint32_t>(),
+        task, traverse::TileWalk{work.needs, work.splats, {}},
+        traverse.ahead != nullptr ? std::span<const CellPrefix>(*traverse.ahead)
+                                  : std::span<const CellPrefix>(),
         timeAfterEpoch(now), out);
     trace(task.frame_id()).bytesOrdered += plan.choice.missingBytes + plan.prefetchBytes;
     trace(task.frame_id()).bytesPrefetched += plan.prefetchBytes;
     // A render packet carries the camera, the cells and three numbers per range.
-    const std::uint64_t packetBytes = 160 + 4 * work.topLevelCells.size() + 12ull * work.ranges;
+    const std::uint64_t packetBytes = 160 + 8 * work.needs.size() + 12ull * work.ranges;
     send(now, rankOf(traverse), out, packetBytes);
     traverse.busy = false;
     traverse.task.reset();
@@ -478,10 +478,12 @@ class Simulation {
     switch (delivery.kind) {
       case MessageKind::SendOrder: {
         const auto& order = delivery.as<v1::SendOrder>();
-        for (std::uint32_t cell : ledger.cellsToSend(order)) {
-          const std::uint64_t bytes = scene_.topLevel()[cell].byteSize;
+        for (const datasend::SplatRange& range : ledger.rangesToSend(order)) {
+          const std::uint64_t bytes = std::uint64_t{range.count} * sizeof(Splat);
           v1::DataPacketHeader header;
-          header.set_top_level_cell(cell);
+          header.set_top_level_cell(range.cell);
+          header.set_first_splat(range.first);
+          header.set_splat_count(range.count);
           header.set_byte_size(bytes);
           header.set_datasend_rank(peers_.datasends[s]);
           const double arrival = bulk(now, peers_.datasends[s], order.render_rank(), bytes);
@@ -521,7 +523,9 @@ class Simulation {
         break;
       case MessageKind::DataPacket: {
         const auto& header = delivery.as<v1::DataPacketHeader>();
-        process.core.receiveData(header.top_level_cell(), header.byte_size(),
+        process.core.receiveData(header.top_level_cell(),
+                                 static_cast<std::uint32_t>(header.first_splat()),
+                                 static_cast<std::uint32_t>(header.splat_count()),
                                  delivery.transferSeconds, timeAfterEpoch(now), effects);
         break;
       }

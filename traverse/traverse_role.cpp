@@ -19,6 +19,7 @@ class TraverseProcess final : public WorkerProcess {
       : job_(job),
         datasetPath_(datasetPath),
         dataset_(Dataset::open(datasetPath, DatasetParts::Cells)),
+        layers_(std::make_shared<const PacketLayers>(dataset_.cells(), dataset_.topLevelCells())),
         decisionLogDir_(std::move(decisionLogDir)) {}
 
   std::string readyDetail() const override {
@@ -28,7 +29,7 @@ class TraverseProcess final : public WorkerProcess {
 
   void begin(const v1::RunSettings& settings) override {
     const PeerRanks peers = job_.peers();
-    planner_.emplace(peers, job_.worldRank(), settings, dataset_.topLevelCells(),
+    planner_.emplace(peers, job_.worldRank(), settings, layers_,
                      assignOwners(dataset_.topLevelCells(), job_.layout().datasend));
     const TimePoint now = Clock::now();
     if (!decisionLogDir_.empty()) {
@@ -49,10 +50,10 @@ class TraverseProcess final : public WorkerProcess {
         const auto task = envelope.as<v1::TileTask>();
         const TraversalResult walk =
             traverseTile(dataset_.cells(), task.camera(), task.rect(), planner_->traversal());
-        std::vector<std::uint32_t> ahead;
+        std::vector<CellPrefix> ahead;
         if (const auto camera = planner_->lookaheadCamera(task)) {
-          ahead =
-              topLevelCellsInTile(dataset_.cells(), *camera, task.rect(), planner_->traversal());
+          ahead = topLevelCellsInTile(dataset_.cells(), *layers_, *camera, task.rect(),
+                                      planner_->traversal());
         }
         Outbox out;
         planner_->planPacket(task, walkOf(walk), ahead, now, out);
@@ -79,6 +80,7 @@ class TraverseProcess final : public WorkerProcess {
   Job& job_;
   std::string datasetPath_;
   Dataset dataset_;
+  std::shared_ptr<const PacketLayers> layers_;
   std::string decisionLogDir_;
   std::optional<PacketPlanner> planner_;
   std::optional<DecisionLogWriter> log_;

@@ -16,23 +16,34 @@ bool SendLedger::owns(std::uint32_t cell) const {
   return cell < owners_.size() && owners_[cell] == selfIndex_;
 }
 
-std::vector<std::uint32_t> SendLedger::cellsToSend(const v1::SendOrder& order) {
+std::vector<SplatRange> SendLedger::rangesToSend(const v1::SendOrder& order) {
   auto& sent = sentTo_.at(peers_.indexOf(v1::ROLE_RENDER, order.render_rank()));
-  std::vector<std::uint32_t> cells;
-  for (std::uint32_t cell : order.top_level_cells()) {
+  if (order.top_level_splats_size() != order.top_level_cells_size()) {
+    throw ProtocolError("rank " + std::to_string(order.requester_rank()) + " ordered " +
+                        std::to_string(order.top_level_cells_size()) + " cells with " +
+                        std::to_string(order.top_level_splats_size()) + " prefixes");
+  }
+  std::vector<SplatRange> ranges;
+  for (int i = 0; i < order.top_level_cells_size(); ++i) {
+    const std::uint32_t cell = order.top_level_cells(i);
     if (!owns(cell)) {
       throw ProtocolError("rank " + std::to_string(order.requester_rank()) +
                           " ordered top-level cell " + std::to_string(cell) +
                           ", which this data-send process does not own");
     }
-    // Never the same cell to the same render twice while it is there or on its way.
-    if (!sent.insert(cell).second) {
+    // Never the same splats to the same render twice while it holds them or
+    // they are on their way: only what lies beyond the prefix sent before.
+    std::uint32_t& done = sent[cell];
+    const std::uint32_t wanted = order.top_level_splats(i);
+    if (wanted <= done) {
       ++duplicatesSkipped_;
       continue;
     }
-    cells.push_back(cell);
+    if (done > 0) ++extensionsSent_;
+    ranges.push_back({cell, done, wanted - done});
+    done = wanted;
   }
-  return cells;
+  return ranges;
 }
 
 void SendLedger::applyReport(int sourceRank, const v1::RenderReport& report) {

@@ -1,11 +1,13 @@
 #pragma once
 // Every decision of a data-send process (seed 003 §4.4), without MPI: which
-// ordered top-level cells go out. A cell goes to a render process only when
-// that process neither holds it nor has it on the way; the render's reports
-// of evictions (and of prefetched data it dropped) make it sendable again.
+// splats of the ordered top-level cells go out. Packets are layered
+// coarse-first, so orders ask for prefixes; a render process gets each splat
+// of a cell once while it holds the cell: an order for a longer prefix sends
+// only the splats beyond what went before. The render's reports of evictions
+// (and of data it dropped) make the cell sendable again from its start.
 // The MPI data-send process and the simulator both drive this class.
 #include <cstdint>
-#include <unordered_set>
+#include <unordered_map>
 #include <vector>
 
 #include "common/peer_ranks.hpp"
@@ -13,27 +15,41 @@
 
 namespace pointillist::datasend {
 
+// Splats [first, first + count) of a top-level cell's packet.
+struct SplatRange {
+  std::uint32_t cell = 0;
+  std::uint32_t first = 0;
+  std::uint32_t count = 0;
+  bool operator==(const SplatRange&) const = default;
+};
+
 class SendLedger {
  public:
   // `owners` gives the data-send index owning every top-level cell.
   SendLedger(PeerRanks peers, std::vector<std::uint32_t> owners, std::uint32_t selfIndex);
 
-  // Of the ordered cells, those to send now, in order. Throws ProtocolError
-  // for a cell this process does not own or a render rank that is not one.
-  std::vector<std::uint32_t> cellsToSend(const v1::SendOrder& order);
-  // A render's report: evicted cells may be sent to it again.
+  // Of the ordered prefixes, the ranges to send now, in order. Throws
+  // ProtocolError for a cell this process does not own, a render rank that is
+  // not one, or an order without a prefix per cell.
+  std::vector<SplatRange> rangesToSend(const v1::SendOrder& order);
+  // A render's report: evicted cells are sent again from their start.
   void applyReport(int sourceRank, const v1::RenderReport& report);
 
   std::uint32_t selfIndex() const { return selfIndex_; }
   bool owns(std::uint32_t cell) const;
+  // Ordered prefixes that were already sent whole.
   std::uint64_t duplicatesSkipped() const { return duplicatesSkipped_; }
+  // Ranges that extended a prefix sent before.
+  std::uint64_t extensionsSent() const { return extensionsSent_; }
 
  private:
   PeerRanks peers_;
   std::vector<std::uint32_t> owners_;
   std::uint32_t selfIndex_;
-  std::vector<std::unordered_set<std::uint32_t>> sentTo_;  // per render
+  // Per render: cell -> splats sent so far (a prefix).
+  std::vector<std::unordered_map<std::uint32_t, std::uint32_t>> sentTo_;
   std::uint64_t duplicatesSkipped_ = 0;
+  std::uint64_t extensionsSent_ = 0;
 };
 
 }  // namespace pointillist::datasend

@@ -21,22 +21,37 @@ void CellCache::touch(std::uint32_t cell, Clock::time_point now) {
 std::vector<std::uint32_t> CellCache::insert(std::uint32_t cell, std::uint64_t bytes,
                                              Clock::time_point now) {
   std::vector<std::uint32_t> evicted;
-  if (contains(cell)) {
-    touch(cell, now);
-    return evicted;
-  }
-  for (auto it = recency_.begin(); it != recency_.end() && bytes_ + bytes > capBytes_;) {
+  const std::uint64_t current = bytesOf(cell);
+  if (contains(cell)) touch(cell, now);
+  if (contains(cell) && bytes <= current) return evicted;
+  const std::uint64_t growth = bytes - current;
+  for (auto it = recency_.begin(); it != recency_.end() && bytes_ + growth > capBytes_;) {
     const std::uint32_t victim = *it++;
-    if (pinned(victim)) continue;
+    if (victim == cell || pinned(victim)) continue;
     evicted.push_back(victim);
     erase(victim);
   }
-  if (bytes_ + bytes > capBytes_) ++overCapInsertions_;
-  recency_.push_back(cell);
-  entries_[cell] = Entry{bytes, now, std::prev(recency_.end())};
-  bytes_ += bytes;
+  if (bytes_ + growth > capBytes_) ++overCapInsertions_;
+  if (contains(cell)) {
+    entries_.at(cell).bytes = bytes;
+  } else {
+    recency_.push_back(cell);
+    entries_[cell] = Entry{bytes, now, std::prev(recency_.end())};
+  }
+  bytes_ += growth;
   peakBytes_ = std::max(peakBytes_, bytes_);
   return evicted;
+}
+
+bool CellCache::evict(std::uint32_t cell) {
+  if (!contains(cell) || pinned(cell)) return false;
+  erase(cell);
+  return true;
+}
+
+std::uint64_t CellCache::bytesOf(std::uint32_t cell) const {
+  const auto found = entries_.find(cell);
+  return found == entries_.end() ? 0 : found->second.bytes;
 }
 
 std::vector<std::uint32_t> CellCache::expire(Clock::time_point now) {

@@ -2,8 +2,9 @@
 // The render process's cache of top-level cells (seed 003 §4.5): least
 // recently used cells go first when the memory cap is reached, and cells unused
 // for longer than the time-out are dropped. Cells needed by queued render
-// packets are pinned and never evicted. The cache only keeps the books; the
-// caller owns the data (GL buffers) and is told what to drop.
+// packets are pinned and never evicted. A cell grows as longer prefixes of its
+// layered packet arrive. The cache only keeps the books; the caller owns the
+// data (GL buffers, kernel arrays) and is told what to drop.
 #include <chrono>
 #include <cstdint>
 #include <list>
@@ -22,10 +23,16 @@ class CellCache {
   bool contains(std::uint32_t cell) const { return entries_.contains(cell); }
   // Marks a cell used now (moves it to the most recent end).
   void touch(std::uint32_t cell, Clock::time_point now);
-  // Adds a cell of `bytes`, first evicting least recently used unpinned cells
-  // until it fits under the cap. Returns the evicted cells. When pinned cells
-  // alone exceed the cap the cell is still added (counted in overCapInsertions).
+  // Makes the cell hold `bytes` (adds it, or grows a cached one; never
+  // shrinks) and marks it used, first evicting least recently used unpinned
+  // other cells until the growth fits under the cap. Returns the evicted cells.
+  // When pinned cells and this one alone exceed the cap it still grows
+  // (counted in overCapInsertions).
   std::vector<std::uint32_t> insert(std::uint32_t cell, std::uint64_t bytes, Clock::time_point now);
+  // Drops an unpinned cell now (counted as an eviction); false when it is
+  // pinned or not cached.
+  bool evict(std::uint32_t cell);
+  std::uint64_t bytesOf(std::uint32_t cell) const;  // 0 when not cached
   // True when `bytes` more fit under the cap once every unpinned cell is evicted.
   bool canFit(std::uint64_t bytes) const;
   // Evicts unpinned cells unused for longer than the time-out.

@@ -2,6 +2,9 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <string>
+
+#include "common/splat.hpp"
 
 namespace pointillist::render {
 
@@ -13,11 +16,13 @@ RenderCore::RenderCore(const RenderCoreConfig& config, PeerRanks peers, int self
       owners_(std::move(owners)),
       cache_(config.cacheCapBytes, config.cacheTimeout),
       lastPacketFrom_(peers_.traverses.size(), 0) {
-  cellBytes_.reserve(topLevel.size());
-  for (const TopLevelCell& cell : topLevel) cellBytes_.push_back(cell.byteSize);
-  if (owners_.size() != cellBytes_.size()) {
+  cellSplats_.reserve(topLevel.size());
+  for (const TopLevelCell& cell : topLevel) {
+    cellSplats_.push_back(cell.pointCount + cell.levelSplatCount);
+  }
+  if (owners_.size() != cellSplats_.size()) {
     throw UsageError("render core: " + std::to_string(owners_.size()) + " owners for " +
-                     std::to_string(cellBytes_.size()) + " top-level cells");
+                     std::to_string(cellSplats_.size()) + " top-level cells");
   }
 }
 
@@ -25,34 +30,92 @@ bool RenderCore::stalled() const {
   return config_.stallAfterPackets && packetsDone_ >= *config_.stallAfterPackets;
 }
 
-bool RenderCore::ready(const v1::RenderPacket& packet) const {
-  return std::all_of(packet.top_level_cells().begin(), packet.top_level_cells().end(),
-                     [this](std::uint32_t cell) { return cache_.contains(cell); });
+std::uint32_t RenderCore::heldSplats(std::uint32_t cell) const {
+  const auto found = held_.find(cell);
+  return found == held_.end() ? 0 : found->second;
 }
 
-void RenderCore::ask(std::uint32_t cell, std::uint64_t frame, TimePoint now, Requests& requests) {
-  requests[owners_[cell]].push_back(cell);
-  requestedAt_[cell] = {now, frame};
+bool RenderCore::ready(const v1::RenderPacket& packet) const {
+  for (int i = 0; i < packet.top_level_cells_size(); ++i) {
+    if (heldSplats(packet.top_level_cells(i)) < packet.top_level_splats(i)) return false;
+  }
+  return true;
 }
+
+void RenderCore::ask(CellPrefix need, std::uint64_t frame, TimePoint now, Requests& requests) {
+  requests[owners_[need.cell]].push_back(need);
+  requestedAt_[need.cell] = {now, frame, need.splats};
+}
+
+void RenderCore::askUnlessPending(CellPrefix need, std::uint64_t frame, TimePoint now,
+                                  Requests& requests) {
+  if (heldSplats(need.cell) >= need.splats) return;
+  const auto asked = requestedAt_.find(need.cell);
+  if (asked != requestedAt_.end() && asked->second.splats >= need.splats) return;
+  ask(need, frame, now, requests);
+}
+
+namespace {
+
+// Every range lies inside the prefix the packet names for its cell; both
+// lists are sorted by cell (the traversal's order).
+void checkRanges(const v1::RenderPacket& packet, int sourceRank,
+                 std::span<const std::uint32_t> cellSplats) {
+  const auto fail = [&](const std::string& what) {
+    throw ProtocolError("render packet " + std::to_string(packet.packet_id()) + " from rank " +
+                        std::to_string(sourceRank) + ": " + what);
+  };
+  const int cells = packet.top_level_cells_size();
+  if (packet.top_level_splats_size() != cells) {
+    fail(std::to_string(packet.top_level_splats_size()) + " prefixes for " + std::to_string(cells) +
+         " top-level cells");
+  }
+  for (int i = 0; i < cells; ++i) {
+    const std::uint32_t cell = packet.top_level_cells(i);
+    if (cell >= cellSplats.size() || packet.top_level_splats(i) > cellSplats[cell]) {
+      fail("names " + std::to_string(packet.top_level_splats(i)) + " splats of top-level cell " +
+           std::to_string(cell) + ", beyond the dataset's packet");
+    }
+    if (i > 0 && cell <= packet.top_level_cells(i - 1)) fail("top-level cells not ascending");
+  }
+  const int ranges = packet.range_top_level_size();
+  if (packet.range_offset_size() != ranges || packet.range_count_size() != ranges) {
+    fail("range arrays of different lengths");
+  }
+  int at = 0;
+  for (int r = 0; r < ranges; ++r) {
+    const std::uint32_t cell = packet.range_top_level(r);
+    while (at < cells && packet.top_level_cells(at) < cell) ++at;
+    if (at == cells || packet.top_level_cells(at) != cell) {
+      fail("range " + std::to_string(r) + " draws from top-level cell " + std::to_string(cell) +
+           ", which the packet does not name (or ranges not sorted)");
+    }
+    const std::uint64_t end = std::uint64_t{packet.range_offset(r)} + packet.range_count(r);
+    if (end > packet.top_level_splats(at)) {
+      fail("range " + std::to_string(r) + " ends at splat " + std::to_string(end) +
+           " of top-level cell " + std::to_string(cell) + ", beyond the prefix of " +
+           std::to_string(packet.top_level_splats(at)) + " it waits for");
+    }
+  }
+}
+
+}  // namespace
 
 void RenderCore::receivePacket(int sourceRank, v1::RenderPacket packet, TimePoint now,
                                RenderEffects& effects) {
+  checkRanges(packet, sourceRank, cellSplats_);
   const std::size_t traverse = peers_.indexOf(v1::ROLE_TRAVERSE, sourceRank);
   lastPacketFrom_[traverse] = std::max(lastPacketFrom_[traverse], packet.packet_id());
   Requests requests;
-  for (std::uint32_t cell : packet.top_level_cells()) {
-    if (cell >= cellBytes_.size()) {
-      throw ProtocolError("render packet from rank " + std::to_string(sourceRank) +
-                          " names top-level cell " + std::to_string(cell) +
-                          " beyond the dataset's " + std::to_string(cellBytes_.size()));
-    }
-    if (cache_.contains(cell)) {
+  for (int i = 0; i < packet.top_level_cells_size(); ++i) {
+    const CellPrefix need{packet.top_level_cells(i), packet.top_level_splats(i)};
+    if (heldSplats(need.cell) >= need.splats) {
       ++hits_;
-      cache_.touch(cell, now);
+      cache_.touch(need.cell, now);
       continue;
     }
     ++misses_;
-    if (!requestedAt_.contains(cell)) ask(cell, packet.frame_id(), now, requests);
+    askUnlessPending(need, packet.frame_id(), now, requests);
   }
   sendRequests(requests, packet.frame_id(), effects);
   workload_ += packet.total_splats();
@@ -64,35 +127,85 @@ void RenderCore::receivePacket(int sourceRank, v1::RenderPacket packet, TimePoin
   reportDirty_ = true;
 }
 
-DataVerdict RenderCore::receiveData(std::uint32_t cell, std::uint64_t bytes, double transferSeconds,
-                                    TimePoint now, RenderEffects& effects) {
-  if (cell >= cellBytes_.size() || bytes != cellBytes_[cell]) {
-    throw ProtocolError("data for top-level cell " + std::to_string(cell) + " has " +
-                        std::to_string(bytes) + " bytes, which does not match the dataset's table");
+DataIntake RenderCore::receiveData(std::uint32_t cell, std::uint32_t first, std::uint32_t count,
+                                   double transferSeconds, TimePoint now, RenderEffects& effects) {
+  if (cell >= cellSplats_.size() || count == 0 ||
+      std::uint64_t{first} + count > cellSplats_[cell]) {
+    throw ProtocolError("data for top-level cell " + std::to_string(cell) + " holds splats " +
+                        std::to_string(first) + "+" + std::to_string(count) +
+                        ", which do not lie inside its packet in the dataset's table");
   }
+  const std::uint64_t bytes = std::uint64_t{count} * sizeof(Splat);
   dataBytesReceived_ += bytes;
   // T_n: the measured transfer time of the payload per byte.
   if (bytes >= kMinTransferSampleBytes && transferSeconds > 0.0) {
     transferSamples_.add(transferSeconds / static_cast<double>(bytes));
     secondsPerByte_ = transferSamples_.lowerQuartile();
   }
-  requestedAt_.erase(cell);
-  if (cache_.contains(cell)) return DataVerdict::Duplicate;
-  if (!cache_.pinned(cell) && !cache_.canFit(bytes)) {
-    // Prefetched data that cannot fit beside the packet being waited for:
-    // drop it and say so, so that it is sent again when it is needed.
-    ++droppedPrefetches_;
-    evicted_.push_back(cell);
-    reportDirty_ = true;
-    return DataVerdict::Dropped;
+  const std::uint32_t held = heldSplats(cell);
+  const std::uint32_t end = first + count;
+  const auto settle = [&] {
+    const auto asked = requestedAt_.find(cell);
+    if (asked != requestedAt_.end() && asked->second.splats <= heldSplats(cell)) {
+      requestedAt_.erase(asked);
+    }
+  };
+  if (end <= held) {
+    settle();
+    return {DataVerdict::Duplicate};
   }
-  for (std::uint32_t victim : cache_.insert(cell, bytes, now)) evict(victim, effects);
+  if (first > held) {
+    // Parts of one cell come from one data-send in order, and it restarts a
+    // cell from splat 0 once it reads our eviction: a later part can only
+    // find nothing held (this process evicted or dropped the cell while the
+    // part was on its way). Ask again now for what was asked.
+    if (held > 0) {
+      throw ProtocolError("data for top-level cell " + std::to_string(cell) + " starts at splat " +
+                          std::to_string(first) + " but this process holds " +
+                          std::to_string(held) + ": a gap in its packet");
+    }
+    ++droppedPrefetches_;
+    if (const auto asked = requestedAt_.find(cell); asked != requestedAt_.end()) {
+      Requests requests;
+      ask({cell, asked->second.splats}, asked->second.frame, now, requests);
+      sendRequests(requests, asked->second.frame, effects);
+    }
+    return {DataVerdict::Dropped};
+  }
+  const std::uint64_t newBytes = std::uint64_t{end} * sizeof(Splat);
+  if (!cache_.pinned(cell) && !cache_.canFit(newBytes)) {
+    // Prefetched data that cannot fit beside the packet being waited for:
+    // drop it (and what is held of the cell) and say so, so that the cell is
+    // sent again from its start when it is needed (asked for again once its
+    // packet is the head).
+    ++droppedPrefetches_;
+    requestedAt_.erase(cell);
+    if (held > 0) {
+      cache_.evict(cell);
+      evict(cell, effects);
+    } else {
+      evicted_.push_back(cell);
+      reportDirty_ = true;
+    }
+    return {DataVerdict::Dropped};
+  }
+  for (std::uint32_t victim : cache_.insert(cell, newBytes, now)) evict(victim, effects);
+  if (held > 0) ++extensions_;
+  held_[cell] = end;
+  settle();
   for (QueuedPacket& queued : queue_) {
     if (!queued.dataComplete && ready(queued.packet)) queued.dataComplete = now;
   }
-  loaded_.push_back(cell);
+  // One entry per cell in a report: the longest prefix held.
+  const auto listed = std::find_if(loaded_.begin(), loaded_.end(),
+                                   [cell](const CellPrefix& p) { return p.cell == cell; });
+  if (listed != loaded_.end()) {
+    listed->splats = end;
+  } else {
+    loaded_.push_back({cell, end});
+  }
   reportDirty_ = true;
-  return DataVerdict::Store;
+  return {DataVerdict::Store, held - first, end - held};
 }
 
 std::optional<ReadyPacket> RenderCore::nextPacket(TimePoint now, RenderEffects& effects) {
@@ -128,12 +241,11 @@ void RenderCore::pinHeadPacket(TimePoint now, RenderEffects& effects) {
   if (queue_.empty()) return;
   const v1::RenderPacket& packet = queue_.front().packet;
   Requests requests;
-  for (std::uint32_t cell : packet.top_level_cells()) {
-    cache_.pin(cell);
-    pinnedCells_.push_back(cell);
-    if (!cache_.contains(cell) && !requestedAt_.contains(cell)) {
-      ask(cell, packet.frame_id(), now, requests);
-    }
+  for (int i = 0; i < packet.top_level_cells_size(); ++i) {
+    const CellPrefix need{packet.top_level_cells(i), packet.top_level_splats(i)};
+    cache_.pin(need.cell);
+    pinnedCells_.push_back(need.cell);
+    askUnlessPending(need, packet.frame_id(), now, requests);
   }
   sendRequests(requests, packet.frame_id(), effects);
 }
@@ -141,21 +253,25 @@ void RenderCore::pinHeadPacket(TimePoint now, RenderEffects& effects) {
 void RenderCore::sendRequests(Requests& requests, std::uint64_t frame, RenderEffects& effects) {
   if (requests.empty()) return;
   // Data-send must hear of an eviction before a request for the same cell,
-  // or it would drop the request as a duplicate.
+  // or it would take the request for splats already sent.
   if (!evicted_.empty()) sendReport(effects);
   // Owners in ascending order, so the same state always sends the same messages.
   std::vector<std::uint32_t> ownersAsked;
-  for (const auto& [owner, cells] : requests) ownersAsked.push_back(owner);
+  for (const auto& [owner, prefixes] : requests) ownersAsked.push_back(owner);
   std::sort(ownersAsked.begin(), ownersAsked.end());
   for (std::uint32_t owner : ownersAsked) {
-    std::vector<std::uint32_t>& cells = requests[owner];
-    std::sort(cells.begin(), cells.end());
+    std::vector<CellPrefix>& prefixes = requests[owner];
+    std::sort(prefixes.begin(), prefixes.end(),
+              [](const CellPrefix& a, const CellPrefix& b) { return a.cell < b.cell; });
     v1::SendOrder order;
     order.set_render_rank(selfRank_);
     order.set_requester_rank(selfRank_);
     order.set_order_id(++orderSequence_);
     order.set_frame_id(frame);
-    for (std::uint32_t cell : cells) order.add_top_level_cells(cell);
+    for (const CellPrefix& prefix : prefixes) {
+      order.add_top_level_cells(prefix.cell);
+      order.add_top_level_splats(prefix.splats);
+    }
     effects.messages.send(peers_.datasends.at(owner), std::move(order));
   }
 }
@@ -164,16 +280,17 @@ void RenderCore::rerequestLateCells(TimePoint now, RenderEffects& effects) {
   Requests requests;
   std::uint64_t frame = 0;
   for (auto& [cell, asked] : requestedAt_) {
-    if (now - asked.first > kRerequestAfter) {
-      asked.first = now;
-      requests[owners_[cell]].push_back(cell);
-      frame = std::max(frame, asked.second);
+    if (now - asked.at > kRerequestAfter) {
+      asked.at = now;
+      requests[owners_[cell]].push_back({cell, asked.splats});
+      frame = std::max(frame, asked.frame);
     }
   }
   sendRequests(requests, frame, effects);
 }
 
 void RenderCore::evict(std::uint32_t cell, RenderEffects& effects) {
+  held_.erase(cell);
   effects.released.push_back(cell);
   evicted_.push_back(cell);
   reportDirty_ = true;
@@ -230,7 +347,10 @@ void RenderCore::sendReport(RenderEffects& effects) {
   report.set_render_rank(selfRank_);
   report.set_sequence(++reportSequence_);
   report.set_workload_splats(workload_);
-  for (std::uint32_t cell : loaded_) report.add_loaded_cells(cell);
+  for (const CellPrefix& prefix : loaded_) {
+    report.add_loaded_cells(prefix.cell);
+    report.add_loaded_splats(prefix.splats);
+  }
   for (std::uint32_t cell : evicted_) report.add_evicted_cells(cell);
   report.set_cache_bytes(cache_.bytes());
   report.set_seconds_per_splat(secondsPerSplat_);
@@ -251,7 +371,7 @@ void RenderCore::sendReport(RenderEffects& effects) {
 std::optional<TimePoint> RenderCore::nextMaintenance() const {
   std::optional<TimePoint> due;
   const auto earliest = [&due](TimePoint time) { due = due ? std::min(*due, time) : time; };
-  for (const auto& [cell, asked] : requestedAt_) earliest(asked.first + kRerequestAfter);
+  for (const auto& [cell, asked] : requestedAt_) earliest(asked.at + kRerequestAfter);
   if (const auto oldest = cache_.oldestUse()) earliest(*oldest + config_.cacheTimeout);
   if (!due) return std::nullopt;
   // Maintenance runs on the first idle moment a period after the last one.
@@ -264,13 +384,14 @@ std::string RenderCore::summary() const {
   char line[300];
   std::snprintf(line, sizeof line,
                 "packets=%llu splats=%llu busy=%.3fs hits=%llu misses=%llu evictions=%llu "
-                "peak_cache=%.1fMiB data_in=%.1fMiB dropped_prefetches=%llu",
+                "peak_cache=%.1fMiB data_in=%.1fMiB extensions=%llu dropped_prefetches=%llu",
                 static_cast<unsigned long long>(packetsDone_),
                 static_cast<unsigned long long>(splatsDone_), busySeconds_,
                 static_cast<unsigned long long>(hits_), static_cast<unsigned long long>(misses_),
                 static_cast<unsigned long long>(cache_.evictions()),
                 static_cast<double>(cache_.peakBytes()) / 1048576.0,
                 static_cast<double>(dataBytesReceived_) / 1048576.0,
+                static_cast<unsigned long long>(extensions_),
                 static_cast<unsigned long long>(droppedPrefetches_));
   return line;
 }

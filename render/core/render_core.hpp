@@ -1,8 +1,9 @@
 #pragma once
 // Every decision of a render process (seed 003 §4.4-4.5), without MPI or GL:
 // the queue of render packets, the cache of top-level cells (LRU with time-out
-// and a memory cap), which cells to ask data-send for and when to ask again,
-// the measured rates T_s and T_n, and the reports to traverse and data-send.
+// and a memory cap) holding a prefix of each cell's layered packet, which
+// prefixes to ask data-send for and when to ask again, the measured rates T_s
+// and T_n, and the reports to traverse and data-send.
 //
 // The core is told what arrived and `now`; it answers with what to send (an
 // Outbox) and which cells' data the caller must drop. The MPI render process
@@ -16,6 +17,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "common/cell_prefix.hpp"
 #include "common/clock.hpp"
 #include "common/messages.hpp"
 #include "common/octree_cell.hpp"
@@ -49,9 +51,18 @@ struct RenderEffects {
 };
 
 enum class DataVerdict {
-  Store,      // keep the data (upload it)
+  Store,      // keep the new part of the data (append it to the cell)
   Duplicate,  // already cached: ignore it
-  Dropped,    // prefetched data with no room beside the packet waited for
+  Dropped,    // prefetched data with no room beside the packet waited for, or
+              // a later part of a cell evicted while the part was on its way
+};
+
+// What to do with a part of a cell's packet that arrived.
+struct DataIntake {
+  DataVerdict verdict = DataVerdict::Duplicate;
+  // Store: append the part's splats [skip, skip + count) to the cell.
+  std::uint32_t skip = 0;
+  std::uint32_t count = 0;
 };
 
 // A packet whose data is all cached, handed to the caller to draw.
@@ -66,16 +77,18 @@ class RenderCore {
   RenderCore(const RenderCoreConfig& config, PeerRanks peers, int selfRank,
              std::span<const TopLevelCell> topLevel, std::vector<std::uint32_t> owners);
 
-  // A render packet from traverse `sourceRank`. Cells neither cached nor asked
+  // A render packet from traverse `sourceRank`. Prefixes neither held nor asked
   // for are asked for (the traverse ordered them already; asking too covers a
-  // cell evicted after the traverse last heard from us).
+  // cell evicted after the traverse last heard from us). Throws ProtocolError
+  // when a prefix lies beyond its packet or a range beyond its cell's prefix.
   void receivePacket(int sourceRank, v1::RenderPacket packet, TimePoint now,
                      RenderEffects& effects);
 
-  // The data of `cell` arrived (its checksum already checked). Throws
-  // ProtocolError when its size does not match the dataset's table.
-  DataVerdict receiveData(std::uint32_t cell, std::uint64_t bytes, double transferSeconds,
-                          TimePoint now, RenderEffects& effects);
+  // Splats [first, first + count) of `cell`'s packet arrived (checksum already
+  // checked). Throws ProtocolError when they lie outside the dataset's packet
+  // or leave a gap after the prefix held.
+  DataIntake receiveData(std::uint32_t cell, std::uint32_t first, std::uint32_t count,
+                         double transferSeconds, TimePoint now, RenderEffects& effects);
 
   // Between messages: maintenance (expired cells, late data asked again),
   // pins the head packet's cells, and hands out the first packet whose data
@@ -108,6 +121,12 @@ class RenderCore {
   bool stalled() const;
   bool pinned(std::uint32_t cell) const { return cache_.pinned(cell); }
   bool requested(std::uint32_t cell) const { return requestedAt_.contains(cell); }
+  // The prefix of `cell` held, in splats (0 when not cached).
+  std::uint32_t heldSplats(std::uint32_t cell) const;
+  // The length of `cell`'s whole packet in splats (0 for an unknown cell).
+  std::uint32_t packetSplats(std::uint32_t cell) const {
+    return cell < cellSplats_.size() ? cellSplats_[cell] : 0;
+  }
   std::string summary() const;
 
  private:
@@ -117,11 +136,19 @@ class RenderCore {
     std::optional<TimePoint> dataComplete;
     std::uint64_t sequence = 0;
   };
-  using Requests = std::unordered_map<std::uint32_t, std::vector<std::uint32_t>>;
+  // Per data-send index: the prefixes to ask it for.
+  using Requests = std::unordered_map<std::uint32_t, std::vector<CellPrefix>>;
+  struct Request {
+    TimePoint at;
+    std::uint64_t frame = 0;
+    std::uint32_t splats = 0;
+  };
 
   void pinHeadPacket(TimePoint now, RenderEffects& effects);
   bool ready(const v1::RenderPacket& packet) const;
-  void ask(std::uint32_t cell, std::uint64_t frame, TimePoint now, Requests& requests);
+  // Asks for the prefix unless it is held or already asked for.
+  void askUnlessPending(CellPrefix need, std::uint64_t frame, TimePoint now, Requests& requests);
+  void ask(CellPrefix need, std::uint64_t frame, TimePoint now, Requests& requests);
   void sendRequests(Requests& requests, std::uint64_t frame, RenderEffects& effects);
   void rerequestLateCells(TimePoint now, RenderEffects& effects);
   void evict(std::uint32_t cell, RenderEffects& effects);
@@ -130,16 +157,17 @@ class RenderCore {
   RenderCoreConfig config_;
   PeerRanks peers_;
   int selfRank_;
-  std::vector<std::uint64_t> cellBytes_;
+  std::vector<std::uint32_t> cellSplats_;  // whole packet per cell
   std::vector<std::uint32_t> owners_;
   CellCache cache_;
   std::deque<QueuedPacket> queue_;
   std::uint64_t packetsQueued_ = 0;
   std::uint64_t pinnedSequence_ = 0;
   std::vector<std::uint32_t> pinnedCells_;
-  // cell -> when it was asked for and for which frame
-  std::unordered_map<std::uint32_t, std::pair<TimePoint, std::uint64_t>> requestedAt_;
-  std::vector<std::uint32_t> loaded_;
+  std::unordered_map<std::uint32_t, std::uint32_t> held_;  // cell -> prefix held
+  // cell -> the prefix asked for, when and for which frame
+  std::unordered_map<std::uint32_t, Request> requestedAt_;
+  std::vector<CellPrefix> loaded_;
   std::vector<std::uint32_t> evicted_;
   std::vector<std::uint64_t> lastPacketFrom_;  // per traverse
   std::optional<TimePoint> lastMaintenance_;
@@ -153,6 +181,7 @@ class RenderCore {
   std::uint64_t misses_ = 0;
   std::uint64_t dataBytesReceived_ = 0;
   std::uint64_t droppedPrefetches_ = 0;
+  std::uint64_t extensions_ = 0;  // parts that extended a held prefix
   double busySeconds_ = 0.0;
   double secondsPerSplat_ = 0.0;
   double secondsPerByte_ = 0.0;

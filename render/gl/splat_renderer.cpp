@@ -172,6 +172,43 @@ void SplatRenderer::uploadCell(std::uint32_t id, std::span<const Splat> splats) 
   uploadedBytes_ += splats.size_bytes();
 }
 
+void SplatRenderer::appendToCell(std::uint32_t id, std::span<const Splat> splats) {
+  const auto found = cells_.find(id);
+  if (found == cells_.end() || found->second.count == 0) {
+    uploadCell(id, splats);
+    return;
+  }
+  if (splats.empty()) return;
+  Cell& cell = found->second;
+  const std::uint64_t total = std::uint64_t{cell.count} + splats.size();
+  if (total > static_cast<std::uint64_t>(INT_MAX)) {
+    throw UsageError("appendToCell: more than 2^31 splats in one cell");
+  }
+  context_.makeCurrent();
+  const auto oldBytes = static_cast<GLsizeiptr>(std::uint64_t{cell.count} * sizeof(Splat));
+  GLuint grown = 0;
+  glGenBuffers(1, &grown);
+  glBindBuffer(GL_COPY_WRITE_BUFFER, grown);
+  glBufferData(GL_COPY_WRITE_BUFFER, static_cast<GLsizeiptr>(total * sizeof(Splat)), nullptr,
+               GL_STATIC_DRAW);
+  glBindBuffer(GL_COPY_READ_BUFFER, cell.buffer);
+  glCopyBufferSubData(GL_COPY_READ_BUFFER, GL_COPY_WRITE_BUFFER, 0, 0, oldBytes);
+  glBufferSubData(GL_COPY_WRITE_BUFFER, oldBytes, static_cast<GLsizeiptr>(splats.size_bytes()),
+                  splats.data());
+  glBindBuffer(GL_COPY_READ_BUFFER, 0);
+  glBindBuffer(GL_COPY_WRITE_BUFFER, 0);
+  try {
+    throwOnGlError("appendToCell");
+  } catch (...) {
+    glDeleteBuffers(1, &grown);
+    throw;
+  }
+  glDeleteBuffers(1, &cell.buffer);
+  cell.buffer = grown;
+  cell.count = static_cast<std::uint32_t>(total);
+  uploadedBytes_ += splats.size_bytes();
+}
+
 void SplatRenderer::releaseCell(std::uint32_t id) {
   const auto it = cells_.find(id);
   if (it == cells_.end()) return;

@@ -57,6 +57,9 @@ class SplatRenderer final : public TileRenderer {
   // Copies the splats into a GL buffer under `id` (replacing any previous one);
   // the span need not stay alive afterwards. Throws RenderError on GL failure.
   void uploadCell(std::uint32_t id, std::span<const Splat> splats) override;
+  // Grows the cell's buffer: a new buffer, the old splats copied on the GL
+  // side, the new ones after them. Throws RenderError on GL failure.
+  void appendToCell(std::uint32_t id, std::span<const Splat> splats) override;
   void releaseCell(std::uint32_t id) override;  // no-op for unknown ids
   void releaseAll();
   bool hasCell(std::uint32_t id) const { return cells_.contains(id); }

@@ -15,6 +15,9 @@ class GlTileRenderer final : public TileRenderer {
   void uploadCell(std::uint32_t id, std::span<const Splat> splats) override {
     renderer_.uploadCell(id, splats);
   }
+  void appendToCell(std::uint32_t id, std::span<const Splat> splats) override {
+    renderer_.appendToCell(id, splats);
+  }
   void releaseCell(std::uint32_t id) override { renderer_.releaseCell(id); }
   RenderStats render(const Camera& camera, const TileRect& rect, std::span<const DrawRange> ranges,
                      const RenderSettings& settings) override {

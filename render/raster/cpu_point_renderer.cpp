@@ -440,15 +440,22 @@ void rasterizePointsScalar(const PointRaster& r, std::span<const Splat> splats,
 
 PointCell makePointCell(std::span<const Splat> splats) {
   PointCell cell;
-  cell.count = splats.size();
-  const std::size_t padded =
-      (splats.size() + PointCell::kPad - 1) / PointCell::kPad * PointCell::kPad;
+  appendToPointCell(cell, splats);
+  return cell;
+}
+
+void appendToPointCell(PointCell& cell, std::span<const Splat> splats) {
+  const std::size_t from = cell.count;
+  cell.count += splats.size();
+  const std::size_t padded = (cell.count + PointCell::kPad - 1) / PointCell::kPad * PointCell::kPad;
+  // Growth by layers is geometric (about 4x per level), so plain resizes suffice.
   for (auto* field : {&cell.x, &cell.y, &cell.z, &cell.radius, &cell.nx, &cell.ny, &cell.nz}) {
-    field->assign(padded, 0.0f);
+    field->resize(padded, 0.0f);
   }
-  cell.color.assign(padded, 0u);
-  for (std::size_t i = 0; i < splats.size(); ++i) {
-    const Splat& s = splats[i];
+  cell.color.resize(padded, 0u);
+  for (std::size_t k = 0; k < splats.size(); ++k) {
+    const Splat& s = splats[k];
+    const std::size_t i = from + k;
     cell.x[i] = s.position[0];
     cell.y[i] = s.position[1];
     cell.z[i] = s.position[2];
@@ -461,7 +468,6 @@ PointCell makePointCell(std::span<const Splat> splats) {
         s.normal[0] * s.normal[0] + s.normal[1] * s.normal[1] + s.normal[2] * s.normal[2];
     cell.hasNormals = cell.hasNormals || lengthSquared > 0.25f;  // as the kernel decides
   }
-  return cell;
 }
 
 void rasterizePoints(const PointRaster& raster, const PointCell& cell, std::size_t from,
@@ -493,6 +499,10 @@ CpuPointRenderer::CpuPointRenderer(unsigned threads) : threads_(std::max(1u, thr
 
 void CpuPointRenderer::uploadCell(std::uint32_t id, std::span<const Splat> splats) {
   cells_[id] = makePointCell(splats);
+}
+
+void CpuPointRenderer::appendToCell(std::uint32_t id, std::span<const Splat> splats) {
+  appendToPointCell(cells_[id], splats);
 }
 
 void CpuPointRenderer::releaseCell(std::uint32_t id) {

@@ -94,6 +94,8 @@ struct PointCell {
 };
 
 PointCell makePointCell(std::span<const Splat> splats);
+// Adds splats after the cell's current ones, keeping the padding.
+void appendToPointCell(PointCell& cell, std::span<const Splat> splats);
 
 // Draws splats [from, to) of `cell` as rasterizePointsScalar would.
 void rasterizePoints(const PointRaster& raster, const PointCell& cell, std::size_t from,
@@ -118,6 +120,7 @@ class CpuPointRenderer final : public TileRenderer {
   explicit CpuPointRenderer(unsigned threads = 1);
 
   void uploadCell(std::uint32_t id, std::span<const Splat> splats) override;
+  void appendToCell(std::uint32_t id, std::span<const Splat> splats) override;
   void releaseCell(std::uint32_t id) override;
   RenderStats render(const Camera& camera, const TileRect& rect, std::span<const DrawRange> ranges,
                      const RenderSettings& settings) override;

@@ -62,6 +62,9 @@ class TileRenderer {
   // Keeps a cell's splats under `id` (replacing any previous ones); the span
   // need not stay alive afterwards.
   virtual void uploadCell(std::uint32_t id, std::span<const Splat> splats) = 0;
+  // Adds splats after the cell's current ones (a longer prefix of its layered
+  // packet arrived); an unknown id starts a new cell.
+  virtual void appendToCell(std::uint32_t id, std::span<const Splat> splats) = 0;
   virtual void releaseCell(std::uint32_t id) = 0;  // no-op for unknown ids
   // Draws the ranges into the tile `rect` of `camera`'s frame; afterwards
   // pixels() holds it. Throws UsageError for an invalid camera, a rect outside

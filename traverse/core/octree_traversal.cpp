@@ -67,10 +67,11 @@ bool cellBackfacing(const OctreeCell& cell, const glm::vec3& eye, float sizeScal
   return axisAngle + coneAngle + viewAngle + kSafety < 0.5 * M_PI;
 }
 
-std::vector<std::uint32_t> topLevelCellsInTile(std::span<const OctreeCell> cells,
-                                               const Camera& camera, const TileRect& rect,
-                                               const TraversalSettings& settings) {
-  std::vector<std::uint32_t> found;
+std::vector<CellPrefix> topLevelCellsInTile(std::span<const OctreeCell> cells,
+                                            const PacketLayers& layers, const Camera& camera,
+                                            const TileRect& rect,
+                                            const TraversalSettings& settings) {
+  std::vector<CellPrefix> found;
   if (cells.empty()) return found;
   const FrustumPlanes planes = tilePlanes(camera, rect, settings.marginPixels);
   const glm::vec3 eye = cameraEye(camera);
@@ -84,14 +85,17 @@ std::vector<std::uint32_t> topLevelCellsInTile(std::span<const OctreeCell> cells
     if (culled) {
       index = cell.nextSibling;
     } else if (cell.topLevel != kNoIndex) {
-      if (cell.pointsCount + cell.splatsCount > 0) found.push_back(cell.topLevel);
+      if (cell.pointsCount + cell.splatsCount > 0) {
+        const float distance = distanceToCell(cell, eye, settings.sizeScale);
+        found.push_back({cell.topLevel, layers.prefixAt(cell.topLevel, camera, distance,
+                                                        settings.lodPixels, settings.sizeScale)});
+      }
       index = cell.nextSibling;
     } else {
       index = cell.isLeaf() ? cell.nextSibling : index + 1;
     }
   }
-  std::sort(found.begin(), found.end());
-  found.erase(std::unique(found.begin(), found.end()), found.end());
+  // Top-level cells are met in depth-first order, which is table order, once each.
   return found;
 }
 
@@ -143,9 +147,10 @@ TraversalResult traverseTile(std::span<const OctreeCell> cells, const Camera& ca
   normalizeRanges(result.ranges);
   for (const PacketRange& range : result.ranges) {
     result.splats += range.count;
-    if (result.topLevelCells.empty() || result.topLevelCells.back() != range.topLevel) {
-      result.topLevelCells.push_back(range.topLevel);
+    if (result.needs.empty() || result.needs.back().cell != range.topLevel) {
+      result.needs.push_back({range.topLevel, 0});
     }
+    result.needs.back().splats = std::max(result.needs.back().splats, range.offset + range.count);
   }
   return result;
 }

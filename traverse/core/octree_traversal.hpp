@@ -11,7 +11,9 @@
 #include <vector>
 
 #include "common/camera.hpp"
+#include "common/cell_prefix.hpp"
 #include "common/octree_cell.hpp"
+#include "traverse/core/packet_layers.hpp"
 
 namespace pointillist::traverse {
 
@@ -36,8 +38,10 @@ struct PacketRange {
 };
 
 struct TraversalResult {
-  std::vector<PacketRange> ranges;           // sorted by (topLevel, offset), merged when adjacent
-  std::vector<std::uint32_t> topLevelCells;  // distinct, ascending
+  std::vector<PacketRange> ranges;  // sorted by (topLevel, offset), merged when adjacent
+  // The top-level cells drawn from (distinct, ascending), each with the
+  // shortest prefix holding its ranges (the largest range end).
+  std::vector<CellPrefix> needs;
   std::uint64_t splats = 0;
   std::uint64_t cellsVisited = 0;
   std::uint64_t cellsCulledFrustum = 0;
@@ -51,10 +55,12 @@ TraversalResult traverseTile(std::span<const OctreeCell> cells, const Camera& ca
 
 // The top-level cells whose bounds reach into the tile: the same culling as
 // traverseTile down to the top-level depth, without level-of-detail selection
-// (a superset of what traverseTile returns, at a fraction of the walk).
-std::vector<std::uint32_t> topLevelCellsInTile(std::span<const OctreeCell> cells,
-                                               const Camera& camera, const TileRect& rect,
-                                               const TraversalSettings& settings);
+// (a superset of the cells traverseTile returns, at a fraction of the walk),
+// each with the prefix its distance probably needs (PacketLayers::prefixAt).
+std::vector<CellPrefix> topLevelCellsInTile(std::span<const OctreeCell> cells,
+                                            const PacketLayers& layers, const Camera& camera,
+                                            const TileRect& rect,
+                                            const TraversalSettings& settings);
 
 // True when every splat of the cell faces away from the eye (conservative:
 // combines the normal cone with the cone of view directions onto the cell).

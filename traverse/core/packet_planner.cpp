@@ -4,9 +4,11 @@
 #include <cstdio>
 #include <map>
 
+#include "common/splat.hpp"
+
 namespace pointillist::traverse {
 TileWalk walkOf(const TraversalResult& result) {
-  return TileWalk{result.topLevelCells, result.splats, result.ranges};
+  return TileWalk{result.needs, result.splats, result.ranges};
 }
 
 TraversalSettings traversalSettings(const v1::RunSettings& settings) {
@@ -18,20 +20,19 @@ TraversalSettings traversalSettings(const v1::RunSettings& settings) {
 }
 
 PacketPlanner::PacketPlanner(PeerRanks peers, int selfRank, const v1::RunSettings& settings,
-                             std::span<const TopLevelCell> topLevel,
+                             std::shared_ptr<const PacketLayers> layers,
                              std::vector<std::uint32_t> owners)
     : peers_(std::move(peers)),
       selfRank_(selfRank),
       selfIndex_(peers_.indexOf(v1::ROLE_TRAVERSE, selfRank)),
       settings_(settings),
       traversal_(traversalSettings(settings)),
+      layers_(std::move(layers)),
       owners_(std::move(owners)),
-      model_(peers_.renders.size(), topLevel, costModelOf(settings.cost_model())) {
-  cellBytes_.reserve(topLevel.size());
-  for (const TopLevelCell& cell : topLevel) cellBytes_.push_back(cell.byteSize);
-  if (owners_.size() != cellBytes_.size()) {
+      model_(peers_.renders.size(), costModelOf(settings.cost_model())) {
+  if (!layers_ || owners_.size() != layers_->cellCount()) {
     throw UsageError("packet planner: " + std::to_string(owners_.size()) + " owners for " +
-                     std::to_string(cellBytes_.size()) + " top-level cells");
+                     std::to_string(layers_ ? layers_->cellCount() : 0) + " top-level cells");
   }
 }
 
@@ -50,49 +51,62 @@ std::optional<Camera> PacketPlanner::lookaheadCamera(const v1::TileTask& task) c
 }
 
 PacketPlan PacketPlanner::planPacket(const v1::TileTask& task, const TileWalk& walk,
-                                     std::span<const std::uint32_t> aheadCells, TimePoint now,
+                                     std::span<const CellPrefix> ahead, TimePoint now,
                                      Outbox& out) {
-  for (std::uint32_t cell : walk.topLevelCells) {
-    if (cell >= cellBytes_.size()) {
-      throw ProtocolError("tile walk found top-level cell " + std::to_string(cell) +
-                          " beyond the dataset's " + std::to_string(cellBytes_.size()));
-    }
-  }
   PacketPlan plan;
+  plan.needs.reserve(walk.needs.size());
+  for (const CellPrefix& need : walk.needs) {
+    if (need.cell >= layers_->cellCount() || need.splats > layers_->totalSplats(need.cell)) {
+      throw ProtocolError("tile walk needs " + std::to_string(need.splats) +
+                          " splats of top-level cell " + std::to_string(need.cell) +
+                          ", beyond the dataset's packets");
+    }
+    plan.needs.push_back({need.cell, layers_->roundUp(need.cell, need.splats)});
+  }
   plan.choice = settings_.scheduler() == v1::SCHEDULER_COST
-                    ? model_.choose(walk.topLevelCells, walk.splats, now)
-                    : model_.assigned(task.assigned_render(), walk.topLevelCells, walk.splats);
+                    ? model_.choose(plan.needs, walk.splats, now)
+                    : model_.assigned(task.assigned_render(), plan.needs, walk.splats);
   const RenderChoice& choice = plan.choice;
   plan.renderRank = peers_.renders.at(choice.render);
 
   // Order what the chosen render lacks from the data-send processes owning it.
-  std::map<std::uint32_t, std::vector<std::uint32_t>> orders;
-  for (std::uint32_t cell : choice.missingCells) orders[owners_.at(cell)].push_back(cell);
+  std::map<std::uint32_t, std::vector<CellPrefix>> orders;
+  for (const CellPrefix& prefix : choice.missing) orders[owners_.at(prefix.cell)].push_back(prefix);
   // Prefetch along the camera path: what this rect will need a few frames on
   // goes to the render drawing it now, which the cost function then favours
   // for that part of the screen.
-  if (!aheadCells.empty()) {
-    for (std::uint32_t cell : model_.missingCells(choice.render, aheadCells)) {
-      if (std::binary_search(choice.missingCells.begin(), choice.missingCells.end(), cell)) {
-        continue;
+  if (!ahead.empty()) {
+    for (const CellPrefix& prefix : model_.missing(choice.render, ahead)) {
+      if (prefix.cell >= layers_->cellCount()) {
+        throw ProtocolError("lookahead walk found top-level cell " + std::to_string(prefix.cell) +
+                            " beyond the dataset's " + std::to_string(layers_->cellCount()));
       }
-      const std::uint64_t bytes = cellBytes_.at(cell);
+      const auto ordered =
+          std::lower_bound(choice.missing.begin(), choice.missing.end(), prefix.cell,
+                           [](const CellPrefix& a, std::uint32_t cell) { return a.cell < cell; });
+      if (ordered != choice.missing.end() && ordered->cell == prefix.cell) continue;
+      const std::uint64_t bytes =
+          std::uint64_t{prefix.splats - model_.heldSplats(choice.render, prefix.cell)} *
+          sizeof(Splat);
       if (plan.prefetchBytes + bytes > kPrefetchBudgetBytes) break;
       plan.prefetchBytes += bytes;
-      plan.prefetchCells.push_back(cell);
-      orders[owners_.at(cell)].push_back(cell);
+      plan.prefetch.push_back(prefix);
+      orders[owners_.at(prefix.cell)].push_back(prefix);
     }
-    model_.recordPrefetch(choice.render, plan.prefetchCells);
-    cellsPrefetched_ += plan.prefetchCells.size();
+    model_.recordPrefetch(choice.render, plan.prefetch);
+    cellsPrefetched_ += plan.prefetch.size();
     bytesPrefetched_ += plan.prefetchBytes;
   }
-  for (auto& [owner, cells] : orders) {
+  for (auto& [owner, prefixes] : orders) {
     v1::SendOrder order;
     order.set_render_rank(plan.renderRank);
     order.set_requester_rank(selfRank_);
     order.set_order_id(++ordersSent_);
     order.set_frame_id(task.frame_id());
-    for (std::uint32_t cell : cells) order.add_top_level_cells(cell);
+    for (const CellPrefix& prefix : prefixes) {
+      order.add_top_level_cells(prefix.cell);
+      order.add_top_level_splats(prefix.splats);
+    }
     out.send(peers_.datasends.at(owner), std::move(order));
   }
 
@@ -103,7 +117,10 @@ PacketPlan PacketPlanner::planPacket(const v1::TileTask& task, const TileWalk& w
   *packet.mutable_rect() = task.rect();
   packet.set_timestamp_ns(task.timestamp_ns());
   packet.set_attempt(task.attempt());
-  for (std::uint32_t cell : walk.topLevelCells) packet.add_top_level_cells(cell);
+  for (const CellPrefix& need : plan.needs) {
+    packet.add_top_level_cells(need.cell);
+    packet.add_top_level_splats(need.splats);
+  }
   const int ranges = static_cast<int>(walk.ranges.size());
   packet.mutable_range_top_level()->Reserve(ranges);
   packet.mutable_range_offset()->Reserve(ranges);
@@ -120,14 +137,15 @@ PacketPlan PacketPlanner::planPacket(const v1::TileTask& task, const TileWalk& w
   packet.set_chosen_cost(choice.cost);
   packet.set_prefetch_bytes(plan.prefetchBytes);
   out.send(plan.renderRank, std::move(packet));
-  model_.recordPacket(choice.render, packetsSent_, walk.splats, choice.missingCells, now);
+  model_.recordPacket(choice.render, packetsSent_, walk.splats, choice.missing, now);
 
   ++tasksDone_;
   std::uint64_t packetBytes = 0;
-  for (std::uint32_t cell : walk.topLevelCells) packetBytes += cellBytes_[cell];
+  for (const CellPrefix& need : plan.needs)
+    packetBytes += std::uint64_t{need.splats} * sizeof(Splat);
   maxPacketBytes_ = std::max(maxPacketBytes_, packetBytes);
   splatsPacked_ += walk.splats;
-  cellsOrdered_ += choice.missingCells.size();
+  cellsOrdered_ += choice.missing.size();
   bytesOrdered_ += choice.missingBytes;
   requestWork(out);
   return plan;
@@ -137,8 +155,17 @@ void PacketPlanner::applyReport(int sourceRank, const v1::RenderReport& report, 
   const std::size_t render = peers_.indexOf(v1::ROLE_RENDER, sourceRank);
   RenderReportView view;
   view.workloadSplats = report.workload_splats();
-  view.loaded = {report.loaded_cells().data(),
-                 static_cast<std::size_t>(report.loaded_cells_size())};
+  if (report.loaded_splats_size() != report.loaded_cells_size()) {
+    throw ProtocolError("render report from rank " + std::to_string(sourceRank) + " gives " +
+                        std::to_string(report.loaded_splats_size()) + " prefixes for " +
+                        std::to_string(report.loaded_cells_size()) + " loaded cells");
+  }
+  std::vector<CellPrefix> loaded;
+  loaded.reserve(static_cast<std::size_t>(report.loaded_cells_size()));
+  for (int i = 0; i < report.loaded_cells_size(); ++i) {
+    loaded.push_back({report.loaded_cells(i), report.loaded_splats(i)});
+  }
+  view.loaded = loaded;
   view.evicted = {report.evicted_cells().data(),
                   static_cast<std::size_t>(report.evicted_cells_size())};
   view.secondsPerSplat = report.seconds_per_splat();

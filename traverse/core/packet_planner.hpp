@@ -9,6 +9,7 @@
 // The core is told what arrived and `now` and appends what to send to an
 // Outbox. The MPI traverse process and the simulator both drive this class.
 #include <cstdint>
+#include <memory>
 #include <optional>
 #include <span>
 #include <string>
@@ -20,6 +21,7 @@
 #include "common/octree_cell.hpp"
 #include "common/peer_ranks.hpp"
 #include "traverse/core/octree_traversal.hpp"
+#include "traverse/core/packet_layers.hpp"
 #include "traverse/core/render_model.hpp"
 
 namespace pointillist::traverse {
@@ -27,7 +29,7 @@ namespace pointillist::traverse {
 // What the walk of one tile found (traverseTile's result, or the simulator's
 // memo of it, which keeps no ranges).
 struct TileWalk {
-  std::span<const std::uint32_t> topLevelCells;  // distinct, ascending
+  std::span<const CellPrefix> needs;  // distinct cells, ascending; prefixes not yet rounded
   std::uint64_t splats = 0;
   std::span<const PacketRange> ranges;
 };
@@ -41,14 +43,15 @@ TraversalSettings traversalSettings(const v1::RunSettings& settings);
 struct PacketPlan {
   RenderChoice choice;
   int renderRank = -1;
+  std::vector<CellPrefix> needs;  // the walk's needs rounded up to layer ends
   std::uint64_t prefetchBytes = 0;
-  std::vector<std::uint32_t> prefetchCells;
+  std::vector<CellPrefix> prefetch;
 };
 
 class PacketPlanner {
  public:
   PacketPlanner(PeerRanks peers, int selfRank, const v1::RunSettings& settings,
-                std::span<const TopLevelCell> topLevel, std::vector<std::uint32_t> owners);
+                std::shared_ptr<const PacketLayers> layers, std::vector<std::uint32_t> owners);
 
   const TraversalSettings& traversal() const { return traversal_; }
   const v1::RunSettings& settings() const { return settings_; }
@@ -58,15 +61,17 @@ class PacketPlanner {
   // The camera whose view of the task's rect should be ordered ahead, if the
   // run prefetches along the camera path; the caller walks it for planPacket.
   std::optional<Camera> lookaheadCamera(const v1::TileTask& task) const;
-  // One walked tile: chooses the render process, orders missing cells and the
-  // prefetch (`aheadCells`: top-level cells of the lookahead walk), sends the
-  // render packet, and asks the display for the next tile.
+  // One walked tile: rounds its needs up to layer ends, chooses the render
+  // process, orders what it lacks of them and the prefetch (`ahead`: the
+  // lookahead walk's cells and estimated prefixes), sends the render packet,
+  // and asks the display for the next tile.
   PacketPlan planPacket(const v1::TileTask& task, const TileWalk& walk,
-                        std::span<const std::uint32_t> aheadCells, TimePoint now, Outbox& out);
+                        std::span<const CellPrefix> ahead, TimePoint now, Outbox& out);
   // A render process's report of its workload, cache changes and rates.
   void applyReport(int sourceRank, const v1::RenderReport& report, TimePoint now);
 
   const RenderModel& model() const { return model_; }
+  const PacketLayers& layers() const { return *layers_; }
   std::uint64_t tasksDone() const { return tasksDone_; }
   std::uint64_t largestTileBytes() const { return maxPacketBytes_; }
   std::string summary() const;
@@ -77,7 +82,7 @@ class PacketPlanner {
   std::size_t selfIndex_;
   v1::RunSettings settings_;
   TraversalSettings traversal_;
-  std::vector<std::uint64_t> cellBytes_;
+  std::shared_ptr<const PacketLayers> layers_;
   std::vector<std::uint32_t> owners_;
   RenderModel model_;
   std::uint64_t tasksDone_ = 0;

@@ -4,6 +4,7 @@
 #include <limits>
 
 #include "common/errors.hpp"
+#include "common/splat.hpp"
 
 namespace pointillist::traverse {
 
@@ -15,12 +16,9 @@ CostModel costModelOf(v1::CostModel model) {
   return model == v1::COST_MODEL_OVERLAP ? CostModel::Overlap : CostModel::Paper;
 }
 
-RenderModel::RenderModel(std::size_t renderCount, std::span<const TopLevelCell> topLevel,
-                         CostModel costModel)
+RenderModel::RenderModel(std::size_t renderCount, CostModel costModel)
     : renders_(renderCount), costModel_(costModel) {
   if (renderCount == 0) throw UsageError("a render model needs at least one render process");
-  cellBytes_.reserve(topLevel.size());
-  for (const TopLevelCell& cell : topLevel) cellBytes_.push_back(cell.byteSize);
 }
 
 std::uint64_t RenderModel::workload(std::size_t render) const {
@@ -30,9 +28,14 @@ std::uint64_t RenderModel::workload(std::size_t render) const {
   return total;
 }
 
-bool RenderModel::hasCell(std::size_t render, std::uint32_t cell) const {
+std::uint32_t RenderModel::heldSplats(std::size_t render, std::uint32_t cell) const {
   const RenderState& state = renders_.at(render);
-  return state.cached.contains(cell) || state.ordered.contains(cell);
+  std::uint32_t held = 0;
+  if (const auto found = state.cached.find(cell); found != state.cached.end()) held = found->second;
+  if (const auto found = state.ordered.find(cell); found != state.ordered.end()) {
+    held = std::max(held, found->second);
+  }
+  return held;
 }
 
 std::size_t RenderModel::cachedCellCount(std::size_t render) const {
@@ -80,11 +83,12 @@ double RenderModel::secondsPerByte(std::size_t render) const {
   return own > 0.0 && workload(render) > 0 ? own : secondsPerByte();
 }
 
-double RenderModel::cost(std::size_t render, std::span<const std::uint32_t> cells,
+double RenderModel::cost(std::size_t render, std::span<const CellPrefix> needs,
                          std::uint64_t splats, std::uint64_t* missingBytes) const {
   std::uint64_t missing = 0;
-  for (std::uint32_t cell : cells) {
-    if (!hasCell(render, cell)) missing += cellBytes_.at(cell);
+  for (const CellPrefix& need : needs) {
+    const std::uint32_t held = heldSplats(render, need.cell);
+    if (need.splats > held) missing += std::uint64_t{need.splats - held} * sizeof(Splat);
   }
   if (missingBytes != nullptr) *missingBytes = missing;
   // The packet's own splats cost the same everywhere; they are included so the
@@ -105,7 +109,7 @@ bool RenderModel::suspectedStalled(std::size_t render, Clock::time_point now) co
   return waited > std::max(1.0, 4.0 * expected);
 }
 
-RenderChoice RenderModel::choose(std::span<const std::uint32_t> cells, std::uint64_t splats,
+RenderChoice RenderModel::choose(std::span<const CellPrefix> needs, std::uint64_t splats,
                                  Clock::time_point now) const {
   RenderChoice best;
   best.cost = std::numeric_limits<double>::infinity();
@@ -120,7 +124,7 @@ RenderChoice RenderModel::choose(std::span<const std::uint32_t> cells, std::uint
     const std::size_t render = (rotation_ + step) % count;
     if (!allStalled && suspectedStalled(render, now)) continue;
     std::uint64_t missing = 0;
-    const double value = cost(render, cells, splats, &missing);
+    const double value = cost(render, needs, splats, &missing);
     const std::uint64_t load = workload(render);
     const bool tie = value == best.cost;
     if (value < best.cost || (tie && missing < best.missingBytes) ||
@@ -132,39 +136,42 @@ RenderChoice RenderModel::choose(std::span<const std::uint32_t> cells, std::uint
     }
   }
   rotation_ = (best.render + 1) % count;
-  best.missingCells = missingCells(best.render, cells);
+  best.missing = missing(best.render, needs);
   return best;
 }
 
-RenderChoice RenderModel::assigned(std::size_t render, std::span<const std::uint32_t> cells,
+RenderChoice RenderModel::assigned(std::size_t render, std::span<const CellPrefix> needs,
                                    std::uint64_t splats) const {
   RenderChoice choice;
   choice.render = render % renders_.size();
-  choice.cost = cost(choice.render, cells, splats, &choice.missingBytes);
-  choice.missingCells = missingCells(choice.render, cells);
+  choice.cost = cost(choice.render, needs, splats, &choice.missingBytes);
+  choice.missing = missing(choice.render, needs);
   return choice;
 }
 
 void RenderModel::recordPacket(std::size_t render, std::uint64_t packetId, std::uint64_t splats,
-                               std::span<const std::uint32_t> orderedCells, Clock::time_point now) {
+                               std::span<const CellPrefix> ordered, Clock::time_point now) {
   RenderState& state = renders_.at(render);
   if (!state.waitingSince) state.waitingSince = now;
   state.unreported.emplace_back(packetId, splats);
-  for (std::uint32_t cell : orderedCells) state.ordered.insert(cell);
+  recordPrefetch(render, ordered);
 }
 
-void RenderModel::recordPrefetch(std::size_t render, std::span<const std::uint32_t> orderedCells) {
+void RenderModel::recordPrefetch(std::size_t render, std::span<const CellPrefix> ordered) {
   RenderState& state = renders_.at(render);
-  for (std::uint32_t cell : orderedCells) state.ordered.insert(cell);
+  for (const CellPrefix& prefix : ordered) {
+    std::uint32_t& onOrder = state.ordered[prefix.cell];
+    onOrder = std::max(onOrder, prefix.splats);
+  }
 }
 
-std::vector<std::uint32_t> RenderModel::missingCells(std::size_t render,
-                                                     std::span<const std::uint32_t> cells) const {
-  std::vector<std::uint32_t> missing;
-  for (std::uint32_t cell : cells) {
-    if (!hasCell(render, cell)) missing.push_back(cell);
+std::vector<CellPrefix> RenderModel::missing(std::size_t render,
+                                             std::span<const CellPrefix> needs) const {
+  std::vector<CellPrefix> lacking;
+  for (const CellPrefix& need : needs) {
+    if (need.splats > heldSplats(render, need.cell)) lacking.push_back(need);
   }
-  return missing;
+  return lacking;
 }
 
 void RenderModel::applyReport(std::size_t render, const RenderReportView& report,
@@ -178,9 +185,13 @@ void RenderModel::applyReport(std::size_t render, const RenderReportView& report
   state.lastPacketSeen = std::max(state.lastPacketSeen, report.lastPacketFromUs);
   std::erase_if(state.unreported,
                 [&](const auto& packet) { return packet.first <= state.lastPacketSeen; });
-  for (std::uint32_t cell : report.loaded) {
-    state.cached.insert(cell);
-    state.ordered.erase(cell);
+  for (const CellPrefix& loaded : report.loaded) {
+    state.cached[loaded.cell] = loaded.splats;
+    // An order for a longer prefix is still on its way.
+    const auto onOrder = state.ordered.find(loaded.cell);
+    if (onOrder != state.ordered.end() && onOrder->second <= loaded.splats) {
+      state.ordered.erase(onOrder);
+    }
   }
   for (std::uint32_t cell : report.evicted) {
     state.cached.erase(cell);

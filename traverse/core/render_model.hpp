@@ -1,7 +1,10 @@
 #pragma once
 // A traverse process's model of every render process (seed 003 §4.3, §4.5):
-// pending work and cached top-level cells, kept from the renders' reports, and
-// the cost function that picks where a render packet goes. As the paper writes it:
+// pending work and the cached prefix of every top-level cell (packets are
+// layered coarse-first, common/cell_prefix.hpp), kept from the renders'
+// reports, and the cost function that picks where a render packet goes.
+// Missing bytes are the splats between what a render holds (or has on order)
+// and what the packet needs. As the paper writes it:
 //   Cost(i) = workload(i) * T_s + missing_bytes(i) * T_n
 // As an option the transfer is taken to overlap the work already queued there
 // (data-send streams the cells while the render draws), see docs/scheduling.md:
@@ -16,10 +19,9 @@
 #include <optional>
 #include <span>
 #include <unordered_map>
-#include <unordered_set>
 #include <vector>
 
-#include "common/octree_cell.hpp"
+#include "common/cell_prefix.hpp"
 #include "common/run_settings.hpp"
 #include "pointillist.pb.h"
 
@@ -27,7 +29,7 @@ namespace pointillist::traverse {
 
 struct RenderReportView {
   std::uint64_t workloadSplats = 0;
-  std::span<const std::uint32_t> loaded{};
+  std::span<const CellPrefix> loaded{};  // the prefix now held
   std::span<const std::uint32_t> evicted{};
   double secondsPerSplat = 0.0;  // 0: not measured yet
   double secondsPerByte = 0.0;   // 0: not measured yet
@@ -52,20 +54,19 @@ struct RenderChoice {
   std::size_t render = 0;  // index among render processes
   double cost = 0.0;
   std::uint64_t missingBytes = 0;
-  std::vector<std::uint32_t> missingCells;  // cells to order for it
+  std::vector<CellPrefix> missing;  // prefixes to order for it (what it lacks of them)
 };
 
 class RenderModel {
  public:
   using Clock = std::chrono::steady_clock;
 
-  RenderModel(std::size_t renderCount, std::span<const TopLevelCell> topLevel,
-              CostModel costModel = costModelOf(kDefaultCostModel));
+  RenderModel(std::size_t renderCount, CostModel costModel = costModelOf(kDefaultCostModel));
   void setCostModel(CostModel model) { costModel_ = model; }
   CostModel costModel() const { return costModel_; }
 
-  // Cost of sending a packet of `splats` splats that needs `cells` to render i.
-  double cost(std::size_t render, std::span<const std::uint32_t> cells, std::uint64_t splats,
+  // Cost of sending a packet of `splats` splats that needs `needs` to render i.
+  double cost(std::size_t render, std::span<const CellPrefix> needs, std::uint64_t splats,
               std::uint64_t* missingBytes = nullptr) const;
   // The render with the lowest cost; ties go to the fewest missing bytes, then
   // the lowest pending work, then rotate from the last choice so idle renders
@@ -73,26 +74,26 @@ class RenderModel {
   // A render that has had work for much longer than that work should take
   // without finishing a packet is suspected stalled and only chosen when every
   // render is.
-  RenderChoice choose(std::span<const std::uint32_t> cells, std::uint64_t splats,
+  RenderChoice choose(std::span<const CellPrefix> needs, std::uint64_t splats,
                       Clock::time_point now) const;
   bool suspectedStalled(std::size_t render, Clock::time_point now) const;
   // The same figures for a render chosen by someone else (other schedulers).
-  RenderChoice assigned(std::size_t render, std::span<const std::uint32_t> cells,
+  RenderChoice assigned(std::size_t render, std::span<const CellPrefix> needs,
                         std::uint64_t splats) const;
 
   // Records that a packet went to `render` with the given id, and that its
-  // missing cells were ordered (they count as present from now on).
+  // missing prefixes were ordered (they count as present from now on).
   void recordPacket(std::size_t render, std::uint64_t packetId, std::uint64_t splats,
-                    std::span<const std::uint32_t> orderedCells, Clock::time_point now);
-  // Cells ordered for `render` ahead of any packet (prefetch along the camera path).
-  void recordPrefetch(std::size_t render, std::span<const std::uint32_t> orderedCells);
-  // Of `cells`, those `render` neither holds nor has on order.
-  std::vector<std::uint32_t> missingCells(std::size_t render,
-                                          std::span<const std::uint32_t> cells) const;
+                    std::span<const CellPrefix> ordered, Clock::time_point now);
+  // Prefixes ordered for `render` ahead of any packet (prefetch along the camera path).
+  void recordPrefetch(std::size_t render, std::span<const CellPrefix> ordered);
+  // Of `needs`, those longer than what `render` holds or has on order.
+  std::vector<CellPrefix> missing(std::size_t render, std::span<const CellPrefix> needs) const;
   void applyReport(std::size_t render, const RenderReportView& report, Clock::time_point now);
 
   std::uint64_t workload(std::size_t render) const;  // reported + sent since the report
-  bool hasCell(std::size_t render, std::uint32_t cell) const;
+  // The prefix of `cell` that `render` holds or has on order, in splats.
+  std::uint32_t heldSplats(std::size_t render, std::uint32_t cell) const;
   std::size_t cachedCellCount(std::size_t render) const;
   // T_s and T_n of one render process as the cost function uses them.
   double secondsPerSplat(std::size_t render) const;
@@ -108,8 +109,8 @@ class RenderModel {
     std::uint64_t lastPacketSeen = 0;
     // Packets sent to this render after its last report: id -> splats.
     std::vector<std::pair<std::uint64_t, std::uint64_t>> unreported;
-    std::unordered_set<std::uint32_t> cached;   // confirmed by reports
-    std::unordered_set<std::uint32_t> ordered;  // ordered by us, not yet confirmed
+    std::unordered_map<std::uint32_t, std::uint32_t> cached;   // prefix confirmed by reports
+    std::unordered_map<std::uint32_t, std::uint32_t> ordered;  // ordered by us, not yet confirmed
     std::uint64_t packetsDone = 0;
     // Since when the render has had work and finished nothing.
     std::optional<Clock::time_point> waitingSince;
@@ -119,7 +120,6 @@ class RenderModel {
   static constexpr double kDefaultSecondsPerSplat = 2e-7;  // until measured: 5 M splats/s
   static constexpr double kDefaultSecondsPerByte = 1e-8;   // until measured: 100 MB/s
   std::vector<RenderState> renders_;
-  std::vector<std::uint64_t> cellBytes_;
   CostModel costModel_;
   mutable std::size_t rotation_ = 0;
 };

@@ -62,10 +62,11 @@ DatasetContent makeContent() {
     c.cells[i].splatsOffset = so;
     c.cells[i].splatsCount = 1;
   };
-  setRange(1, 0, 3, 3);
-  setRange(2, 0, 5, 5);
-  setRange(3, 0, 2, 6);
-  setRange(4, 2, 3, 7);
+  // Packets are layered: level-splats by level (B before B1, B2), then points.
+  setRange(1, 1, 3, 0);
+  setRange(2, 3, 5, 0);
+  setRange(3, 3, 2, 1);
+  setRange(4, 5, 3, 2);
   const float lo[5][3] = {{0, 0, 0}, {0, 0, 0}, {5, 5, 5}, {5, 5, 5}, {5, 6, 6}};
   const float hi[5][3] = {{7, 7, 7}, {1, 1, 0}, {7, 7, 7}, {6, 5, 5}, {7, 7, 7}};
   for (std::size_t i = 0; i < 5; ++i)
@@ -168,11 +169,11 @@ TEST_F(DatasetTest, RoundTripIsBitIdentical) {
   EXPECT_EQ(ds.topLevelCells()[0].byteSize, 4u * 32);
   EXPECT_EQ(ds.topLevelCells()[1].byteOffset, 4u * 32);
 
-  // Packet = the cell's points, then the level-splats of its subtree.
-  std::vector<Splat> expected0 = {content.points[0], content.points[1], content.points[2],
-                                  content.levelSplats[0]};
-  std::vector<Splat> expected1(content.points.begin() + 3, content.points.end());
-  expected1.insert(expected1.end(), content.levelSplats.begin() + 1, content.levelSplats.end());
+  // Packet = the level-splats of the cell's subtree (coarse first), then its points.
+  std::vector<Splat> expected0 = {content.levelSplats[0], content.points[0], content.points[1],
+                                  content.points[2]};
+  std::vector<Splat> expected1(content.levelSplats.begin() + 1, content.levelSplats.end());
+  expected1.insert(expected1.end(), content.points.begin() + 3, content.points.end());
   for (std::uint32_t k = 0; k < 2; ++k) {
     const auto& expected = k == 0 ? expected0 : expected1;
     const auto packet = ds.packet(k);
@@ -374,7 +375,14 @@ TEST_F(DatasetTest, InconsistentCellArrayIsRefused) {
   expectRefused("nextSibling", [](DatasetContent& c) { c.cells[3].nextSibling = kNoIndex; });
   expectRefused("topLevel", [](DatasetContent& c) { c.cells[4].topLevel = 7; });
   expectRefused("outside its packet", [](DatasetContent& c) { c.cells[4].pointsCount = 9; });
-  expectRefused("outside its packet", [](DatasetContent& c) { c.cells[3].splatsOffset = 2; });
+  expectRefused("outside its packet", [](DatasetContent& c) { c.cells[3].splatsOffset = 3; });
+  // Layers: coarse first, no overlaps, no gaps.
+  expectRefused("coarse-first", [](DatasetContent& c) {
+    c.cells[2].splatsOffset = 1;
+    c.cells[3].splatsOffset = 0;
+  });
+  expectRefused("overlap", [](DatasetContent& c) { c.cells[4].splatsOffset = 1; });
+  expectRefused("2 of its 3 level-splats", [](DatasetContent& c) { c.cells[4].splatsCount = 0; });
   expectRefused("level", [](DatasetContent& c) { c.cells[2].level = 5; });
   expectRefused("leaf flag", [](DatasetContent& c) { c.cells[2].flags = kCellFlagLeaf; });
   expectRefused("depth", [](DatasetContent& c) { c.cells[3].depth = 4; });

@@ -1,5 +1,6 @@
-// The data-send process's decision (seed 003 §4.4): never the same cell to the
-// same render process twice while it is there or on its way.
+// The data-send process's decision (seed 003 §4.4): never the same splats to
+// the same render process twice while it holds them or they are on their way;
+// packets are layered, so a longer prefix sends only what lies beyond.
 #include "datasend/core/send_ledger.hpp"
 
 #include <gtest/gtest.h>
@@ -14,27 +15,37 @@ const PeerRanks kPeers = PeerRanks::contiguous(JobLayout{1, 1, 2, 2});
 // This is data-send index 1 (rank 3): it owns cells 2 and 3.
 const std::vector<std::uint32_t> kOwners{0, 0, 1, 1};
 
-v1::SendOrder order(int render, std::vector<std::uint32_t> cells, int requester = 1) {
+// Orders prefixes {cell, splats}.
+v1::SendOrder order(int render, std::vector<std::pair<std::uint32_t, std::uint32_t>> prefixes,
+                    int requester = 1) {
   v1::SendOrder o;
   o.set_render_rank(render);
   o.set_requester_rank(requester);
-  for (std::uint32_t cell : cells) o.add_top_level_cells(cell);
+  for (const auto& [cell, splats] : prefixes) {
+    o.add_top_level_cells(cell);
+    o.add_top_level_splats(splats);
+  }
   return o;
 }
 
-TEST(SendLedger, SendsACellToARenderOnceUntilItIsEvicted) {
+using Ranges = std::vector<SplatRange>;
+
+TEST(SendLedger, SendsEachSplatToARenderOnceUntilItIsEvicted) {
   SendLedger ledger(kPeers, kOwners, 1);
-  EXPECT_EQ(ledger.cellsToSend(order(4, {2, 3})), (std::vector<std::uint32_t>{2, 3}));
+  EXPECT_EQ(ledger.rangesToSend(order(4, {{2, 100}, {3, 40}})), (Ranges{{2, 0, 100}, {3, 0, 40}}));
   // Ordered again (by the render itself, say): already there or on its way.
-  EXPECT_TRUE(ledger.cellsToSend(order(4, {3, 2}, 4)).empty());
+  EXPECT_TRUE(ledger.rangesToSend(order(4, {{3, 40}, {2, 60}}, 4)).empty());
   EXPECT_EQ(ledger.duplicatesSkipped(), 2u);
+  // A longer prefix: only the splats beyond the one sent before.
+  EXPECT_EQ(ledger.rangesToSend(order(4, {{2, 400}})), (Ranges{{2, 100, 300}}));
+  EXPECT_EQ(ledger.extensionsSent(), 1u);
   // Another render is another matter.
-  EXPECT_EQ(ledger.cellsToSend(order(5, {3})), (std::vector<std::uint32_t>{3}));
-  // Evicted (or a dropped prefetch): it may go again.
+  EXPECT_EQ(ledger.rangesToSend(order(5, {{3, 40}})), (Ranges{{3, 0, 40}}));
+  // Evicted (or a dropped prefetch): it goes again from its start.
   v1::RenderReport report;
-  report.add_evicted_cells(3);
+  report.add_evicted_cells(2);
   ledger.applyReport(4, report);
-  EXPECT_EQ(ledger.cellsToSend(order(4, {2, 3})), (std::vector<std::uint32_t>{3}));
+  EXPECT_EQ(ledger.rangesToSend(order(4, {{2, 100}, {3, 80}})), (Ranges{{2, 0, 100}, {3, 40, 40}}));
 }
 
 TEST(SendLedger, RefusesCellsItDoesNotOwnNamingTheRequester) {
@@ -43,13 +54,16 @@ TEST(SendLedger, RefusesCellsItDoesNotOwnNamingTheRequester) {
   EXPECT_TRUE(ledger.owns(2));
   EXPECT_FALSE(ledger.owns(4));
   try {
-    ledger.cellsToSend(order(4, {0}, 1));
+    ledger.rangesToSend(order(4, {{0, 10}}, 1));
     FAIL() << "a cell of data-send 0 was accepted";
   } catch (const ProtocolError& error) {
     EXPECT_NE(std::string(error.what()).find("rank 1 ordered top-level cell 0"), std::string::npos)
         << error.what();
   }
-  EXPECT_THROW(ledger.cellsToSend(order(3, {2})), ProtocolError);  // not a render
+  EXPECT_THROW(ledger.rangesToSend(order(3, {{2, 10}})), ProtocolError);  // not a render
+  v1::SendOrder withoutPrefix = order(4, {{2, 10}});
+  withoutPrefix.clear_top_level_splats();
+  EXPECT_THROW(ledger.rangesToSend(withoutPrefix), ProtocolError);
   v1::RenderReport report;
   EXPECT_THROW(ledger.applyReport(1, report), ProtocolError);
 }

@@ -110,12 +110,13 @@ std::vector<Splat> subtreeSplats(const DatasetContent& c, std::uint32_t i) {
   for (std::uint32_t j = i; j < end; ++j) {
     const OctreeCell& cell = c.cells[j];
     if (cell.topLevel == kNoIndex) continue;
-    const std::uint64_t P = c.topLevel[cell.topLevel].pointCount;
+    // Layered packets: the level-splats come first, then the points.
+    const std::uint64_t L = c.topLevel[cell.topLevel].levelSplatCount;
     if (cell.isLeaf())
       for (std::uint32_t q = 0; q < cell.pointsCount; ++q)
-        out.push_back(c.points[pointBase[cell.topLevel] + cell.pointsOffset + q]);
+        out.push_back(c.points[pointBase[cell.topLevel] + cell.pointsOffset - L + q]);
     for (std::uint32_t q = 0; q < cell.splatsCount; ++q)
-      out.push_back(c.levelSplats[splatBase[cell.topLevel] + cell.splatsOffset - P + q]);
+      out.push_back(c.levelSplats[splatBase[cell.topLevel] + cell.splatsOffset + q]);
   }
   return out;
 }
@@ -151,8 +152,10 @@ TEST(Octree, EveryPointInExactlyOneLeaf) {
   for (const OctreeCell& c : b.content.cells) {
     if (!c.isLeaf()) continue;
     ASSERT_NE(c.topLevel, kNoIndex);
+    const TopLevelCell& top = b.content.topLevel[c.topLevel];
+    EXPECT_GE(c.pointsOffset, top.levelSplatCount);
     EXPECT_LE(std::uint64_t{c.pointsOffset} + c.pointsCount,
-              b.content.topLevel[c.topLevel].pointCount);
+              std::uint64_t{top.levelSplatCount} + top.pointCount);
   }
 }
 
@@ -276,7 +279,7 @@ TEST(Octree, TopLevelCellsPartitionThePointArray) {
     points += t.pointCount;
     const OctreeCell& cell = c.cells[t.cellIndex];
     EXPECT_TRUE(cell.depth == depth || (cell.isLeaf() && cell.depth < depth));
-    EXPECT_EQ(cell.pointsOffset, 0u);
+    EXPECT_EQ(cell.pointsOffset, t.levelSplatCount);  // layered: level-splats first
     EXPECT_EQ(cell.pointsCount, t.pointCount);
   }
   EXPECT_EQ(points, c.points.size());
@@ -294,14 +297,14 @@ TEST(Octree, TopLevelCellsPartitionThePointArray) {
       continue;
     }
     const TopLevelCell& t = c.topLevel[cell.topLevel];
-    EXPECT_LE(std::uint64_t{cell.pointsOffset} + cell.pointsCount, t.pointCount);
-    EXPECT_GE(cell.splatsOffset, t.pointCount);
-    EXPECT_LE(std::uint64_t{cell.splatsOffset} + cell.splatsCount,
-              std::uint64_t{t.pointCount} + t.levelSplatCount);
+    EXPECT_GE(cell.pointsOffset, t.levelSplatCount);
+    EXPECT_LE(std::uint64_t{cell.pointsOffset} + cell.pointsCount,
+              std::uint64_t{t.levelSplatCount} + t.pointCount);
+    EXPECT_LE(std::uint64_t{cell.splatsOffset} + cell.splatsCount, t.levelSplatCount);
     EXPECT_GE(cell.splatsCount, 1u);
     if (cell.isLeaf())
       for (std::uint32_t q = 0; q < cell.pointsCount; ++q)
-        ++claimed[base[cell.topLevel] + cell.pointsOffset + q];
+        ++claimed[base[cell.topLevel] + cell.pointsOffset - t.levelSplatCount + q];
   }
   EXPECT_TRUE(std::all_of(claimed.begin(), claimed.end(), [](int n) { return n == 1; }));
   EXPECT_NO_THROW(validateDatasetStructure(c.manifest, c.cells, c.topLevel, "test"));

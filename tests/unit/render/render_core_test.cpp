@@ -5,6 +5,7 @@
 
 #include <algorithm>
 
+#include "common/splat.hpp"
 #include "render/core/render_core.hpp"
 
 namespace pointillist::render {
@@ -19,11 +20,17 @@ constexpr int kOtherTraverse = 2;
 constexpr int kSelf = 5;
 const TimePoint kStart = timeAfterEpoch(100.0);
 
-std::vector<TopLevelCell> table(std::size_t cells, std::uint64_t bytes) {
+// Every cell's layered packet: 40 level-splats, then 160 points.
+constexpr std::uint32_t kCellSplats = 200;
+constexpr std::uint64_t kCellBytes = kCellSplats * sizeof(Splat);
+
+std::vector<TopLevelCell> table(std::size_t cells) {
   std::vector<TopLevelCell> topLevel(cells);
   for (std::size_t i = 0; i < cells; ++i) {
-    topLevel[i].byteSize = bytes;
-    topLevel[i].byteOffset = i * bytes;
+    topLevel[i].levelSplatCount = 40;
+    topLevel[i].pointCount = kCellSplats - 40;
+    topLevel[i].byteSize = kCellBytes;
+    topLevel[i].byteOffset = i * kCellBytes;
   }
   return topLevel;
 }
@@ -33,21 +40,29 @@ const std::vector<std::uint32_t> kOwners{0, 0, 1, 1};
 
 RenderCore makeCore(std::uint64_t capCells, std::optional<std::uint64_t> stallAfter = {}) {
   RenderCoreConfig config;
-  config.cacheCapBytes = capCells * 1000;
+  config.cacheCapBytes = capCells * kCellBytes;
   config.cacheTimeout = 30s;
   config.stallAfterPackets = stallAfter;
-  return RenderCore(config, kPeers, kSelf, table(4, 1000), kOwners);
+  return RenderCore(config, kPeers, kSelf, table(4), kOwners);
 }
 
+// A packet drawing the whole of each cell (or the first `prefix` splats).
 v1::RenderPacket packet(std::uint64_t id, std::vector<std::uint32_t> cells,
-                        std::uint64_t splats = 5000, std::uint64_t frame = 7) {
+                        std::uint64_t splats = 5000, std::uint64_t frame = 7,
+                        std::uint32_t prefix = kCellSplats) {
   v1::RenderPacket p;
   p.set_frame_id(frame);
   p.set_tile_id(static_cast<std::uint32_t>(id));
   p.set_packet_id(id);
   p.set_traverse_rank(kTraverse);
   p.set_total_splats(splats);
-  for (std::uint32_t cell : cells) p.add_top_level_cells(cell);
+  for (std::uint32_t cell : cells) {
+    p.add_top_level_cells(cell);
+    p.add_top_level_splats(prefix);
+    p.add_range_top_level(cell);
+    p.add_range_offset(0);
+    p.add_range_count(prefix);
+  }
   p.mutable_rect()->set_width(8);
   p.mutable_rect()->set_height(4);
   return p;
@@ -72,6 +87,12 @@ std::vector<const v1::SendOrder*> orders(const Outbox& out) {
 
 std::vector<std::uint32_t> cellsOf(const v1::SendOrder& order) {
   return {order.top_level_cells().begin(), order.top_level_cells().end()};
+}
+
+// A whole cell's data arriving.
+DataVerdict whole(RenderCore& core, std::uint32_t cell, double seconds, TimePoint now,
+                  RenderEffects& effects) {
+  return core.receiveData(cell, 0, kCellSplats, seconds, now, effects).verdict;
 }
 
 TEST(RenderCore, AsksTheOwningDataSendForMissingCellsOnceAndNamesItselfAsRequester) {
@@ -102,9 +123,9 @@ TEST(RenderCore, DrawsAPacketOnlyOnceAllItsDataIsHereAndStampsTheWait) {
   RenderEffects effects;
   core.receivePacket(kTraverse, packet(1, {0, 1}), kStart, effects);
   EXPECT_FALSE(core.nextPacket(kStart, effects));
-  EXPECT_EQ(core.receiveData(0, 1000, 1e-4, kStart + 10ms, effects), DataVerdict::Store);
+  EXPECT_EQ(whole(core, 0, 1e-4, kStart + 10ms, effects), DataVerdict::Store);
   EXPECT_FALSE(core.nextPacket(kStart + 10ms, effects));
-  EXPECT_EQ(core.receiveData(1, 1000, 1e-4, kStart + 30ms, effects), DataVerdict::Store);
+  EXPECT_EQ(whole(core, 1, 1e-4, kStart + 30ms, effects), DataVerdict::Store);
   const auto ready = core.nextPacket(kStart + 40ms, effects);
   ASSERT_TRUE(ready);
   const v1::TileImageHeader header = core.packetDrawn(*ready, 5000, 0.005, kStart + 45ms, effects);
@@ -115,8 +136,9 @@ TEST(RenderCore, DrawsAPacketOnlyOnceAllItsDataIsHereAndStampsTheWait) {
   EXPECT_EQ(header.workload_splats(), 0u);
   EXPECT_DOUBLE_EQ(core.secondsPerSplat(), 1e-6);
   // A late duplicate of cached data is ignored.
-  EXPECT_EQ(core.receiveData(1, 1000, 1e-4, kStart + 50ms, effects), DataVerdict::Duplicate);
-  EXPECT_THROW(core.receiveData(2, 999, 1e-4, kStart, effects), ProtocolError);
+  EXPECT_EQ(whole(core, 1, 1e-4, kStart + 50ms, effects), DataVerdict::Duplicate);
+  EXPECT_THROW(core.receiveData(2, 0, kCellSplats + 1, 1e-4, kStart, effects), ProtocolError);
+  EXPECT_THROW(core.receiveData(2, kCellSplats, 1, 1e-4, kStart, effects), ProtocolError);
 }
 
 TEST(RenderCore, ReportsEvictionsToDataSendBeforeARequestForTheSameCell) {
@@ -124,13 +146,13 @@ TEST(RenderCore, ReportsEvictionsToDataSendBeforeARequestForTheSameCell) {
   RenderCore core = makeCore(1);
   RenderEffects effects;
   core.receivePacket(kTraverse, packet(1, {0}), kStart, effects);
-  core.receiveData(0, 1000, 0.0, kStart, effects);
+  whole(core, 0, 0.0, kStart, effects);
   auto ready = core.nextPacket(kStart, effects);
   ASSERT_TRUE(ready);
   core.packetDrawn(*ready, 5000, 0.01, kStart, effects);
   core.receivePacket(kTraverse, packet(2, {1}), kStart, effects);
   RenderEffects loaded;
-  EXPECT_EQ(core.receiveData(1, 1000, 0.0, kStart, loaded), DataVerdict::Store);
+  EXPECT_EQ(whole(core, 1, 0.0, kStart, loaded), DataVerdict::Store);
   EXPECT_EQ(loaded.released, (std::vector<std::uint32_t>{0}));
   // Cell 0 is wanted again before the eviction was reported: the report goes
   // first, or data-send would drop the request as a duplicate.
@@ -159,12 +181,12 @@ TEST(RenderCore, PinsOnlyTheHeadPacketAndDropsPrefetchedDataWithNoRoomBesideIt) 
   EXPECT_TRUE(core.pinned(0));
   EXPECT_TRUE(core.pinned(1));
   EXPECT_FALSE(core.pinned(2));
-  core.receiveData(0, 1000, 0.0, kStart, effects);
-  core.receiveData(1, 1000, 0.0, kStart, effects);
+  whole(core, 0, 0.0, kStart, effects);
+  whole(core, 1, 0.0, kStart, effects);
   // Cell 2 arrives while the head packet's two cells fill the cap: dropped and
   // reported as evicted, so that it is sent again when it is needed.
   RenderEffects dropped;
-  EXPECT_EQ(core.receiveData(2, 1000, 0.0, kStart, dropped), DataVerdict::Dropped);
+  EXPECT_EQ(whole(core, 2, 0.0, kStart, dropped), DataVerdict::Dropped);
   EXPECT_EQ(core.droppedPrefetches(), 1u);
   EXPECT_FALSE(core.requested(2));
   auto ready = core.nextPacket(kStart + 1ms, dropped);
@@ -188,9 +210,9 @@ TEST(RenderCore, PinsOnlyTheHeadPacketAndDropsPrefetchedDataWithNoRoomBesideIt) 
   EXPECT_FALSE(core.nextPacket(kStart + 3ms, next));
   // Now cell 2 fits: an unpinned cell makes room for the pinned one.
   RenderEffects loaded;
-  EXPECT_EQ(core.receiveData(2, 1000, 0.0, kStart + 4ms, loaded), DataVerdict::Store);
+  EXPECT_EQ(whole(core, 2, 0.0, kStart + 4ms, loaded), DataVerdict::Store);
   EXPECT_EQ(loaded.released.size(), 1u);
-  EXPECT_LE(core.cache().bytes(), 2000u);
+  EXPECT_LE(core.cache().bytes(), 2 * kCellBytes);
 }
 
 TEST(RenderCore, AsksAgainForDataThatIsLateAndNotBefore) {
@@ -213,13 +235,13 @@ TEST(RenderCore, AsksAgainForDataThatIsLateAndNotBefore) {
 
 TEST(RenderCore, ExpiresUnusedCellsAfterTheTimeoutAndReleasesTheirData) {
   RenderCoreConfig config;
-  config.cacheCapBytes = 4000;
+  config.cacheCapBytes = 4 * kCellBytes;
   config.cacheTimeout = 2s;
-  RenderCore core(config, kPeers, kSelf, table(4, 1000), kOwners);
+  RenderCore core(config, kPeers, kSelf, table(4), kOwners);
   RenderEffects effects;
   core.nextPacket(kStart, effects);
   core.receivePacket(kTraverse, packet(1, {1}), kStart, effects);
-  core.receiveData(1, 1000, 0.0, kStart, effects);
+  whole(core, 1, 0.0, kStart, effects);
   auto ready = core.nextPacket(kStart, effects);
   ASSERT_TRUE(ready);
   core.packetDrawn(*ready, 100, 0.001, kStart, effects);
@@ -247,7 +269,7 @@ TEST(RenderCore, ReportsGoToEveryTraverseWithEachOnesLastPacketAndToDataSendOnly
   RenderEffects more;
   core.receivePacket(kTraverse, packet(9, {0}), kStart, more);
   core.receivePacket(kOtherTraverse, fromOther, kStart, more);
-  core.receiveData(0, 1000, 0.0, kStart, more);
+  whole(core, 0, 0.0, kStart, more);
   auto ready = core.nextPacket(kStart, more);
   ASSERT_TRUE(ready);
   RenderEffects drawn;
@@ -262,6 +284,8 @@ TEST(RenderCore, ReportsGoToEveryTraverseWithEachOnesLastPacketAndToDataSendOnly
   EXPECT_EQ(message.packets_done(), 1u);
   EXPECT_EQ(message.workload_splats(), 5000u);
   EXPECT_EQ(message.loaded_cells_size(), 1);
+  ASSERT_EQ(message.loaded_splats_size(), 1);
+  EXPECT_EQ(message.loaded_splats(0), kCellSplats);
   // A packet from a process that is not a traverse is a protocol error.
   EXPECT_THROW(core.receivePacket(3, packet(1, {0}), kStart, drawn), ProtocolError);
   EXPECT_THROW(core.receivePacket(kTraverse, packet(1, {4}), kStart, drawn), ProtocolError);
@@ -272,13 +296,114 @@ TEST(RenderCore, AStalledProcessKeepsTakingMessagesButDrawsNothing) {
   RenderEffects effects;
   core.receivePacket(kTraverse, packet(1, {0}), kStart, effects);
   core.receivePacket(kTraverse, packet(2, {0}), kStart, effects);
-  core.receiveData(0, 1000, 0.0, kStart, effects);
+  whole(core, 0, 0.0, kStart, effects);
   auto first = core.nextPacket(kStart, effects);
   ASSERT_TRUE(first);
   core.packetDrawn(*first, 100, 0.001, kStart, effects);
   EXPECT_TRUE(core.stalled());
   EXPECT_FALSE(core.nextPacket(kStart + 1s, effects));
   EXPECT_EQ(core.queuedPackets(), 1u);
+}
+
+std::vector<std::uint32_t> prefixesOf(const v1::SendOrder& order) {
+  return {order.top_level_splats().begin(), order.top_level_splats().end()};
+}
+
+TEST(RenderCore, HoldsPrefixesOfLayeredPacketsAndAsksOnlyForTheSplatsBeyond) {
+  RenderCore core = makeCore(4);
+  RenderEffects effects;
+  // A distant view draws cell 0's first layer only: 40 splats are asked for.
+  core.receivePacket(kTraverse, packet(1, {0}, 40, 7, 40), kStart, effects);
+  auto asked = orders(effects.messages);
+  ASSERT_EQ(asked.size(), 1u);
+  EXPECT_EQ(prefixesOf(*asked[0]), (std::vector<std::uint32_t>{40}));
+  DataIntake intake = core.receiveData(0, 0, 40, 0.0, kStart + 1ms, effects);
+  EXPECT_EQ(intake.verdict, DataVerdict::Store);
+  EXPECT_EQ(intake.skip, 0u);
+  EXPECT_EQ(intake.count, 40u);
+  EXPECT_EQ(core.heldSplats(0), 40u);
+  EXPECT_EQ(core.cache().bytes(), 40 * sizeof(Splat));
+  auto ready = core.nextPacket(kStart + 1ms, effects);
+  ASSERT_TRUE(ready);
+  core.packetDrawn(*ready, 40, 0.001, kStart + 2ms, effects);
+  // Closer: the whole cell. The prefix held is a hit for nothing; the order
+  // names the whole prefix, and the extension holds only the splats beyond.
+  RenderEffects closer;
+  core.receivePacket(kTraverse, packet(2, {0}), kStart + 3ms, closer);
+  EXPECT_EQ(core.misses(), 2u);
+  asked = orders(closer.messages);
+  ASSERT_EQ(asked.size(), 1u);
+  EXPECT_EQ(prefixesOf(*asked[0]), (std::vector<std::uint32_t>{kCellSplats}));
+  EXPECT_FALSE(core.nextPacket(kStart + 3ms, closer));
+  intake = core.receiveData(0, 40, kCellSplats - 40, 0.0, kStart + 4ms, closer);
+  EXPECT_EQ(intake.verdict, DataVerdict::Store);
+  EXPECT_EQ(intake.skip, 0u);
+  EXPECT_EQ(intake.count, kCellSplats - 40);
+  EXPECT_EQ(core.heldSplats(0), kCellSplats);
+  EXPECT_EQ(core.cache().bytes(), kCellBytes);
+  EXPECT_FALSE(core.requested(0));
+  ready = core.nextPacket(kStart + 4ms, closer);
+  ASSERT_TRUE(ready);
+  RenderEffects drawn;
+  core.packetDrawn(*ready, kCellSplats, 0.001, kStart + 5ms, drawn);
+  const auto& report = drawn.messages.entries()[0].as<v1::RenderReport>();
+  ASSERT_EQ(report.loaded_cells_size(), 1);
+  EXPECT_EQ(report.loaded_splats(0), kCellSplats);
+  // Overlapping data keeps only what is new; data held already is a duplicate.
+  EXPECT_EQ(core.receiveData(0, 0, kCellSplats, 0.0, kStart, drawn).verdict,
+            DataVerdict::Duplicate);
+  RenderCore other = makeCore(4);
+  other.receiveData(1, 0, 40, 0.0, kStart, drawn);
+  intake = other.receiveData(1, 0, 120, 0.0, kStart, drawn);
+  EXPECT_EQ(intake.verdict, DataVerdict::Store);
+  EXPECT_EQ(intake.skip, 40u);
+  EXPECT_EQ(intake.count, 80u);
+  EXPECT_EQ(other.heldSplats(1), 120u);
+}
+
+TEST(RenderCore, ALaterPartOfAnEvictedCellIsDroppedAndTheCellAskedForAgain) {
+  // Room for one cell: cell 0's first layer is evicted by cell 1 while its
+  // extension is on the way.
+  RenderCore core = makeCore(1);
+  RenderEffects effects;
+  core.receiveData(0, 0, 40, 0.0, kStart, effects);
+  core.receivePacket(kTraverse, packet(1, {1}), kStart, effects);
+  whole(core, 1, 0.0, kStart, effects);
+  EXPECT_EQ(core.heldSplats(0), 0u);
+  auto ready = core.nextPacket(kStart, effects);
+  ASSERT_TRUE(ready);
+  core.packetDrawn(*ready, 100, 0.001, kStart, effects);
+  core.receivePacket(kTraverse, packet(2, {0}), kStart, effects);
+  RenderEffects gap;
+  EXPECT_EQ(core.receiveData(0, 40, 60, 0.0, kStart + 1ms, gap).verdict, DataVerdict::Dropped);
+  EXPECT_EQ(core.heldSplats(0), 0u);
+  // Asked for again at once: data-send restarts the cell after the eviction.
+  const auto asked = orders(gap.messages);
+  ASSERT_EQ(asked.size(), 1u);
+  EXPECT_EQ(cellsOf(*asked[0]), (std::vector<std::uint32_t>{0}));
+  EXPECT_EQ(prefixesOf(*asked[0]), (std::vector<std::uint32_t>{kCellSplats}));
+  // A gap after a prefix still held would mean a broken data-send.
+  RenderCore other = makeCore(4);
+  other.receiveData(2, 0, 40, 0.0, kStart, gap);
+  EXPECT_THROW(other.receiveData(2, 100, 10, 0.0, kStart, gap), ProtocolError);
+}
+
+TEST(RenderCore, RefusesPacketsWhoseRangesReachBeyondThePrefixTheyWaitFor) {
+  RenderCore core = makeCore(4);
+  RenderEffects effects;
+  v1::RenderPacket beyond = packet(1, {0}, 100, 7, 40);
+  beyond.set_range_count(0, 41);
+  EXPECT_THROW(core.receivePacket(kTraverse, beyond, kStart, effects), ProtocolError);
+  v1::RenderPacket tooLong = packet(2, {0}, 100, 7, kCellSplats + 1);
+  tooLong.set_range_count(0, 1);
+  EXPECT_THROW(core.receivePacket(kTraverse, tooLong, kStart, effects), ProtocolError);
+  v1::RenderPacket noPrefix = packet(3, {0});
+  noPrefix.clear_top_level_splats();
+  EXPECT_THROW(core.receivePacket(kTraverse, noPrefix, kStart, effects), ProtocolError);
+  v1::RenderPacket unnamed = packet(4, {0});
+  unnamed.set_range_top_level(0, 2);
+  EXPECT_THROW(core.receivePacket(kTraverse, unnamed, kStart, effects), ProtocolError);
+  EXPECT_EQ(core.queuedPackets(), 0u);
 }
 
 }  // namespace

@@ -4,7 +4,9 @@
 #include "simulator/replay.hpp"
 
 #include <gtest/gtest.h>
+
 #include <unistd.h>
+#include <memory>
 
 #include <fstream>
 
@@ -54,8 +56,10 @@ traverse::DecisionLog recordedLog(const fs::path& file) {
   settings.set_size_scale(1.0f);
   settings.set_scheduler(v1::SCHEDULER_COST);
   const TimePoint origin = timeAfterEpoch(1000.0);
-  traverse::PacketPlanner planner(peers, 1, settings, city.content.topLevel,
-                                  assignOwners(city.content.topLevel, 1));
+  traverse::PacketPlanner planner(
+      peers, 1, settings,
+      std::make_shared<const traverse::PacketLayers>(city.content.cells, city.content.topLevel),
+      assignOwners(city.content.topLevel, 1));
   {
     traverse::DecisionLogWriter writer(
         file, traverse::decisionLogStart(peers, 1, settings, "small city"), origin);

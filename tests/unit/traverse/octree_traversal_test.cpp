@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <functional>
+#include <map>
 #include <random>
 #include <set>
 
@@ -84,14 +85,14 @@ std::set<std::pair<std::uint32_t, std::uint32_t>> splatSet(const std::vector<Pac
 
 const Splat& splatAt(const DatasetContent& content, std::uint32_t topLevel, std::uint32_t offset) {
   const TopLevelCell& entry = content.topLevel[topLevel];
-  // Packet k = its points (in table order) then its level-splats.
+  // Packet k = its level-splats (layered, in table order) then its points.
   std::uint64_t pointsBefore = 0, splatsBefore = 0;
   for (std::uint32_t k = 0; k < topLevel; ++k) {
     pointsBefore += content.topLevel[k].pointCount;
     splatsBefore += content.topLevel[k].levelSplatCount;
   }
-  if (offset < entry.pointCount) return content.points[pointsBefore + offset];
-  return content.levelSplats[splatsBefore + offset - entry.pointCount];
+  if (offset < entry.levelSplatCount) return content.levelSplats[splatsBefore + offset];
+  return content.points[pointsBefore + offset - entry.levelSplatCount];
 }
 
 std::vector<Camera> testCameras(const Fixture& f) {
@@ -169,24 +170,39 @@ TEST(OctreeTraversal, TilesDrawOnlyWhatTheFullFrameDrawsAndLoseNothingThatTouche
   EXPECT_GT(tilesCulled, 0u);
 }
 
+std::vector<std::uint32_t> cellsOf(std::span<const CellPrefix> prefixes) {
+  std::vector<std::uint32_t> cells;
+  for (const CellPrefix& prefix : prefixes) cells.push_back(prefix.cell);
+  return cells;
+}
+
 TEST(OctreeTraversal, PrefetchCellsAreASupersetOfWhatTheTileDraws) {
   const Fixture& f = cityFixture();
+  const PacketLayers layers(f.content.cells, f.content.topLevel);
   std::size_t smallerThanFrame = 0;
   for (const Camera& camera : testCameras(f)) {
     for (const TileRect& rect :
          {fullFrameRect(camera), makeTileRect(0, 0, 100, 80), makeTileRect(150, 90, 64, 64)}) {
       TraversalSettings settings;
       const auto drawn = traverseTile(f.content.cells, camera, rect, settings);
-      const auto ahead = topLevelCellsInTile(f.content.cells, camera, rect, settings);
+      const auto aheadPrefixes =
+          topLevelCellsInTile(f.content.cells, layers, camera, rect, settings);
+      const auto ahead = cellsOf(aheadPrefixes);
       ASSERT_TRUE(std::is_sorted(ahead.begin(), ahead.end()));
       ASSERT_EQ(std::adjacent_find(ahead.begin(), ahead.end()), ahead.end());
-      for (std::uint32_t cell : drawn.topLevelCells) {
+      const auto drawnCells = cellsOf(drawn.needs);
+      for (std::uint32_t cell : drawnCells) {
         EXPECT_TRUE(std::binary_search(ahead.begin(), ahead.end(), cell)) << "cell " << cell;
       }
-      ASSERT_TRUE(std::is_sorted(drawn.topLevelCells.begin(), drawn.topLevelCells.end()));
+      ASSERT_TRUE(std::is_sorted(drawnCells.begin(), drawnCells.end()));
+      // Estimated prefixes end on a layer and lie inside the packet.
+      for (const CellPrefix& prefix : aheadPrefixes) {
+        EXPECT_EQ(layers.roundUp(prefix.cell, prefix.splats), prefix.splats);
+        EXPECT_GT(prefix.splats, 0u);
+      }
       // Culled by the frustum: a tile names only cells the whole frame names.
-      const auto whole =
-          topLevelCellsInTile(f.content.cells, camera, fullFrameRect(camera), settings);
+      const auto whole = cellsOf(
+          topLevelCellsInTile(f.content.cells, layers, camera, fullFrameRect(camera), settings));
       EXPECT_TRUE(std::includes(whole.begin(), whole.end(), ahead.begin(), ahead.end()));
       if (rect.width() < camera.image_width()) smallerThanFrame += ahead.size() < whole.size();
       for (std::uint32_t cell : whole) EXPECT_LT(cell, f.content.topLevel.size());
@@ -223,7 +239,18 @@ TEST(OctreeTraversal, RangesAreSortedMergedAndInsideTheirPackets) {
                      previous.offset + previous.count < range.offset));
       }
     }
-    EXPECT_TRUE(std::is_sorted(result.topLevelCells.begin(), result.topLevelCells.end()));
+    // One need per cell drawn from, ascending, reaching exactly the last range end.
+    std::map<std::uint32_t, std::uint32_t> ends;
+    for (const auto& range : result.ranges) {
+      ends[range.topLevel] = std::max(ends[range.topLevel], range.offset + range.count);
+    }
+    ASSERT_EQ(result.needs.size(), ends.size());
+    std::size_t i = 0;
+    for (const auto& [cell, end] : ends) {
+      EXPECT_EQ(result.needs[i].cell, cell);
+      EXPECT_EQ(result.needs[i].splats, end);
+      ++i;
+    }
   }
 }
 

@@ -4,6 +4,9 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <memory>
+
+#include "common/splat.hpp"
 
 #include "traverse/core/packet_planner.hpp"
 
@@ -19,13 +22,34 @@ constexpr int kRender0 = 4;
 constexpr int kRender1 = 5;
 const TimePoint kStart = timeAfterEpoch(50.0);
 
-std::vector<TopLevelCell> table() {
+// Cell i's layered packet: 1000 level-splats of level 2, 4000 of level 1, then
+// its points, 31'250 * (i + 1) splats in all (1 MB * (i + 1)).
+constexpr std::uint32_t kSplatsPerMegabyte = 31'250;
+
+std::uint32_t wholeCell(std::uint32_t cell) {
+  return kSplatsPerMegabyte * (cell + 1);
+}
+
+std::shared_ptr<const PacketLayers> layers() {
   std::vector<TopLevelCell> topLevel(6);
-  for (std::size_t i = 0; i < topLevel.size(); ++i) {
-    topLevel[i].byteSize = 1'000'000 * (i + 1);
-    topLevel[i].byteOffset = i * 10'000'000;
+  std::vector<OctreeCell> cells;
+  for (std::uint32_t i = 0; i < topLevel.size(); ++i) {
+    topLevel[i].levelSplatCount = 5000;
+    topLevel[i].pointCount = wholeCell(i) - 5000;
+    OctreeCell coarse{};
+    coarse.topLevel = i;
+    coarse.level = 2;
+    coarse.splatsCount = 1000;
+    coarse.maxSplatRadius = 0.4f;
+    OctreeCell finer = coarse;
+    finer.level = 1;
+    finer.splatsOffset = 1000;
+    finer.splatsCount = 4000;
+    finer.maxSplatRadius = 0.1f;
+    cells.push_back(coarse);
+    cells.push_back(finer);
   }
-  return topLevel;
+  return std::make_shared<const PacketLayers>(cells, topLevel);
 }
 
 // Cells 0-2 belong to data-send 2, cells 3-5 to data-send 3.
@@ -41,7 +65,7 @@ v1::RunSettings settings(v1::Scheduler scheduler = v1::SCHEDULER_COST) {
 }
 
 PacketPlanner planner(v1::Scheduler scheduler = v1::SCHEDULER_COST) {
-  return PacketPlanner(kPeers, kSelf, settings(scheduler), table(), kOwners);
+  return PacketPlanner(kPeers, kSelf, settings(scheduler), layers(), kOwners);
 }
 
 v1::TileTask task(std::uint64_t frame, std::uint32_t tile) {
@@ -55,21 +79,36 @@ v1::TileTask task(std::uint64_t frame, std::uint32_t tile) {
   return t;
 }
 
+std::vector<CellPrefix> whole(std::vector<std::uint32_t> cells) {
+  std::vector<CellPrefix> prefixes;
+  for (std::uint32_t cell : cells) prefixes.push_back({cell, wholeCell(cell)});
+  return prefixes;
+}
+
+// A walk drawing the whole of each cell, or the given prefixes.
 struct Walk {
   explicit Walk(std::vector<std::uint32_t> topLevel, std::uint64_t count = 10'000,
                 std::vector<PacketRange> drawn = {})
-      : cells(std::move(topLevel)), splats(count), ranges(std::move(drawn)) {}
-  std::vector<std::uint32_t> cells;
+      : needs(whole(std::move(topLevel))), splats(count), ranges(std::move(drawn)) {}
+  static Walk prefixes(std::vector<CellPrefix> needs, std::uint64_t count) {
+    Walk walk({}, count);
+    walk.needs = std::move(needs);
+    return walk;
+  }
+  std::vector<CellPrefix> needs;
   std::uint64_t splats;
   std::vector<PacketRange> ranges;
-  TileWalk view() const { return {cells, splats, ranges}; }
+  TileWalk view() const { return {needs, splats, ranges}; }
 };
 
 v1::RenderReport report(std::uint64_t workload, std::vector<std::uint32_t> loaded = {},
                         std::uint64_t packetsDone = 0, std::uint64_t lastPacket = 0) {
   v1::RenderReport r;
   r.set_workload_splats(workload);
-  for (std::uint32_t cell : loaded) r.add_loaded_cells(cell);
+  for (std::uint32_t cell : loaded) {
+    r.add_loaded_cells(cell);
+    r.add_loaded_splats(wholeCell(cell));
+  }
   r.set_packets_done(packetsDone);
   r.add_last_packet_from_traverse(lastPacket);
   r.set_seconds_per_splat(1e-7);
@@ -106,7 +145,7 @@ TEST(PacketPlanner, SendsThePacketToTheRenderHoldingTheDataAndOrdersTheRestFromT
   const Walk walk({0, 1, 4, 5}, 10'000, {{0, 0, 10}, {5, 3, 7}});
   const PacketPlan plan = p.planPacket(task(3, 2), walk.view(), {}, kStart, out);
   EXPECT_EQ(plan.renderRank, kRender1);
-  EXPECT_EQ(plan.choice.missingCells, (std::vector<std::uint32_t>{1, 5}));
+  EXPECT_EQ(plan.choice.missing, whole({1, 5}));
   EXPECT_EQ(ordersIn(out),
             (std::vector<std::pair<int, std::vector<std::uint32_t>>>{{2, {1}}, {3, {5}}}));
   for (const Outgoing& outgoing : out.entries()) {
@@ -147,7 +186,7 @@ TEST(PacketPlanner, OrderedCellsCountAsPresentUntilAReportSaysOtherwise) {
   v1::RenderReport evicted = report(0, {}, 2, 2);
   evicted.add_evicted_cells(2);
   p.applyReport(plan.renderRank, evicted, kStart + 1ms);
-  EXPECT_FALSE(p.model().hasCell(static_cast<std::size_t>(plan.renderRank - kRender0), 2));
+  EXPECT_EQ(p.model().heldSplats(static_cast<std::size_t>(plan.renderRank - kRender0), 2), 0u);
 }
 
 TEST(PacketPlanner, AvoidsARenderThatHasStoppedFinishingWork) {
@@ -165,7 +204,7 @@ TEST(PacketPlanner, AvoidsARenderThatHasStoppedFinishingWork) {
   // work goes to render 1, although the data has to move.
   const PacketPlan moved = p.planPacket(task(1, 0), walk.view(), {}, kStart + 2s, out);
   EXPECT_EQ(moved.renderRank, kRender1);
-  EXPECT_EQ(moved.choice.missingCells, (std::vector<std::uint32_t>{1}));
+  EXPECT_EQ(moved.choice.missing, whole({1}));
   // Progress clears the suspicion.
   p.applyReport(kRender0, report(0, {}, 3, 3), kStart + 2100ms);
   EXPECT_EQ(p.planPacket(task(1, 1), Walk({3}, 1000).view(), {}, kStart + 2200ms, out).renderRank,
@@ -181,15 +220,64 @@ TEST(PacketPlanner, PrefetchesWhatTheRectNeedsLaterWithinTheBudgetWithoutDuplica
   Outbox out;
   // Cell 1 is needed now; 1 (again), 2 and 3 later. The 8 MiB budget takes
   // 2 (3 MB) and 3 (4 MB), not 5 (6 MB more).
-  const std::uint32_t ahead[] = {1, 2, 3, 5};
+  const auto ahead = whole({1, 2, 3, 5});
   const PacketPlan plan = p.planPacket(withLookahead, Walk({1}).view(), ahead, kStart, out);
-  EXPECT_EQ(plan.prefetchCells, (std::vector<std::uint32_t>{2, 3}));
+  EXPECT_EQ(plan.prefetch, whole({2, 3}));
   EXPECT_EQ(plan.prefetchBytes, 7'000'000u);
   EXPECT_EQ(ordersIn(out),
             (std::vector<std::pair<int, std::vector<std::uint32_t>>>{{2, {1, 2}}, {3, {3}}}));
   EXPECT_EQ(packetIn(out).prefetch_bytes(), 7'000'000u);
   // A planner of another scheduler does not prefetch.
   EXPECT_FALSE(planner(v1::SCHEDULER_ROUND_ROBIN).lookaheadCamera(withLookahead));
+}
+
+std::vector<std::uint32_t> prefixesIn(const Outbox& out) {
+  std::vector<std::uint32_t> prefixes;
+  for (const Outgoing& outgoing : out.entries()) {
+    if (outgoing.kind != MessageKind::SendOrder) continue;
+    const auto& splats = outgoing.as<v1::SendOrder>().top_level_splats();
+    prefixes.insert(prefixes.end(), splats.begin(), splats.end());
+  }
+  return prefixes;
+}
+
+// Packets are layered: a tile's need is rounded up to the end of a layer, the
+// packet waits for that prefix, and only the splats beyond what the render
+// holds are ordered and counted in the cost.
+TEST(PacketPlanner, RoundsNeedsUpToLayersAndOrdersOnlyWhatLiesBeyondTheHeldPrefix) {
+  PacketPlanner p = planner();
+  v1::RenderReport coarse = report(0);
+  coarse.add_loaded_cells(0);
+  coarse.add_loaded_splats(1000);
+  p.applyReport(kRender0, coarse, kStart);
+  p.applyReport(kRender1, report(0), kStart);
+  Outbox out;
+  // 700 splats of cell 0 lie in its first layer, which render 0 holds.
+  PacketPlan plan =
+      p.planPacket(task(0, 0), Walk::prefixes({{0, 700}}, 10).view(), {}, kStart, out);
+  EXPECT_EQ(plan.renderRank, kRender0);
+  EXPECT_EQ(plan.needs, (std::vector<CellPrefix>{{0, 1000}}));
+  EXPECT_TRUE(ordersIn(out).empty());
+  EXPECT_EQ(packetIn(out).top_level_splats(0), 1000u);
+  // 1500 splats reach into the second layer: the order names the prefix through
+  // it, and the packet counts only the 4000 splats beyond the first layer.
+  Outbox closer;
+  plan = p.planPacket(task(0, 1), Walk::prefixes({{0, 1500}}, 10).view(), {}, kStart, closer);
+  EXPECT_EQ(plan.renderRank, kRender0);
+  EXPECT_EQ(plan.needs, (std::vector<CellPrefix>{{0, 5000}}));
+  EXPECT_EQ(ordersIn(closer), (std::vector<std::pair<int, std::vector<std::uint32_t>>>{{2, {0}}}));
+  EXPECT_EQ(prefixesIn(closer), (std::vector<std::uint32_t>{5000}));
+  EXPECT_EQ(packetIn(closer).ordered_bytes(), 4000u * sizeof(Splat));
+  EXPECT_EQ(packetIn(closer).top_level_splats(0), 5000u);
+  // Into the points: the whole packet.
+  Outbox nearest;
+  plan = p.planPacket(task(0, 2), Walk::prefixes({{0, 5001}}, 10).view(), {}, kStart, nearest);
+  EXPECT_EQ(plan.needs, whole({0}));
+  EXPECT_EQ(packetIn(nearest).ordered_bytes(), (wholeCell(0) - 5000u) * sizeof(Splat));
+  // A need beyond the packet is refused.
+  EXPECT_THROW(
+      p.planPacket(task(0, 3), Walk::prefixes({{0, wholeCell(0) + 1}}, 10).view(), {}, kStart, out),
+      ProtocolError);
 }
 
 TEST(PacketPlanner, OtherSchedulersTakeTheDisplaysChoice) {

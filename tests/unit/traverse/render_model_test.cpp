@@ -3,6 +3,7 @@
 
 #include <set>
 
+#include "common/splat.hpp"
 #include "traverse/core/render_model.hpp"
 
 namespace pointillist::traverse {
@@ -11,48 +12,47 @@ namespace {
 // Cores are told the time; these tests need only one moment.
 const RenderModel::Clock::time_point kNow{};
 
-std::vector<TopLevelCell> table(std::initializer_list<std::uint64_t> bytes) {
-  std::vector<TopLevelCell> cells;
-  std::uint64_t offset = 0;
-  for (std::uint64_t size : bytes) {
-    TopLevelCell cell{};
-    cell.byteOffset = offset;
-    cell.byteSize = size;
-    offset += size;
-    cells.push_back(cell);
+// Whole-packet sizes in bytes (multiples of the 32-byte splat) per cell.
+using Table = std::vector<std::uint64_t>;
+
+// The whole packets of `ids`: what a render needs or holds of them.
+std::vector<CellPrefix> whole(const Table& table, std::initializer_list<std::uint32_t> ids) {
+  std::vector<CellPrefix> prefixes;
+  for (std::uint32_t id : ids) {
+    prefixes.push_back({id, static_cast<std::uint32_t>(table.at(id) / sizeof(Splat))});
   }
-  return cells;
+  return prefixes;
 }
 
 TEST(RenderModel, PrefersTheRenderThatHasTheData) {
-  const auto cells = table({1'000'000, 2'000'000, 500});
-  RenderModel model(3, cells);
-  const std::uint32_t loaded[] = {0, 1};
+  const Table cells{1'000'000, 2'000'000, 512};
+  RenderModel model(3);
+  const auto loaded = whole(cells, {0, 1});
   model.applyReport(1, {.workloadSplats = 0, .loaded = loaded}, kNow);
-  const std::uint32_t needed[] = {0, 1};
+  const auto needed = whole(cells, {0, 1});
   const auto choice = model.choose(needed, 1000, kNow);
   EXPECT_EQ(choice.render, 1u);
   EXPECT_EQ(choice.missingBytes, 0u);
-  EXPECT_TRUE(choice.missingCells.empty());
+  EXPECT_TRUE(choice.missing.empty());
 }
 
 TEST(RenderModel, PrefersAnIdleRenderWhenWorkOutweighsTheTransfer) {
-  const auto cells = table({1000, 1000});
-  RenderModel model(2, cells);
-  const std::uint32_t loaded[] = {0};
-  // Render 0 has the data but 10 M splats queued (2 s at 5 M/s); moving 1 kB costs ~10 us.
+  const Table cells{1024, 1024};
+  RenderModel model(2);
+  const auto loaded = whole(cells, {0});
+  // Render 0 has the data but 10 M splats queued (2 s at 5 M/s); moving 1 KiB costs ~10 us.
   model.applyReport(0, {.workloadSplats = 10'000'000, .loaded = loaded}, kNow);
-  const std::uint32_t needed[] = {0};
+  const auto needed = whole(cells, {0});
   const auto choice = model.choose(needed, 100, kNow);
   EXPECT_EQ(choice.render, 1u);
-  EXPECT_EQ(choice.missingBytes, 1000u);
-  ASSERT_EQ(choice.missingCells.size(), 1u);
-  EXPECT_EQ(choice.missingCells[0], 0u);
+  EXPECT_EQ(choice.missingBytes, 1024u);
+  ASSERT_EQ(choice.missing.size(), 1u);
+  EXPECT_EQ(choice.missing[0], (CellPrefix{0, 32}));
 }
 
 TEST(RenderModel, PaperCostIsWorkloadTimesTsPlusMissingBytesTimesTn) {
-  const auto cells = table({4000, 6000});
-  RenderModel model(2, cells);
+  const Table cells{3200, 6400};
+  RenderModel model(2);
   ASSERT_EQ(model.costModel(), CostModel::Paper);  // the default
   // Measured rates replace the defaults (moving average converges).
   for (int i = 0; i < 200; ++i) {
@@ -61,24 +61,24 @@ TEST(RenderModel, PaperCostIsWorkloadTimesTsPlusMissingBytesTimesTn) {
   }
   EXPECT_NEAR(model.secondsPerSplat(), 1e-6, 1e-9);
   EXPECT_NEAR(model.secondsPerByte(), 1e-5, 1e-8);
-  const std::uint32_t needed[] = {0, 1};
+  const auto needed = whole(cells, {0, 1});
   std::uint64_t missing = 0;
   const double cost = model.cost(0, needed, 100, &missing);
-  EXPECT_EQ(missing, 10'000u);
-  EXPECT_NEAR(cost, (500 + 100) * 1e-6 + 10'000 * 1e-5, 1e-9);
+  EXPECT_EQ(missing, 9600u);
+  EXPECT_NEAR(cost, (500 + 100) * 1e-6 + 9600 * 1e-5, 1e-9);
 }
 
 TEST(RenderModel, OverlapCostLetsTheTransferHideBehindQueuedWork) {
-  const auto cells = table({4000, 6000});
-  RenderModel model(2, cells, CostModel::Overlap);
+  const Table cells{3200, 6400};
+  RenderModel model(2, CostModel::Overlap);
   for (int i = 0; i < 200; ++i) {
     model.applyReport(0, {.workloadSplats = 500, .secondsPerSplat = 1e-6, .secondsPerByte = 1e-7},
                       kNow);
   }
-  const std::uint32_t needed[] = {0, 1};
-  // 10 kB at 1e-7 s/B = 1 ms arrives while the 500 queued splats (0.5 ms) are
-  // drawn: the transfer is the longer of the two.
-  EXPECT_NEAR(model.cost(0, needed, 100, nullptr), 10'000 * 1e-7 + 100 * 1e-6, 1e-9);
+  const auto needed = whole(cells, {0, 1});
+  // 9.6 kB at 1e-7 s/B = 0.96 ms arrives while the 500 queued splats (0.5 ms)
+  // are drawn: the transfer is the longer of the two.
+  EXPECT_NEAR(model.cost(0, needed, 100, nullptr), 9600 * 1e-7 + 100 * 1e-6, 1e-9);
   // With 5000 splats queued (5 ms) the transfer is hidden entirely.
   model.applyReport(0, {.workloadSplats = 5000}, kNow);
   EXPECT_NEAR(model.cost(0, needed, 100, nullptr), (5000 + 100) * 1e-6, 1e-9);
@@ -86,13 +86,13 @@ TEST(RenderModel, OverlapCostLetsTheTransferHideBehindQueuedWork) {
 
 TEST(RenderModel, OverlapCostSendsDataToABusyRenderWhoseQueueHidesTheTransfer) {
   // Render 0 holds the cell and has 2.5 ms queued; render 1 has 2 ms queued and
-  // needs the 10 kB cell (1 ms). Paper: 2.5 ms against 2 + 1 = 3 ms, stay.
+  // needs the 9.6 kB cell (0.96 ms). Paper: 2.5 ms against 2 + 0.96 ms, stay.
   // Overlap: the cell arrives while render 1 draws its queue, 2.5 against 2 ms, move.
-  const auto cells = table({10'000});
-  const std::uint32_t loaded[] = {0};
-  const std::uint32_t needed[] = {0};
-  RenderModel paper(2, cells, CostModel::Paper);
-  RenderModel overlap(2, cells, CostModel::Overlap);
+  const Table cells{9600};
+  const auto loaded = whole(cells, {0});
+  const auto needed = whole(cells, {0});
+  RenderModel paper(2, CostModel::Paper);
+  RenderModel overlap(2, CostModel::Overlap);
   for (RenderModel* model : {&paper, &overlap}) {
     for (int i = 0; i < 200; ++i) {
       model->applyReport(0, {.secondsPerSplat = 1e-6, .secondsPerByte = 1e-7}, kNow);
@@ -103,12 +103,11 @@ TEST(RenderModel, OverlapCostSendsDataToABusyRenderWhoseQueueHidesTheTransfer) {
   EXPECT_EQ(paper.choose(needed, 100, kNow).render, 0u);
   const auto moved = overlap.choose(needed, 100, kNow);
   EXPECT_EQ(moved.render, 1u);
-  EXPECT_EQ(moved.missingBytes, 10'000u);
+  EXPECT_EQ(moved.missingBytes, 9600u);
 }
 
 TEST(RenderModel, WorkloadCountsPacketsSentSinceTheLastReport) {
-  const auto cells = table({100});
-  RenderModel model(1, cells);
+  RenderModel model(1);
   model.recordPacket(0, 1, 300, {}, kNow);
   model.recordPacket(0, 2, 200, {}, kNow);
   EXPECT_EQ(model.workload(0), 500u);
@@ -120,27 +119,58 @@ TEST(RenderModel, WorkloadCountsPacketsSentSinceTheLastReport) {
 }
 
 TEST(RenderModel, OrderedCellsCountAsPresentUntilEvicted) {
-  const auto cells = table({100, 100});
-  RenderModel model(2, cells);
-  const std::uint32_t ordered[] = {1};
+  const Table cells{128, 128};
+  RenderModel model(2);
+  const auto ordered = whole(cells, {1});
   model.recordPacket(1, 1, 10, ordered, kNow);
-  EXPECT_TRUE(model.hasCell(1, 1));
-  const std::uint32_t loaded[] = {1};
+  EXPECT_EQ(model.heldSplats(1, 1), 4u);
+  const auto loaded = whole(cells, {1});
   model.applyReport(1, {.loaded = loaded, .lastPacketFromUs = 1}, kNow);
-  EXPECT_TRUE(model.hasCell(1, 1));
+  EXPECT_EQ(model.heldSplats(1, 1), 4u);
   EXPECT_EQ(model.cachedCellCount(1), 1u);
   const std::uint32_t evicted[] = {1};
   model.applyReport(1, {.evicted = evicted, .lastPacketFromUs = 1}, kNow);
-  EXPECT_FALSE(model.hasCell(1, 1));
+  EXPECT_EQ(model.heldSplats(1, 1), 0u);
   EXPECT_EQ(model.cachedCellCount(1), 0u);
 }
 
 TEST(RenderModel, EqualCostsSpreadOverRenders) {
-  const auto cells = table({100});
-  RenderModel model(4, cells);
+  RenderModel model(4);
   std::set<std::size_t> chosen;
   for (int i = 0; i < 4; ++i) chosen.insert(model.choose({}, 0, kNow).render);
   EXPECT_EQ(chosen.size(), 4u);
+}
+
+// Packets are layered: a render holding a cell's first layers lacks only the
+// splats beyond them, and an order for a longer prefix stays on the books until
+// a report shows it held.
+TEST(RenderModel, MissingBytesArePrefixesBeyondWhatARenderHoldsOrHasOnOrder) {
+  RenderModel model(2);
+  const CellPrefix coarse[] = {{0, 100}};
+  model.applyReport(0, {.loaded = coarse}, kNow);
+  const CellPrefix fine[] = {{0, 400}, {1, 50}};
+  std::uint64_t missing = 0;
+  model.cost(0, fine, 10, &missing);
+  EXPECT_EQ(missing, (300u + 50u) * sizeof(Splat));
+  model.cost(1, fine, 10, &missing);
+  EXPECT_EQ(missing, (400u + 50u) * sizeof(Splat));
+  EXPECT_EQ(model.missing(0, fine), (std::vector<CellPrefix>{{0, 400}, {1, 50}}));
+  const CellPrefix covered[] = {{0, 80}};
+  EXPECT_TRUE(model.missing(0, covered).empty());
+  // The longer prefix is ordered; a report of the shorter one leaves it on order.
+  model.recordPacket(0, 1, 10, fine, kNow);
+  EXPECT_EQ(model.heldSplats(0, 0), 400u);
+  const CellPrefix partial[] = {{0, 200}};
+  model.applyReport(0, {.loaded = partial}, kNow);
+  EXPECT_EQ(model.heldSplats(0, 0), 400u);
+  EXPECT_TRUE(model.missing(0, fine).empty());
+  const CellPrefix all[] = {{0, 400}};
+  model.applyReport(0, {.loaded = all}, kNow);
+  EXPECT_EQ(model.heldSplats(0, 0), 400u);
+  const std::uint32_t evicted[] = {0};
+  model.applyReport(0, {.evicted = evicted}, kNow);
+  EXPECT_EQ(model.heldSplats(0, 0), 0u);
+  EXPECT_EQ(model.heldSplats(0, 1), 50u);  // still on order
 }
 
 }  // namespace
@@ -151,13 +181,13 @@ namespace {
 
 TEST(RenderModel, AStalledRenderIsAvoidedEvenWhenItHasTheData) {
   using namespace std::chrono_literals;
-  const auto cells = table({10'000'000, 100});
-  RenderModel model(2, cells);
+  const Table cells{10'000'000, 128};
+  RenderModel model(2);
   const RenderModel::Clock::time_point t{};
-  const std::uint32_t loaded[] = {0};
+  const auto loaded = whole(cells, {0});
   // Render 0 holds the big cell, has a little work and keeps finishing packets.
   model.applyReport(0, {.workloadSplats = 1000, .loaded = loaded, .packetsDone = 1}, t);
-  const std::uint32_t needed[] = {0};
+  const auto needed = whole(cells, {0});
   EXPECT_EQ(model.choose(needed, 10, t + 100ms).render, 0u);
   // It reports more work but finishes nothing for two seconds: suspected stalled.
   model.applyReport(0, {.workloadSplats = 2000, .loaded = {}, .packetsDone = 1}, t + 200ms);
@@ -173,25 +203,25 @@ TEST(RenderModel, AStalledRenderIsAvoidedEvenWhenItHasTheData) {
 // Seed 003's cost is per process: T_s of a slower render process counts for it
 // alone, so it is given proportionally less work.
 TEST(RenderModel, ASlowerRenderGetsProportionallyLessWork) {
-  const auto cells = table({1000});
-  RenderModel model(2, cells);
-  const std::uint32_t loaded[] = {0};
+  const Table cells{1024};
+  RenderModel model(2);
+  const auto loaded = whole(cells, {0});
   model.applyReport(0, {.loaded = loaded, .secondsPerSplat = 4e-7}, kNow);
   model.applyReport(1, {.loaded = loaded, .secondsPerSplat = 1e-7}, kNow);
   EXPECT_DOUBLE_EQ(model.secondsPerSplat(), 2.5e-7);
-  const std::uint32_t needed[] = {0};
+  const auto needed = whole(cells, {0});
   std::size_t packets[2] = {};
   for (std::uint64_t id = 1; id <= 500; ++id) {
     const auto choice = model.choose(needed, 10'000, kNow);
     ++packets[choice.render];
-    model.recordPacket(choice.render, id, 10'000, choice.missingCells, kNow);
+    model.recordPacket(choice.render, id, 10'000, choice.missing, kNow);
   }
   // Equal finishing times: four times the packets to the four times faster one.
   EXPECT_NEAR(static_cast<double>(packets[1]) / static_cast<double>(packets[0]), 4.0, 0.1);
   EXPECT_DOUBLE_EQ(model.secondsPerSplat(0), 4e-7);  // while it has work, its own figure
   EXPECT_DOUBLE_EQ(model.secondsPerSplat(1), 1e-7);
   // A render that has not measured yet counts as the mean of those that have.
-  RenderModel fresh(3, cells);
+  RenderModel fresh(3);
   fresh.applyReport(0, {.secondsPerSplat = 1e-7, .secondsPerByte = 2e-9}, kNow);
   fresh.applyReport(1, {.secondsPerSplat = 3e-7, .secondsPerByte = 4e-9}, kNow);
   EXPECT_DOUBLE_EQ(fresh.secondsPerSplat(2), 2e-7);
@@ -202,13 +232,13 @@ TEST(RenderModel, ASlowerRenderGetsProportionallyLessWork) {
 // must not starve a process: with nothing queued it counts as the mean, gets
 // work, and is measured again.
 TEST(RenderModel, AnIdleRenderWithAStaleSlowFigureStillGetsWork) {
-  const auto cells = table({1000});
-  RenderModel model(2, cells);
-  const std::uint32_t loaded[] = {0};
+  const Table cells{1024};
+  RenderModel model(2);
+  const auto loaded = whole(cells, {0});
   model.applyReport(0, {.loaded = loaded, .secondsPerSplat = 1e-5}, kNow);
   model.applyReport(1, {.loaded = loaded, .secondsPerSplat = 1e-7}, kNow);
   EXPECT_DOUBLE_EQ(model.secondsPerSplat(0), model.secondsPerSplat());
-  const std::uint32_t needed[] = {0};
+  const auto needed = whole(cells, {0});
   std::size_t toSlow = 0;
   for (std::uint64_t id = 1; id <= 20; ++id) {
     const auto choice = model.choose(needed, 10'000, kNow);

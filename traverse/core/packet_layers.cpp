@@ -1,0 +1,61 @@
+#include "traverse/core/packet_layers.hpp"
+
+#include <algorithm>
+#include <map>
+#include <string>
+
+#include "common/errors.hpp"
+
+namespace pointillist::traverse {
+
+PacketLayers::PacketLayers(std::span<const OctreeCell> cells,
+                           std::span<const TopLevelCell> topLevel) {
+  totals_.reserve(topLevel.size());
+  for (const TopLevelCell& t : topLevel) totals_.push_back(t.pointCount + t.levelSplatCount);
+  // level -> (end, radius) per top-level cell, filled in one pass over the cells.
+  std::vector<std::map<std::uint8_t, PacketLayer, std::greater<>>> perCell(topLevel.size());
+  for (const OctreeCell& cell : cells) {
+    if (cell.topLevel == kNoIndex || cell.splatsCount == 0) continue;
+    if (cell.topLevel >= topLevel.size() || std::uint64_t{cell.splatsOffset} + cell.splatsCount >
+                                                topLevel[cell.topLevel].levelSplatCount) {
+      throw InputError("octree cell of top-level cell " + std::to_string(cell.topLevel) +
+                       " has level-splats outside its packet's level-splats");
+    }
+    PacketLayer& layer = perCell[cell.topLevel][cell.level];
+    layer.end = std::max(layer.end, cell.splatsOffset + cell.splatsCount);
+    layer.radius = std::max(layer.radius, cell.maxSplatRadius);
+  }
+  first_.reserve(topLevel.size() + 1);
+  for (std::size_t k = 0; k < topLevel.size(); ++k) {
+    first_.push_back(static_cast<std::uint32_t>(layers_.size()));
+    for (const auto& [level, layer] : perCell[k]) layers_.push_back(layer);
+    layers_.push_back({totals_[k], 0.0f});  // the points: full detail
+  }
+  first_.push_back(static_cast<std::uint32_t>(layers_.size()));
+}
+
+std::span<const PacketLayer> PacketLayers::layers(std::uint32_t cell) const {
+  const std::uint32_t begin = first_.at(cell);
+  return std::span<const PacketLayer>(layers_).subspan(begin, first_.at(cell + 1) - begin);
+}
+
+std::uint32_t PacketLayers::roundUp(std::uint32_t cell, std::uint32_t splats) const {
+  if (splats == 0) return 0;
+  for (const PacketLayer& layer : layers(cell)) {
+    if (layer.end >= splats) return layer.end;
+  }
+  return totalSplats(cell);
+}
+
+std::uint32_t PacketLayers::prefixAt(std::uint32_t cell, const Camera& camera, float distance,
+                                     float lodPixels, float sizeScale) const {
+  if (distance <= 0.0f) return totalSplats(cell);
+  for (const PacketLayer& layer : layers(cell)) {
+    if (projectedRadiusPixels(camera, layer.radius * sizeScale, distance) <= lodPixels) {
+      return layer.end;
+    }
+  }
+  return totalSplats(cell);
+}
+
+}  // namespace pointillist::traverse

@@ -1,0 +1,47 @@
+#pragma once
+// The layers of every top-level packet (dataset format 4, common/dataset.hpp):
+// where each level's level-splats end, coarse first, and how large their
+// splats are. Traverse processes round what a tile needs up to a layer end, so
+// a cell's data travels in a handful of steps as the camera comes closer, and
+// estimate the prefix a view will need for ordering ahead.
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "common/camera.hpp"
+#include "common/octree_cell.hpp"
+
+namespace pointillist::traverse {
+
+struct PacketLayer {
+  std::uint32_t end = 0;  // prefix length in splats that holds this layer
+  // Largest maxSplatRadius of the layer's cells; 0 for the points (the last
+  // layer), which are drawn whatever their size.
+  float radius = 0.0f;
+};
+
+class PacketLayers {
+ public:
+  // Throws InputError when a cell's data lies outside its packet.
+  PacketLayers(std::span<const OctreeCell> cells, std::span<const TopLevelCell> topLevel);
+
+  std::size_t cellCount() const { return totals_.size(); }
+  std::uint32_t totalSplats(std::uint32_t cell) const { return totals_.at(cell); }
+  // Coarse first; the last layer (the points) ends at totalSplats(cell).
+  std::span<const PacketLayer> layers(std::uint32_t cell) const;
+  // The shortest layer-aligned prefix of `cell` holding its first `splats`.
+  std::uint32_t roundUp(std::uint32_t cell, std::uint32_t splats) const;
+  // The prefix a view probably needs from `cell` when its nearest point is
+  // `distance` from the eye: through the first layer whose splats project to
+  // at most `lodPixels` there (an estimate for ordering ahead: a tile's own
+  // walk gives the exact need).
+  std::uint32_t prefixAt(std::uint32_t cell, const Camera& camera, float distance, float lodPixels,
+                         float sizeScale) const;
+
+ private:
+  std::vector<std::uint32_t> totals_;
+  std::vector<std::uint32_t> first_;  // per cell, index of its first layer; plus one entry
+  std::vector<PacketLayer> layers_;
+};
+
+}  // namespace pointillist::traverse
