@@ -179,10 +179,13 @@ bool boxOutside(const FrustumPlanes& planes, const glm::vec3& boxMin, const glm:
   });
 }
 
+double focalLengthPixels(const Camera& camera) {
+  return 0.5 * camera.image_height() /
+         std::tan(glm::radians(static_cast<double>(camera.fov_y_degrees())) * 0.5);
+}
+
 float pixelsPerUnit(const Camera& camera, float distance) {
-  const double focal = 0.5 * camera.image_height() /
-                       std::tan(glm::radians(static_cast<double>(camera.fov_y_degrees())) * 0.5);
-  return static_cast<float>(focal / static_cast<double>(distance));
+  return pixelsPerUnit(focalLengthPixels(camera), distance);
 }
 
 float projectedRadiusPixels(const Camera& camera, float worldRadius, float distance) {

@@ -79,6 +79,13 @@ bool boxOutside(const FrustumPlanes& planes, const glm::vec3& boxMin, const glm:
 // distance. A splat of world radius r at that depth covers about
 // 2 * r * pixelsPerUnit(...) pixels across.
 float pixelsPerUnit(const Camera& camera, float distance);
+// The focal length in pixels: pixelsPerUnit(camera, d) == focal / d. Loops over
+// many cells take it once (a tangent per call is most of pixelsPerUnit's cost).
+double focalLengthPixels(const Camera& camera);
+// pixelsPerUnit from a focal length taken once; the same value, bit for bit.
+inline float pixelsPerUnit(double focalPixels, float distance) {
+  return static_cast<float>(focalPixels / static_cast<double>(distance));
+}
 // Projected radius in pixels of a world-space radius at eye-space depth `distance`.
 float projectedRadiusPixels(const Camera& camera, float worldRadius, float distance);
 // Eye-space depth (distance along the view axis) of a world point.

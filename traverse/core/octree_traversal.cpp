@@ -55,16 +55,29 @@ bool cellBackfacing(const OctreeCell& cell, const glm::vec3& eye, float sizeScal
   const glm::vec3 toCell = centre - eye;
   const float distance = glm::length(toCell);
   if (distance <= radius * 1.0001f) return false;  // eye inside: some splat may face it
-  // Every splat normal n lies within coneAngle of the axis; every direction
-  // from the eye to a splat lies within viewAngle of toCell. The splat faces
-  // away when angle(n, direction) < 90 deg, guaranteed when the sum stays below.
-  const double coneAngle = std::acos(std::clamp(cone.cosHalfAngle, -1.0, 1.0));
-  const double viewAngle = std::asin(std::clamp(static_cast<double>(radius / distance), 0.0, 1.0));
-  const glm::dvec3 axis(cone.axis[0], cone.axis[1], cone.axis[2]);
-  const glm::dvec3 direction = glm::normalize(glm::dvec3(toCell));
-  const double axisAngle = std::acos(std::clamp(glm::dot(axis, direction), -1.0, 1.0));
+  // Every splat normal n lies within the cone's half angle C of the axis;
+  // every direction from the eye to a splat lies within V of toCell, with
+  // sin V = radius / distance. The splat faces away when angle(n, direction)
+  // < 90 deg, guaranteed when A + C + V + s < 90 deg, A being the angle from
+  // the axis to toCell and s a safety margin. Tested with cosines and sines
+  // instead of angles: X = C + V + s must stay below 90 deg (cos X > 0), and
+  // then A < 90 deg - X exactly when cos A > sin X. This runs for every cell
+  // the walk meets, so it takes no inverse trigonometric functions.
   constexpr double kSafety = 1e-3;  // radians, covers float rounding of bounds and normals
-  return axisAngle + coneAngle + viewAngle + kSafety < 0.5 * M_PI;
+  static const double cosSafety = std::cos(kSafety);
+  static const double sinSafety = std::sin(kSafety);
+  const double cosC = std::clamp(cone.cosHalfAngle, 0.0, 1.0);
+  const double sinC = std::sqrt(1.0 - cosC * cosC);
+  const double sinV = std::clamp(static_cast<double>(radius / distance), 0.0, 1.0);
+  const double cosV = std::sqrt(1.0 - sinV * sinV);
+  const double cosCV = cosC * cosV - sinC * sinV;
+  const double sinCV = sinC * cosV + cosC * sinV;
+  const double cosX = cosCV * cosSafety - sinCV * sinSafety;
+  const double sinX = sinCV * cosSafety + cosCV * sinSafety;
+  if (cosX <= 0.0) return false;
+  const glm::dvec3 axis(cone.axis[0], cone.axis[1], cone.axis[2]);
+  const double cosA = std::clamp(glm::dot(axis, glm::normalize(glm::dvec3(toCell))), -1.0, 1.0);
+  return cosA > sinX;
 }
 
 std::vector<CellPrefix> topLevelCellsInTile(std::span<const OctreeCell> cells,
@@ -105,6 +118,7 @@ TraversalResult traverseTile(std::span<const OctreeCell> cells, const Camera& ca
   if (cells.empty()) return result;
   const FrustumPlanes planes = tilePlanes(camera, rect, settings.marginPixels);
   const glm::vec3 eye = cameraEye(camera);
+  const double focal = focalLengthPixels(camera);
   const auto size = static_cast<std::uint32_t>(cells.size());
 
   std::uint32_t index = 0;
@@ -128,9 +142,10 @@ TraversalResult traverseTile(std::span<const OctreeCell> cells, const Camera& ca
       continue;
     }
     const float distance = distanceToCell(cell, eye, settings.sizeScale);
-    const bool coarseEnough =
-        distance > 0.0f && projectedRadiusPixels(camera, cell.maxSplatRadius * settings.sizeScale,
-                                                 distance) <= settings.lodPixels;
+    // projectedRadiusPixels(camera, r, distance), with the focal length taken once.
+    const bool coarseEnough = distance > 0.0f && cell.maxSplatRadius * settings.sizeScale *
+                                                         pixelsPerUnit(focal, distance) <=
+                                                     settings.lodPixels;
     if (cell.isLeaf() && !(coarseEnough && cell.splatsCount > 0)) {
       if (cell.pointsCount > 0) {
         result.ranges.push_back({cell.topLevel, cell.pointsOffset, cell.pointsCount});
