@@ -21,6 +21,7 @@ class GlTileRenderer final : public TileRenderer {
     return renderer_.render(camera, rect, ranges, settings);
   }
   std::span<const std::uint8_t> pixels() const override { return renderer_.pixels(); }
+  std::span<const float> depths() const override { return renderer_.depths(); }
   void warmUp(const RenderSettings& settings) override { renderer_.warmUp(settings); }
   std::string describe() const override { return renderer_.describe(); }
 

@@ -42,6 +42,22 @@ struct RenderSettings {
   // Blended: splats this many of their radii behind the visible surface still
   // blend into it; farther ones are hidden.
   float blendDepthRadii = 1.0f;
+  // Also keep each pixel's eye-space depth (TileRenderer::depths); points and
+  // splats only.
+  bool keepDepth = false;
+};
+
+// Window depth d in [0, 1] (glDepthRange(0, 1) of the camera's projection)
+// to eye-space depth (distance along the view axis, near to far):
+// z = f n / (f - d (f - n)), in float (the depth buffer's own resolution,
+// 2^-24 near 1, is what limits it).
+struct DepthLinearizer {
+  explicit DepthLinearizer(const Camera& camera);
+  float operator()(float windowDepth) const { return numerator / (farPlane - windowDepth * range); }
+
+  float numerator = 1.0f;  // f n
+  float farPlane = 1.0f;   // f
+  float range = 0.0f;      // f - n
 };
 
 struct DrawRange {
@@ -70,6 +86,9 @@ class TileRenderer {
                              std::span<const DrawRange> ranges, const RenderSettings& settings) = 0;
   // The last tile: RGBA8, rows bottom-up, rect.width x rect.height.
   virtual std::span<const std::uint8_t> pixels() const = 0;
+  // With settings.keepDepth, the last tile's eye-space depth per pixel (as
+  // pixels()), +infinity where nothing was drawn; otherwise empty.
+  virtual std::span<const float> depths() const = 0;
   // Whatever the first draw would pay once (shader compilation), paid now.
   virtual void warmUp(const RenderSettings& settings) = 0;
   virtual std::string describe() const = 0;
