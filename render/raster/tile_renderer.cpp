@@ -45,4 +45,16 @@ SplatMode splatModeFromProto(v1::RenderMode mode) {
   }
 }
 
+v1::RenderMode splatModeToProto(SplatMode mode) {
+  switch (mode) {
+    case SplatMode::Splats:
+      return v1::RENDER_MODE_SPLATS;
+    case SplatMode::Blended:
+      return v1::RENDER_MODE_BLENDED;
+    case SplatMode::Points:
+      break;
+  }
+  return v1::RENDER_MODE_POINTS;
+}
+
 }  // namespace pointillist::render

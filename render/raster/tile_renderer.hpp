@@ -12,6 +12,7 @@
 #include <string>
 
 #include "common/camera.hpp"
+#include "common/run_settings.hpp"
 #include "common/splat.hpp"
 
 namespace pointillist::render {
@@ -22,6 +23,15 @@ const char* splatModeName(SplatMode mode);
 SplatMode parseSplatMode(const std::string& name);
 // RENDER_MODE_POINTS -> Points, _SPLATS -> Splats, _BLENDED -> Blended; UsageError otherwise.
 SplatMode splatModeFromProto(v1::RenderMode mode);
+v1::RenderMode splatModeToProto(SplatMode mode);
+
+// Eye-dome lighting (render/raster/eye_dome_lighting.hpp): the renderers
+// makeTileRenderer returns draw the tile with a halo and shade it.
+struct EdlSettings {
+  bool enabled = false;
+  float strength = kDefaultEdlStrength;
+  float radius = kDefaultEdlRadius;  // pixels
+};
 
 struct RenderSettings {
   SplatMode mode = SplatMode::Points;
@@ -42,6 +52,7 @@ struct RenderSettings {
   // Blended: splats this many of their radii behind the visible surface still
   // blend into it; farther ones are hidden.
   float blendDepthRadii = 1.0f;
+  EdlSettings edl;
   // Also keep each pixel's eye-space depth (TileRenderer::depths); points and
   // splats only.
   bool keepDepth = false;
