@@ -4,6 +4,8 @@
 #include <cstdio>
 #include <map>
 
+#include "common/run_settings.hpp"
+
 namespace pointillist::traverse {
 TileWalk walkOf(const TraversalResult& result) {
   return TileWalk{result.topLevelCells, result.splats, result.ranges};
@@ -14,6 +16,10 @@ TraversalSettings traversalSettings(const v1::RunSettings& settings) {
   traversal.lodPixels = settings.lod_pixels() > 0.0f ? settings.lod_pixels() : 1.0f;
   traversal.sizeScale = settings.size_scale() > 0.0f ? settings.size_scale() : 1.0f;
   traversal.backfaceCull = settings.backface_cull();
+  // Eye-dome lighting draws each tile with a halo: cull for the grown rectangle.
+  if (settings.edl()) {
+    traversal.marginPixels += static_cast<float>(edlHaloPixels(settings.edl_radius()));
+  }
   return traversal;
 }
 
