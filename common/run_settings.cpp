@@ -1,5 +1,9 @@
 #include "common/run_settings.hpp"
 
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+
 #include "common/errors.hpp"
 
 namespace pointillist {
@@ -40,6 +44,30 @@ v1::Renderer resolveRenderer(v1::Renderer renderer, v1::RenderMode mode) {
   }
   if (renderer == v1::RENDERER_GL || renderer == v1::RENDERER_CPU) return renderer;
   return points ? v1::RENDERER_CPU : v1::RENDERER_GL;
+}
+
+std::uint32_t edlHaloPixels(float radius) {
+  return static_cast<std::uint32_t>(std::ceil(std::clamp(radius, 0.0f, kMaxEdlRadius)));
+}
+
+void checkEdl(v1::RenderMode mode, float strength, float radius) {
+  const auto text = [](float value) {
+    char buffer[32];
+    std::snprintf(buffer, sizeof buffer, "%g", static_cast<double>(value));
+    return std::string(buffer);
+  };
+  if (!(strength > 0.0f && strength <= 100.0f)) {
+    throw UsageError("--edl-strength " + text(strength) + " is not in (0, 100]");
+  }
+  if (!(radius >= 1.0f && radius <= kMaxEdlRadius)) {
+    throw UsageError("--edl-radius " + text(radius) + " is not in [1, " + text(kMaxEdlRadius) +
+                     "] pixels");
+  }
+  if (mode == v1::RENDER_MODE_BLENDED) {
+    throw UsageError(
+        "--edl shades points and splats, not the blended mode (its depth buffer holds the "
+        "blend pass's pushed-back depths); use --mode points or splats, or drop --edl");
+  }
 }
 
 }  // namespace pointillist

@@ -2,6 +2,7 @@
 // Names and defaults of the settings a run hands every process once
 // (v1::RunSettings), so the runtime, the simulator and their command lines
 // share one default.
+#include <cstdint>
 #include <string>
 
 #include "pointillist.pb.h"
@@ -21,5 +22,17 @@ const char* rendererName(v1::Renderer renderer);
 // The renderer that draws `mode`: auto is the cpu point kernel for points and
 // OSMesa for the rest; a UsageError when the cpu kernel is asked for another mode.
 v1::Renderer resolveRenderer(v1::Renderer renderer, v1::RenderMode mode);
+
+// Eye-dome lighting (--edl): CloudCompare's and Potree's defaults.
+inline constexpr float kDefaultEdlStrength = 1.0f;
+inline constexpr float kDefaultEdlRadius = 1.4f;  // pixels
+inline constexpr float kMaxEdlRadius = 16.0f;
+// Pixels a tile is drawn beyond its rectangle so that the pass sees every
+// neighbour it samples: ceil(radius). The traverse culls with the same margin.
+std::uint32_t edlHaloPixels(float radius);
+// UsageError naming the problem: strength not in (0, 100], radius not in
+// [1, kMaxEdlRadius] (below 1 px the samples would be the pixel itself), or
+// the blended mode (its depth buffer holds the blend pass's pushed-back depths).
+void checkEdl(v1::RenderMode mode, float strength, float radius);
 
 }  // namespace pointillist

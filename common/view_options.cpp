@@ -22,6 +22,16 @@ void addViewOptions(CLI::App& app, ViewOptions& options) {
   app.add_option("--renderer", options.renderer,
                  "What draws: cpu (a point kernel, points mode only), gl (OSMesa, every mode) or "
                  "auto (cpu for points, gl otherwise)");
+  app.add_flag("--edl", options.edl,
+               "Eye-dome lighting: darken pixels whose neighbours are nearer the eye, so shape "
+               "shows without normals (points and splats; combines with the headlight, or "
+               "alone with --unlit)");
+  app.add_option("--edl-strength", options.edlStrength,
+                 "Eye-dome lighting: how dark depth steps get (0-100]")
+      ->capture_default_str();
+  app.add_option("--edl-radius", options.edlRadius,
+                 "Eye-dome lighting: distance of the 8 neighbours sampled, in pixels [1-16]")
+      ->capture_default_str();
 }
 
 v1::RenderMode parseRenderMode(const std::string& name) {
@@ -29,6 +39,10 @@ v1::RenderMode parseRenderMode(const std::string& name) {
   if (name == "splats") return v1::RENDER_MODE_SPLATS;
   if (name == "blended") return v1::RENDER_MODE_BLENDED;
   throw UsageError("render mode '" + name + "' is not one of: points, splats, blended");
+}
+
+void checkViewEdl(const ViewOptions& options) {
+  if (options.edl) checkEdl(parseRenderMode(options.mode), options.edlStrength, options.edlRadius);
 }
 
 glm::vec3 parseUpAxis(const std::string& name, const SceneBounds& bounds) {

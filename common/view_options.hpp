@@ -9,6 +9,7 @@
 
 #include "common/camera_path.hpp"
 #include "common/dataset.hpp"
+#include "common/run_settings.hpp"
 #include "pointillist.pb.h"
 
 namespace pointillist {
@@ -24,11 +25,16 @@ struct ViewOptions {
   bool noBackfaceCull = false;
   bool unlit = false;             // flat colours: no headlight shading
   std::string renderer = "auto";  // auto | gl | cpu
+  bool edl = false;               // eye-dome lighting from the depth buffer
+  float edlStrength = kDefaultEdlStrength;
+  float edlRadius = kDefaultEdlRadius;  // pixels
 };
 
 void addViewOptions(CLI::App& app, ViewOptions& options);
 
 v1::RenderMode parseRenderMode(const std::string& name);  // points | splats | blended
+// With --edl: checkEdl for the options' mode, strength and radius.
+void checkViewEdl(const ViewOptions& options);
 glm::vec3 parseUpAxis(const std::string& name, const SceneBounds& bounds);
 SceneBounds datasetBounds(const DatasetManifest& manifest);
 

@@ -71,6 +71,12 @@ v1::RunSettings runSettings(const DisplayOptions& options) {
   settings.set_unlit(options.view.unlit);
   settings.set_renderer(parseRenderer(options.view.renderer));
   (void)resolveRenderer(settings.renderer(), settings.mode());  // a mismatch fails here
+  checkViewEdl(options.view);
+  if (options.view.edl) {
+    settings.set_edl(true);
+    settings.set_edl_strength(options.view.edlStrength);
+    settings.set_edl_radius(options.view.edlRadius);
+  }
   return settings;
 }
 

@@ -60,6 +60,7 @@ class RenderProcess final : public WorkerProcess {
         settings.mode() == v1::RENDER_MODE_UNSPECIFIED ? v1::RENDER_MODE_POINTS : settings.mode());
     settings_.sizeScale = settings.size_scale() > 0.0f ? settings.size_scale() : 1.0f;
     settings_.lighting = !settings.unlit();
+    settings_.edl = {settings.edl(), settings.edl_strength(), settings.edl_radius()};
     const v1::Renderer kind = resolveRenderer(settings.renderer(), settings.mode());
     renderer_ = makeTileRenderer(kind, parseProfile(options_.profile), options_.drawThreads);
     renderer_->warmUp(settings_);

@@ -87,6 +87,8 @@ int run(int argc, char** argv) {
   RenderSettings settings;
   settings.mode = splatModeFromProto(parseRenderMode(options.view.mode));
   settings.lighting = !options.view.unlit;
+  checkViewEdl(options.view);
+  settings.edl = {options.view.edl, options.view.edlStrength, options.view.edlRadius};
   const v1::Renderer kind =
       resolveRenderer(parseRenderer(options.view.renderer), parseRenderMode(options.view.mode));
   if (!options.outDir.empty()) std::filesystem::create_directories(options.outDir);

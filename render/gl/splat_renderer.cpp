@@ -11,6 +11,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <exception>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -353,9 +354,13 @@ RenderStats SplatRenderer::draw(
     std::span<const std::pair<const Cell*, std::span<const DrawRange>>> groups,
     const RenderSettings& settings) {
   const auto start = std::chrono::steady_clock::now();
-  context_.resize(rect.width(), rect.height());
   const bool points = settings.mode == SplatMode::Points;
   const bool blended = settings.mode == SplatMode::Blended;
+  if (settings.keepDepth && blended) {
+    throw UsageError("SplatRenderer: the blended mode keeps no depth of the visible surface");
+  }
+  if (!settings.keepDepth) depths_.clear();
+  context_.resize(rect.width(), rect.height());
   if (blended) {
     ensureAccumulation(rect.width(), rect.height());
     glBindFramebuffer(GL_FRAMEBUFFER, accumulation_.framebuffer);
@@ -475,6 +480,18 @@ RenderStats SplatRenderer::draw(
   glUseProgram(0);
   // The image is in the context's buffer once the rasterizer threads are done.
   glFinish();
+  if (settings.keepDepth) {
+    const std::size_t count = std::size_t{rect.width()} * rect.height();
+    depths_.resize(count);
+    glPixelStorei(GL_PACK_ALIGNMENT, 4);
+    glReadPixels(0, 0, static_cast<GLsizei>(rect.width()), static_cast<GLsizei>(rect.height()),
+                 GL_DEPTH_COMPONENT, GL_FLOAT, depths_.data());
+    // Cleared to 1 and drawn with GL_LESS: 1 is never a drawn pixel's depth.
+    const DepthLinearizer linearize(camera);
+    for (float& depth : depths_) {
+      depth = depth < 1.0f ? linearize(depth) : std::numeric_limits<float>::infinity();
+    }
+  }
   throwOnGlError("SplatRenderer::render");
   stats.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return stats;

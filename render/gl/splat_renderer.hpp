@@ -38,6 +38,7 @@
 #include <memory>
 #include <span>
 #include <unordered_map>
+#include <vector>
 
 #include "common/camera.hpp"
 #include "common/splat.hpp"
@@ -75,6 +76,9 @@ class SplatRenderer final : public TileRenderer {
   RenderStats render(const Camera& camera, const TileRect& rect, std::span<const DrawRange> ranges,
                      const RenderSettings& settings) override;
   std::span<const std::uint8_t> pixels() const override { return context_.pixels(); }
+  // Read back from the depth buffer (settings.keepDepth; not in blended mode,
+  // whose depth buffer holds the pushed-back depths of its first pass).
+  std::span<const float> depths() const override { return depths_; }
   // Compiles and runs the mode's shaders once on a tiny tile, so that the first
   // real packet is not timed with llvmpipe's shader compilation (T_s).
   void warmUp(const RenderSettings& settings) override;
@@ -120,6 +124,7 @@ class SplatRenderer final : public TileRenderer {
   std::int64_t maxViewport_ = 0;        // GL_MAX_VIEWPORT_DIMS
   std::int64_t viewportBoundsMin_ = 0;  // GL_VIEWPORT_BOUNDS_RANGE[0]
   std::uint32_t drawSerial_ = 0;
+  std::vector<float> depths_;
 };
 
 }  // namespace pointillist::render

@@ -3,6 +3,7 @@
 #include "common/errors.hpp"
 #include "render/gl/splat_renderer.hpp"
 #include "render/raster/cpu_point_renderer.hpp"
+#include "render/raster/eye_dome_lighting.hpp"
 
 namespace pointillist::render {
 namespace {
@@ -24,6 +25,7 @@ class GlTileRenderer final : public TileRenderer {
     return renderer_.render(camera, rect, ranges, settings);
   }
   std::span<const std::uint8_t> pixels() const override { return renderer_.pixels(); }
+  std::span<const float> depths() const override { return renderer_.depths(); }
   void warmUp(const RenderSettings& settings) override { renderer_.warmUp(settings); }
   std::string describe() const override { return renderer_.describe(); }
 
@@ -38,9 +40,9 @@ std::unique_ptr<TileRenderer> makeTileRenderer(v1::Renderer kind, GlProfile prof
                                                unsigned cpuThreads) {
   switch (kind) {
     case v1::RENDERER_GL:
-      return std::make_unique<GlTileRenderer>(profile);
+      return std::make_unique<EdlTileRenderer>(std::make_unique<GlTileRenderer>(profile));
     case v1::RENDERER_CPU:
-      return std::make_unique<CpuPointRenderer>(cpuThreads);
+      return std::make_unique<EdlTileRenderer>(std::make_unique<CpuPointRenderer>(cpuThreads));
     default:
       break;
   }

@@ -9,7 +9,7 @@
 namespace pointillist::render {
 
 // `kind` must be resolved (Gl or Cpu: resolveRenderer). `cpuThreads` draw each
-// tile of the CPU renderer.
+// tile of the CPU renderer. The renderer applies settings.edl (EdlTileRenderer).
 std::unique_ptr<TileRenderer> makeTileRenderer(v1::Renderer kind, GlProfile profile,
                                                unsigned cpuThreads = 1);
 

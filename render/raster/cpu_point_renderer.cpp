@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <thread>
 
 #include "common/errors.hpp"
@@ -320,6 +321,33 @@ void WordsToRgba(const std::uint64_t* words, std::size_t count, std::uint32_t ba
   }
 }
 
+// Words to eye-space depth as DepthLinearizer computes it (the same float
+// operations in every lane and in the tail); an empty pixel becomes +infinity.
+void WordsToDepth(const std::uint64_t* words, std::size_t count, float numerator, float farPlane,
+                  float range, float* depth) {
+  constexpr float kNothing = std::numeric_limits<float>::infinity();
+  std::size_t i = 0;
+#if HWY_TARGET != HWY_SCALAR  // one lane has no even and odd halves
+  const DF df;
+  const DU du;
+  const std::size_t lanes = hn::Lanes(du);
+  const auto* halves = reinterpret_cast<const std::uint32_t*>(words);
+  const VU empty = hn::Set(du, ~0u);
+  const VF top = hn::Set(df, numerator), far = hn::Set(df, farPlane), span = hn::Set(df, range);
+  for (; i + lanes <= count; i += lanes) {
+    const VU lo = hn::LoadU(du, halves + 2 * i), hi = hn::LoadU(du, halves + 2 * i + lanes);
+    const VU high = hn::ConcatOdd(du, hi, lo);
+    const VF eye = hn::Div(top, hn::Sub(far, hn::Mul(hn::BitCast(df, high), span)));
+    hn::StoreU(hn::IfThenElse(hn::RebindMask(df, hn::Eq(high, empty)), hn::Set(df, kNothing), eye),
+               df, depth + i);
+  }
+#endif
+  for (; i < count; ++i) {
+    const auto window = std::bit_cast<float>(static_cast<std::uint32_t>(words[i] >> 32));
+    depth[i] = words[i] == kEmptyPixel ? kNothing : numerator / (farPlane - window * range);
+  }
+}
+
 const char* KernelTargetName() {
   return hwy::TargetName(HWY_TARGET);
 }
@@ -334,6 +362,7 @@ namespace pointillist::render {
 HWY_EXPORT(RasterizeCell);
 HWY_EXPORT(CellFootprints);
 HWY_EXPORT(WordsToRgba);
+HWY_EXPORT(WordsToDepth);
 HWY_EXPORT(KernelTargetName);
 
 namespace {
@@ -592,6 +621,15 @@ RenderStats CpuPointRenderer::render(const Camera& camera, const TileRect& rect,
                 unitToByte(settings.clearColor[2]), unitToByte(settings.clearColor[3]));
   pixels_.resize(tilePixels * 4);
   HWY_DYNAMIC_DISPATCH(WordsToRgba)(buffers_.data(), tilePixels, background, pixels_.data());
+  if (!settings.keepDepth) {
+    depths_.clear();
+  } else {
+    const DepthLinearizer linearize(camera);
+    depths_.resize(tilePixels);
+    HWY_DYNAMIC_DISPATCH(WordsToDepth)
+    (buffers_.data(), tilePixels, linearize.numerator, linearize.farPlane, linearize.range,
+     depths_.data());
+  }
   stats.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return stats;
 }

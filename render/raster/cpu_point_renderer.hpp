@@ -125,6 +125,8 @@ class CpuPointRenderer final : public TileRenderer {
   RenderStats render(const Camera& camera, const TileRect& rect, std::span<const DrawRange> ranges,
                      const RenderSettings& settings) override;
   std::span<const std::uint8_t> pixels() const override { return pixels_; }
+  // From the packed words' depth half (settings.keepDepth).
+  std::span<const float> depths() const override { return depths_; }
   void warmUp(const RenderSettings&) override {}
   std::string describe() const override;
 
@@ -135,6 +137,7 @@ class CpuPointRenderer final : public TileRenderer {
   std::unordered_map<std::uint32_t, PointCell> cells_;
   std::vector<std::uint64_t> buffers_;  // one tile-sized buffer per thread
   std::vector<std::uint8_t> pixels_;
+  std::vector<float> depths_;
 };
 
 }  // namespace pointillist::render

@@ -23,6 +23,14 @@ SplatMode parseSplatMode(const std::string& name) {
   throw UsageError("unknown render mode '" + name + "' (points, splats or blended)");
 }
 
+DepthLinearizer::DepthLinearizer(const Camera& camera) {
+  const auto nearPlane = static_cast<double>(camera.near_plane());
+  const auto farDouble = static_cast<double>(camera.far_plane());
+  numerator = static_cast<float>(farDouble * nearPlane);
+  farPlane = camera.far_plane();
+  range = static_cast<float>(farDouble - nearPlane);
+}
+
 SplatMode splatModeFromProto(v1::RenderMode mode) {
   switch (mode) {
     case v1::RENDER_MODE_POINTS:
@@ -35,6 +43,18 @@ SplatMode splatModeFromProto(v1::RenderMode mode) {
       throw UsageError("render mode " + v1::RenderMode_Name(mode) +
                        " is not drawn by the splat renderers");
   }
+}
+
+v1::RenderMode splatModeToProto(SplatMode mode) {
+  switch (mode) {
+    case SplatMode::Splats:
+      return v1::RENDER_MODE_SPLATS;
+    case SplatMode::Blended:
+      return v1::RENDER_MODE_BLENDED;
+    case SplatMode::Points:
+      break;
+  }
+  return v1::RENDER_MODE_POINTS;
 }
 
 }  // namespace pointillist::render

@@ -12,6 +12,7 @@
 #include <string>
 
 #include "common/camera.hpp"
+#include "common/run_settings.hpp"
 #include "common/splat.hpp"
 
 namespace pointillist::render {
@@ -22,6 +23,15 @@ const char* splatModeName(SplatMode mode);
 SplatMode parseSplatMode(const std::string& name);
 // RENDER_MODE_POINTS -> Points, _SPLATS -> Splats, _BLENDED -> Blended; UsageError otherwise.
 SplatMode splatModeFromProto(v1::RenderMode mode);
+v1::RenderMode splatModeToProto(SplatMode mode);
+
+// Eye-dome lighting (render/raster/eye_dome_lighting.hpp): the renderers
+// makeTileRenderer returns draw the tile with a halo and shade it.
+struct EdlSettings {
+  bool enabled = false;
+  float strength = kDefaultEdlStrength;
+  float radius = kDefaultEdlRadius;  // pixels
+};
 
 struct RenderSettings {
   SplatMode mode = SplatMode::Points;
@@ -42,6 +52,23 @@ struct RenderSettings {
   // Blended: splats this many of their radii behind the visible surface still
   // blend into it; farther ones are hidden.
   float blendDepthRadii = 1.0f;
+  EdlSettings edl;
+  // Also keep each pixel's eye-space depth (TileRenderer::depths); points and
+  // splats only.
+  bool keepDepth = false;
+};
+
+// Window depth d in [0, 1] (glDepthRange(0, 1) of the camera's projection)
+// to eye-space depth (distance along the view axis, near to far):
+// z = f n / (f - d (f - n)), in float (the depth buffer's own resolution,
+// 2^-24 near 1, is what limits it).
+struct DepthLinearizer {
+  explicit DepthLinearizer(const Camera& camera);
+  float operator()(float windowDepth) const { return numerator / (farPlane - windowDepth * range); }
+
+  float numerator = 1.0f;  // f n
+  float farPlane = 1.0f;   // f
+  float range = 0.0f;      // f - n
 };
 
 struct DrawRange {
@@ -73,6 +100,9 @@ class TileRenderer {
                              std::span<const DrawRange> ranges, const RenderSettings& settings) = 0;
   // The last tile: RGBA8, rows bottom-up, rect.width x rect.height.
   virtual std::span<const std::uint8_t> pixels() const = 0;
+  // With settings.keepDepth, the last tile's eye-space depth per pixel (as
+  // pixels()), +infinity where nothing was drawn; otherwise empty.
+  virtual std::span<const float> depths() const = 0;
   // Whatever the first draw would pay once (shader compilation), paid now.
   virtual void warmUp(const RenderSettings& settings) = 0;
   virtual std::string describe() const = 0;

@@ -9,6 +9,8 @@
 #                         happen and the peak cache must stay within it
 #   RENDERER, UNLIT       --renderer RENDERER and (when set) --unlit, given to both
 #                         the job and the reference
+#   EDL                   when set, --edl (eye-dome lighting) to both; EDL_RADIUS
+#                         and EDL_STRENGTH, when set, go with it
 #   MIN_LIT_FRACTION      every frame, the job's and the reference's, must have at
 #   MIN_SPLATS            least this share of pixels off the background and draw
 #                         this many splats: two blank frames would match (required,
@@ -29,6 +31,11 @@ if [[ -n "${RENDERER:-}" ]]; then
 fi
 if [[ -n "${UNLIT:-}" ]]; then
   view+=(--unlit)
+fi
+if [[ -n "${EDL:-}" ]]; then
+  view+=(--edl)
+  [[ -n "${EDL_RADIUS:-}" ]] && view+=(--edl-radius "$EDL_RADIUS")
+  [[ -n "${EDL_STRENGTH:-}" ]] && view+=(--edl-strength "$EDL_STRENGTH")
 fi
 if [[ -n "${CACHE_CAP_MB:-}" ]]; then
   extra+=(--cache-mb "$CACHE_CAP_MB")
@@ -67,3 +74,22 @@ fi
   --size "$size" --mode "$mode" "${view[@]}" --out "$work/reference" --compare "$work/job" \
   --max-differing-pixels "${MAX_DIFFERING_PIXELS:-0}" \
   --min-lit-fraction "$MIN_LIT_FRACTION" --min-splats "$MIN_SPLATS"
+if [[ -n "${EDL:-}" ]]; then
+  # Both sides could skip the pass and still agree: the job's frames must
+  # differ from the reference's without it.
+  plain=()
+  for option in "${view[@]}"; do
+    [[ "$option" == --edl ]] && break
+    plain+=("$option")
+  done
+  "$bin/pointillist-reference" --dataset "$dataset" --camera-path "$path" --frames "$frames" \
+    --size "$size" --mode "$mode" "${plain[@]}" --compare "$work/job" \
+    --max-differing-pixels 100 >"$work/plain.log" 2>&1 || true
+  differing=$(grep -c MISMATCH "$work/plain.log" || true)
+  if ((differing != frames)); then
+    cat "$work/plain.log"
+    echo "FAIL: $((frames - differing)) job frame(s) with --edl are (nearly) those without it"
+    exit 1
+  fi
+  echo "eye-dome lighting: every job frame differs from the reference without it in over 100 pixels"
+fi

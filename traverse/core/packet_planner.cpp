@@ -4,6 +4,7 @@
 #include <cstdio>
 #include <map>
 
+#include "common/run_settings.hpp"
 #include "common/splat.hpp"
 
 namespace pointillist::traverse {
@@ -16,6 +17,10 @@ TraversalSettings traversalSettings(const v1::RunSettings& settings) {
   traversal.lodPixels = settings.lod_pixels() > 0.0f ? settings.lod_pixels() : 1.0f;
   traversal.sizeScale = settings.size_scale() > 0.0f ? settings.size_scale() : 1.0f;
   traversal.backfaceCull = settings.backface_cull();
+  // Eye-dome lighting draws each tile with a halo: cull for the grown rectangle.
+  if (settings.edl()) {
+    traversal.marginPixels += static_cast<float>(edlHaloPixels(settings.edl_radius()));
+  }
   return traversal;
 }
 

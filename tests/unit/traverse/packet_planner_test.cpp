@@ -309,5 +309,17 @@ TEST(PacketPlanner, TraversalSettingsComeFromTheRunSettings) {
   EXPECT_TRUE(traversal.backfaceCull);
 }
 
+// Eye-dome lighting draws tiles grown by a halo: the traverse culls for it.
+TEST(PacketPlanner, EyeDomeLightingGrowsTheCullingMargin) {
+  v1::RunSettings s = settings();
+  const float plain = traversalSettings(s).marginPixels;
+  s.set_edl(true);
+  s.set_edl_strength(1.0f);
+  s.set_edl_radius(2.5f);
+  EXPECT_EQ(traversalSettings(s).marginPixels, plain + 3.0f);
+  s.set_edl_radius(1.4f);
+  EXPECT_EQ(traversalSettings(s).marginPixels, plain + 2.0f);
+}
+
 }  // namespace
 }  // namespace pointillist::traverse
