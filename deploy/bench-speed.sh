@@ -54,6 +54,7 @@ if [[ ! -f "$POINTILLIST_BUILD/CMakeCache.txt" ]]; then
     -DPOINTILLIST_BUILD_TESTS=OFF >/dev/null
 fi
 cmake --build "$POINTILLIST_BUILD" -j "$(nproc)" >/dev/null
+use_malloc_tuning  # for the job and the reference alike
 
 # Makes a scene's dataset unless it is there in the current format.
 dataset_for() {

@@ -17,6 +17,20 @@ POINTILLIST_PACKAGES=(
 # Open MPI refuses to run as root unless told that it is intended.
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
 
+# glibc's heap for the role processes and the reference: backed by transparent
+# huge pages, and freed memory kept for reuse instead of handed back and faulted
+# in again. Render processes receive and store hundreds of MiB; on a VM a page
+# fault on fresh memory costs more than the copy into it (measured: about a
+# third of the job's CPU per frame on the bunny orbit). Set
+# POINTILLIST_MALLOC_TUNING=0 to run with glibc's defaults.
+POINTILLIST_MALLOC_TUNABLES="glibc.malloc.hugetlb=1:glibc.malloc.mmap_threshold=33554432"
+POINTILLIST_MALLOC_TUNABLES+=":glibc.malloc.trim_threshold=1073741824:glibc.malloc.top_pad=67108864"
+use_malloc_tuning() {
+  [[ "${POINTILLIST_MALLOC_TUNING:-1}" == 0 ]] && return 0
+  [[ "${GLIBC_TUNABLES:-}" == *"$POINTILLIST_MALLOC_TUNABLES"* ]] && return 0
+  export GLIBC_TUNABLES="${GLIBC_TUNABLES:+$GLIBC_TUNABLES:}$POINTILLIST_MALLOC_TUNABLES"
+}
+
 log() { printf '[pointillist] %s\n' "$*" >&2; }
 
 # Installs whatever is missing; does nothing (and needs no network) otherwise.

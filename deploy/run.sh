@@ -49,6 +49,8 @@ if [[ -n "$hostfile" ]]; then
 else
   launch+=(--oversubscribe --bind-to none)
 fi
+use_malloc_tuning
+[[ -n "${GLIBC_TUNABLES:-}" ]] && launch+=(-x GLIBC_TUNABLES)
 launch+=("${mpirun_args[@]}")
 
 common_args=(--expect-layout "$layout" "${role_args[@]}")
