@@ -37,6 +37,7 @@ ReplayResult replayDecisions(const traverse::DecisionLog& log, std::span<const O
   traverse::PacketPlanner planner(
       peers, log.start.self_rank(), log.start.settings(), layers,
       assignOwners(topLevel, static_cast<std::uint32_t>(peers.datasends.size())));
+  const traverse::CullingTable culling(cells, planner.traversal().sizeScale);
   ReplayResult result;
   for (std::size_t index = 0; index < log.decisions.size(); ++index) {
     const v1::TraverseDecision& decision = log.decisions[index];
@@ -50,11 +51,11 @@ ReplayResult replayDecisions(const traverse::DecisionLog& log, std::span<const O
     ++result.tasks;
     const v1::TileTask& task = decision.task();
     const traverse::TraversalResult walk =
-        traverse::traverseTile(cells, task.camera(), task.rect(), planner.traversal());
+        traverse::traverseTile(culling, task.camera(), task.rect(), planner.traversal());
     std::vector<CellPrefix> ahead;
     if (const auto camera = planner.lookaheadCamera(task)) {
-      ahead =
-          traverse::topLevelCellsInTile(cells, *layers, *camera, task.rect(), planner.traversal());
+      ahead = traverse::topLevelCellsInTile(culling, *layers, *camera, task.rect(),
+                                            planner.traversal());
     }
     Outbox out;
     planner.planPacket(task, traverse::walkOf(walk), ahead, now, out);

@@ -14,6 +14,7 @@ Scene::Scene(std::string name, std::vector<OctreeCell> cells, std::vector<TopLev
       cells_(std::move(cells)),
       topLevel_(std::move(topLevel)),
       layers_(std::make_shared<const traverse::PacketLayers>(cells_, topLevel_)),
+      culling_(std::make_unique<const traverse::CullingTable>(cells_, traversal.sizeScale)),
       bounds_(bounds),
       cameras_(std::move(cameras)),
       traversal_(traversal) {
@@ -71,7 +72,7 @@ const TileWork& Scene::tileWork(std::uint64_t frame, const TileRect& rect) const
   // Traversed outside the lock; two threads may both compute a tile, with the
   // same result, and the first one stored wins.
   const traverse::TraversalResult result =
-      traverse::traverseTile(cells_, cameras_.at(frame), rect, traversal_);
+      traverse::traverseTile(*culling_, cameras_.at(frame), rect, traversal_);
   TileWork work;
   work.needs = result.needs;
   work.splats = result.splats;
@@ -88,7 +89,7 @@ const std::vector<CellPrefix>& Scene::cellsInTile(std::uint64_t frame, const Til
     if (const auto found = cellsMemo_.find(key); found != cellsMemo_.end()) return found->second;
   }
   auto cells =
-      traverse::topLevelCellsInTile(cells_, *layers_, cameras_.at(frame), rect, traversal_);
+      traverse::topLevelCellsInTile(*culling_, *layers_, cameras_.at(frame), rect, traversal_);
   const std::lock_guard lock(mutex_);
   return cellsMemo_.emplace(key, std::move(cells)).first->second;
 }
@@ -112,7 +113,7 @@ double Scene::measureTraverseSecondsPerCell() const {
   for (std::size_t round = 0; round < 1000 && (seconds < 0.2 || visited == 0); ++round) {
     const Camera& camera = cameras_[round % std::min<std::size_t>(cameras_.size(), 4)];
     visited +=
-        traverse::traverseTile(cells_, camera, fullFrameRect(camera), traversal_).cellsVisited;
+        traverse::traverseTile(*culling_, camera, fullFrameRect(camera), traversal_).cellsVisited;
     seconds = std::chrono::duration<double>(Clock::now() - start).count();
   }
   return visited > 0 ? seconds / static_cast<double>(visited) : 1e-7;

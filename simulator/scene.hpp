@@ -79,6 +79,7 @@ class Scene {
   std::vector<OctreeCell> cells_;
   std::vector<TopLevelCell> topLevel_;
   std::shared_ptr<const traverse::PacketLayers> layers_;
+  std::unique_ptr<const traverse::CullingTable> culling_;  // over cells_, which never move
   SceneBounds bounds_;
   std::vector<Camera> cameras_;
   traverse::TraversalSettings traversal_;

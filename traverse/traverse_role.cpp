@@ -31,6 +31,7 @@ class TraverseProcess final : public WorkerProcess {
     const PeerRanks peers = job_.peers();
     planner_.emplace(peers, job_.worldRank(), settings, layers_,
                      assignOwners(dataset_.topLevelCells(), job_.layout().datasend));
+    culling_.emplace(dataset_.cells(), planner_->traversal().sizeScale);
     const TimePoint now = Clock::now();
     if (!decisionLogDir_.empty()) {
       std::filesystem::create_directories(decisionLogDir_);
@@ -49,11 +50,11 @@ class TraverseProcess final : public WorkerProcess {
       case MessageKind::TileTask: {
         const auto task = envelope.as<v1::TileTask>();
         const TraversalResult walk =
-            traverseTile(dataset_.cells(), task.camera(), task.rect(), planner_->traversal());
+            traverseTile(*culling_, task.camera(), task.rect(), planner_->traversal());
         std::vector<CellPrefix> ahead;
         if (const auto camera = planner_->lookaheadCamera(task)) {
-          ahead = topLevelCellsInTile(dataset_.cells(), *layers_, *camera, task.rect(),
-                                      planner_->traversal());
+          ahead =
+              topLevelCellsInTile(*culling_, *layers_, *camera, task.rect(), planner_->traversal());
         }
         Outbox out;
         planner_->planPacket(task, walkOf(walk), ahead, now, out);
@@ -83,6 +84,7 @@ class TraverseProcess final : public WorkerProcess {
   std::shared_ptr<const PacketLayers> layers_;
   std::string decisionLogDir_;
   std::optional<PacketPlanner> planner_;
+  std::optional<CullingTable> culling_;  // for the run's size scale
   std::optional<DecisionLogWriter> log_;
 };
 

@@ -19,9 +19,13 @@ ReferenceFrame ReferenceRenderer::render(const Camera& camera,
                                          const traverse::TraversalSettings& traversal,
                                          const RenderSettings& settings) {
   using Clock = std::chrono::steady_clock;
+  // Made once per run, as a traverse process makes it before the first frame.
+  if (!culling_ || culling_->sizeScale() != traversal.sizeScale) {
+    culling_.emplace(dataset_.cells(), traversal.sizeScale);
+  }
   const auto start = Clock::now();
   const TileRect frame = fullFrameRect(camera);
-  const auto result = traverse::traverseTile(dataset_.cells(), camera, frame, traversal);
+  const auto result = traverse::traverseTile(*culling_, camera, frame, traversal);
   const auto traversed = Clock::now();
 
   std::vector<DrawRange> ranges;

@@ -5,6 +5,7 @@
 // against these.
 #include <cstdint>
 #include <memory>
+#include <optional>
 
 #include "common/camera.hpp"
 #include "common/dataset.hpp"
@@ -37,6 +38,7 @@ class ReferenceRenderer {
  private:
   const Dataset& dataset_;
   std::unique_ptr<TileRenderer> renderer_;
+  std::optional<traverse::CullingTable> culling_;  // for the last size scale asked for
 };
 
 }  // namespace pointillist::render

@@ -3,26 +3,34 @@
 #include <algorithm>
 #include <cmath>
 
+#include "common/errors.hpp"
 #include "common/geometry.hpp"
 
 namespace pointillist::traverse {
 namespace {
 
-glm::vec3 grownMin(const OctreeCell& cell, float sizeScale) {
-  const float r = cell.maxSplatRadius * sizeScale;
-  return {cell.boundsMin[0] - r, cell.boundsMin[1] - r, cell.boundsMin[2] - r};
-}
-
-glm::vec3 grownMax(const OctreeCell& cell, float sizeScale) {
-  const float r = cell.maxSplatRadius * sizeScale;
-  return {cell.boundsMax[0] + r, cell.boundsMax[1] + r, cell.boundsMax[2] + r};
-}
-
-// Sorts and merges adjacent ranges of the same top-level cell.
+// Sorts by (topLevel, offset) and merges adjacent ranges of the same top-level
+// cell. The walk meets each top-level cell's subtree in one piece, in table
+// order, so only the ranges within a cell need sorting (levels come before
+// points in a packet, coarse before fine).
 void normalizeRanges(std::vector<PacketRange>& ranges) {
-  std::sort(ranges.begin(), ranges.end(), [](const PacketRange& a, const PacketRange& b) {
-    return a.topLevel != b.topLevel ? a.topLevel < b.topLevel : a.offset < b.offset;
-  });
+  const auto byOffset = [](const PacketRange& a, const PacketRange& b) {
+    return a.offset < b.offset;
+  };
+  bool cellsInOrder = true;
+  for (auto group = ranges.begin(); group != ranges.end();) {
+    const auto end = std::find_if(group, ranges.end(), [&](const PacketRange& range) {
+      return range.topLevel != group->topLevel;
+    });
+    std::sort(group, end, byOffset);
+    if (end != ranges.end() && end->topLevel < group->topLevel) cellsInOrder = false;
+    group = end;
+  }
+  if (!cellsInOrder) {
+    std::sort(ranges.begin(), ranges.end(), [](const PacketRange& a, const PacketRange& b) {
+      return a.topLevel != b.topLevel ? a.topLevel < b.topLevel : a.offset < b.offset;
+    });
+  }
   std::vector<PacketRange> merged;
   merged.reserve(ranges.size());
   for (const PacketRange& range : ranges) {
@@ -36,55 +44,38 @@ void normalizeRanges(std::vector<PacketRange>& ranges) {
   ranges.swap(merged);
 }
 
+// The table's grown bounds must be those the settings ask for.
+void checkScale(const CullingTable& table, const TraversalSettings& settings) {
+  if (table.sizeScale() != settings.sizeScale) {
+    throw UsageError("culling table made for size scale " + std::to_string(table.sizeScale()) +
+                     ", walk asks for " + std::to_string(settings.sizeScale));
+  }
+}
+
 }  // namespace
 
 float distanceToCell(const OctreeCell& cell, const glm::vec3& eye, float sizeScale) {
-  const glm::vec3 low = grownMin(cell, sizeScale);
-  const glm::vec3 high = grownMax(cell, sizeScale);
-  const glm::vec3 nearest = glm::clamp(eye, low, high);
-  return glm::length(nearest - eye);
+  return distanceToCell(cellCulling(cell, sizeScale), eye);
 }
 
 bool cellBackfacing(const OctreeCell& cell, const glm::vec3& eye, float sizeScale) {
-  const NormalCone cone = decodeNormalCone(cell);
-  if (!cone.valid || cone.cosHalfAngle <= 0.0) return false;  // cone of 90 deg or more
-  const glm::vec3 low = grownMin(cell, sizeScale);
-  const glm::vec3 high = grownMax(cell, sizeScale);
-  const glm::vec3 centre = 0.5f * (low + high);
-  const float radius = 0.5f * glm::length(high - low);
-  const glm::vec3 toCell = centre - eye;
-  const float distance = glm::length(toCell);
-  if (distance <= radius * 1.0001f) return false;  // eye inside: some splat may face it
-  // Every splat normal n lies within the cone's half angle C of the axis;
-  // every direction from the eye to a splat lies within V of toCell, with
-  // sin V = radius / distance. The splat faces away when angle(n, direction)
-  // < 90 deg, guaranteed when A + C + V + s < 90 deg, A being the angle from
-  // the axis to toCell and s a safety margin. Tested with cosines and sines
-  // instead of angles: X = C + V + s must stay below 90 deg (cos X > 0), and
-  // then A < 90 deg - X exactly when cos A > sin X. This runs for every cell
-  // the walk meets, so it takes no inverse trigonometric functions.
-  constexpr double kSafety = 1e-3;  // radians, covers float rounding of bounds and normals
-  static const double cosSafety = std::cos(kSafety);
-  static const double sinSafety = std::sin(kSafety);
-  const double cosC = std::clamp(cone.cosHalfAngle, 0.0, 1.0);
-  const double sinC = std::sqrt(1.0 - cosC * cosC);
-  const double sinV = std::clamp(static_cast<double>(radius / distance), 0.0, 1.0);
-  const double cosV = std::sqrt(1.0 - sinV * sinV);
-  const double cosCV = cosC * cosV - sinC * sinV;
-  const double sinCV = sinC * cosV + cosC * sinV;
-  const double cosX = cosCV * cosSafety - sinCV * sinSafety;
-  const double sinX = sinCV * cosSafety + cosCV * sinSafety;
-  if (cosX <= 0.0) return false;
-  const glm::dvec3 axis(cone.axis[0], cone.axis[1], cone.axis[2]);
-  const double cosA = std::clamp(glm::dot(axis, glm::normalize(glm::dvec3(toCell))), -1.0, 1.0);
-  return cosA > sinX;
+  return cellBackfacing(cellCulling(cell, sizeScale), eye);
 }
 
 std::vector<CellPrefix> topLevelCellsInTile(std::span<const OctreeCell> cells,
                                             const PacketLayers& layers, const Camera& camera,
                                             const TileRect& rect,
                                             const TraversalSettings& settings) {
+  return topLevelCellsInTile(CullingTable(cells, settings.sizeScale), layers, camera, rect,
+                             settings);
+}
+
+std::vector<CellPrefix> topLevelCellsInTile(const CullingTable& table, const PacketLayers& layers,
+                                            const Camera& camera, const TileRect& rect,
+                                            const TraversalSettings& settings) {
+  checkScale(table, settings);
   std::vector<CellPrefix> found;
+  const std::span<const OctreeCell> cells = table.cells();
   if (cells.empty()) return found;
   const FrustumPlanes planes = tilePlanes(camera, rect, settings.marginPixels);
   const glm::vec3 eye = cameraEye(camera);
@@ -92,14 +83,14 @@ std::vector<CellPrefix> topLevelCellsInTile(std::span<const OctreeCell> cells,
   std::uint32_t index = 0;
   while (index != kNoIndex && index < size) {
     const OctreeCell& cell = cells[index];
-    const bool culled = boxOutside(planes, grownMin(cell, settings.sizeScale),
-                                   grownMax(cell, settings.sizeScale)) ||
-                        (settings.backfaceCull && cellBackfacing(cell, eye, settings.sizeScale));
+    const CellCulling& culling = table[index];
+    const bool culled = boxOutside(planes, culling.low, culling.high) ||
+                        (settings.backfaceCull && cellBackfacing(culling, eye));
     if (culled) {
       index = cell.nextSibling;
     } else if (cell.topLevel != kNoIndex) {
       if (cell.pointsCount + cell.splatsCount > 0) {
-        const float distance = distanceToCell(cell, eye, settings.sizeScale);
+        const float distance = distanceToCell(culling, eye);
         found.push_back({cell.topLevel, layers.prefixAt(cell.topLevel, camera, distance,
                                                         settings.lodPixels, settings.sizeScale)});
       }
@@ -114,7 +105,14 @@ std::vector<CellPrefix> topLevelCellsInTile(std::span<const OctreeCell> cells,
 
 TraversalResult traverseTile(std::span<const OctreeCell> cells, const Camera& camera,
                              const TileRect& rect, const TraversalSettings& settings) {
+  return traverseTile(CullingTable(cells, settings.sizeScale), camera, rect, settings);
+}
+
+TraversalResult traverseTile(const CullingTable& table, const Camera& camera, const TileRect& rect,
+                             const TraversalSettings& settings) {
+  checkScale(table, settings);
   TraversalResult result;
+  const std::span<const OctreeCell> cells = table.cells();
   if (cells.empty()) return result;
   const FrustumPlanes planes = tilePlanes(camera, rect, settings.marginPixels);
   const glm::vec3 eye = cameraEye(camera);
@@ -124,14 +122,14 @@ TraversalResult traverseTile(std::span<const OctreeCell> cells, const Camera& ca
   std::uint32_t index = 0;
   while (index != kNoIndex && index < size) {
     const OctreeCell& cell = cells[index];
+    const CellCulling& culling = table[index];
     ++result.cellsVisited;
-    if (boxOutside(planes, grownMin(cell, settings.sizeScale),
-                   grownMax(cell, settings.sizeScale))) {
+    if (boxOutside(planes, culling.low, culling.high)) {
       ++result.cellsCulledFrustum;
       index = cell.nextSibling;
       continue;
     }
-    if (settings.backfaceCull && cellBackfacing(cell, eye, settings.sizeScale)) {
+    if (settings.backfaceCull && cellBackfacing(culling, eye)) {
       ++result.cellsCulledBackface;
       index = cell.nextSibling;
       continue;
@@ -141,7 +139,7 @@ TraversalResult traverseTile(std::span<const OctreeCell> cells, const Camera& ca
       index = cell.isLeaf() ? cell.nextSibling : index + 1;
       continue;
     }
-    const float distance = distanceToCell(cell, eye, settings.sizeScale);
+    const float distance = distanceToCell(culling, eye);
     // projectedRadiusPixels(camera, r, distance), with the focal length taken once.
     const bool coarseEnough = distance > 0.0f && cell.maxSplatRadius * settings.sizeScale *
                                                          pixelsPerUnit(focal, distance) <=

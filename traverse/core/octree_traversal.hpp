@@ -13,6 +13,7 @@
 #include "common/camera.hpp"
 #include "common/cell_prefix.hpp"
 #include "common/octree_cell.hpp"
+#include "traverse/core/culling_table.hpp"
 #include "traverse/core/packet_layers.hpp"
 
 namespace pointillist::traverse {
@@ -48,8 +49,11 @@ struct TraversalResult {
   std::uint64_t cellsCulledBackface = 0;
 };
 
-// Walks `cells` for the tile `rect` of `camera` (pass the full frame rect for a
-// whole-frame traversal).
+// Walks the table's cells for the tile `rect` of `camera` (pass the full frame
+// rect for a whole-frame traversal). The table's size scale must be the settings'.
+TraversalResult traverseTile(const CullingTable& table, const Camera& camera, const TileRect& rect,
+                             const TraversalSettings& settings);
+// The same, making the culling table first (for one-off walks and tests).
 TraversalResult traverseTile(std::span<const OctreeCell> cells, const Camera& camera,
                              const TileRect& rect, const TraversalSettings& settings);
 
@@ -57,6 +61,9 @@ TraversalResult traverseTile(std::span<const OctreeCell> cells, const Camera& ca
 // traverseTile down to the top-level depth, without level-of-detail selection
 // (a superset of the cells traverseTile returns, at a fraction of the walk),
 // each with the prefix its distance probably needs (PacketLayers::prefixAt).
+std::vector<CellPrefix> topLevelCellsInTile(const CullingTable& table, const PacketLayers& layers,
+                                            const Camera& camera, const TileRect& rect,
+                                            const TraversalSettings& settings);
 std::vector<CellPrefix> topLevelCellsInTile(std::span<const OctreeCell> cells,
                                             const PacketLayers& layers, const Camera& camera,
                                             const TileRect& rect,
