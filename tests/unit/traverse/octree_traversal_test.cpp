@@ -9,6 +9,8 @@
 #include <set>
 
 #include "common/camera.hpp"
+#include "common/errors.hpp"
+#include "common/geometry.hpp"
 #include "preprocess/dataset_builder.hpp"
 #include "preprocess/generator.hpp"
 #include "traverse/core/octree_traversal.hpp"
@@ -270,6 +272,73 @@ TEST(OctreeTraversal, BackfacingCellIsCulledOnlyWhenEveryNormalFacesAway) {
   EXPECT_FALSE(cellBackfacing(cell, {0, 0, -0.5f}, 1.0f));  // eye inside the cell
   cell.coneCos = -32767;                                    // no cone
   EXPECT_FALSE(cellBackfacing(cell, {0, 0, -20}, 1.0f));
+}
+
+// The property back-face culling rests on, with the cone decoded once into the
+// culling table: whenever a cell is culled, every splat the cell may hold (any
+// position in its grown bounds, any normal in its cone) faces away from the eye.
+TEST(OctreeTraversal, CulledCellsHoldOnlySplatsFacingAway) {
+  std::mt19937 random(11);
+  std::uniform_real_distribution<double> unit(-1.0, 1.0);
+  std::uniform_real_distribution<double> fraction(0.0, 1.0);
+  const auto randomDirection = [&] {
+    glm::dvec3 v;
+    do v = {unit(random), unit(random), unit(random)};
+    while (glm::length(v) < 0.1 || glm::length(v) > 1.0);
+    return glm::normalize(v);
+  };
+  int culled = 0;
+  for (int trial = 0; trial < 4000; ++trial) {
+    OctreeCell cell{};
+    const double size = 0.2 + 2.0 * fraction(random);
+    for (int k = 0; k < 3; ++k) {
+      cell.boundsMin[k] = static_cast<float>(unit(random));
+      cell.boundsMax[k] = cell.boundsMin[k] + static_cast<float>(size * (0.2 + fraction(random)));
+    }
+    cell.maxSplatRadius = static_cast<float>(0.05 * fraction(random));
+    const glm::dvec3 axis = randomDirection();
+    const double halfAngle = 0.6 * fraction(random);  // up to about 34 degrees
+    encodeNormalCone(cell, quantizeConeAxis({axis.x, axis.y, axis.z}), std::cos(halfAngle));
+    const glm::vec3 eye = glm::vec3(randomDirection() * (3.0 + 20.0 * fraction(random)));
+    const float scale = trial % 2 == 0 ? 1.0f : 2.5f;
+    const CellCulling culling = cellCulling(cell, scale);
+    ASSERT_EQ(cellBackfacing(culling, eye), cellBackfacing(cell, eye, scale));
+    if (!cellBackfacing(culling, eye)) continue;
+    ++culled;
+    const NormalCone cone = decodeNormalCone(cell);
+    const glm::dvec3 coneAxis(cone.axis[0], cone.axis[1], cone.axis[2]);
+    // Normals inside the stored cone, its rim included, and points inside the grown bounds.
+    const glm::dvec3 u = glm::normalize(glm::cross(
+        coneAxis, std::abs(coneAxis.x) < 0.9 ? glm::dvec3(1, 0, 0) : glm::dvec3(0, 1, 0)));
+    const glm::dvec3 v = glm::cross(coneAxis, u);
+    const double maxAngle = std::acos(std::clamp(cone.cosHalfAngle, -1.0, 1.0));
+    for (int sample = 0; sample < 200; ++sample) {
+      const double angle = sample % 4 == 0 ? maxAngle : maxAngle * std::sqrt(fraction(random));
+      const double turn = 6.283185307179586 * fraction(random);
+      const glm::dvec3 normal =
+          std::cos(angle) * coneAxis + std::sin(angle) * (std::cos(turn) * u + std::sin(turn) * v);
+      glm::dvec3 point;
+      for (int k = 0; k < 3; ++k) {
+        const double low = culling.low[k], high = culling.high[k];
+        point[k] = low + (high - low) * fraction(random);
+      }
+      ASSERT_GT(glm::dot(normal, point - glm::dvec3(eye)), 0.0)
+          << "trial " << trial << ": a splat of a culled cell faces the eye";
+    }
+  }
+  EXPECT_GT(culled, 200);  // the property was exercised, not skipped
+}
+
+TEST(OctreeTraversal, CullingTableMustMatchTheWalksSizeScale) {
+  const auto& f = cityFixture();
+  const CullingTable table(f.content.cells, 1.0f);
+  TraversalSettings settings;
+  settings.sizeScale = 2.0f;
+  const Camera camera = testCameras(f)[0];
+  EXPECT_THROW(traverseTile(table, camera, fullFrameRect(camera), settings), UsageError);
+  settings.sizeScale = 1.0f;
+  EXPECT_EQ(traverseTile(table, camera, fullFrameRect(camera), settings).ranges,
+            traverseTile(f.content.cells, camera, fullFrameRect(camera), settings).ranges);
 }
 
 }  // namespace
