@@ -31,6 +31,32 @@ use_malloc_tuning() {
   export GLIBC_TUNABLES="${GLIBC_TUNABLES:+$GLIBC_TUNABLES:}$POINTILLIST_MALLOC_TUNABLES"
 }
 
+# True when one process may read another's memory with process_vm_readv (what
+# Open MPI's CMA single copy needs): no Yama restriction, and a probe of a
+# forked child passes (container seccomp filters may forbid the call).
+cma_allowed() {
+  local scope=/proc/sys/kernel/yama/ptrace_scope
+  [[ -r "$scope" && "$(cat "$scope")" != 0 ]] && return 1
+  python3 - <<'PROBE' 2>/dev/null
+import ctypes, os, signal, sys, time
+libc = ctypes.CDLL(None, use_errno=True)
+class IoVec(ctypes.Structure):
+    _fields_ = [("base", ctypes.c_void_p), ("length", ctypes.c_size_t)]
+source = ctypes.create_string_buffer(b"pointillist", 16)
+child = os.fork()
+if child == 0:
+    time.sleep(30)
+    os._exit(0)
+target = ctypes.create_string_buffer(16)
+local = IoVec(ctypes.cast(target, ctypes.c_void_p), 16)
+remote = IoVec(ctypes.cast(source, ctypes.c_void_p), 16)
+read = libc.process_vm_readv(child, ctypes.byref(local), 1, ctypes.byref(remote), 1, 0)
+os.kill(child, signal.SIGKILL)
+os.waitpid(child, 0)
+sys.exit(0 if read == 16 and target.value == b"pointillist" else 1)
+PROBE
+}
+
 log() { printf '[pointillist] %s\n' "$*" >&2; }
 
 # Installs whatever is missing; does nothing (and needs no network) otherwise.
