@@ -46,11 +46,12 @@ done
 # (process_vm_readv) where ranks of one user may read each other's memory; on
 # the bunny orbit that took the job from about 20-27 to 32-36 frames/s (2
 # cores). Where Yama or a seccomp filter forbids it, the two-copy path stays.
-# POINTILLIST_SINGLE_COPY=none|cma decides instead.
+# The probe only speaks for this machine, so a --hostfile launch keeps the
+# two-copy path. POINTILLIST_SINGLE_COPY=none|cma decides instead.
 single_copy="${POINTILLIST_SINGLE_COPY:-}"
 if [[ -z "$single_copy" ]]; then
   single_copy=none
-  cma_allowed && single_copy=cma
+  [[ -z "$hostfile" ]] && cma_allowed && single_copy=cma
 fi
 launch=(mpirun --mca btl_vader_single_copy_mechanism "$single_copy")
 if [[ -n "$hostfile" ]]; then
