@@ -32,6 +32,8 @@ mkdir -p "$out"
 work=$(mktemp -d /tmp/pointillist-bench-service.XXXXXX)
 endpoint="ipc://$work/control"
 client=("$POINTILLIST_BIN/pointillist-client" --connect "$endpoint" --timeout 60 --size 1280x720)
+quiet_client() { "${client[@]}" "$@" 2>>"$out/clients.err" || { cat "$out/clients.err" >&2; return 1; }; }
+: >"$out/clients.err"
 setsid bash "$POINTILLIST_ROOT/deploy/run.sh" --layout "$layout" --dataset "$dataset" --serve \
   --listen "$endpoint" --size 1280x720 --quiet >"$out/job.log" 2>&1 &
 job=$!
@@ -41,12 +43,12 @@ for _ in $(seq 1 600); do
   kill -0 "$job" 2>/dev/null || { cat "$out/job.log"; exit 1; }
   sleep 0.2
 done
-"${client[@]}" info
+quiet_client info
 # One orbit first so caches are warm, as they are for a user after a moment.
-"${client[@]}" --encoding raw orbit --frames "$frames" >/dev/null
+quiet_client --encoding raw orbit --frames "$frames" >/dev/null
 printf '\n%-6s %12s %12s %12s %14s\n' encoding "median ms" "p95 ms" "frames/s" "KiB per frame"
 for encoding in raw png jpeg; do
-  "${client[@]}" --encoding "$encoding" orbit --frames "$frames" >"$out/orbit-$encoding.log"
+  quiet_client --encoding "$encoding" orbit --frames "$frames" >"$out/orbit-$encoding.log"
   median=$(grep -Eo 'median [0-9.]+' "$out/orbit-$encoding.log" | grep -Eo '[0-9.]+$')
   p95=$(grep -Eo 'p95 [0-9.]+' "$out/orbit-$encoding.log" | grep -Eo '[0-9.]+$')
   rate=$(grep -Eo '[0-9.]+ frames/s' "$out/orbit-$encoding.log" | grep -Eo '^[0-9.]+')
@@ -56,12 +58,12 @@ for encoding in raw png jpeg; do
 done
 echo
 for encoding in raw png jpeg; do
-  "${client[@]}" --encoding "$encoding" path --camera-path orbit --frames "$frames" \
+  quiet_client --encoding "$encoding" path --camera-path orbit --frames "$frames" \
     >"$out/path-$encoding.log"
   echo "path request, $encoding: $(grep -E '^path:' "$out/path-$encoding.log")"
 done
 echo
-"${client[@]}" stats | tee "$out/stats.txt"
-"${client[@]}" shutdown >/dev/null
+quiet_client stats | tee "$out/stats.txt"
+quiet_client shutdown >/dev/null
 wait "$job" || true
 echo "logs in $out"
