@@ -9,7 +9,8 @@ POINTILLIST_PACKAGES=(
   build-essential cmake pkg-config
   openmpi-bin libopenmpi-dev
   libosmesa6-dev libglm-dev libfftw3-dev
-  libzmq3-dev cppzmq-dev libprotobuf-dev protobuf-compiler
+  libzmq3-dev cppzmq-dev libprotobuf-dev protobuf-compiler libturbojpeg0-dev
+  python3-zmq python3-protobuf python3-numpy
   libgtest-dev libpng-dev libnanoflann-dev libcli11-dev libhwy-dev libxxhash-dev
   gnuplot-nox iproute2 procps
 )

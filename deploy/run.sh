@@ -7,6 +7,8 @@
 # On one machine (no --hostfile) ranks are oversubscribed and unbound, so more
 # ranks than cores share them; idle ranks sleep instead of spinning.
 # With --hostfile, Open MPI places ranks on the listed hosts (see deploy/README.md).
+# --serve [--listen ENDPOINT] keeps the job up as a rendering service (README:
+# "The rendering service"); it ends on a shutdown request, SIGINT or SIGTERM.
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
 
@@ -15,7 +17,7 @@ hostfile=""
 mpirun_args=()
 role_args=()
 dry_run=0
-usage() { sed -n '2,10p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+usage() { sed -n '2,12p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
 while (($#)); do
   case "$1" in
     --layout) layout="$2"; shift 2 ;;

@@ -18,6 +18,8 @@
 #include "display/core/frame_assembly.hpp"
 #include "display/core/frame_stats.hpp"
 #include "display/core/tile_planner.hpp"
+#include "display/frame_source.hpp"
+#include "display/service_frame_source.hpp"
 
 namespace pointillist::display {
 namespace {
@@ -43,6 +45,16 @@ struct DisplayOptions {
   std::string costModel = costModelName(kDefaultCostModel);
   std::uint32_t prefetchFrames = 0;
   bool quiet = false;
+  // Serve mode: frames are asked for by clients over ZeroMQ.
+  bool serve = false;
+  std::string listen = "tcp://127.0.0.1:5570";
+  std::string streamListen;
+  std::size_t maxClients = 64;
+  int streamHighWaterMark = 16;
+  std::string encoding = "png";
+  std::uint32_t jpegQuality = 90;
+  std::string curveSecretKey;
+  std::string curveAuthorizedKeys;
 };
 
 TilePlanOptions tilePlanOptions(const DisplayOptions& options, std::uint32_t renders) {
@@ -96,7 +108,7 @@ class DisplayProcess {
       std::filesystem::create_directories(folder);
     }
     config_.bounds = datasetBounds(dataset_.manifest());
-    config_.cameras = viewCameras(options.view, config_.bounds);
+    if (!options.serve) config_.cameras = viewCameras(options.view, config_.bounds);
     // The manifest carries the root's largest splat radius, so cells.bin stays unread here.
     config_.marginWorld = dataset_.manifest().maxSplatRadius * options.view.sizeScale;
     config_.framesInFlight = options.framesInFlight;
@@ -107,19 +119,98 @@ class DisplayProcess {
     config_.prefetchFrames = options.prefetchFrames;
   }
 
+  // What a client sees of the dataset and the job (no paths on this machine).
+  service::ServedDataset servedDataset() const {
+    const DatasetManifest& manifest = dataset_.manifest();
+    service::ServedDataset served;
+    served.bounds = config_.bounds;
+    served.up = parseUpAxis(options_.view.up, config_.bounds);
+    service::v1::DatasetInfo& info = served.info;
+    info.set_name(
+        std::filesystem::path(options_.datasetPath).lexically_normal().filename().string());
+    const auto vec = [](service::v1::Vec3* out, const glm::vec3& v) {
+      out->set_x(v.x);
+      out->set_y(v.y);
+      out->set_z(v.z);
+    };
+    vec(info.mutable_bounds_min(), config_.bounds.min);
+    vec(info.mutable_bounds_max(), config_.bounds.max);
+    vec(info.mutable_default_up(), served.up);
+    info.set_points(manifest.pointCount);
+    info.set_level_splats(manifest.levelSplatCount);
+    info.set_cells(manifest.cellCount);
+    info.set_top_level_cells(static_cast<std::uint32_t>(manifest.topLevelCount));
+    // Modes a job can be started with; this one draws `mode` for its lifetime.
+    for (const char* mode : {"points", "splats", "blended"}) info.add_modes_available(mode);
+    info.set_mode(options_.view.mode);
+    info.set_lod_pixels(options_.view.lodPixels);
+    info.set_scheduler(options_.scheduler);
+    info.set_layout(job_.layout().toString());
+    for (const auto& name : builtinCameraPaths()) info.add_camera_paths(name);
+    return served;
+  }
+
+  service::ServiceOptions serviceOptions() const {
+    service::ServiceOptions service;
+    service.listen = options_.listen;
+    service.streamListen = options_.streamListen;
+    service.maxClients = options_.maxClients;
+    service.streamHighWaterMark = options_.streamHighWaterMark;
+    service.maxEncodeBacklog = std::max<std::size_t>(2, options_.framesInFlight + 1);
+    service.defaultFormat.set_width(width_);
+    service.defaultFormat.set_height(height_);
+    service.defaultFormat.set_encoding(service::parseEncoding(options_.encoding));
+    service.defaultFormat.set_jpeg_quality(options_.jpegQuality);
+    service.curveSecretKeyFile = options_.curveSecretKey;
+    service.curveAuthorizedKeysFile = options_.curveAuthorizedKeys;
+    service::validateFrameFormat(service.defaultFormat, service.limits);
+    return service;
+  }
+
+  // Serve mode: binds the service's sockets once every process is ready, so a
+  // client's first request finds the job up.
+  void openService() {
+    if (!service::isLocalEndpoint(options_.listen) && options_.curveSecretKey.empty()) {
+      std::fprintf(stderr,
+                   "display: warning: the service listens on %s, beyond this machine, without "
+                   "authentication (--curve-secret-key, --curve-authorized-keys)\n",
+                   options_.listen.c_str());
+    }
+    service_ = std::make_unique<ServiceFrameSource>(serviceOptions(), servedDataset());
+    source_ = service_.get();
+    std::printf("display: service listening on %s (frames on %s%s)\n",
+                service_->frontEnd().controlEndpoint().c_str(),
+                service_->frontEnd().streamEndpoint().c_str(),
+                service_->frontEnd().curve() ? ", CURVE" : "");
+    std::fflush(stdout);
+  }
+
   void run() {
     const auto start = Clock::now();
     FrameAssembly assembly(config_, job_.peers(), start);
     RunStats& stats = assembly.stats();
     stats.dataset = options_.datasetPath;
-    stats.cameraPath = options_.view.cameraPath;
+    stats.cameraPath = source_ != nullptr ? "service" : options_.view.cameraPath;
     stats.width = width_;
     stats.height = height_;
     stats.mode = options_.view.mode;
     Backoff backoff;
     CpuActivities::Meter meter(job_.activities(), "poll");
-    while (!assembly.done()) {
+    while (true) {
       bool worked = false;
+      if (source_ == nullptr) {
+        if (assembly.done()) break;
+      } else if (source_->finished()) {
+        if (assembly.framesInFlight() == 0) break;
+      } else {
+        const std::size_t window = std::max<std::size_t>(1, options_.framesInFlight);
+        const std::size_t room = window - std::min(window, assembly.framesInFlight());
+        for (const Camera& camera : source_->take(room)) {
+          frameSizes_[framesAppended_++] = {camera.image_width(), camera.image_height()};
+          assembly.appendCamera(camera);
+          worked = true;
+        }
+      }
       while (true) {
         meter.switchTo("receive");
         auto envelope = job_.channel().tryReceive();
@@ -156,6 +247,10 @@ class DisplayProcess {
     }
     stats.totalSeconds = since(start, Clock::now());
     stats_ = std::move(stats);
+    if (service_) {
+      std::printf("display: service stopped (%s)\n", service_->stopReason().c_str());
+      service_->close();
+    }
   }
 
   // After shutdown, with every process's CPU time: the summary and the files.
@@ -203,7 +298,9 @@ class DisplayProcess {
         }
         if (!assembly.tileArrived(header, Clock::now())) return;
         auto image = images_.find(header.frame_id());
-        if (image == images_.end()) image = images_.emplace(header.frame_id(), blankImage()).first;
+        if (image == images_.end()) {
+          image = images_.emplace(header.frame_id(), blankImage(header.frame_id())).first;
+        }
         blit(std::span<const std::uint8_t>(
                  reinterpret_cast<const std::uint8_t*>(envelope.payload.data()),
                  envelope.payload.size()),
@@ -225,7 +322,7 @@ class DisplayProcess {
   void emit(const FinishedFrame& frame) {
     const FrameRecord& record = frame.record;
     const auto found = images_.find(record.frame);
-    Image image = found != images_.end() ? std::move(found->second) : blankImage();
+    Image image = found != images_.end() ? std::move(found->second) : blankImage(record.frame);
     if (found != images_.end()) images_.erase(found);
     for (const TileRect& rect : frame.failedTiles) {
       for (std::uint32_t y = 0; y < rect.height(); ++y) {
@@ -262,13 +359,22 @@ class DisplayProcess {
                    static_cast<unsigned long long>(record.frame), record.failedTiles,
                    options_.maxAttempts);
     }
-    if (spareImages_.size() <= options_.framesInFlight) spareImages_.push_back(std::move(image));
+    if (source_ != nullptr) {
+      frameSizes_.erase(record.frame);
+      source_->frameDone(frame, std::move(image));
+    } else if (spareImages_.size() <= options_.framesInFlight) {
+      spareImages_.push_back(std::move(image));
+    }
   }
 
   // A frame-sized image of the background. Finished frames' images are kept
   // for reuse: a fresh 1280x720 allocation per frame costs the display more
   // page faults than its compositing.
-  Image blankImage() {
+  Image blankImage(std::uint64_t frame) {
+    // Served frames each have the size their client asked for.
+    if (const auto size = frameSizes_.find(frame); size != frameSizes_.end()) {
+      return Image(size->second.first, size->second.second, kBackground);
+    }
     if (spareImages_.empty()) return Image(width_, height_, kBackground);
     Image image = std::move(spareImages_.back());
     spareImages_.pop_back();
@@ -285,6 +391,11 @@ class DisplayProcess {
   RunStats stats_;
   std::map<std::uint64_t, Image> images_;  // frames with tiles composed so far
   std::vector<Image> spareImages_;
+  std::unique_ptr<ServiceFrameSource> service_;
+  FrameSource* source_ = nullptr;  // serve mode; the fixed path otherwise
+  // Served frames' sizes until they are emitted, by frame number.
+  std::map<std::uint64_t, std::pair<std::uint32_t, std::uint32_t>> frameSizes_;
+  std::uint64_t framesAppended_ = 0;
 };
 
 void stayIdle(double seconds) {
@@ -326,9 +437,35 @@ int runDisplayMain(int argc, char** argv) {
   app.add_flag("--equal-tiles", options.equalTiles,
                "Cost scheduler: equal tiles instead of tiles sized by last frame's work");
   app.add_flag("--quiet", options.quiet, "No per-frame lines");
+  app.add_flag("--serve", options.serve,
+               "Serve mode: render frames clients ask for over ZeroMQ until a shutdown request, "
+               "SIGINT or SIGTERM (instead of --camera-path)");
+  app.add_option("--listen", options.listen,
+                 "Serve mode: control endpoint (loopback by default); frames on the next port")
+      ->capture_default_str();
+  app.add_option("--stream-listen", options.streamListen,
+                 "Serve mode: frames endpoint (default: --listen's port + 1)");
+  app.add_option("--max-clients", options.maxClients, "Serve mode: clients known at once")
+      ->capture_default_str();
+  app.add_option("--stream-hwm", options.streamHighWaterMark,
+                 "Serve mode: frames queued for one client before its frames are dropped")
+      ->capture_default_str();
+  app.add_option("--encoding", options.encoding,
+                 "Serve mode: clients' default encoding: raw, png, jpeg")
+      ->capture_default_str();
+  app.add_option("--jpeg-quality", options.jpegQuality, "Serve mode: clients' default JPEG quality")
+      ->check(CLI::Range(1, 100))
+      ->capture_default_str();
+  app.add_option("--curve-secret-key", options.curveSecretKey,
+                 "Serve mode: CURVE: the server's secret key file (pointillist-client keygen)");
+  app.add_option("--curve-authorized-keys", options.curveAuthorizedKeys,
+                 "Serve mode: CURVE: file of client public keys admitted, one per line");
   return runRoleMain(argc, argv, v1::ROLE_DISPLAY, app, [&](Job& job) {
     const auto start = Clock::now();
     std::unique_ptr<DisplayProcess> process;
+    if (options.serve && options.datasetPath.empty()) {
+      throw UsageError("--serve needs --dataset: clients render the dataset the job starts with");
+    }
     if (!options.datasetPath.empty()) process = std::make_unique<DisplayProcess>(job, options);
     HandshakeOptions handshake = handshakeOptions(options.common);
     handshake.settings = runSettings(options);
@@ -344,6 +481,7 @@ int runDisplayMain(int argc, char** argv) {
       }
     }
     std::fflush(stdout);
+    if (options.serve) process->openService();
 
     const double displayCpuBefore = processCpuSeconds();
     const auto displayStart = Clock::now();

@@ -33,6 +33,11 @@ void FrameAssembly::admitFrames() {
   }
 }
 
+void FrameAssembly::appendCamera(const Camera& camera) {
+  config_.cameras.push_back(camera);
+  admitFrames();
+}
+
 void FrameAssembly::workRequested(int traverseRank) {
   peers_.indexOf(v1::ROLE_TRAVERSE, traverseRank);  // throws for a stranger
   idleTraverses_.push_back(traverseRank);

@@ -48,6 +48,12 @@ class FrameAssembly {
   // `start` is the time the run's statistics count from.
   FrameAssembly(FrameAssemblyConfig config, PeerRanks peers, TimePoint start);
 
+  // Adds a frame after those given at construction (serve mode: frames come
+  // as clients ask); it enters the window at once when there is room.
+  void appendCamera(const Camera& camera);
+  // Frames admitted and not yet finished.
+  std::size_t framesInFlight() const { return framesAdded_ - stats_.frames.size(); }
+
   // A traverse process asked for work.
   void workRequested(int traverseRank);
   // Re-queues tiles past their deadline (or gives them up after maxAttempts),

@@ -1,0 +1,25 @@
+#pragma once
+// Where the display's frames come from when they are not a fixed camera path
+// given at start-up: serve mode takes them from clients (ServiceFrameSource).
+#include <cstddef>
+#include <vector>
+
+#include "common/camera.hpp"
+#include "common/image.hpp"
+#include "display/core/frame_assembly.hpp"
+
+namespace pointillist::display {
+
+class FrameSource {
+ public:
+  virtual ~FrameSource() = default;
+  // Cameras to start now, at most `room`, in the order their frames follow.
+  virtual std::vector<Camera> take(std::size_t room) = 0;
+  // True once no frame will be asked for any more; the run ends when the
+  // frames already out are done.
+  virtual bool finished() = 0;
+  // A composed frame, in the order take() gave the cameras.
+  virtual void frameDone(const FinishedFrame& frame, Image image) = 0;
+};
+
+}  // namespace pointillist::display

@@ -1,0 +1,375 @@
+// pointillist-client: talks to a job started with `deploy/run.sh --serve`.
+//   pointillist-client info
+//   pointillist-client render --camera ex,ey,ez,tx,ty,tz[,ux,uy,uz[,fov]] -o frame.png
+//   pointillist-client path --camera-path orbit --frames 24 -o DIR
+//   pointillist-client orbit --frames 48        (one camera at a time: latency and frames/s)
+//   pointillist-client stats | shutdown
+#include <CLI/CLI.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <numbers>
+#include <optional>
+#include <sstream>
+#include <thread>
+
+#include "common/camera_path.hpp"
+#include "common/tool_entry.hpp"
+#include "service/core/frame_encoding.hpp"
+#include "service/core/latency_window.hpp"
+#include "service/zmq/curve_keys.hpp"
+#include "service/zmq/service_client.hpp"
+
+namespace pointillist::service {
+namespace {
+
+using SteadyClock = std::chrono::steady_clock;
+
+struct ClientOptions {
+  std::string connect = "tcp://127.0.0.1:5570";
+  std::string name = "pointillist-client";
+  double timeoutSeconds = 30.0;
+  std::string encoding;  // empty: the server's default for this client
+  std::string size;      // WxH; empty: the server's default
+  std::uint32_t jpegQuality = 0;
+  // render
+  std::string camera;
+  std::string output;
+  // path, orbit
+  std::string cameraPath = "orbit";
+  std::uint32_t frames = 24;
+  double readDelayMs = 0.0;
+  bool neverRead = false;
+  double frameTimeoutSeconds = 120.0;
+  // shutdown
+  std::string reason = "asked by pointillist-client";
+  // CURVE
+  std::string curveServerKey;  // file with the server's public key
+  std::string curveKey;        // file with this client's secret key
+  std::string keygenPrefix;
+};
+
+double millisecondsBetween(SteadyClock::time_point from, SteadyClock::time_point to) {
+  return std::chrono::duration<double, std::milli>(to - from).count();
+}
+
+v1::FrameFormat requestedFormat(const ClientOptions& options) {
+  v1::FrameFormat format;
+  if (!options.encoding.empty()) format.set_encoding(parseEncoding(options.encoding));
+  if (!options.size.empty()) {
+    const auto [width, height] = parseImageSize(options.size);
+    format.set_width(width);
+    format.set_height(height);
+  }
+  format.set_jpeg_quality(options.jpegQuality);
+  return format;
+}
+
+v1::CameraKey parseCamera(const std::string& text) {
+  std::vector<float> values;
+  std::stringstream stream(text);
+  std::string item;
+  while (std::getline(stream, item, ',')) {
+    try {
+      std::size_t used = 0;
+      values.push_back(std::stof(item, &used));
+      if (used != item.size()) throw std::invalid_argument(item);
+    } catch (const std::exception&) {
+      throw UsageError("--camera: '" + item + "' is not a number");
+    }
+  }
+  if (values.size() != 6 && values.size() != 9 && values.size() != 10) {
+    throw UsageError("--camera takes ex,ey,ez,tx,ty,tz[,ux,uy,uz[,fovY]] (6, 9 or 10 numbers)");
+  }
+  CameraKey key;
+  key.eye = {values[0], values[1], values[2]};
+  key.target = {values[3], values[4], values[5]};
+  v1::CameraKey message = cameraKeyMessage(key);
+  if (values.size() >= 9) {
+    message.mutable_up()->set_x(values[6]);
+    message.mutable_up()->set_y(values[7]);
+    message.mutable_up()->set_z(values[8]);
+  } else {
+    message.clear_up();  // the server uses the data's up axis
+  }
+  message.set_fov_y_degrees(values.size() == 10 ? values[9] : 0.0f);
+  return message;
+}
+
+// Writes the frame in the format the file's extension names (.png, .jpg/.jpeg,
+// .rgba); the pixels travel as the chosen encoding and are converted here.
+void writeFrame(const ReceivedFrame& frame, const std::filesystem::path& path) {
+  const v1::FrameHeader& header = frame.header;
+  std::string extension = path.extension().string();
+  std::transform(extension.begin(), extension.end(), extension.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  const v1::Encoding wanted = extension == ".jpg" || extension == ".jpeg" ? v1::ENCODING_JPEG
+                              : extension == ".rgba"                      ? v1::ENCODING_RAW_RGBA
+                                                                          : v1::ENCODING_PNG;
+  std::vector<std::uint8_t> bytes = frame.pixels;
+  if (wanted != header.encoding()) {
+    const Image image =
+        decodeFrame(frame.pixels, header.encoding(), header.width(), header.height());
+    bytes = encodeFrame(image, wanted);
+  }
+  if (path.has_parent_path()) std::filesystem::create_directories(path.parent_path());
+  const std::filesystem::path temporary = path.string() + ".part";
+  {
+    std::ofstream out(temporary, std::ios::binary);
+    out.write(reinterpret_cast<const char*>(bytes.data()),
+              static_cast<std::streamsize>(bytes.size()));
+    if (!out) throw Error("cannot write " + temporary.string());
+  }
+  std::filesystem::rename(temporary, path);
+}
+
+void printFrame(const ReceivedFrame& frame, double latencyMs) {
+  const v1::FrameHeader& header = frame.header;
+  std::printf(
+      "frame %llu (request %llu, %u/%u): %s, latency %.1f ms (queued %.1f, render %.1f, encode "
+      "%.1f), %.2f M splats, %u tiles, %.1f KiB %s\n",
+      static_cast<unsigned long long>(header.frame_id()),
+      static_cast<unsigned long long>(header.request_id()), header.path_index() + 1,
+      header.path_length(), v1::FrameStatus_Name(header.status()).c_str(), latencyMs,
+      header.queued_ms(), header.render_ms(), header.encode_ms(),
+      static_cast<double>(header.splats()) / 1e6, header.tiles(),
+      static_cast<double>(header.encoded_bytes()) / 1024.0, encodingName(header.encoding()));
+  std::fflush(stdout);
+}
+
+ReceivedFrame awaitFrame(ServiceClient& client, std::uint64_t requestId,
+                         const ClientOptions& options) {
+  const auto timeout =
+      std::chrono::milliseconds(static_cast<long>(options.frameTimeoutSeconds * 1e3));
+  while (true) {
+    auto frame = client.receiveFrame(timeout);
+    if (!frame) throw TimeoutError("no frame for request " + std::to_string(requestId));
+    if (frame->header.request_id() == requestId) return std::move(*frame);
+  }
+}
+
+void printLatency(const char* what, const LatencyWindow& window) {
+  const LatencyFigures figures = window.figures();
+  std::printf("%s: %llu frames, median %.1f ms, p95 %.1f ms, max %.1f ms\n", what,
+              static_cast<unsigned long long>(figures.count), figures.median, figures.p95,
+              figures.max);
+}
+
+int info(ServiceClient& client) {
+  const v1::DatasetInfo info = client.info();
+  std::printf("dataset %s: %llu points, %llu level-splats, %llu cells (%u top-level)\n",
+              info.name().c_str(), static_cast<unsigned long long>(info.points()),
+              static_cast<unsigned long long>(info.level_splats()),
+              static_cast<unsigned long long>(info.cells()), info.top_level_cells());
+  std::printf(
+      "bounds (%g, %g, %g) - (%g, %g, %g), up (%g, %g, %g)\n",
+      static_cast<double>(info.bounds_min().x()), static_cast<double>(info.bounds_min().y()),
+      static_cast<double>(info.bounds_min().z()), static_cast<double>(info.bounds_max().x()),
+      static_cast<double>(info.bounds_max().y()), static_cast<double>(info.bounds_max().z()),
+      static_cast<double>(info.default_up().x()), static_cast<double>(info.default_up().y()),
+      static_cast<double>(info.default_up().z()));
+  std::string modes, paths;
+  for (const auto& mode : info.modes_available()) modes += (modes.empty() ? "" : ", ") + mode;
+  for (const auto& path : info.camera_paths()) paths += (paths.empty() ? "" : ", ") + path;
+  std::printf("job %s: mode %s (available: %s), lod %g px, scheduler %s; paths: %s\n",
+              info.layout().c_str(), info.mode().c_str(), modes.c_str(),
+              static_cast<double>(info.lod_pixels()), info.scheduler().c_str(), paths.c_str());
+  const v1::FrameFormat& format = client.helloReply().format();
+  std::printf("frames: %ux%u %s by default\n", format.width(), format.height(),
+              encodingName(format.encoding()));
+  return 0;
+}
+
+int renderOne(ServiceClient& client, const ClientOptions& options) {
+  const auto sent = SteadyClock::now();
+  const std::uint64_t id = client.render(parseCamera(options.camera), requestedFormat(options));
+  const ReceivedFrame frame = awaitFrame(client, id, options);
+  printFrame(frame, millisecondsBetween(sent, frame.received));
+  if (frame.header.status() == v1::FRAME_STATUS_SUPERSEDED) return 1;
+  if (!options.output.empty()) {
+    writeFrame(frame, options.output);
+    std::printf("wrote %s\n", options.output.c_str());
+  }
+  return frame.header.status() == v1::FRAME_STATUS_OK ? 0 : 1;
+}
+
+int renderPath(ServiceClient& client, const ClientOptions& options) {
+  v1::PathRequest path;
+  path.set_builtin(options.cameraPath);
+  path.set_frames(options.frames);
+  *path.mutable_format() = requestedFormat(options);
+  const auto sent = SteadyClock::now();
+  v1::RenderAccepted accepted;
+  const std::uint64_t id = client.path(path, &accepted);
+  if (options.neverRead) {
+    // A test's misbehaving client: asks, then never reads its stream.
+    std::this_thread::sleep_for(
+        std::chrono::milliseconds(static_cast<long>(options.frameTimeoutSeconds * 1e3)));
+    return 0;
+  }
+  LatencyWindow latency;
+  std::uint32_t failed = 0;
+  auto previous = sent;
+  for (std::uint32_t received = 0; received < accepted.frames(); ++received) {
+    const ReceivedFrame frame = awaitFrame(client, id, options);
+    latency.add(millisecondsBetween(previous, frame.received));
+    previous = frame.received;
+    printFrame(frame, millisecondsBetween(sent, frame.received));
+    if (frame.header.status() != v1::FRAME_STATUS_OK) ++failed;
+    if (!options.output.empty()) {
+      char name[64];
+      std::snprintf(name, sizeof name, "frame_%05u.png", frame.header.path_index());
+      writeFrame(frame, std::filesystem::path(options.output) / name);
+    }
+    if (options.readDelayMs > 0.0) {
+      std::this_thread::sleep_for(std::chrono::duration<double, std::milli>(options.readDelayMs));
+    }
+  }
+  const double seconds = millisecondsBetween(sent, previous) / 1e3;
+  printLatency("time between frames", latency);
+  std::printf("path: %u frames in %.2f s, %.2f frames/s\n", accepted.frames(), seconds,
+              seconds > 0.0 ? accepted.frames() / seconds : 0.0);
+  return failed == 0 ? 0 : 1;
+}
+
+// One camera at a time round the data, each sent when the last frame came:
+// the latency a user moving the view sees, and the frames/s it allows.
+int orbit(ServiceClient& client, const ClientOptions& options) {
+  const v1::DatasetInfo info = client.info();
+  const SceneBounds bounds{{info.bounds_min().x(), info.bounds_min().y(), info.bounds_min().z()},
+                           {info.bounds_max().x(), info.bounds_max().y(), info.bounds_max().z()}};
+  const glm::vec3 up{info.default_up().x(), info.default_up().y(), info.default_up().z()};
+  const auto keys = builtinCameraPath("orbit", bounds, options.frames, up);
+  LatencyWindow latency;
+  const auto start = SteadyClock::now();
+  for (const CameraKey& key : keys) {
+    const auto sent = SteadyClock::now();
+    const std::uint64_t id = client.render(cameraKeyMessage(key), requestedFormat(options));
+    const ReceivedFrame frame = awaitFrame(client, id, options);
+    const double ms = millisecondsBetween(sent, frame.received);
+    latency.add(ms);
+    printFrame(frame, ms);
+  }
+  const double seconds = millisecondsBetween(start, SteadyClock::now()) / 1e3;
+  printLatency("latency request to frame", latency);
+  std::printf("orbit: %zu frames in %.2f s, %.2f frames/s\n", keys.size(), seconds,
+              seconds > 0.0 ? static_cast<double>(keys.size()) / seconds : 0.0);
+  return 0;
+}
+
+int stats(ServiceClient& client) {
+  const v1::Statistics stats = client.stats();
+  std::printf(
+      "uptime %.1f s, %llu requests (%llu errors), %llu frames rendered, %llu superseded, "
+      "%llu dropped, %.1f MiB sent, %.2f M splats, %u queued\n",
+      stats.uptime_seconds(), static_cast<unsigned long long>(stats.requests()),
+      static_cast<unsigned long long>(stats.errors()),
+      static_cast<unsigned long long>(stats.frames_rendered()),
+      static_cast<unsigned long long>(stats.frames_superseded()),
+      static_cast<unsigned long long>(stats.frames_dropped()),
+      static_cast<double>(stats.bytes_sent()) / (1024.0 * 1024.0),
+      static_cast<double>(stats.splats()) / 1e6, stats.queued());
+  const auto line = [](const char* what, const v1::LatencySummary& summary) {
+    std::printf("%s: %llu, median %.1f ms, p95 %.1f ms, max %.1f ms\n", what,
+                static_cast<unsigned long long>(summary.count()), summary.median_ms(),
+                summary.p95_ms(), summary.max_ms());
+  };
+  line("request to sent", stats.request_to_sent());
+  line("render", stats.render());
+  line("encode", stats.encode());
+  for (const auto& client_ : stats.clients()) {
+    std::printf(
+        "client %s (%s): %llu frames sent, %llu dropped, %llu superseded, %.1f MiB, %u queued\n",
+        client_.client_id().c_str(), client_.client_name().c_str(),
+        static_cast<unsigned long long>(client_.frames_sent()),
+        static_cast<unsigned long long>(client_.frames_dropped()),
+        static_cast<unsigned long long>(client_.frames_superseded()),
+        static_cast<double>(client_.bytes_sent()) / (1024.0 * 1024.0), client_.queued());
+  }
+  return 0;
+}
+
+int run(int argc, char** argv) {
+  CLI::App app{"Pointillist service client (for a job started with deploy/run.sh --serve)"};
+  app.name("pointillist-client");
+  ClientOptions options;
+  app.add_option("--connect", options.connect, "Control endpoint of the service")
+      ->capture_default_str();
+  app.add_option("--name", options.name, "Name the service shows for this client");
+  app.add_option("--timeout", options.timeoutSeconds, "Seconds to wait for a reply");
+  app.add_option("--frame-timeout", options.frameTimeoutSeconds, "Seconds to wait for a frame");
+  app.add_option("--encoding", options.encoding, "Frames as raw, png or jpeg");
+  app.add_option("--size", options.size, "Frame size WxH");
+  app.add_option("--jpeg-quality", options.jpegQuality, "1-100")->check(CLI::Range(1, 100));
+  app.add_option("--curve-server-key", options.curveServerKey,
+                 "CURVE: file with the server's public key");
+  app.add_option("--curve-key", options.curveKey, "CURVE: file with this client's secret key");
+  app.require_subcommand(1);
+  app.fallthrough();  // global options may follow the subcommand
+  app.add_subcommand("info", "Dataset and job");
+  auto* render = app.add_subcommand("render", "Render one frame");
+  render->add_option("--camera", options.camera, "ex,ey,ez,tx,ty,tz[,ux,uy,uz[,fovY]]")->required();
+  render->add_option("-o,--output", options.output, "File (.png, .jpg or .rgba)");
+  auto* path = app.add_subcommand("path", "Render a built-in camera path");
+  path->add_option("--camera-path", options.cameraPath, "orbit, flythrough or closeup")
+      ->capture_default_str();
+  path->add_option("--frames", options.frames, "Frames of the path")->capture_default_str();
+  path->add_option("-o,--output", options.output, "Directory for frame_NNNNN.png");
+  path->add_option("--read-delay-ms", options.readDelayMs,
+                   "Sleep after each frame (a slow reader)");
+  path->add_flag("--never-read", options.neverRead, "Ask, then never read (for tests)")->group("");
+  auto* orbitCommand = app.add_subcommand("orbit", "One camera at a time round the data");
+  orbitCommand->add_option("--frames", options.frames, "Frames of the orbit")
+      ->capture_default_str();
+  app.add_subcommand("stats", "The service's statistics");
+  auto* keygen =
+      app.add_subcommand("keygen", "Write a CURVE key pair: PREFIX.secret, PREFIX.public");
+  keygen->add_option("prefix", options.keygenPrefix, "Path without extension")->required();
+  auto* shutdown = app.add_subcommand("shutdown", "Stop the job");
+  shutdown->add_option("--reason", options.reason, "Said in the job's log");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& error) {
+    return app.exit(error);
+  }
+  const std::string command = app.get_subcommands().front()->get_name();
+  if (command == "keygen") {
+    const CurveKeyPair pair = writeCurveKeyPair(options.keygenPrefix);
+    std::printf("wrote %s.secret and %s.public (public key %s)\n", options.keygenPrefix.c_str(),
+                options.keygenPrefix.c_str(), pair.publicKey.c_str());
+    return 0;
+  }
+  if (options.curveServerKey.empty() != options.curveKey.empty()) {
+    throw UsageError("CURVE needs both --curve-server-key and --curve-key");
+  }
+  std::optional<CurveClientKeys> curve;
+  if (!options.curveKey.empty()) {
+    curve = CurveClientKeys{readCurveKey(options.curveServerKey), readCurveKey(options.curveKey)};
+  }
+  const auto connectStart = SteadyClock::now();
+  ServiceClient client(options.connect, options.name,
+                       std::chrono::milliseconds(static_cast<long>(options.timeoutSeconds * 1e3)),
+                       curve ? &*curve : nullptr);
+  std::fprintf(stderr, "connected to %s as %s in %.1f ms\n", options.connect.c_str(),
+               client.clientId().c_str(), millisecondsBetween(connectStart, SteadyClock::now()));
+  if (command == "info") return info(client);
+  if (command == "render") return renderOne(client, options);
+  if (command == "path") return renderPath(client, options);
+  if (command == "orbit") return orbit(client, options);
+  if (command == "stats") return stats(client);
+  client.shutdown(options.reason);
+  std::printf("shutdown requested\n");
+  return 0;
+}
+
+}  // namespace
+}  // namespace pointillist::service
+
+int main(int argc, char** argv) {
+  return pointillist::runToolMain("pointillist-client",
+                                  [&] { return pointillist::service::run(argc, argv); });
+}

@@ -1,0 +1,149 @@
+#!/usr/bin/env bash
+# The rendering service against a real running job (deploy/run.sh --serve):
+#   service_test.sh BIN_DIR DATASET PYTHON_MODULES SCENARIO
+# SCENARIO:
+#   clients   several clients at once (one slow reader, one that never reads)
+#             all get their frames, equal to the reference renderer's; a
+#             shutdown request ends every process
+#   bad       each kind of bad message gets an error reply and changes
+#             nothing; newer cameras supersede queued ones; the job serves on
+#   curve     CURVE with keys from files: an authorized client renders, a client
+#             with another key or without CURVE gets nothing
+#   sigint    SIGINT to the display: clean shutdown of every process
+#   sigterm   SIGTERM to mpirun (what a terminal or a scheduler sends): every
+#             process ends
+# Environment: MIN_LIT_FRACTION, MIN_SPLATS (the scene's floors, as for the frames tests).
+set -uo pipefail
+BIN="$1" DATASET="$2" PYTHON_MODULES="$3" scenario="$4"
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
+source "$ROOT/tests/mpi/service_job.sh"
+client=("$BIN/pointillist-client" --connect "$ENDPOINT" --timeout 30)
+python=(env POINTILLIST_PYTHON="$PYTHON_MODULES" /usr/bin/python3)
+: "${MIN_LIT_FRACTION:?}" "${MIN_SPLATS:?}"
+floors=(--min-lit-fraction "$MIN_LIT_FRACTION" --min-splats "$MIN_SPLATS")
+
+case "$scenario" in
+  clients)
+    # A small stream high-water mark, so the client that never reads fills its own stream.
+    start_service_job --stream-hwm 4
+    "${client[@]}" info >"$WORK/info.log" 2>&1 || fail "info: $(cat "$WORK/info.log")"
+    cat "$WORK/info.log"
+    # A camera the Python client asks for, given in the unit cube of the bounds;
+    # the reference reads the same numbers from a camera-path file.
+    echo "0.45 -0.05 0.35 0.5 0.5 0.05" >"$WORK/python-camera.txt"
+    # The Python camera is in unit-cube coordinates of the bounds: map it.
+    read -r x0 y0 z0 x1 y1 z1 < <(grep -Eo 'bounds \([^)]*\) - \([^)]*\)' "$WORK/info.log" |
+      tr -d '(),' | awk '{print $2, $3, $4, $6, $7, $8}')
+    awk -v x0="$x0" -v y0="$y0" -v z0="$z0" -v x1="$x1" -v y1="$y1" -v z1="$z1" '{
+      printf "%.9g %.9g %.9g %.9g %.9g %.9g\n", x0 + $1 * (x1 - x0), y0 + $2 * (y1 - y0),
+        z0 + $3 * (z1 - z0), x0 + $4 * (x1 - x0), y0 + $5 * (y1 - y0), z0 + $6 * (z1 - z0) }' \
+      "$WORK/python-camera.txt" >"$WORK/python-camera-world.txt"
+    camera=$(tr ' ' ',' <"$WORK/python-camera-world.txt")
+    "${client[@]}" --name never-reads path --camera-path orbit --frames 60 --never-read \
+      --frame-timeout 600 >"$WORK/never.log" 2>&1 &
+    never=$!
+    "${client[@]}" --name fast path --camera-path orbit --frames 4 -o "$WORK/fast" \
+      >"$WORK/fast.log" 2>&1 &
+    fast=$!
+    "${client[@]}" --name slow path --camera-path flythrough --frames 4 --read-delay-ms 700 \
+      -o "$WORK/slow" >"$WORK/slow.log" 2>&1 &
+    slow=$!
+    mkdir -p "$WORK/python"
+    "${python[@]}" "$ROOT/clients/python/pointillist_client.py" --connect "$ENDPOINT" render \
+      --camera="$camera" -o "$WORK/python/frame_00000.png" \
+      >"$WORK/python.log" 2>&1 &
+    py=$!
+    code=0
+    for pid in $fast $slow $py; do wait "$pid" || code=1; done
+    for name in fast slow python; do echo "--- $name client"; cat "$WORK/$name.log"; done
+    ((code == 0)) || fail "a client did not get its frames"
+    kill -0 "$never" 2>/dev/null || fail "the client that never reads has ended: $(cat "$WORK/never.log")"
+    # Its frames are rendered (the others' came in between) and, its stream full, dropped.
+    for _ in $(seq 1 120); do
+      "${client[@]}" stats >"$WORK/stats.log" || fail "stats"
+      grep -Eq '\(never-reads\): .* 0 queued' "$WORK/stats.log" && break
+      sleep 0.5
+    done
+    cat "$WORK/stats.log"
+    grep -Eq '\(never-reads\): [0-9]+ frames sent, [1-9][0-9]* dropped' "$WORK/stats.log" ||
+      fail "the client that never reads lost no frames: its stream is not bounded"
+    kill "$never" 2>/dev/null; wait "$never" 2>/dev/null
+    echo "reference comparisons"
+    "$BIN/pointillist-reference" --dataset "$DATASET" --camera-path orbit --frames 4 \
+      --size 480x270 --compare "$WORK/fast" "${floors[@]}" || fail "fast client's frames"
+    "$BIN/pointillist-reference" --dataset "$DATASET" --camera-path flythrough --frames 4 \
+      --size 480x270 --compare "$WORK/slow" "${floors[@]}" || fail "slow client's frames"
+    "$BIN/pointillist-reference" --dataset "$DATASET" --camera-path "$WORK/python-camera-world.txt" \
+      --size 480x270 --compare "$WORK/python" "${floors[@]}" || fail "python client's frame"
+    "${client[@]}" shutdown --reason "test done" || fail "shutdown request"
+    wait_job_exit 60
+    cat "$JOB_LOG"
+    ((JOB_CODE == 0)) || fail "the job exited with $JOB_CODE"
+    grep -q "service stopped (shutdown requested by client pointillist-client: test done)" \
+      "$JOB_LOG" || fail "no service stop line"
+    grep -q "shutdown complete" "$JOB_LOG" || fail "no clean shutdown"
+    assert_nothing_left
+    ;;
+  bad)
+    start_service_job --stream-hwm 4
+    "${python[@]}" "$ROOT/tests/mpi/service_bad_requests.py" "$ENDPOINT" || fail "bad requests"
+    # Still serving after all of it.
+    "${client[@]}" render --camera 0,0,1,0.1,0.1,0 -o "$WORK/after.png" ||
+      fail "the job stopped serving"
+    "${client[@]}" shutdown || fail "shutdown request"
+    wait_job_exit 60
+    ((JOB_CODE == 0)) || fail "the job exited with $JOB_CODE"
+    assert_nothing_left
+    ;;
+  curve)
+    for who in server alice mallory; do
+      "$BIN/pointillist-client" keygen "$WORK/$who" >/dev/null || fail "keygen $who"
+    done
+    { echo "# alice"; cat "$WORK/alice.public"; } >"$WORK/authorized"
+    start_service_job --curve-secret-key "$WORK/server.secret" \
+      --curve-authorized-keys "$WORK/authorized"
+    grep -q "service listening on .*CURVE" "$JOB_LOG" || fail "the service is not on CURVE"
+    bare=("$BIN/pointillist-client" --connect "$ENDPOINT" --timeout 3)
+    alice=("${client[@]}" --curve-server-key "$WORK/server.public" --curve-key "$WORK/alice.secret")
+    "${alice[@]}" render --camera=0,-400,200,0,0,0 -o "$WORK/alice.png" ||
+      fail "an authorized client got no frame"
+    if "${bare[@]}" --curve-server-key "$WORK/server.public" --curve-key "$WORK/mallory.secret" \
+      info; then
+      fail "a client whose key is not authorized was answered"
+    fi
+    if "${bare[@]}" info; then fail "a client without CURVE was answered"; fi
+    grep -q "refused a connection" "$JOB_LOG" || fail "no refusal in the job's log"
+    "${alice[@]}" stats || fail "the authorized client lost its service"
+    "${alice[@]}" shutdown || fail "shutdown request"
+    wait_job_exit 60
+    ((JOB_CODE == 0)) || fail "the job exited with $JOB_CODE"
+    assert_nothing_left
+    ;;
+  sigint | sigterm)
+    start_service_job
+    "${client[@]}" path --camera-path orbit --frames 2 || fail "frames before the signal"
+    if [[ "$scenario" == sigint ]]; then
+      display=$(pgrep -f -- "^[^ ]*/pointillist-display .*$WORK" | head -n1)
+      [[ -n "$display" ]] || fail "no display process"
+      kill -INT "$display"
+    else
+      mpirun=$(pgrep -f -- "^mpirun.*$WORK" | head -n1)
+      [[ -n "$mpirun" ]] || fail "no mpirun process"
+      kill -TERM "$mpirun"
+    fi
+    wait_job_exit 60
+    cat "$JOB_LOG"
+    echo "--- job exit code $JOB_CODE"
+    if [[ "$scenario" == sigint ]]; then
+      ((JOB_CODE == 0)) || fail "the job exited with $JOB_CODE after SIGINT to the display"
+      grep -q "service stopped (SIGINT)" "$JOB_LOG" || fail "no service stop line"
+      grep -q "shutdown complete" "$JOB_LOG" || fail "no clean shutdown"
+    fi
+    assert_nothing_left
+    ;;
+  *)
+    echo "unknown scenario $scenario" >&2
+    exit 2
+    ;;
+esac
+echo PASS
