@@ -36,6 +36,29 @@ const char* rendererName(v1::Renderer renderer) {
   }
 }
 
+v1::Scheduler parseScheduler(const std::string& name) {
+  if (name == "cost") return v1::SCHEDULER_COST;
+  if (name == "round-robin") return v1::SCHEDULER_ROUND_ROBIN;
+  if (name == "static") return v1::SCHEDULER_STATIC;
+  if (name == "equalizer") return v1::SCHEDULER_EQUALIZER;
+  throw UsageError("scheduler '" + name + "' is not one of: cost, round-robin, static, equalizer");
+}
+
+const char* schedulerName(v1::Scheduler scheduler) {
+  switch (scheduler) {
+    case v1::SCHEDULER_COST:
+      return "cost";
+    case v1::SCHEDULER_ROUND_ROBIN:
+      return "round-robin";
+    case v1::SCHEDULER_STATIC:
+      return "static";
+    case v1::SCHEDULER_EQUALIZER:
+      return "equalizer";
+    default:
+      return "unknown";
+  }
+}
+
 v1::Renderer resolveRenderer(v1::Renderer renderer, v1::RenderMode mode) {
   const bool points = mode == v1::RENDER_MODE_POINTS || mode == v1::RENDER_MODE_UNSPECIFIED;
   if (renderer == v1::RENDERER_CPU && !points) {
@@ -67,6 +90,32 @@ void checkEdl(v1::RenderMode mode, float strength, float radius) {
     throw UsageError(
         "--edl shades points and splats, not the blended mode (its depth buffer holds the "
         "blend pass's pushed-back depths); use --mode points or splats, or drop --edl");
+  }
+}
+
+v1::RunSettings frameRunSettings(const v1::RunSettings& run, const v1::FrameSettings& frame) {
+  v1::RunSettings settings = run;
+  if (frame.mode() != v1::RENDER_MODE_UNSPECIFIED) settings.set_mode(frame.mode());
+  if (frame.lod_pixels() > 0.0f) settings.set_lod_pixels(frame.lod_pixels());
+  if (frame.has_scheduler()) settings.set_scheduler(frame.scheduler());
+  return settings;
+}
+
+void checkFrameSettings(const v1::RunSettings& run, const v1::FrameSettings& frame) {
+  const v1::RenderMode mode = frame.mode();
+  if (mode != v1::RENDER_MODE_UNSPECIFIED && mode != v1::RENDER_MODE_POINTS &&
+      mode != v1::RENDER_MODE_SPLATS && mode != v1::RENDER_MODE_BLENDED) {
+    throw UsageError("mode " + v1::RenderMode_Name(mode) + " is not available");
+  }
+  if (mode != v1::RENDER_MODE_UNSPECIFIED) {
+    resolveRenderer(run.renderer(), mode);
+    if (run.edl()) checkEdl(mode, run.edl_strength(), run.edl_radius());
+  }
+  if (!std::isfinite(frame.lod_pixels()) || frame.lod_pixels() < 0.0f) {
+    throw UsageError("a level of detail must be a positive number of pixels");
+  }
+  if (frame.has_scheduler() && !v1::Scheduler_IsValid(frame.scheduler())) {
+    throw UsageError("unknown scheduler " + std::to_string(frame.scheduler()));
   }
 }
 

@@ -16,6 +16,10 @@ inline constexpr v1::CostModel kDefaultCostModel = v1::COST_MODEL_PAPER;
 v1::CostModel parseCostModel(const std::string& name);
 const char* costModelName(v1::CostModel model);
 
+// "cost" | "round-robin" | "static" | "equalizer"; a UsageError names the accepted ones.
+v1::Scheduler parseScheduler(const std::string& name);
+const char* schedulerName(v1::Scheduler scheduler);
+
 // What draws: "auto" | "gl" | "cpu"; a UsageError names the accepted ones.
 v1::Renderer parseRenderer(const std::string& name);
 const char* rendererName(v1::Renderer renderer);
@@ -34,5 +38,13 @@ std::uint32_t edlHaloPixels(float radius);
 // [1, kMaxEdlRadius] (below 1 px the samples would be the pixel itself), or
 // the blended mode (its depth buffer holds the blend pass's pushed-back depths).
 void checkEdl(v1::RenderMode mode, float strength, float radius);
+
+// The settings one frame is drawn with: the run's, with the fields `frame`
+// sets (a served client's mode, level of detail, scheduler) in their place.
+v1::RunSettings frameRunSettings(const v1::RunSettings& run, const v1::FrameSettings& frame);
+// UsageError naming what a frame cannot ask of this run: a mode the run's
+// renderer cannot draw or that EDL cannot shade, a mode not built yet, a level
+// of detail that is not a positive finite number of pixels.
+void checkFrameSettings(const v1::RunSettings& run, const v1::FrameSettings& frame);
 
 }  // namespace pointillist

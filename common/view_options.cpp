@@ -41,6 +41,21 @@ v1::RenderMode parseRenderMode(const std::string& name) {
   throw UsageError("render mode '" + name + "' is not one of: points, splats, blended");
 }
 
+const char* renderModeName(v1::RenderMode mode) {
+  switch (mode) {
+    case v1::RENDER_MODE_SPLATS:
+      return "splats";
+    case v1::RENDER_MODE_BLENDED:
+      return "blended";
+    case v1::RENDER_MODE_STATISTICAL:
+      return "statistical";
+    case v1::RENDER_MODE_INSTANCED:
+      return "instanced";
+    default:
+      return "points";
+  }
+}
+
 void checkViewEdl(const ViewOptions& options) {
   if (options.edl) checkEdl(parseRenderMode(options.mode), options.edlStrength, options.edlRadius);
 }

@@ -125,6 +125,7 @@ class DisplayProcess {
     service::ServedDataset served;
     served.bounds = config_.bounds;
     served.up = parseUpAxis(options_.view.up, config_.bounds);
+    served.run = runSettings(options_);
     service::v1::DatasetInfo& info = served.info;
     info.set_name(
         std::filesystem::path(options_.datasetPath).lexically_normal().filename().string());
@@ -140,8 +141,18 @@ class DisplayProcess {
     info.set_level_splats(manifest.levelSplatCount);
     info.set_cells(manifest.cellCount);
     info.set_top_level_cells(static_cast<std::uint32_t>(manifest.topLevelCount));
-    // Modes a job can be started with; this one draws `mode` for its lifetime.
-    for (const char* mode : {"points", "splats", "blended"}) info.add_modes_available(mode);
+    // The modes a client may switch to (set_options): those this job's
+    // renderer draws and, with EDL, shades.
+    for (const v1::RenderMode mode :
+         {v1::RENDER_MODE_POINTS, v1::RENDER_MODE_SPLATS, v1::RENDER_MODE_BLENDED}) {
+      v1::FrameSettings frame;
+      frame.set_mode(mode);
+      try {
+        checkFrameSettings(served.run, frame);
+        info.add_modes_available(renderModeName(mode));
+      } catch (const UsageError&) {
+      }
+    }
     info.set_mode(options_.view.mode);
     info.set_lod_pixels(options_.view.lodPixels);
     info.set_scheduler(options_.scheduler);
@@ -205,9 +216,10 @@ class DisplayProcess {
       } else {
         const std::size_t window = std::max<std::size_t>(1, options_.framesInFlight);
         const std::size_t room = window - std::min(window, assembly.framesInFlight());
-        for (const Camera& camera : source_->take(room)) {
+        for (const FrameRequest& frame : source_->take(room)) {
+          const Camera& camera = frame.camera;
           frameSizes_[framesAppended_++] = {camera.image_width(), camera.image_height()};
-          assembly.appendCamera(camera);
+          assembly.appendCamera(camera, frame.settings);
           worked = true;
         }
       }

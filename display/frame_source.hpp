@@ -10,11 +10,17 @@
 
 namespace pointillist::display {
 
+// A frame to render: its camera and what it overrides of the run's settings.
+struct FrameRequest {
+  Camera camera;
+  v1::FrameSettings settings;
+};
+
 class FrameSource {
  public:
   virtual ~FrameSource() = default;
-  // Cameras to start now, at most `room`, in the order their frames follow.
-  virtual std::vector<Camera> take(std::size_t room) = 0;
+  // Frames to start now, at most `room`, in the order they follow.
+  virtual std::vector<FrameRequest> take(std::size_t room) = 0;
   // True once no frame will be asked for any more; the run ends when the
   // frames already out are done.
   virtual bool finished() = 0;

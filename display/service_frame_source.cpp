@@ -29,15 +29,15 @@ ServiceFrameSource::~ServiceFrameSource() {
   close();
 }
 
-std::vector<Camera> ServiceFrameSource::take(std::size_t room) {
-  std::vector<Camera> cameras;
-  while (cameras.size() < room) {
+std::vector<FrameRequest> ServiceFrameSource::take(std::size_t room) {
+  std::vector<FrameRequest> frames;
+  while (frames.size() < room) {
     auto order = frontEnd_->nextFrame();
     if (!order) break;
-    cameras.push_back(order->camera);
+    frames.push_back({order->camera, order->settings});
     orders_.push_back(std::move(*order));
   }
-  return cameras;
+  return frames;
 }
 
 bool ServiceFrameSource::finished() {

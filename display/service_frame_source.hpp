@@ -16,7 +16,7 @@ class ServiceFrameSource final : public FrameSource {
   ServiceFrameSource(service::ServiceOptions options, service::ServedDataset dataset);
   ~ServiceFrameSource() override;
 
-  std::vector<Camera> take(std::size_t room) override;
+  std::vector<FrameRequest> take(std::size_t room) override;
   bool finished() override;
   void frameDone(const FinishedFrame& frame, Image image) override;
 

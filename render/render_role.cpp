@@ -61,8 +61,12 @@ class RenderProcess final : public WorkerProcess {
     settings_.sizeScale = settings.size_scale() > 0.0f ? settings.size_scale() : 1.0f;
     settings_.lighting = !settings.unlit();
     settings_.edl = {settings.edl(), settings.edl_strength(), settings.edl_radius()};
+    run_ = settings;
     const v1::Renderer kind = resolveRenderer(settings.renderer(), settings.mode());
-    renderer_ = makeTileRenderer(kind, parseProfile(options_.profile), options_.drawThreads);
+    renderers_.push_back(
+        makeTileRenderer(kind, parseProfile(options_.profile), options_.drawThreads));
+    kinds_.push_back(kind);
+    renderer_ = renderers_.back().get();
     renderer_->warmUp(settings_);
   }
 
@@ -124,11 +128,13 @@ class RenderProcess final : public WorkerProcess {
     const DataIntake intake =
         core_.receiveData(cell, first, count, envelope.payloadSeconds, Clock::now(), effects);
     // Evicted cells' buffers go first (the cell itself when it was dropped).
-    for (std::uint32_t victim : effects.released) renderer_->releaseCell(victim);
+    for (std::uint32_t victim : effects.released) releaseEverywhere(victim);
     effects.released.clear();
     if (intake.verdict != DataVerdict::Store) return;
     const auto* splats = reinterpret_cast<const Splat*>(envelope.payload.data());
-    renderer_->appendToCell(cell, {splats + intake.skip, intake.count});
+    for (const auto& renderer : renderers_) {
+      renderer->appendToCell(cell, {splats + intake.skip, intake.count});
+    }
   }
 
   void draw(const ReadyPacket& ready) {
@@ -142,7 +148,15 @@ class RenderProcess final : public WorkerProcess {
       std::this_thread::sleep_for(
           std::chrono::duration<double, std::milli>(options_.slowMillisecondsPerPacket));
     }
-    const RenderStats stats = renderer_->render(packet.camera(), packet.rect(), ranges, settings_);
+    RenderSettings settings = settings_;
+    const v1::RenderMode mode =
+        packet.has_frame_settings() && packet.frame_settings().mode() != v1::RENDER_MODE_UNSPECIFIED
+            ? packet.frame_settings().mode()
+            : run_.mode();
+    settings.mode =
+        splatModeFromProto(mode == v1::RENDER_MODE_UNSPECIFIED ? v1::RENDER_MODE_POINTS : mode);
+    useRendererFor(mode, settings);
+    const RenderStats stats = renderer_->render(packet.camera(), packet.rect(), ranges, settings);
     RenderEffects effects;
     const v1::TileImageHeader header =
         core_.packetDrawn(ready, stats.splats, stats.seconds, Clock::now(), effects);
@@ -156,9 +170,35 @@ class RenderProcess final : public WorkerProcess {
     apply(effects);
   }
 
+  // A served frame's mode may need the other renderer (auto: the cpu kernel
+  // draws points, OSMesa the rest). The new one takes over every cell held
+  // and both stay, each receiving what arrives, so clients drawing different
+  // modes at once cost memory, not a copy per tile; each mode's frames stay
+  // those of the renderer the reference uses for it.
+  void useRendererFor(v1::RenderMode mode, const RenderSettings& settings) {
+    const v1::Renderer kind = resolveRenderer(run_.renderer(), mode);
+    for (std::size_t i = 0; i < kinds_.size(); ++i) {
+      if (kinds_[i] == kind) {
+        renderer_ = renderers_[i].get();
+        return;
+      }
+    }
+    auto next = makeTileRenderer(kind, parseProfile(options_.profile), options_.drawThreads);
+    next->warmUp(settings);
+    renderer_->forEachCell(
+        [&](std::uint32_t id, std::span<const Splat> splats) { next->uploadCell(id, splats); });
+    renderers_.push_back(std::move(next));
+    kinds_.push_back(kind);
+    renderer_ = renderers_.back().get();
+  }
+
+  void releaseEverywhere(std::uint32_t cell) {
+    for (const auto& renderer : renderers_) renderer->releaseCell(cell);
+  }
+
   // Frees what the core dropped and sends what it asked for.
   void apply(RenderEffects& effects) {
-    for (std::uint32_t cell : effects.released) renderer_->releaseCell(cell);
+    for (std::uint32_t cell : effects.released) releaseEverywhere(cell);
     job_.sends().post(effects.messages);
   }
 
@@ -166,8 +206,13 @@ class RenderProcess final : public WorkerProcess {
   RenderOptions options_;
   Dataset dataset_;
   RenderCore core_;
-  std::unique_ptr<TileRenderer> renderer_;  // made once the run's settings are known
+  // Made once the run's settings are known; a second one when a served frame
+  // asks for a mode the first cannot draw. renderer_ drew the last tile.
+  std::vector<std::unique_ptr<TileRenderer>> renderers_;
+  std::vector<v1::Renderer> kinds_;
+  TileRenderer* renderer_ = nullptr;
   RenderSettings settings_;
+  v1::RunSettings run_;
 };
 
 }  // namespace

@@ -50,12 +50,12 @@ ReplayResult replayDecisions(const traverse::DecisionLog& log, std::span<const O
     if (!decision.has_task()) continue;
     ++result.tasks;
     const v1::TileTask& task = decision.task();
+    const traverse::TraversalSettings traversal = planner.traversalFor(task);
     const traverse::TraversalResult walk =
-        traverse::traverseTile(culling, task.camera(), task.rect(), planner.traversal());
+        traverse::traverseTile(culling, task.camera(), task.rect(), traversal);
     std::vector<CellPrefix> ahead;
     if (const auto camera = planner.lookaheadCamera(task)) {
-      ahead = traverse::topLevelCellsInTile(culling, *layers, *camera, task.rect(),
-                                            planner.traversal());
+      ahead = traverse::topLevelCellsInTile(culling, *layers, *camera, task.rect(), traversal);
     }
     Outbox out;
     planner.planPacket(task, traverse::walkOf(walk), ahead, now, out);

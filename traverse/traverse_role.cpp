@@ -49,12 +49,11 @@ class TraverseProcess final : public WorkerProcess {
     switch (envelope.kind) {
       case MessageKind::TileTask: {
         const auto task = envelope.as<v1::TileTask>();
-        const TraversalResult walk =
-            traverseTile(*culling_, task.camera(), task.rect(), planner_->traversal());
+        const TraversalSettings traversal = planner_->traversalFor(task);
+        const TraversalResult walk = traverseTile(*culling_, task.camera(), task.rect(), traversal);
         std::vector<CellPrefix> ahead;
         if (const auto camera = planner_->lookaheadCamera(task)) {
-          ahead =
-              topLevelCellsInTile(*culling_, *layers_, *camera, task.rect(), planner_->traversal());
+          ahead = topLevelCellsInTile(*culling_, *layers_, *camera, task.rect(), traversal);
         }
         Outbox out;
         planner_->planPacket(task, walkOf(walk), ahead, now, out);

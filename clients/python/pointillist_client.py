@@ -105,6 +105,11 @@ class PointillistClient:
     def stats(self):
         return self.call(pb.Request(stats=pb.StatsRequest())).stats
 
+    def set_options(self, mode="", lod_pixels=0.0, scheduler=""):
+        """This client's mode and level of detail, every client's scheduler; returns an OptionsReply."""
+        return self.call(pb.Request(set_options=pb.SetOptionsRequest(
+            mode=mode, lod_pixels=lod_pixels, scheduler=scheduler))).options
+
     def shutdown(self, reason="asked by pointillist_client.py"):
         self.call(pb.Request(shutdown=pb.ShutdownRequest(reason=reason)))
 
@@ -180,9 +185,13 @@ def main():
     render.add_argument("--camera", required=True)
     render.add_argument("--size", default="")
     render.add_argument("-o", "--output", required=True, help=".png file, or .npy for the array")
+    render.add_argument("--mode", default="", help="points, splats or blended")
+    render.add_argument("--lod-pixels", type=float, default=0.0)
     args = parser.parse_args()
     client = PointillistClient(args.connect, timeout=args.timeout)
     try:
+        if args.command == "render" and (args.mode or args.lod_pixels):
+            client.set_options(mode=args.mode, lod_pixels=args.lod_pixels)
         if args.command == "info":
             print(client.info())
         elif args.command == "stats":

@@ -11,7 +11,8 @@ FrameAssembly::FrameAssembly(FrameAssemblyConfig config, PeerRanks peers, TimePo
       peers_(std::move(peers)),
       start_(start),
       frames_(config_.framesInFlight, config_.tileTimeout, config_.maxAttempts),
-      planner_(config_.plan) {
+      planner_(config_.plan),
+      runScheduler_(config_.plan.scheduler) {
   stats_.layout = peers_.layout().toString();
   admitFrames();
 }
@@ -23,6 +24,10 @@ void FrameAssembly::admitFrames() {
          framesAdded_ < stats_.frames.size() + std::max<std::uint32_t>(1, config_.framesInFlight)) {
     const std::uint64_t index = framesAdded_++;
     const Camera& camera = config_.cameras[index];
+    if (const auto settings = frameSettings_.find(index);
+        settings != frameSettings_.end() && settings->second.has_scheduler()) {
+      planner_.setScheduler(schedulerKindOf(settings->second.scheduler()));
+    }
     std::vector<TileRect> tiles;
     if (const auto area =
             boxOfInterest(camera, config_.bounds.min, config_.bounds.max, config_.marginWorld)) {
@@ -33,7 +38,8 @@ void FrameAssembly::admitFrames() {
   }
 }
 
-void FrameAssembly::appendCamera(const Camera& camera) {
+void FrameAssembly::appendCamera(const Camera& camera, const v1::FrameSettings& settings) {
+  if (settings.ByteSizeLong() > 0) frameSettings_[config_.cameras.size()] = settings;
   config_.cameras.push_back(camera);
   admitFrames();
 }
@@ -57,7 +63,16 @@ std::uint32_t FrameAssembly::dispatch(TimePoint now, Outbox& out) {
     message.set_timestamp_ns(
         std::chrono::duration_cast<std::chrono::nanoseconds>(now.time_since_epoch()).count());
     message.set_attempt(task->attempt);
-    if (config_.plan.scheduler == SchedulerKind::Cost && config_.prefetchFrames > 0 &&
+    // The scheduler in force now is the one assign() below follows.
+    const SchedulerKind scheduler = planner_.options().scheduler;
+    if (const auto settings = frameSettings_.find(task->frame); settings != frameSettings_.end()) {
+      *message.mutable_frame_settings() = settings->second;
+      message.mutable_frame_settings()->clear_scheduler();
+    }
+    if (scheduler != runScheduler_) {
+      message.mutable_frame_settings()->set_scheduler(schedulerMessage(scheduler));
+    }
+    if (scheduler == SchedulerKind::Cost && config_.prefetchFrames > 0 &&
         task->frame + config_.prefetchFrames < config_.cameras.size()) {
       *message.mutable_lookahead_camera() = config_.cameras[task->frame + config_.prefetchFrames];
     }
@@ -141,6 +156,7 @@ std::vector<FinishedFrame> FrameAssembly::finishFrames(TimePoint now) {
     // A frame with failed tiles has no measurement for them: no re-split from it.
     if (record.failedTiles == 0) planner_.frameDone(feedback_.at(state->index));
     feedback_.erase(state->index);
+    frameSettings_.erase(state->index);
     for (const TileState& tile : state->tiles) {
       if (tile.failed) frame.failedTiles.push_back(tile.rect);
     }

@@ -49,8 +49,10 @@ class FrameAssembly {
   FrameAssembly(FrameAssemblyConfig config, PeerRanks peers, TimePoint start);
 
   // Adds a frame after those given at construction (serve mode: frames come
-  // as clients ask); it enters the window at once when there is room.
-  void appendCamera(const Camera& camera);
+  // as clients ask); it enters the window at once when there is room. Its
+  // tiles carry `settings` to the traverse and render processes; a scheduler
+  // named there holds for this frame and the ones after it.
+  void appendCamera(const Camera& camera, const v1::FrameSettings& settings = {});
   // Frames admitted and not yet finished.
   std::size_t framesInFlight() const { return framesAdded_ - stats_.frames.size(); }
 
@@ -86,6 +88,10 @@ class FrameAssembly {
   TimePoint start_;
   FrameScheduler frames_;
   TilePlanner planner_;
+  SchedulerKind runScheduler_;
+  // Served frames' own settings (mode, level of detail), by frame; the
+  // scheduler part is applied to the planner as the frame is admitted.
+  std::map<std::uint64_t, v1::FrameSettings> frameSettings_;
   std::uint64_t framesAdded_ = 0;
   std::deque<int> idleTraverses_;
   std::map<std::uint64_t, std::vector<TileFeedback>> feedback_;

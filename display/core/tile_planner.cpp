@@ -5,6 +5,7 @@
 #include <numeric>
 
 #include "common/errors.hpp"
+#include "common/run_settings.hpp"
 #include "display/core/tiling.hpp"
 
 namespace pointillist::display {
@@ -36,11 +37,7 @@ std::pair<TileRect, TileRect> cut(const TileRect& rect, std::uint32_t offset) {
 }  // namespace
 
 SchedulerKind parseSchedulerKind(const std::string& name) {
-  if (name == "cost") return SchedulerKind::Cost;
-  if (name == "round-robin") return SchedulerKind::RoundRobin;
-  if (name == "static") return SchedulerKind::Static;
-  if (name == "equalizer") return SchedulerKind::Equalizer;
-  throw UsageError("scheduler '" + name + "' is not one of: cost, round-robin, static, equalizer");
+  return schedulerKindOf(parseScheduler(name));
 }
 
 v1::Scheduler schedulerMessage(SchedulerKind kind) {
@@ -57,18 +54,24 @@ v1::Scheduler schedulerMessage(SchedulerKind kind) {
   return v1::SCHEDULER_COST;
 }
 
-std::string schedulerName(SchedulerKind kind) {
-  switch (kind) {
-    case SchedulerKind::Cost:
-      return "cost";
-    case SchedulerKind::RoundRobin:
-      return "round-robin";
-    case SchedulerKind::Static:
-      return "static";
-    case SchedulerKind::Equalizer:
-      return "equalizer";
+SchedulerKind schedulerKindOf(v1::Scheduler scheduler) {
+  switch (scheduler) {
+    case v1::SCHEDULER_ROUND_ROBIN:
+      return SchedulerKind::RoundRobin;
+    case v1::SCHEDULER_STATIC:
+      return SchedulerKind::Static;
+    case v1::SCHEDULER_EQUALIZER:
+      return SchedulerKind::Equalizer;
+    case v1::SCHEDULER_COST:
+      return SchedulerKind::Cost;
+    default:
+      break;
   }
-  return "unknown";
+  throw UsageError("unknown scheduler " + std::to_string(scheduler));
+}
+
+std::string schedulerName(SchedulerKind kind) {
+  return pointillist::schedulerName(schedulerMessage(kind));
 }
 
 TilePlanner::TilePlanner(const TilePlanOptions& options)

@@ -25,6 +25,7 @@ enum class SchedulerKind { Cost, RoundRobin, Static, Equalizer };
 SchedulerKind parseSchedulerKind(const std::string& name);
 std::string schedulerName(SchedulerKind kind);
 v1::Scheduler schedulerMessage(SchedulerKind kind);
+SchedulerKind schedulerKindOf(v1::Scheduler scheduler);  // UsageError for an unknown value
 
 struct TilePlanOptions {
   SchedulerKind scheduler = SchedulerKind::Cost;
@@ -56,6 +57,9 @@ class TilePlanner {
   void frameDone(std::span<const TileFeedback> tiles);
 
   const TilePlanOptions& options() const { return options_; }
+  // Frames planned from now on use `kind` (a served client chose it); what
+  // was measured so far still sizes their tiles.
+  void setScheduler(SchedulerKind kind) { options_.scheduler = kind; }
 
  private:
   std::vector<TileRect> balancedSplit(const TileRect& area, std::uint32_t target) const;

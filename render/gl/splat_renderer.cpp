@@ -210,6 +210,22 @@ void SplatRenderer::appendToCell(std::uint32_t id, std::span<const Splat> splats
   uploadedBytes_ += splats.size_bytes();
 }
 
+void SplatRenderer::forEachCell(const CellVisitor& visit) const {
+  context_.makeCurrent();
+  std::vector<Splat> splats;
+  for (const auto& [id, cell] : cells_) {
+    splats.resize(cell.count);
+    if (cell.count > 0) {
+      glBindBuffer(GL_ARRAY_BUFFER, cell.buffer);
+      glGetBufferSubData(GL_ARRAY_BUFFER, 0, static_cast<GLsizeiptr>(splats.size() * sizeof(Splat)),
+                         splats.data());
+      glBindBuffer(GL_ARRAY_BUFFER, 0);
+      throwOnGlError("forEachCell");
+    }
+    visit(id, splats);
+  }
+}
+
 void SplatRenderer::releaseCell(std::uint32_t id) {
   const auto it = cells_.find(id);
   if (it == cells_.end()) return;

@@ -62,6 +62,7 @@ class SplatRenderer final : public TileRenderer {
   // side, the new ones after them. Throws RenderError on GL failure.
   void appendToCell(std::uint32_t id, std::span<const Splat> splats) override;
   void releaseCell(std::uint32_t id) override;  // no-op for unknown ids
+  void forEachCell(const CellVisitor& visit) const override;
   void releaseAll();
   bool hasCell(std::uint32_t id) const { return cells_.contains(id); }
   std::size_t cellCount() const { return cells_.size(); }

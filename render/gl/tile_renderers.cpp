@@ -20,6 +20,7 @@ class GlTileRenderer final : public TileRenderer {
     renderer_.appendToCell(id, splats);
   }
   void releaseCell(std::uint32_t id) override { renderer_.releaseCell(id); }
+  void forEachCell(const CellVisitor& visit) const override { renderer_.forEachCell(visit); }
   RenderStats render(const Camera& camera, const TileRect& rect, std::span<const DrawRange> ranges,
                      const RenderSettings& settings) override {
     return renderer_.render(camera, rect, ranges, settings);

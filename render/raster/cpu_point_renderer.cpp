@@ -534,6 +534,25 @@ void CpuPointRenderer::appendToCell(std::uint32_t id, std::span<const Splat> spl
   appendToPointCell(cells_[id], splats);
 }
 
+void CpuPointRenderer::forEachCell(const CellVisitor& visit) const {
+  std::vector<Splat> splats;
+  for (const auto& [id, cell] : cells_) {
+    splats.resize(cell.count);
+    for (std::size_t i = 0; i < cell.count; ++i) {
+      Splat& s = splats[i];
+      s.position[0] = cell.x[i];
+      s.position[1] = cell.y[i];
+      s.position[2] = cell.z[i];
+      s.normal[0] = cell.nx[i];
+      s.normal[1] = cell.ny[i];
+      s.normal[2] = cell.nz[i];
+      s.radius = cell.radius[i];
+      for (int c = 0; c < 4; ++c) s.color[c] = static_cast<std::uint8_t>(cell.color[i] >> (8 * c));
+    }
+    visit(id, splats);
+  }
+}
+
 void CpuPointRenderer::releaseCell(std::uint32_t id) {
   cells_.erase(id);
 }

@@ -121,6 +121,7 @@ class CpuPointRenderer final : public TileRenderer {
 
   void uploadCell(std::uint32_t id, std::span<const Splat> splats) override;
   void appendToCell(std::uint32_t id, std::span<const Splat> splats) override;
+  void forEachCell(const CellVisitor& visit) const override;
   void releaseCell(std::uint32_t id) override;
   RenderStats render(const Camera& camera, const TileRect& rect, std::span<const DrawRange> ranges,
                      const RenderSettings& settings) override;

@@ -80,6 +80,7 @@ class EdlTileRenderer final : public TileRenderer {
     inner_->appendToCell(id, splats);
   }
   void releaseCell(std::uint32_t id) override { inner_->releaseCell(id); }
+  void forEachCell(const CellVisitor& visit) const override { inner_->forEachCell(visit); }
   // Also throws UsageError for settings.edl out of range or in blended mode.
   RenderStats render(const Camera& camera, const TileRect& rect, std::span<const DrawRange> ranges,
                      const RenderSettings& settings) override;

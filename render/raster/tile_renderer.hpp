@@ -8,6 +8,7 @@
 // rectangle of a whole-frame render by the same renderer (common/camera.hpp).
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <span>
 #include <string>
 
@@ -93,6 +94,11 @@ class TileRenderer {
   // packet arrived); an unknown id starts a new cell.
   virtual void appendToCell(std::uint32_t id, std::span<const Splat> splats) = 0;
   virtual void releaseCell(std::uint32_t id) = 0;  // no-op for unknown ids
+  // Calls `visit` with every cell kept and its splats as uploaded, so another
+  // renderer can take them over (a served frame asks for a mode this one
+  // cannot draw). The span lives for the call only.
+  using CellVisitor = std::function<void(std::uint32_t id, std::span<const Splat> splats)>;
+  virtual void forEachCell(const CellVisitor& visit) const = 0;
   // Draws the ranges into the tile `rect` of `camera`'s frame; afterwards
   // pixels() holds it. Throws UsageError for an invalid camera, a rect outside
   // the image, a range outside its cell or an unknown cell.

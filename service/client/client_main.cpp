@@ -36,6 +36,10 @@ struct ClientOptions {
   std::string encoding;  // empty: the server's default for this client
   std::string size;      // WxH; empty: the server's default
   std::uint32_t jpegQuality = 0;
+  // What this client's frames are drawn with (empty or 0: the job's).
+  std::string mode;
+  float lodPixels = 0.0f;
+  std::string scheduler;  // every client's, from the next frame on
   // render
   std::string camera;
   std::string output;
@@ -138,6 +142,10 @@ void printFrame(const ReceivedFrame& frame, double latencyMs) {
       header.queued_ms(), header.render_ms(), header.encode_ms(),
       static_cast<double>(header.splats()) / 1e6, header.tiles(),
       static_cast<double>(header.encoded_bytes()) / 1024.0, encodingName(header.encoding()));
+  if (!header.mode().empty()) {
+    std::printf("  drawn as %s, lod %g px, scheduler %s\n", header.mode().c_str(),
+                static_cast<double>(header.lod_pixels()), header.scheduler().c_str());
+  }
   std::fflush(stdout);
 }
 
@@ -305,6 +313,12 @@ int run(int argc, char** argv) {
   app.add_option("--encoding", options.encoding, "Frames as raw, png or jpeg");
   app.add_option("--size", options.size, "Frame size WxH");
   app.add_option("--jpeg-quality", options.jpegQuality, "1-100")->check(CLI::Range(1, 100));
+  app.add_option("--mode", options.mode, "This client's frames: points, splats or blended");
+  app.add_option("--lod-pixels", options.lodPixels,
+                 "This client's frames: target splat size on screen in pixels")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--scheduler", options.scheduler,
+                 "Every client's frames from the next one: cost, round-robin, static, equalizer");
   app.add_option("--curve-server-key", options.curveServerKey,
                  "CURVE: file with the server's public key");
   app.add_option("--curve-key", options.curveKey, "CURVE: file with this client's secret key");
@@ -356,6 +370,15 @@ int run(int argc, char** argv) {
                        curve ? &*curve : nullptr);
   std::fprintf(stderr, "connected to %s as %s in %.1f ms\n", options.connect.c_str(),
                client.clientId().c_str(), millisecondsBetween(connectStart, SteadyClock::now()));
+  if (!options.mode.empty() || options.lodPixels > 0.0f || !options.scheduler.empty()) {
+    v1::SetOptionsRequest request;
+    request.set_mode(options.mode);
+    request.set_lod_pixels(options.lodPixels);
+    request.set_scheduler(options.scheduler);
+    const v1::OptionsReply reply = client.setOptions(request);
+    std::fprintf(stderr, "frames drawn as %s, lod %g px, scheduler %s\n", reply.mode().c_str(),
+                 static_cast<double>(reply.lod_pixels()), reply.scheduler().c_str());
+  }
   if (command == "info") return info(client);
   if (command == "render") return renderOne(client, options);
   if (command == "path") return renderPath(client, options);

@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "common/camera_path.hpp"
+#include "pointillist.pb.h"
 #include "service_v1.pb.h"
 
 namespace pointillist::service {
@@ -26,7 +27,8 @@ struct QueuedFrame {
   std::uint32_t pathLength = 1;
   bool single = true;  // a render request (supersedable), not a frame of a path
   CameraKey key;
-  v1::FrameFormat format;  // complete: width, height, encoding, quality
+  v1::FrameFormat format;                   // complete: width, height, encoding, quality
+  pointillist::v1::FrameSettings settings;  // the client's mode and level of detail
   std::chrono::steady_clock::time_point requested;
 };
 

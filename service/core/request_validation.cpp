@@ -33,7 +33,12 @@ sv1::Request parseRequest(std::span<const std::byte> bytes, const RequestLimits&
     throw RequestError(sv1::ERROR_MALFORMED,
                        "message of " + std::to_string(bytes.size()) + " bytes is not a Request");
   }
-  validateRequest(request, limits, streamSocket);
+  try {
+    validateRequest(request, limits, streamSocket);
+  } catch (RequestError& error) {
+    error.setRequestId(request.request_id());
+    throw;
+  }
   return request;
 }
 
@@ -102,6 +107,9 @@ void validateRequest(const sv1::Request& request, const RequestLimits& limits, b
       if (!std::isfinite(options.lod_pixels()) || options.lod_pixels() < 0.0f) {
         invalid("lod_pixels must be finite and not negative");
       }
+      if (options.lod_pixels() > 64.0f) invalid("lod_pixels over 64");
+      if (options.mode().size() > 32) invalid("mode name over 32 bytes");
+      if (options.scheduler().size() > 32) invalid("scheduler name over 32 bytes");
       break;
     }
     case sv1::Request::kShutdown:

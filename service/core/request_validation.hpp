@@ -20,9 +20,14 @@ class RequestError : public Error {
   RequestError(sv1::ErrorCode code, const std::string& message) : Error(message), code_(code) {}
   sv1::ErrorCode code() const noexcept { return code_; }
   const char* kind() const noexcept override { return "request error"; }
+  // The refused request's id, when it parsed far enough to have one: the
+  // error reply carries it, so the client can match it to its request.
+  std::uint64_t requestId() const noexcept { return requestId_; }
+  void setRequestId(std::uint64_t id) noexcept { requestId_ = id; }
 
  private:
   sv1::ErrorCode code_;
+  std::uint64_t requestId_ = 0;
 };
 
 struct RequestLimits {

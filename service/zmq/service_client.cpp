@@ -150,10 +150,10 @@ std::uint64_t ServiceClient::path(const v1::PathRequest& path, v1::RenderAccepte
   return id;
 }
 
-v1::FrameFormat ServiceClient::setOptions(const v1::SetOptionsRequest& options) {
+v1::OptionsReply ServiceClient::setOptions(const v1::SetOptionsRequest& options) {
   v1::Request request;
   *request.mutable_set_options() = options;
-  return call(std::move(request)).options().format();
+  return call(std::move(request)).options();
 }
 
 v1::Statistics ServiceClient::stats() {

@@ -52,7 +52,8 @@ class ServiceClient {
   std::uint64_t render(const v1::CameraKey& camera, const v1::FrameFormat& format = {},
                        v1::RenderAccepted* accepted = nullptr);
   std::uint64_t path(const v1::PathRequest& path, v1::RenderAccepted* accepted = nullptr);
-  v1::FrameFormat setOptions(const v1::SetOptionsRequest& options);
+  // This client's format, mode and level of detail (and every client's scheduler).
+  v1::OptionsReply setOptions(const v1::SetOptionsRequest& options);
   v1::Statistics stats();
   void shutdown(const std::string& reason);
 

@@ -5,6 +5,8 @@
 #include <regex>
 
 #include "common/errors.hpp"
+#include "common/run_settings.hpp"
+#include "common/view_options.hpp"
 #include "service/core/frame_encoding.hpp"
 #include "service/zmq/curve_keys.hpp"
 
@@ -85,7 +87,8 @@ ServiceFrontEnd::ServiceFrontEnd(ServiceOptions options, ServedDataset dataset)
       wakeReceiver_(context_, zmq::socket_type::pull),
       encoderWaker_(context_, zmq::socket_type::push),
       zap_(context_, zmq::socket_type::rep),
-      queue_(options_.queueLimits) {
+      queue_(options_.queueLimits),
+      scheduler_(dataset_.run.scheduler()) {
   const std::string streamListen =
       options_.streamListen.empty() ? streamEndpointFor(options_.listen) : options_.streamListen;
   for (zmq::socket_t* socket : {&control_, &stream_}) {
@@ -166,6 +169,8 @@ std::optional<FrameOrder> ServiceFrontEnd::nextFrame() {
   FrameOrder order;
   order.camera =
       cameraFromKey(frame->key, dataset_.bounds, frame->format.width(), frame->format.height());
+  order.settings = frame->settings;
+  order.settings.set_scheduler(scheduler_);
   order.request = std::move(*frame);
   order.admitted = SteadyClock::now();
   return order;
@@ -223,6 +228,10 @@ void ServiceFrontEnd::encodeLoop() {
     header.set_tiles(job.outcome.tiles);
     header.set_bytes_ordered(job.outcome.bytesOrdered);
     header.set_encoded_bytes(out.pixels.size());
+    const pointillist::v1::RunSettings drawn = frameRunSettings(dataset_.run, job.order.settings);
+    header.set_mode(renderModeName(drawn.mode()));
+    header.set_lod_pixels(drawn.lod_pixels());
+    header.set_scheduler(pointillist::schedulerName(drawn.scheduler()));
     {
       std::lock_guard lock(mutex_);
       encodeLatency_.add(encodeMs);
@@ -302,7 +311,8 @@ void ServiceFrontEnd::handleControl() {
                                options_.limits);
         reply = answer(request);
       } catch (const RequestError& error) {
-        reply = errorReply(request.request_id(), error.code(), error.what());
+        reply = errorReply(error.requestId() != 0 ? error.requestId() : request.request_id(),
+                           error.code(), error.what());
       } catch (const Error& error) {
         reply = errorReply(request.request_id(), v1::ERROR_INVALID_ARGUMENT, error.what());
       }
@@ -355,7 +365,8 @@ void ServiceFrontEnd::handleStream() {
       reply.mutable_attached();
     } catch (const RequestError& error) {
       ++errors_;
-      reply = errorReply(request.request_id(), error.code(), error.what());
+      reply = errorReply(error.requestId() != 0 ? error.requestId() : request.request_id(),
+                         error.code(), error.what());
     }
   }
   reply.set_version(v1::SERVICE_VERSION_CURRENT);
@@ -475,6 +486,7 @@ v1::Reply ServiceFrontEnd::answer(const v1::Request& request) {
   switch (request.body_case()) {
     case v1::Request::kInfo:
       *reply.mutable_info() = dataset_.info;
+      reply.mutable_info()->set_scheduler(pointillist::schedulerName(scheduler_));
       return reply;
     case v1::Request::kRender:
       return queueRender(request, client);
@@ -539,6 +551,7 @@ QueuedFrame ServiceFrontEnd::queuedFrame(const v1::Request& request, const Clien
   frame.clientId = request.client_id();
   frame.requestId = request.request_id();
   frame.format = mergeFormat(client.format, requested);
+  frame.settings = client.settings;
   frame.requested = SteadyClock::now();
   return frame;
 }
@@ -591,26 +604,34 @@ v1::Reply ServiceFrontEnd::queuePath(const v1::Request& request, ClientState& cl
 
 v1::Reply ServiceFrontEnd::setOptions(const v1::Request& request, ClientState& client) {
   const v1::SetOptionsRequest& options = request.set_options();
-  const v1::DatasetInfo& info = dataset_.info;
-  // Every process got these once at start-up (RunSettings); they hold for the job.
-  if (!options.mode().empty() && options.mode() != info.mode()) {
-    throw RequestError(v1::ERROR_NOT_CHANGEABLE,
-                       "the render mode is fixed at job start (this job: " + info.mode() +
-                           "); start a job with --mode " + options.mode().substr(0, 32));
+  // Checked whole before anything changes: a refused request changes nothing.
+  pointillist::v1::FrameSettings settings = client.settings;
+  std::optional<pointillist::v1::Scheduler> scheduler;
+  try {
+    if (!options.mode().empty()) settings.set_mode(parseRenderMode(options.mode()));
+    if (!options.scheduler().empty()) scheduler = parseScheduler(options.scheduler());
+  } catch (const UsageError& error) {
+    throw RequestError(v1::ERROR_INVALID_ARGUMENT, error.what());
   }
-  if (options.lod_pixels() != 0.0f && options.lod_pixels() != info.lod_pixels()) {
-    throw RequestError(v1::ERROR_NOT_CHANGEABLE,
-                       "the level of detail is fixed at job start (this job: --lod-pixels " +
-                           std::to_string(info.lod_pixels()) + ")");
+  if (options.lod_pixels() != 0.0f) settings.set_lod_pixels(options.lod_pixels());
+  try {
+    checkFrameSettings(dataset_.run, settings);
+  } catch (const UsageError& error) {
+    throw RequestError(v1::ERROR_NOT_CHANGEABLE, error.what());
   }
-  if (!options.scheduler().empty() && options.scheduler() != info.scheduler()) {
-    throw RequestError(v1::ERROR_NOT_CHANGEABLE,
-                       "the scheduler is fixed at job start (this job: " + info.scheduler() + ")");
-  }
+  client.settings = settings;
+  if (scheduler) scheduler_ = *scheduler;
   client.format = mergeFormat(client.format, options.format());
   v1::Reply reply;
   reply.set_request_id(request.request_id());
-  *reply.mutable_options()->mutable_format() = client.format;
+  v1::OptionsReply& answer = *reply.mutable_options();
+  *answer.mutable_format() = client.format;
+  pointillist::v1::FrameSettings current = client.settings;
+  current.set_scheduler(scheduler_);
+  const pointillist::v1::RunSettings drawn = frameRunSettings(dataset_.run, current);
+  answer.set_mode(renderModeName(drawn.mode()));
+  answer.set_lod_pixels(drawn.lod_pixels());
+  answer.set_scheduler(pointillist::schedulerName(drawn.scheduler()));
   return reply;
 }
 

@@ -28,6 +28,7 @@
 #include "common/camera.hpp"
 #include "common/camera_path.hpp"
 #include "common/image.hpp"
+#include "pointillist.pb.h"
 #include "service/core/frame_queue.hpp"
 #include "service/core/latency_window.hpp"
 #include "service/core/request_validation.hpp"
@@ -61,6 +62,7 @@ struct ServiceOptions {
 // What the job serves, fixed at start-up.
 struct ServedDataset {
   v1::DatasetInfo info;
+  pointillist::v1::RunSettings run;  // what clients' frame settings override
   SceneBounds bounds;
   glm::vec3 up{0.0f, 0.0f, 1.0f};
 };
@@ -69,6 +71,8 @@ struct ServedDataset {
 struct FrameOrder {
   QueuedFrame request;
   Camera camera;
+  // The client's mode and level of detail, and the scheduler in force.
+  pointillist::v1::FrameSettings settings;
   std::chrono::steady_clock::time_point admitted;
 };
 
@@ -116,6 +120,7 @@ class ServiceFrontEnd {
   struct ClientState {
     std::string name;
     v1::FrameFormat format;
+    pointillist::v1::FrameSettings settings;  // set_options: mode, level of detail
     bool attached = false;
     std::chrono::steady_clock::time_point lastSeen;
     v1::ClientStatistics stats;
@@ -173,6 +178,7 @@ class ServiceFrontEnd {
   std::size_t encoding_ = 0;  // frames the encoder holds
   std::condition_variable encodeReady_;
   std::string shutdownReason_;
+  pointillist::v1::Scheduler scheduler_;  // every client's frames' (set_options)
   std::uint64_t requests_ = 0, errors_ = 0, framesRendered_ = 0, framesSuperseded_ = 0,
                 framesDropped_ = 0, bytesSent_ = 0, splats_ = 0;
   LatencyWindow requestToSent_, renderLatency_, encodeLatency_;

@@ -77,10 +77,23 @@ huge = request(render=pb.RenderRequest(camera=client.camera((0, 0, 1), (1, 1, 0)
                                        format=pb.FrameFormat(width=100000, height=100000)))
 expect_error(client.send_raw(huge.SerializeToString()), pb.ERROR_INVALID_ARGUMENT,
              "a 100000x100000 frame")
-expect_call_error(lambda: client.call(pb.Request(set_options=pb.SetOptionsRequest(mode="blended"))),
-                  pb.ERROR_NOT_CHANGEABLE, "changing the render mode")
+expect_call_error(lambda: client.call(pb.Request(set_options=pb.SetOptionsRequest(mode="bogus"))),
+                  pb.ERROR_INVALID_ARGUMENT, "an unknown render mode")
 expect_call_error(lambda: client.call(pb.Request(set_options=pb.SetOptionsRequest(
-    scheduler="static"))), pb.ERROR_NOT_CHANGEABLE, "changing the scheduler")
+    mode="splats", scheduler="fastest"))), pb.ERROR_INVALID_ARGUMENT, "an unknown scheduler")
+expect_call_error(lambda: client.call(pb.Request(set_options=pb.SetOptionsRequest(
+    lod_pixels=-1.0))), pb.ERROR_INVALID_ARGUMENT, "a negative level of detail")
+expect_call_error(lambda: client.call(pb.Request(set_options=pb.SetOptionsRequest(
+    mode="m" * 100))), pb.ERROR_INVALID_ARGUMENT, "a 100-byte mode name")
+# The job draws with the cpu renderer: splats are out of its reach.
+expect_call_error(lambda: client.call(pb.Request(set_options=pb.SetOptionsRequest(
+    mode="splats", lod_pixels=2.0))), pb.ERROR_NOT_CHANGEABLE,
+    "a mode the job's renderer cannot draw")
+unchanged = client.call(pb.Request(set_options=pb.SetOptionsRequest())).options
+check(unchanged.mode == "points" and unchanged.lod_pixels == info.lod_pixels and
+      unchanged.scheduler == info.scheduler,
+      f"refused options changed nothing ({unchanged.mode}, {unchanged.lod_pixels}, "
+      f"{unchanged.scheduler})")
 
 # Many message parts: refused with a reply.
 client.control.send_multipart([b"", b"a", b"b", b"c"])
@@ -111,7 +124,7 @@ check(not big.poll(2000), "a 2 MiB message is dropped unanswered")
 big.close()
 
 stats = client.stats()
-check(stats.errors >= stats_before.errors + 13,
+check(stats.errors >= stats_before.errors + 16,
       f"the errors are counted ({stats.errors - stats_before.errors} new)")
 check(stats.frames_rendered == stats_before.frames_rendered and stats.queued == 0,
       "no frame was rendered or queued by the bad requests")

@@ -7,6 +7,10 @@
 #             shutdown request ends every process
 #   bad       each kind of bad message gets an error reply and changes
 #             nothing; newer cameras supersede queued ones; the job serves on
+#   options   live options: two clients at once, one drawing splats at 2 px,
+#             the other the job's points; then blended under a scheduler
+#             switched to round-robin; every frame equals the reference
+#             renderer's for its mode and level of detail
 #   curve     CURVE with keys from files: an authorized client renders, a client
 #             with another key or without CURVE gets nothing
 #   sigint    SIGINT to the display: clean shutdown of every process
@@ -84,8 +88,47 @@ case "$scenario" in
     grep -q "shutdown complete" "$JOB_LOG" || fail "no clean shutdown"
     assert_nothing_left
     ;;
+  options)
+    start_service_job
+    "${client[@]}" --name splats --mode splats --lod-pixels 2 path --camera-path orbit \
+      --frames 3 -o "$WORK/splats" >"$WORK/splats.log" 2>&1 &
+    splats=$!
+    "${client[@]}" --name points path --camera-path orbit --frames 3 -o "$WORK/points" \
+      >"$WORK/points.log" 2>&1 &
+    points=$!
+    code=0
+    for pid in $splats $points; do wait "$pid" || code=1; done
+    for name in splats points; do echo "--- $name client"; cat "$WORK/$name.log"; done
+    ((code == 0)) || fail "a client did not get its frames"
+    grep -q "drawn as splats, lod 2 px, scheduler cost" "$WORK/splats.log" ||
+      fail "the splats client's frames were not drawn as it asked"
+    grep -q "drawn as points, lod 1 px, scheduler cost" "$WORK/points.log" ||
+      fail "the points client's frames changed with the other client's options"
+    "${client[@]}" --name blended --mode blended --scheduler round-robin path \
+      --camera-path flythrough --frames 3 -o "$WORK/blended" >"$WORK/blended.log" 2>&1 ||
+      fail "blended frames: $(cat "$WORK/blended.log")"
+    cat "$WORK/blended.log"
+    grep -q "drawn as blended, lod 1 px, scheduler round-robin" "$WORK/blended.log" ||
+      fail "the blended frames were not drawn as asked"
+    "${client[@]}" info >"$WORK/info.log" 2>&1 || fail "info"
+    grep -q "scheduler round-robin" "$WORK/info.log" || fail "info does not show the new scheduler"
+    echo "reference comparisons"
+    "$BIN/pointillist-reference" --dataset "$DATASET" --camera-path orbit --frames 3 \
+      --size 480x270 --mode splats --lod-pixels 2 --compare "$WORK/splats" "${floors[@]}" ||
+      fail "splats client's frames"
+    "$BIN/pointillist-reference" --dataset "$DATASET" --camera-path orbit --frames 3 \
+      --size 480x270 --compare "$WORK/points" "${floors[@]}" || fail "points client's frames"
+    "$BIN/pointillist-reference" --dataset "$DATASET" --camera-path flythrough --frames 3 \
+      --size 480x270 --mode blended --compare "$WORK/blended" "${floors[@]}" ||
+      fail "blended client's frames"
+    "${client[@]}" shutdown || fail "shutdown request"
+    wait_job_exit 60
+    ((JOB_CODE == 0)) || fail "the job exited with $JOB_CODE"
+    assert_nothing_left
+    ;;
   bad)
-    start_service_job --stream-hwm 4
+    # The cpu renderer draws points only: a client asking for splats is refused.
+    start_service_job --stream-hwm 4 --renderer cpu
     "${python[@]}" "$ROOT/tests/mpi/service_bad_requests.py" "$ENDPOINT" || fail "bad requests"
     # Still serving after all of it.
     "${client[@]}" render --camera 0,0,1,0.1,0.1,0 -o "$WORK/after.png" ||

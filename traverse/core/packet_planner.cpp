@@ -48,8 +48,21 @@ void PacketPlanner::requestWork(Outbox& out) {
   out.send(peers_.display, std::move(request));
 }
 
+v1::Scheduler PacketPlanner::schedulerFor(const v1::TileTask& task) const {
+  return task.has_frame_settings() && task.frame_settings().has_scheduler()
+             ? task.frame_settings().scheduler()
+             : settings_.scheduler();
+}
+
+TraversalSettings PacketPlanner::traversalFor(const v1::TileTask& task) const {
+  if (!task.has_frame_settings() || task.frame_settings().lod_pixels() <= 0.0f) return traversal_;
+  TraversalSettings traversal = traversal_;
+  traversal.lodPixels = task.frame_settings().lod_pixels();
+  return traversal;
+}
+
 std::optional<Camera> PacketPlanner::lookaheadCamera(const v1::TileTask& task) const {
-  if (settings_.scheduler() != v1::SCHEDULER_COST || !task.has_lookahead_camera()) {
+  if (schedulerFor(task) != v1::SCHEDULER_COST || !task.has_lookahead_camera()) {
     return std::nullopt;
   }
   return task.lookahead_camera();
@@ -68,7 +81,7 @@ PacketPlan PacketPlanner::planPacket(const v1::TileTask& task, const TileWalk& w
     }
     plan.needs.push_back({need.cell, layers_->roundUp(need.cell, need.splats)});
   }
-  plan.choice = settings_.scheduler() == v1::SCHEDULER_COST
+  plan.choice = schedulerFor(task) == v1::SCHEDULER_COST
                     ? model_.choose(plan.needs, walk.splats, now)
                     : model_.assigned(task.assigned_render(), plan.needs, walk.splats);
   const RenderChoice& choice = plan.choice;
@@ -141,6 +154,7 @@ PacketPlan PacketPlanner::planPacket(const v1::TileTask& task, const TileWalk& w
   packet.set_ordered_bytes(choice.missingBytes);
   packet.set_chosen_cost(choice.cost);
   packet.set_prefetch_bytes(plan.prefetchBytes);
+  if (task.has_frame_settings()) *packet.mutable_frame_settings() = task.frame_settings();
   out.send(plan.renderRank, std::move(packet));
   model_.recordPacket(choice.render, packetsSent_, walk.splats, choice.missing, now);
 

@@ -54,6 +54,10 @@ class PacketPlanner {
                 std::shared_ptr<const PacketLayers> layers, std::vector<std::uint32_t> owners);
 
   const TraversalSettings& traversal() const { return traversal_; }
+  // The walk for one task: the run's, at the task's own level of detail if it has one.
+  TraversalSettings traversalFor(const v1::TileTask& task) const;
+  // The task's scheduler (a served frame's), else the run's.
+  v1::Scheduler schedulerFor(const v1::TileTask& task) const;
   const v1::RunSettings& settings() const { return settings_; }
 
   // Asks the display for a tile (at start-up; planPacket asks again itself).

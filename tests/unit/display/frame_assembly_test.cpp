@@ -191,5 +191,50 @@ TEST(FrameAssembly, FinishesFramesInOrderAndLetsTheNextOneIn) {
   EXPECT_THROW(assembly.tileArrived(tile(tasks[0], 1, 3), kStart), ProtocolError);
 }
 
+// Serve mode: each client's frame carries its own mode and level of detail to
+// its tiles; a scheduler named by a frame holds from that frame on, and the
+// run's own scheduler needs no override.
+TEST(FrameAssembly, ServedFramesCarryTheirSettingsAndSchedulerToTheirTiles) {
+  FrameAssembly assembly(config(0), kPeers, kStart);
+  const auto serve = [&](float x, const v1::FrameSettings& settings) {
+    assembly.appendCamera(camera(x), settings);
+    const auto tasks = takeAll(assembly, kStart);
+    EXPECT_FALSE(tasks.empty());
+    for (const auto& task : tasks) assembly.tileArrived(tile(task, 100), kStart);
+    EXPECT_EQ(assembly.finishFrames(kStart).size(), 1u);
+    return tasks;
+  };
+
+  for (const auto& task : serve(0, {})) EXPECT_FALSE(task.has_frame_settings());
+
+  v1::FrameSettings splats;
+  splats.set_mode(v1::RENDER_MODE_SPLATS);
+  splats.set_lod_pixels(2.0f);
+  for (const auto& task : serve(1, splats)) {
+    EXPECT_EQ(task.frame_settings().mode(), v1::RENDER_MODE_SPLATS);
+    EXPECT_EQ(task.frame_settings().lod_pixels(), 2.0f);
+    EXPECT_FALSE(task.frame_settings().has_scheduler());
+  }
+
+  v1::FrameSettings roundRobin;
+  roundRobin.set_scheduler(v1::SCHEDULER_ROUND_ROBIN);
+  const auto dealt = serve(2, roundRobin);
+  ASSERT_GE(dealt.size(), 2u);
+  for (std::size_t i = 0; i < dealt.size(); ++i) {
+    EXPECT_EQ(dealt[i].frame_settings().scheduler(), v1::SCHEDULER_ROUND_ROBIN);
+    EXPECT_EQ(dealt[i].frame_settings().mode(), v1::RENDER_MODE_UNSPECIFIED);
+    EXPECT_EQ(dealt[i].assigned_render(), (dealt[0].assigned_render() + i) % 2) << "tile " << i;
+  }
+  // A frame naming no scheduler keeps the one in force.
+  for (const auto& task : serve(3, {})) {
+    EXPECT_EQ(task.frame_settings().scheduler(), v1::SCHEDULER_ROUND_ROBIN);
+  }
+  v1::FrameSettings cost;
+  cost.set_scheduler(v1::SCHEDULER_COST);
+  for (const auto& task : serve(4, cost)) {
+    EXPECT_FALSE(task.frame_settings().has_scheduler()) << "the run's scheduler needs no override";
+  }
+}
+
 }  // namespace
 }  // namespace pointillist::display

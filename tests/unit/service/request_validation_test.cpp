@@ -63,6 +63,39 @@ TEST(RequestValidation, RefusesAnUnknownBody) {
   EXPECT_EQ(codeOf(bytes), v1::ERROR_UNKNOWN_REQUEST);
 }
 
+// A client matches replies to requests by id: a refusal of a request that
+// parsed carries that request's id.
+TEST(RequestValidation, ARefusalNamesTheRequestItRefuses) {
+  v1::Request request = validRender();
+  request.set_request_id(41);
+  request.mutable_render()->mutable_camera()->mutable_target()->set_x(10);  // eye == target
+  const std::string bytes = request.SerializeAsString();
+  try {
+    parseRequest(std::span(reinterpret_cast<const std::byte*>(bytes.data()), bytes.size()),
+                 RequestLimits{});
+    FAIL() << "a camera with eye == target was accepted";
+  } catch (const RequestError& error) {
+    EXPECT_EQ(error.code(), v1::ERROR_INVALID_ARGUMENT);
+    EXPECT_EQ(error.requestId(), 41u);
+  }
+}
+
+TEST(RequestValidation, RefusesOptionsOutOfRange) {
+  v1::Request request = validRender();
+  request.clear_body();
+  request.mutable_set_options()->set_lod_pixels(-1.0f);
+  EXPECT_EQ(codeOf(request), v1::ERROR_INVALID_ARGUMENT);
+  request.mutable_set_options()->set_lod_pixels(100.0f);
+  EXPECT_EQ(codeOf(request), v1::ERROR_INVALID_ARGUMENT);
+  request.mutable_set_options()->set_lod_pixels(2.0f);
+  EXPECT_EQ(codeOf(request), v1::ERROR_UNSPECIFIED);
+  request.mutable_set_options()->set_mode(std::string(100, 'm'));
+  EXPECT_EQ(codeOf(request), v1::ERROR_INVALID_ARGUMENT);
+  request.mutable_set_options()->set_mode("splats");
+  request.mutable_set_options()->set_scheduler(std::string(100, 's'));
+  EXPECT_EQ(codeOf(request), v1::ERROR_INVALID_ARGUMENT);
+}
+
 TEST(RequestValidation, AttachOnlyOnTheStreamAndNothingElseThere) {
   v1::Request attach = validRender();
   attach.mutable_attach();

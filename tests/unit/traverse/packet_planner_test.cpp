@@ -291,6 +291,34 @@ TEST(PacketPlanner, OtherSchedulersTakeTheDisplaysChoice) {
   EXPECT_EQ(ordersIn(out), (std::vector<std::pair<int, std::vector<std::uint32_t>>>{{2, {0}}}));
 }
 
+// A served frame's settings: its scheduler decides for its tile, its level
+// of detail sets the walk, and the render packet carries them on (the mode).
+TEST(PacketPlanner, AServedFramesSettingsOverrideTheRunsForItsTile) {
+  PacketPlanner p = planner(v1::SCHEDULER_COST);
+  // The cost function would pick render 0, which holds cell 0.
+  p.applyReport(kRender0, report(0, {0}), kStart);
+  v1::TileTask served = task(0, 0);
+  served.set_assigned_render(1);
+  served.mutable_frame_settings()->set_scheduler(v1::SCHEDULER_STATIC);
+  served.mutable_frame_settings()->set_mode(v1::RENDER_MODE_SPLATS);
+  served.mutable_frame_settings()->set_lod_pixels(3.0f);
+  EXPECT_EQ(p.schedulerFor(served), v1::SCHEDULER_STATIC);
+  EXPECT_EQ(p.traversalFor(served).lodPixels, 3.0f);
+  EXPECT_EQ(p.traversalFor(task(0, 1)).lodPixels, 1.0f) << "a plain task walks at the run's";
+  Outbox out;
+  int destination = -1;
+  const PacketPlan plan = p.planPacket(served, Walk({0}).view(), {}, kStart, out);
+  EXPECT_EQ(plan.renderRank, kRender1) << "the frame's scheduler took the display's choice";
+  const v1::RenderPacket& packet = packetIn(out, &destination);
+  EXPECT_EQ(destination, kRender1);
+  EXPECT_EQ(packet.frame_settings().mode(), v1::RENDER_MODE_SPLATS);
+  EXPECT_EQ(packet.frame_settings().lod_pixels(), 3.0f);
+
+  Outbox plainOut;
+  p.planPacket(task(0, 2), Walk({0}).view(), {}, kStart, plainOut);
+  EXPECT_FALSE(packetIn(plainOut).has_frame_settings());
+}
+
 TEST(PacketPlanner, RefusesStrangersAndCellsOutsideTheDataset) {
   PacketPlanner p = planner();
   EXPECT_THROW(p.applyReport(2, report(0), kStart), ProtocolError);

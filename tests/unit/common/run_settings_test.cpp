@@ -1,0 +1,77 @@
+// The settings a run hands every process, and what a served frame may change
+// of them (set_options): the checks the service answers with.
+#include "common/run_settings.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "common/errors.hpp"
+
+namespace pointillist {
+namespace {
+
+v1::RunSettings run(v1::Renderer renderer = v1::RENDERER_AUTO, bool edl = false) {
+  v1::RunSettings settings;
+  settings.set_mode(v1::RENDER_MODE_POINTS);
+  settings.set_lod_pixels(1.0f);
+  settings.set_size_scale(1.5f);
+  settings.set_scheduler(v1::SCHEDULER_COST);
+  settings.set_renderer(renderer);
+  settings.set_edl(edl);
+  settings.set_edl_strength(kDefaultEdlStrength);
+  settings.set_edl_radius(kDefaultEdlRadius);
+  return settings;
+}
+
+v1::FrameSettings frame(v1::RenderMode mode, float lod = 0.0f) {
+  v1::FrameSettings settings;
+  settings.set_mode(mode);
+  settings.set_lod_pixels(lod);
+  return settings;
+}
+
+TEST(RunSettings, AFramesSettingsReplaceOnlyWhatTheySet) {
+  const v1::RunSettings base = run();
+  const v1::RunSettings same = frameRunSettings(base, {});
+  EXPECT_EQ(same.SerializeAsString(), base.SerializeAsString());
+
+  v1::FrameSettings served = frame(v1::RENDER_MODE_SPLATS, 2.5f);
+  served.set_scheduler(v1::SCHEDULER_STATIC);
+  const v1::RunSettings drawn = frameRunSettings(base, served);
+  EXPECT_EQ(drawn.mode(), v1::RENDER_MODE_SPLATS);
+  EXPECT_EQ(drawn.lod_pixels(), 2.5f);
+  EXPECT_EQ(drawn.scheduler(), v1::SCHEDULER_STATIC);
+  EXPECT_EQ(drawn.size_scale(), 1.5f) << "size scale stays the run's";
+}
+
+TEST(RunSettings, AFrameMayAskOnlyForWhatTheRunCanDraw) {
+  EXPECT_NO_THROW(checkFrameSettings(run(), frame(v1::RENDER_MODE_SPLATS, 2.0f)));
+  EXPECT_NO_THROW(checkFrameSettings(run(), frame(v1::RENDER_MODE_BLENDED)));
+  // The cpu kernel draws points only.
+  EXPECT_NO_THROW(checkFrameSettings(run(v1::RENDERER_CPU), frame(v1::RENDER_MODE_POINTS)));
+  EXPECT_THROW(checkFrameSettings(run(v1::RENDERER_CPU), frame(v1::RENDER_MODE_SPLATS)),
+               UsageError);
+  // Eye-dome lighting cannot shade the blended mode.
+  EXPECT_THROW(checkFrameSettings(run(v1::RENDERER_AUTO, true), frame(v1::RENDER_MODE_BLENDED)),
+               UsageError);
+  EXPECT_NO_THROW(checkFrameSettings(run(v1::RENDERER_AUTO, true), frame(v1::RENDER_MODE_SPLATS)));
+  // Modes not built yet, and levels of detail that are no size.
+  EXPECT_THROW(checkFrameSettings(run(), frame(v1::RENDER_MODE_STATISTICAL)), UsageError);
+  EXPECT_THROW(checkFrameSettings(run(), frame(v1::RENDER_MODE_POINTS, -1.0f)), UsageError);
+  EXPECT_THROW(checkFrameSettings(run(), frame(v1::RENDER_MODE_POINTS, NAN)), UsageError);
+  v1::FrameSettings unknown;
+  unknown.set_scheduler(static_cast<v1::Scheduler>(99));
+  EXPECT_THROW(checkFrameSettings(run(), unknown), UsageError);
+}
+
+TEST(RunSettings, SchedulerNamesRoundTrip) {
+  for (const auto scheduler : {v1::SCHEDULER_COST, v1::SCHEDULER_ROUND_ROBIN, v1::SCHEDULER_STATIC,
+                               v1::SCHEDULER_EQUALIZER}) {
+    EXPECT_EQ(parseScheduler(schedulerName(scheduler)), scheduler);
+  }
+  EXPECT_THROW(parseScheduler("fastest"), UsageError);
+}
+
+}  // namespace
+}  // namespace pointillist
