@@ -77,4 +77,35 @@ if ((dry_run)); then
   echo
   exit 0
 fi
-exec "${launch[@]}"
+serving=0
+for arg in "${role_args[@]}"; do [[ "$arg" == --serve ]] && serving=1; done
+((serving)) || exec "${launch[@]}"
+
+# Serve mode: SIGINT (a terminal's Ctrl-C) or SIGTERM (a batch scheduler) to
+# this script becomes SIGINT to the display, which finishes the frames out and
+# shuts every process down cleanly. mpirun runs in a session of its own so a
+# terminal's Ctrl-C does not reach it: Open MPI would kill the ranks.
+setsid "${launch[@]}" &
+mpirun_pid=$!
+stop_service() {
+  local display
+  display=$(pgrep -s "$mpirun_pid" -f "^[^ ]*/pointillist-display( |$)" || true)
+  if [[ -n "$display" ]]; then
+    echo "run.sh: stopping the service (SIGINT to the display)" >&2
+    kill -INT $display 2>/dev/null || true
+  else
+    # The display runs on another host (--hostfile): Open MPI ends the job.
+    kill -TERM "$mpirun_pid" 2>/dev/null || true
+  fi
+}
+trap stop_service INT TERM
+code=0
+while kill -0 "$mpirun_pid" 2>/dev/null; do
+  code=0
+  wait "$mpirun_pid" || code=$?
+done
+# A signal may have cut the last wait short: the status is still to collect.
+last=0
+wait "$mpirun_pid" 2>/dev/null || last=$?
+if ((last != 127)); then code=$last; fi
+exit "$code"

@@ -14,8 +14,9 @@
 #   curve     CURVE with keys from files: an authorized client renders, a client
 #             with another key or without CURVE gets nothing
 #   sigint    SIGINT to the display: clean shutdown of every process
-#   sigterm   SIGTERM to mpirun (what a terminal or a scheduler sends): every
-#             process ends
+#   sigterm   SIGTERM to deploy/run.sh (what a batch scheduler sends): clean
+#             shutdown of every process
+#   mpirun-sigterm  SIGTERM to mpirun itself: Open MPI ends every process
 # Environment: MIN_LIT_FRACTION, MIN_SPLATS (the scene's floors, as for the frames tests).
 set -uo pipefail
 BIN="$1" DATASET="$2" PYTHON_MODULES="$3" scenario="$4"
@@ -162,23 +163,27 @@ case "$scenario" in
     ((JOB_CODE == 0)) || fail "the job exited with $JOB_CODE"
     assert_nothing_left
     ;;
-  sigint | sigterm)
+  sigint | sigterm | mpirun-sigterm)
     start_service_job
     "${client[@]}" path --camera-path orbit --frames 2 || fail "frames before the signal"
-    if [[ "$scenario" == sigint ]]; then
-      display=$(pgrep -f -- "^[^ ]*/pointillist-display .*$WORK" | head -n1)
-      [[ -n "$display" ]] || fail "no display process"
-      kill -INT "$display"
-    else
-      mpirun=$(pgrep -f -- "^mpirun.*$WORK" | head -n1)
-      [[ -n "$mpirun" ]] || fail "no mpirun process"
-      kill -TERM "$mpirun"
-    fi
+    case "$scenario" in
+      sigint)
+        display=$(pgrep -f -- "^[^ ]*/pointillist-display .*$WORK" | head -n1)
+        [[ -n "$display" ]] || fail "no display process"
+        kill -INT "$display"
+        ;;
+      sigterm) kill -TERM "$JOB_PID" ;;  # deploy/run.sh
+      mpirun-sigterm)
+        mpirun=$(pgrep -f -- "^mpirun.*$WORK" | head -n1)
+        [[ -n "$mpirun" ]] || fail "no mpirun process"
+        kill -TERM "$mpirun"
+        ;;
+    esac
     wait_job_exit 60
     cat "$JOB_LOG"
     echo "--- job exit code $JOB_CODE"
-    if [[ "$scenario" == sigint ]]; then
-      ((JOB_CODE == 0)) || fail "the job exited with $JOB_CODE after SIGINT to the display"
+    if [[ "$scenario" != mpirun-sigterm ]]; then
+      ((JOB_CODE == 0)) || fail "the job exited with $JOB_CODE after $scenario"
       grep -q "service stopped (SIGINT)" "$JOB_LOG" || fail "no service stop line"
       grep -q "shutdown complete" "$JOB_LOG" || fail "no clean shutdown"
     fi
