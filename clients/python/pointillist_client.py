@@ -39,21 +39,44 @@ class ServiceError(Exception):
         self.name = pb.ErrorCode.Name(error.code)
 
 
+def read_curve_key(path):
+    """The one Z85 key in a key file (pointillist-client keygen writes them)."""
+    keys = []
+    with open(path, encoding="ascii") as lines:
+        for number, line in enumerate(lines, 1):
+            line = line.strip()
+            # Z85 has '#' among its characters: only a line starting with it is a comment.
+            if not line or line.startswith("#"):
+                continue
+            if len(line) != 40:
+                raise ValueError(f"{path}:{number}: not a Z85 CURVE key (40 characters)")
+            keys.append(line.encode("ascii"))
+    if len(keys) != 1:
+        raise ValueError(f"{path}: holds {len(keys)} keys, expected one")
+    return keys[0]
+
+
 class PointillistClient:
     def __init__(self, endpoint="tcp://127.0.0.1:5570", name="pointillist-client.py",
-                 timeout=30.0):
+                 timeout=30.0, curve_server_key=None, curve_secret_key=None):
+        """curve_server_key and curve_secret_key: key files (the server's public key,
+        this client's secret key) for a service started with --curve-secret-key."""
         self.timeout_ms = int(timeout * 1000)
         self._ids = itertools.count(1)
         self._context = zmq.Context()
-        self.control = self._context.socket(zmq.DEALER)
-        self.control.setsockopt(zmq.LINGER, 0)
+        self._curve = None
+        if (curve_server_key is None) != (curve_secret_key is None):
+            raise ValueError("CURVE needs both the server's public key and this client's secret key")
+        if curve_server_key is not None:
+            secret = read_curve_key(curve_secret_key)
+            self._curve = (read_curve_key(curve_server_key), zmq.curve_public(secret), secret)
+        self.control = self._socket()
         self.control.connect(endpoint)
         self.client_id = ""
         hello = self.call(pb.Request(hello=pb.Hello(client_name=name))).hello
         self.client_id = hello.client_id
         self.default_format = hello.format
-        self.stream = self._context.socket(zmq.DEALER)
-        self.stream.setsockopt(zmq.LINGER, 0)
+        self.stream = self._socket()
         self.stream.setsockopt(zmq.ROUTING_ID, self.client_id.encode())
         self.stream.connect(self._reachable(hello.stream_endpoint, endpoint))
         attach = pb.Request(version=pb.SERVICE_VERSION_CURRENT, client_id=self.client_id,
@@ -66,6 +89,16 @@ class PointillistClient:
                 if reply.HasField("error"):
                     raise ServiceError(reply.error)
                 break
+
+    def _socket(self):
+        socket = self._context.socket(zmq.DEALER)
+        socket.setsockopt(zmq.LINGER, 0)
+        if self._curve is not None:
+            server, public, secret = self._curve
+            socket.curve_serverkey = server
+            socket.curve_publickey = public
+            socket.curve_secretkey = secret
+        return socket
 
     @staticmethod
     def _reachable(advertised, control):
@@ -177,6 +210,8 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--connect", default="tcp://127.0.0.1:5570")
     parser.add_argument("--timeout", type=float, default=30.0)
+    parser.add_argument("--curve-server-key", help="CURVE: file with the server's public key")
+    parser.add_argument("--curve-key", help="CURVE: file with this client's secret key")
     commands = parser.add_subparsers(dest="command", required=True)
     commands.add_parser("info")
     commands.add_parser("stats")
@@ -188,7 +223,9 @@ def main():
     render.add_argument("--mode", default="", help="points, splats or blended")
     render.add_argument("--lod-pixels", type=float, default=0.0)
     args = parser.parse_args()
-    client = PointillistClient(args.connect, timeout=args.timeout)
+    client = PointillistClient(args.connect, timeout=args.timeout,
+                               curve_server_key=args.curve_server_key,
+                               curve_secret_key=args.curve_key)
     try:
         if args.command == "render" and (args.mode or args.lod_pixels):
             client.set_options(mode=args.mode, lod_pixels=args.lod_pixels)

@@ -158,6 +158,16 @@ case "$scenario" in
     if "${bare[@]}" info; then fail "a client without CURVE was answered"; fi
     grep -q "refused a connection" "$JOB_LOG" || fail "no refusal in the job's log"
     "${alice[@]}" stats || fail "the authorized client lost its service"
+    # The Python client with the same keys.
+    "${python[@]}" "$ROOT/clients/python/pointillist_client.py" --connect "$ENDPOINT" \
+      --curve-server-key "$WORK/server.public" --curve-key "$WORK/alice.secret" render \
+      --camera=0,-400,200,0,0,0 -o "$WORK/alice-python.png" || fail "the Python client with CURVE"
+    [[ -s "$WORK/alice-python.png" ]] || fail "the Python client wrote no frame"
+    if "${python[@]}" "$ROOT/clients/python/pointillist_client.py" --connect "$ENDPOINT" \
+      --timeout 3 --curve-server-key "$WORK/server.public" --curve-key "$WORK/mallory.secret" \
+      info; then
+      fail "a Python client whose key is not authorized was answered"
+    fi
     "${alice[@]}" shutdown || fail "shutdown request"
     wait_job_exit 60
     ((JOB_CODE == 0)) || fail "the job exited with $JOB_CODE"
