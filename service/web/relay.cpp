@@ -16,6 +16,9 @@ using SteadyClock = std::chrono::steady_clock;
 // Frames queued for a browser's socket beyond this are dropped (a browser that
 // does not read must not grow our memory).
 constexpr int kMaxFramesInFlight = 2;
+// Render requests awaiting their frame: the page keeps two; a client sending
+// faster waits here, its newest camera replacing older ones in the mailbox.
+constexpr std::size_t kMaxOutstanding = 4;
 
 struct Outstanding {
   std::uint64_t browserId;
@@ -40,7 +43,9 @@ class Relay {
       // comes first (cleared before take, so no post is missed).
       while (!outstanding_.empty() && !mailbox_.stopped()) {
         mailbox_.clearWake();
-        if (auto newer = mailbox_.take()) issue(*newer);
+        if (outstanding_.size() < kMaxOutstanding) {
+          if (auto newer = mailbox_.take()) issue(*newer);
+        }
         if (auto frame = client_.receiveFrame(untilFirstExpiry(), mailbox_.wakeFd())) {
           forward(*frame);
         } else {
