@@ -57,7 +57,7 @@ class Relay {
 
  private:
   void text(std::string json) {
-    send_(OutgoingMessage{OutgoingMessage::Kind::kText, std::move(json)});
+    send_(OutgoingMessage{OutgoingMessage::Kind::kText, std::move(json), {}});
   }
 
   void issue(const BrowserCameraRequest& request) {
@@ -90,13 +90,14 @@ class Relay {
       text(frameJson(frame.header, request.browserId, latencyMs, "dropped"));
       return;
     }
-    text(frameJson(frame.header, request.browserId, latencyMs,
-                   hasPixels ? frameStatusName(status) : "superseded"));
-    if (hasPixels) {
-      ++mailbox_.framesInFlight;
-      send_(OutgoingMessage{OutgoingMessage::Kind::kBinary,
-                            std::string(frame.pixels.begin(), frame.pixels.end())});
+    if (!hasPixels) {
+      text(frameJson(frame.header, request.browserId, latencyMs, "superseded"));
+      return;
     }
+    ++mailbox_.framesInFlight;
+    send_(OutgoingMessage{
+        OutgoingMessage::Kind::kFrame, std::string(frame.pixels.begin(), frame.pixels.end()),
+        frameJson(frame.header, request.browserId, latencyMs, frameStatusName(status))});
   }
 
   std::chrono::milliseconds untilFirstExpiry() const {
@@ -132,8 +133,8 @@ class Relay {
 // The browser hears why and is closed; the operator reads it in the log.
 void fail(const std::string& clientName, const std::string& message, const SendToBrowser& send) {
   std::fprintf(stderr, "pointillist-web: %s: %s\n", clientName.c_str(), message.c_str());
-  send(OutgoingMessage{OutgoingMessage::Kind::kText, errorJson(message)});
-  send(OutgoingMessage{OutgoingMessage::Kind::kClose, {}});
+  send(OutgoingMessage{OutgoingMessage::Kind::kText, errorJson(message), {}});
+  send(OutgoingMessage{OutgoingMessage::Kind::kClose, {}, {}});
 }
 
 }  // namespace

@@ -30,12 +30,15 @@ struct RelayOptions {
   v1::FrameFormat format;                         // encoding and quality for every frame
 };
 
-// Text (JSON) or binary (an encoded frame) for the browser, or the order to
-// close its WebSocket after the queued messages.
+// For the browser: a JSON text; a frame (its JSON metadata, then the encoded
+// image as a binary message, queued and dropped as one); or the order to close
+// its WebSocket after the queued messages.
 struct OutgoingMessage {
-  enum class Kind { kText, kBinary, kClose };
+  enum class Kind { kText, kFrame, kClose };
   Kind kind = Kind::kText;
-  std::string data;
+  std::string data;  // the text, or the frame's image
+  std::string meta;  // a frame's metadata
+  bool metaSent = false;
 };
 
 // Between a browser's WebSocket session (io thread) and its relay thread. The

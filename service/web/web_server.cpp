@@ -28,6 +28,7 @@ using tcp = asio::ip::tcp;
 
 constexpr std::uint32_t kMaxHttpHeaderBytes = 8 * 1024;
 constexpr std::chrono::seconds kHttpTimeout{30};
+constexpr std::size_t kMaxQueuedMessages = 64;
 
 // Every relay thread; the server waits for all of them before it goes, as
 // they post into its io_context.
@@ -116,6 +117,12 @@ class BrowserSession : public std::enable_shared_from_this<BrowserSession> {
 
   void send(OutgoingMessage message) {
     if (closing_) return;
+    // A browser that sends but never reads: what it would get stops here (its
+    // frames are bounded before, by the relay's framesInFlight).
+    if (message.kind != OutgoingMessage::Kind::kClose && queue_.size() >= kMaxQueuedMessages) {
+      if (message.kind == OutgoingMessage::Kind::kFrame) --mailbox_->framesInFlight;
+      return;
+    }
     queue_.push_back(std::move(message));
     if (queue_.size() == 1) writeNext();
   }
@@ -134,8 +141,8 @@ class BrowserSession : public std::enable_shared_from_this<BrowserSession> {
                            });
     } catch (const Error& error) {
       std::fprintf(stderr, "pointillist-web: browser %s: %s\n", peer_.c_str(), error.what());
-      send({OutgoingMessage::Kind::kText, errorJson(error.what())});
-      send({OutgoingMessage::Kind::kClose, {}});
+      send({OutgoingMessage::Kind::kText, errorJson(error.what()), {}});
+      send({OutgoingMessage::Kind::kClose, {}, {}});
       return;
     }
     readNext();
@@ -159,12 +166,12 @@ class BrowserSession : public std::enable_shared_from_this<BrowserSession> {
     const std::string text = beast::buffers_to_string(buffer_.data());
     buffer_.consume(buffer_.size());
     if (!ws_.got_text()) {
-      send({OutgoingMessage::Kind::kText, errorJson("binary messages are not taken")});
+      send({OutgoingMessage::Kind::kText, errorJson("binary messages are not taken"), {}});
     } else {
       try {
         mailbox_->post(parseBrowserMessage(text));
       } catch (const BrowserMessageError& error) {
-        send({OutgoingMessage::Kind::kText, errorJson(error.what())});
+        send({OutgoingMessage::Kind::kText, errorJson(error.what()), {}});
       }
     }
     readNext();
@@ -178,14 +185,21 @@ class BrowserSession : public std::enable_shared_from_this<BrowserSession> {
                       [self = shared_from_this()](beast::error_code) {});
       return;
     }
-    ws_.binary(message.kind == OutgoingMessage::Kind::kBinary);
-    ws_.async_write(
-        asio::buffer(message.data),
-        [self = shared_from_this()](beast::error_code ec, std::size_t) { self->onWrite(ec); });
+    const bool frameMeta = message.kind == OutgoingMessage::Kind::kFrame && !message.metaSent;
+    ws_.binary(message.kind == OutgoingMessage::Kind::kFrame && !frameMeta);
+    ws_.async_write(asio::buffer(frameMeta ? message.meta : message.data),
+                    [self = shared_from_this(), frameMeta](beast::error_code ec, std::size_t) {
+                      self->onWrite(ec, frameMeta);
+                    });
   }
 
-  void onWrite(beast::error_code ec) {
-    if (queue_.front().kind == OutgoingMessage::Kind::kBinary) --mailbox_->framesInFlight;
+  void onWrite(beast::error_code ec, bool frameMeta) {
+    if (!ec && frameMeta) {
+      queue_.front().metaSent = true;  // the image next
+      writeNext();
+      return;
+    }
+    if (queue_.front().kind == OutgoingMessage::Kind::kFrame) --mailbox_->framesInFlight;
     queue_.pop_front();
     if (ec) {
       mailbox_->stop();
