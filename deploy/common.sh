@@ -11,6 +11,7 @@ POINTILLIST_PACKAGES=(
   libosmesa6-dev libglm-dev libfftw3-dev
   libzmq3-dev cppzmq-dev libprotobuf-dev protobuf-compiler libturbojpeg0-dev
   python3-zmq python3-protobuf python3-numpy
+  libboost-dev chromium python3-websocket
   libgtest-dev libpng-dev libnanoflann-dev libcli11-dev libhwy-dev libxxhash-dev
   gnuplot-nox iproute2 procps
 )

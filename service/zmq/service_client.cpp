@@ -168,12 +168,22 @@ void ServiceClient::shutdown(const std::string& reason) {
   call(std::move(request));
 }
 
-std::optional<ReceivedFrame> ServiceClient::receiveFrame(std::chrono::milliseconds timeout) {
+std::optional<ReceivedFrame> ServiceClient::receiveFrame(std::chrono::milliseconds timeout,
+                                                         int wakeFd) {
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   while (true) {
     const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
         deadline - std::chrono::steady_clock::now());
-    if (left.count() < 0 || !waitReadable(stream_, left)) return std::nullopt;
+    if (left.count() < 0) return std::nullopt;
+    if (wakeFd >= 0) {
+      zmq::pollitem_t items[] = {{stream_.handle(), 0, ZMQ_POLLIN, 0},
+                                 {nullptr, wakeFd, ZMQ_POLLIN, 0}};
+      if (zmq::poll(items, 2, left) == 0 || (items[1].revents & ZMQ_POLLIN) != 0) {
+        return std::nullopt;
+      }
+    } else if (!waitReadable(stream_, left)) {
+      return std::nullopt;
+    }
     auto parts = receiveParts(stream_);
     if (parts.size() != 3 || parts[0].to_string() != kStreamFrameTag) continue;
     ReceivedFrame frame;

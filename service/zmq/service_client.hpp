@@ -57,8 +57,10 @@ class ServiceClient {
   v1::Statistics stats();
   void shutdown(const std::string& reason);
 
-  // The next frame (or superseded notice) on the stream, or nothing by `timeout`.
-  std::optional<ReceivedFrame> receiveFrame(std::chrono::milliseconds timeout);
+  // The next frame (or superseded notice) on the stream, or nothing by
+  // `timeout`, or nothing as soon as `wakeFd` (when not -1) is readable: a
+  // caller waiting for frames can be woken by its other work (pointillist-web).
+  std::optional<ReceivedFrame> receiveFrame(std::chrono::milliseconds timeout, int wakeFd = -1);
 
   // A request with this client's id and a fresh request id; answered or thrown.
   v1::Reply call(v1::Request request);

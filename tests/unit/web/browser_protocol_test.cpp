@@ -1,0 +1,80 @@
+#include "service/web/browser_protocol.hpp"
+
+#include <gtest/gtest.h>
+
+#include <string>
+
+namespace pointillist::service::web {
+namespace {
+
+TEST(BrowserProtocol, ParsesACamera) {
+  const auto request = parseBrowserMessage(
+      R"({"type":"camera","id":7,"eye":[1,2,3],"target":[0,0,0.5],"up":[0,0,1],"fov":40,)"
+      R"("width":1280,"height":720})");
+  EXPECT_EQ(request.id, 7u);
+  EXPECT_FLOAT_EQ(request.camera.eye().y(), 2.0f);
+  EXPECT_FLOAT_EQ(request.camera.target().z(), 0.5f);
+  EXPECT_TRUE(request.camera.has_up());
+  EXPECT_FLOAT_EQ(request.camera.fov_y_degrees(), 40.0f);
+  EXPECT_EQ(request.width, 1280u);
+  EXPECT_EQ(request.height, 720u);
+}
+
+TEST(BrowserProtocol, UpFovAndSizeAreOptional) {
+  const auto request =
+      parseBrowserMessage(R"({"type":"camera","id":0,"eye":[1,2,3],"target":[0,0,0]})");
+  EXPECT_FALSE(request.camera.has_up());
+  EXPECT_EQ(request.camera.fov_y_degrees(), 0.0f);
+  EXPECT_EQ(request.width, 0u);
+}
+
+TEST(BrowserProtocol, RefusesMalformedMessages) {
+  const char* bad[] = {
+      "",
+      "not json",
+      "[1,2,3]",
+      R"({"id":1,"eye":[1,2,3],"target":[0,0,0]})",
+      R"({"type":"shutdown","id":1})",
+      R"({"type":"camera","eye":[1,2,3],"target":[0,0,0]})",
+      R"({"type":"camera","id":-1,"eye":[1,2,3],"target":[0,0,0]})",
+      R"({"type":"camera","id":1.5,"eye":[1,2,3],"target":[0,0,0]})",
+      R"({"type":"camera","id":1,"eye":[1,2],"target":[0,0,0]})",
+      R"({"type":"camera","id":1,"eye":[1,2,3,4],"target":[0,0,0]})",
+      R"({"type":"camera","id":1,"eye":"1,2,3","target":[0,0,0]})",
+      R"({"type":"camera","id":1,"eye":[1,"x",3],"target":[0,0,0]})",
+      R"({"type":"camera","id":1,"eye":[1,2,1e999],"target":[0,0,0]})",
+      R"({"type":"camera","id":1,"eye":[0,0,0],"target":[0,0,0]})",
+      R"({"type":"camera","id":1,"eye":[1,2,3],"target":[0,0,0],"fov":180})",
+      R"({"type":"camera","id":1,"eye":[1,2,3],"target":[0,0,0],"width":100000})",
+      R"({"type":"camera","id":1,"eye":[1,2,3],"target":[0,0,0],"width":8})",
+      R"({"type":"camera","id":1,"eye":[1,2,3],"target":[0,0,0],"up":[0,0,0]})",
+  };
+  for (const char* text : bad) {
+    EXPECT_THROW(parseBrowserMessage(text), BrowserMessageError) << text;
+  }
+  EXPECT_THROW(parseBrowserMessage(std::string(kMaxBrowserMessageBytes + 1, ' ')),
+               BrowserMessageError);
+}
+
+TEST(BrowserProtocol, EscapesJson) {
+  EXPECT_EQ(jsonEscape("a\"b\\c\n\x01"), "a\\\"b\\\\c\\n\\u0001");
+  EXPECT_EQ(errorJson("bad \"x\"", 3), R"({"type":"error","message":"bad \"x\"","id":3})");
+  EXPECT_EQ(errorJson("gone"), R"({"type":"error","message":"gone"})");
+}
+
+TEST(BrowserProtocol, FrameMetadata) {
+  v1::FrameHeader header;
+  header.set_frame_id(12);
+  header.set_width(640);
+  header.set_height(360);
+  header.set_encoding(v1::ENCODING_JPEG);
+  header.set_encoded_bytes(40000);
+  header.set_splats(150000);
+  const std::string json = frameJson(header, 5, 33.25, "ok");
+  EXPECT_NE(json.find(R"("type":"frame","id":5,"status":"ok","frame_id":12)"), std::string::npos);
+  EXPECT_NE(json.find(R"("bytes":40000,"splats":150000)"), std::string::npos);
+  EXPECT_NE(json.find(R"("latency_ms":33.25)"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace pointillist::service::web
