@@ -4,7 +4,8 @@
 # time round an orbit at 1280x720 (the next camera once the last frame came)
 # and prints the median and 95th percentile from camera request to frame
 # received, and the frames/s that single client sustains; then the frames/s of
-# a path request (the job pipelines its frames).
+# a path request (the job pipelines its frames; a stream of 64 frames, so a
+# client the job outruns loses none). Plots the latency per frame.
 #
 #   deploy/bench-service.sh [--frames N] [--layout D,T,S,R] [--dataset DIR] [--points N]
 set -euo pipefail
@@ -27,7 +28,7 @@ if [[ -z "$dataset" ]]; then
   dataset="$POINTILLIST_ROOT/datasets/city-$points"
   ensure_city_dataset "$dataset" "$points"
 fi
-out="$POINTILLIST_ROOT/out/bench-service"
+out="${BENCH_OUT:-$POINTILLIST_ROOT/out/bench-service/$(basename "$dataset")}"
 mkdir -p "$out"
 work=$(mktemp -d /tmp/pointillist-bench-service.XXXXXX)
 endpoint="ipc://$work/control"
@@ -35,7 +36,7 @@ client=("$POINTILLIST_BIN/pointillist-client" --connect "$endpoint" --timeout 60
 quiet_client() { "${client[@]}" "$@" 2>>"$out/clients.err" || { cat "$out/clients.err" >&2; return 1; }; }
 : >"$out/clients.err"
 setsid bash "$POINTILLIST_ROOT/deploy/run.sh" --layout "$layout" --dataset "$dataset" --serve \
-  --listen "$endpoint" --size 1280x720 --quiet >"$out/job.log" 2>&1 &
+  --listen "$endpoint" --size 1280x720 --stream-hwm 64 --quiet >"$out/job.log" 2>&1 &
 job=$!
 trap 'kill -KILL -- -$job 2>/dev/null || true; rm -rf "$work"' EXIT
 for _ in $(seq 1 600); do
@@ -62,6 +63,27 @@ for encoding in raw png jpeg; do
     >"$out/path-$encoding.log"
   echo "path request, $encoding: $(grep -E '^path:' "$out/path-$encoding.log")"
 done
+# Latency of each orbit frame per encoding, drawn.
+for encoding in raw png jpeg; do
+  grep -Eo 'latency [0-9.]+ ms' "$out/orbit-$encoding.log" | awk '{print NR, $2}' \
+    >"$out/latency-$encoding.dat"
+done
+if command -v gnuplot >/dev/null; then
+  gnuplot <<PLOT
+set terminal pngcairo size 1000,560 font "sans,11" noenhanced
+set output "$out/latency.png"
+set title "Camera request to frame received, one client orbiting, 1280x720 ($(basename "$dataset"), layout $layout)"
+set xlabel "frame of the orbit"
+set ylabel "latency (ms)"
+set yrange [0:*]
+set key top left
+set grid
+plot "$out/latency-raw.dat" with linespoints title "raw RGBA", \
+     "$out/latency-png.dat" with linespoints title "PNG", \
+     "$out/latency-jpeg.dat" with linespoints title "JPEG"
+PLOT
+  echo "plot: $out/latency.png"
+fi
 echo
 quiet_client stats | tee "$out/stats.txt"
 quiet_client shutdown >/dev/null
