@@ -205,6 +205,31 @@ int renderOne(ServiceClient& client, const ClientOptions& options) {
   return frame.header.status() == v1::FRAME_STATUS_OK ? 0 : 1;
 }
 
+// Frames of this client the service dropped (its stream was full or gone).
+std::uint64_t framesDropped(ServiceClient& client) {
+  const v1::Statistics stats = client.stats();
+  for (const auto& entry : stats.clients()) {
+    if (entry.client_id() == client.clientId()) return entry.frames_dropped();
+  }
+  return 0;
+}
+
+// The next frame of a path request, or nothing once every frame not yet
+// received is known dropped: a reader the job outran does not wait for them.
+std::optional<ReceivedFrame> awaitPathFrame(ServiceClient& client, std::uint64_t requestId,
+                                            std::uint32_t received, std::uint32_t total,
+                                            const ClientOptions& options) {
+  const auto deadline =
+      SteadyClock::now() +
+      std::chrono::milliseconds(static_cast<long>(options.frameTimeoutSeconds * 1e3));
+  while (SteadyClock::now() < deadline) {
+    auto frame = client.receiveFrame(std::chrono::milliseconds(1000));
+    if (frame && frame->header.request_id() == requestId) return frame;
+    if (!frame && received + framesDropped(client) >= total) return std::nullopt;
+  }
+  throw TimeoutError("no frame for request " + std::to_string(requestId));
+}
+
 int renderPath(ServiceClient& client, const ClientOptions& options) {
   v1::PathRequest path;
   path.set_builtin(options.cameraPath);
@@ -222,8 +247,11 @@ int renderPath(ServiceClient& client, const ClientOptions& options) {
   LatencyWindow latency;
   std::uint32_t failed = 0;
   auto previous = sent;
-  for (std::uint32_t received = 0; received < accepted.frames(); ++received) {
-    const ReceivedFrame frame = awaitFrame(client, id, options);
+  std::uint32_t received = 0;
+  for (; received < accepted.frames(); ++received) {
+    const auto next = awaitPathFrame(client, id, received, accepted.frames(), options);
+    if (!next) break;
+    const ReceivedFrame& frame = *next;
     latency.add(millisecondsBetween(previous, frame.received));
     previous = frame.received;
     printFrame(frame, millisecondsBetween(sent, frame.received));
@@ -239,8 +267,16 @@ int renderPath(ServiceClient& client, const ClientOptions& options) {
   }
   const double seconds = millisecondsBetween(sent, previous) / 1e3;
   printLatency("time between frames", latency);
-  std::printf("path: %u frames in %.2f s, %.2f frames/s\n", accepted.frames(), seconds,
-              seconds > 0.0 ? accepted.frames() / seconds : 0.0);
+  std::printf("path: %u frames in %.2f s, %.2f frames/s\n", received, seconds,
+              seconds > 0.0 ? received / seconds : 0.0);
+  if (received < accepted.frames()) {
+    std::fprintf(stderr,
+                 "pointillist-client: %u of %u frames were dropped: the job outran this client "
+                 "and its stream was full (read faster, or start the job with a larger "
+                 "--stream-hwm)\n",
+                 accepted.frames() - received, accepted.frames());
+    return 1;
+  }
   return failed == 0 ? 0 : 1;
 }
 

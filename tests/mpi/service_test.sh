@@ -6,7 +6,8 @@
 #             all get their frames, equal to the reference renderer's; a
 #             shutdown request ends every process
 #   bad       each kind of bad message gets an error reply and changes
-#             nothing; newer cameras supersede queued ones; the job serves on
+#             nothing; newer cameras supersede queued ones; a path reader the
+#             job outruns learns its frames were dropped; the job serves on
 #   options   live options: two clients at once, one drawing splats at 2 px,
 #             the other the job's points; then blended under a scheduler
 #             switched to round-robin; every frame equals the reference
@@ -131,6 +132,28 @@ case "$scenario" in
     # The cpu renderer draws points only: a client asking for splats is refused.
     start_service_job --stream-hwm 4 --renderer cpu
     "${python[@]}" "$ROOT/tests/mpi/service_bad_requests.py" "$ENDPOINT" || fail "bad requests"
+    # A path reader the job outruns (its stream holds 4 frames): it is told how
+    # many frames were dropped instead of waiting for them until its timeout.
+    start=$SECONDS
+    "${client[@]}" --name outrun --encoding raw path --camera-path orbit --frames 40 \
+      --read-delay-ms 250 --frame-timeout 200 >"$WORK/outrun.log" 2>&1
+    outrun=$?
+    took=$((SECONDS - start))
+    cat "$WORK/outrun.log"
+    "${client[@]}" stats >"$WORK/stats.log" || fail "stats"
+    dropped=$(grep -Eo '\(outrun\): [0-9]+ frames sent, [0-9]+ dropped' "$WORK/stats.log" |
+      grep -Eo '[0-9]+ dropped' | grep -Eo '[0-9]+')
+    [[ -n "$dropped" ]] || fail "no statistics for the outrun client"
+    if ((dropped > 0)); then
+      ((outrun == 1)) || fail "the outrun client lost $dropped frames and exited $outrun"
+      grep -q "$dropped of 40 frames were dropped" "$WORK/outrun.log" ||
+        fail "the outrun client did not say how many frames were dropped"
+      ((took < 60)) || fail "the outrun client waited $took s for dropped frames"
+      echo "the outrun client lost $dropped frames, said so and ended after $took s"
+    else
+      ((outrun == 0)) || fail "no frame was dropped, yet the client exited $outrun"
+      echo "this time the client kept up (no frame dropped)"
+    fi
     # Still serving after all of it.
     "${client[@]}" render --camera 0,0,1,0.1,0.1,0 -o "$WORK/after.png" ||
       fail "the job stopped serving"
