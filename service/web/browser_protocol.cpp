@@ -104,6 +104,18 @@ BrowserCameraRequest parseBrowserMessage(std::string_view text) {
   }
   request.width = side(message, "width");
   request.height = side(message, "height");
+  if (const auto mode = message.get_optional<std::string>("mode")) {
+    if (!message.get_child("mode").empty() ||
+        (*mode != "points" && *mode != "splats" && *mode != "blended")) {
+      refuse("mode must be \"points\", \"splats\" or \"blended\"");
+    }
+    request.mode = *mode;
+  }
+  if (const auto lod = message.get_child_optional("lod")) {
+    const double value = number(*lod, "lod");
+    if (!(value > 0.0 && value <= 64.0)) refuse("lod must be in (0, 64] pixels");
+    request.lodPixels = static_cast<float>(value);
+  }
   try {
     validateCameraKey(request.camera, "camera");
     v1::FrameFormat format;
@@ -157,7 +169,12 @@ std::string infoJson(const v1::DatasetInfo& info, const v1::FrameFormat& format)
       << R"(,"layout":")" << jsonEscape(info.layout()) << R"(","mode":")" << jsonEscape(info.mode())
       << R"(","max_width":)" << info.max_width() << R"(,"max_height":)" << info.max_height()
       << R"(,"width":)" << format.width() << R"(,"height":)" << format.height()
-      << R"(,"encoding":")" << encodingName(format.encoding()) << "\"}";
+      << R"(,"encoding":")" << encodingName(format.encoding()) << R"(","lod_pixels":)"
+      << info.lod_pixels() << R"(,"modes_available":[)";
+  for (int i = 0; i < info.modes_available_size(); ++i) {
+    out << (i > 0 ? "," : "") << '"' << jsonEscape(info.modes_available(i)) << '"';
+  }
+  out << "]}";
   return out.str();
 }
 
@@ -176,17 +193,18 @@ const char* frameStatusName(v1::FrameStatus status) {
 
 std::string frameJson(const v1::FrameHeader& header, std::uint64_t browserId, double latencyMs,
                       const char* status) {
-  char text[640];
-  std::snprintf(text, sizeof text,
-                R"({"type":"frame","id":%llu,"status":"%s","frame_id":%llu,"width":%u,"height":%u,)"
-                R"("encoding":"%s","bytes":%llu,"splats":%llu,"tiles":%u,"latency_ms":%.2f,)"
-                R"("queued_ms":%.2f,"render_ms":%.2f,"encode_ms":%.2f})",
-                static_cast<unsigned long long>(browserId), status,
-                static_cast<unsigned long long>(header.frame_id()), header.width(), header.height(),
-                encodingName(header.encoding()),
-                static_cast<unsigned long long>(header.encoded_bytes()),
-                static_cast<unsigned long long>(header.splats()), header.tiles(), latencyMs,
-                header.queued_ms(), header.render_ms(), header.encode_ms());
+  char text[768];
+  std::snprintf(
+      text, sizeof text,
+      R"({"type":"frame","id":%llu,"status":"%s","frame_id":%llu,"width":%u,"height":%u,)"
+      R"("encoding":"%s","bytes":%llu,"splats":%llu,"tiles":%u,"latency_ms":%.2f,)"
+      R"("queued_ms":%.2f,"render_ms":%.2f,"encode_ms":%.2f,"mode":"%s","lod_pixels":%g})",
+      static_cast<unsigned long long>(browserId), status,
+      static_cast<unsigned long long>(header.frame_id()), header.width(), header.height(),
+      encodingName(header.encoding()), static_cast<unsigned long long>(header.encoded_bytes()),
+      static_cast<unsigned long long>(header.splats()), header.tiles(), latencyMs,
+      header.queued_ms(), header.render_ms(), header.encode_ms(),
+      jsonEscape(header.mode().substr(0, 32)).c_str(), static_cast<double>(header.lod_pixels()));
   return text;
 }
 

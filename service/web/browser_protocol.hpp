@@ -2,7 +2,9 @@
 // What the viewer page and pointillist-web say to each other over the
 // WebSocket. The browser sends JSON text:
 //   {"type":"camera","id":7,"eye":[x,y,z],"target":[x,y,z],"up":[x,y,z],
-//    "fov":45,"width":1280,"height":720}       (up, fov, width, height optional)
+//    "fov":45,"width":1280,"height":720,"mode":"splats","lod":2}
+//   (up, fov, width, height, mode and lod optional; mode and lod are this
+//   browser's service options, set before the camera's frame when they change)
 // and gets JSON text back:
 //   {"type":"info",...}      the dataset (bounds, up, counts) once connected
 //   {"type":"frame",...}     a frame's metadata; when "status" is "ok" or
@@ -35,6 +37,8 @@ struct BrowserCameraRequest {
   v1::CameraKey camera;
   std::uint32_t width = 0;  // 0: the service's default for this client
   std::uint32_t height = 0;
+  std::string mode;        // points | splats | blended; empty: unchanged
+  float lodPixels = 0.0f;  // target splat size in pixels, (0, 64]; 0: unchanged
 };
 
 // Parses and checks one message (camera values as the service checks them).

@@ -61,6 +61,22 @@ class Relay {
   }
 
   void issue(const BrowserCameraRequest& request) {
+    if ((!request.mode.empty() && request.mode != mode_) ||
+        (request.lodPixels > 0.0f && request.lodPixels != lodPixels_)) {
+      v1::SetOptionsRequest change;
+      change.set_mode(request.mode);
+      change.set_lod_pixels(request.lodPixels);
+      try {
+        client_.setOptions(change);
+      } catch (const ServiceError& error) {
+        // Not this job's (a mode its renderer cannot draw): no frame for it.
+        text(errorJson(std::string("service: ") + error.what(),
+                       static_cast<std::int64_t>(request.id)));
+        return;
+      }
+      if (!request.mode.empty()) mode_ = request.mode;
+      if (request.lodPixels > 0.0f) lodPixels_ = request.lodPixels;
+    }
     v1::FrameFormat format = options_.format;
     format.set_width(request.width);
     format.set_height(request.height);
@@ -128,6 +144,8 @@ class Relay {
   const SendToBrowser& send_;
   ServiceClient client_;
   std::map<std::uint64_t, Outstanding> outstanding_;
+  std::string mode_;  // options set on the service for this browser so far
+  float lodPixels_ = 0.0f;
 };
 
 // The browser hears why and is closed; the operator reads it in the log.

@@ -120,6 +120,11 @@ class DevTools:
         import base64
         return base64.b64decode(self.call("Page.captureScreenshot", format="png")["data"])
 
+    def key(self, key, code):
+        for kind in ("keyDown", "keyUp"):
+            self.call("Input.dispatchKeyEvent", type=kind, key=key, code=code,
+                      text=key if kind == "keyDown" else "")
+
     def mouse(self, kind, x, y, buttons):
         self.call("Input.dispatchMouseEvent", type=kind, x=x, y=y, button="left",
                   buttons=buttons, clickCount=1 if kind != "mouseMoved" else 0)
@@ -329,6 +334,26 @@ def main():
             fail(f"the stats show no frames/s: {stats_text!r}")
         if drag_frames < 2:
             fail(f"only {drag_frames} frames while dragging")
+
+        # Live options from the keyboard: splats (2), then coarser detail (]).
+        before = tools.evaluate("window.pointillist.lastFrameId")
+        for key, code in (("2", "Digit2"), ("]", "BracketRight")):
+            tools.key(key, code)
+        tools.wait_for("window.pointillist.lastMeta && window.pointillist.lastMeta.mode === 'splats'"
+                       f" && window.pointillist.lastMeta.lod_pixels > 1.4"
+                       f" && window.pointillist.lastFrameId > {before}", 60,
+                       "no frame drawn as splats at coarser detail after the keys")
+        time.sleep(0.5)
+        third = decode_png(tools.screenshot())
+        meta = json.loads(tools.evaluate("JSON.stringify(window.pointillist.lastMeta)"))
+        lit2 = lit_fraction(third, mask)
+        print(f"after keys 2 and ]: drawn as {meta['mode']} at {meta['lod_pixels']} px, "
+              f"{meta['splats']} splats, {lit2:.1%} lit")
+        if lit2 < 0.05:
+            fail("the splats frame is (nearly) empty")
+        errors = json.loads(tools.evaluate("JSON.stringify(window.pointillist.errors)"))
+        if errors:
+            fail(f"the page shows errors after the keys: {errors}")
         print("browser checks passed")
     finally:
         try:

@@ -48,12 +48,30 @@ TEST(BrowserProtocol, RefusesMalformedMessages) {
       R"({"type":"camera","id":1,"eye":[1,2,3],"target":[0,0,0],"width":100000})",
       R"({"type":"camera","id":1,"eye":[1,2,3],"target":[0,0,0],"width":8})",
       R"({"type":"camera","id":1,"eye":[1,2,3],"target":[0,0,0],"up":[0,0,0]})",
+      R"({"type":"camera","id":1,"eye":[1,2,3],"target":[0,0,0],"mode":"statistical"})",
+      R"({"type":"camera","id":1,"eye":[1,2,3],"target":[0,0,0],"mode":["splats"]})",
+      R"({"type":"camera","id":1,"eye":[1,2,3],"target":[0,0,0],"lod":0})",
+      R"({"type":"camera","id":1,"eye":[1,2,3],"target":[0,0,0],"lod":65})",
+      R"({"type":"camera","id":1,"eye":[1,2,3],"target":[0,0,0],"lod":"fine"})",
   };
   for (const char* text : bad) {
     EXPECT_THROW(parseBrowserMessage(text), BrowserMessageError) << text;
   }
   EXPECT_THROW(parseBrowserMessage(std::string(kMaxBrowserMessageBytes + 1, ' ')),
                BrowserMessageError);
+}
+
+// The page's keys change this browser's mode and level of detail: they ride
+// on the camera, and the relay sets them on the service when they change.
+TEST(BrowserProtocol, ACameraMayCarryModeAndDetail) {
+  const auto request = parseBrowserMessage(
+      R"({"type":"camera","id":3,"eye":[1,2,3],"target":[0,0,0],"mode":"splats","lod":1.5})");
+  EXPECT_EQ(request.mode, "splats");
+  EXPECT_FLOAT_EQ(request.lodPixels, 1.5f);
+  const auto plain =
+      parseBrowserMessage(R"({"type":"camera","id":4,"eye":[1,2,3],"target":[0,0,0]})");
+  EXPECT_TRUE(plain.mode.empty());
+  EXPECT_EQ(plain.lodPixels, 0.0f);
 }
 
 TEST(BrowserProtocol, EscapesJson) {
@@ -74,6 +92,21 @@ TEST(BrowserProtocol, FrameMetadata) {
   EXPECT_NE(json.find(R"("type":"frame","id":5,"status":"ok","frame_id":12)"), std::string::npos);
   EXPECT_NE(json.find(R"("bytes":40000,"splats":150000)"), std::string::npos);
   EXPECT_NE(json.find(R"("latency_ms":33.25)"), std::string::npos);
+  header.set_mode("splats");
+  header.set_lod_pixels(1.5f);
+  EXPECT_NE(frameJson(header, 5, 1.0, "ok").find(R"("mode":"splats","lod_pixels":1.5})"),
+            std::string::npos);
+}
+
+TEST(BrowserProtocol, InfoListsTheModesABrowserMaySwitchTo) {
+  v1::DatasetInfo info;
+  info.add_modes_available("points");
+  info.add_modes_available("splats");
+  info.set_lod_pixels(1.0f);
+  const std::string json = infoJson(info, v1::FrameFormat{});
+  EXPECT_NE(json.find(R"("lod_pixels":1,"modes_available":["points","splats"]})"),
+            std::string::npos)
+      << json;
 }
 
 }  // namespace
