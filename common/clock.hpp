@@ -13,6 +13,10 @@ inline double secondsBetween(TimePoint from, TimePoint to) {
   return std::chrono::duration<double>(to - from).count();
 }
 
+inline double millisecondsBetween(TimePoint from, TimePoint to) {
+  return std::chrono::duration<double, std::milli>(to - from).count();
+}
+
 inline TimePoint timeAfterEpoch(double seconds) {
   return TimePoint{} +
          std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds));

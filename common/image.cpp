@@ -29,6 +29,50 @@ png_int_32 bottomUpStride(std::uint32_t width, unsigned channels) {
   return -static_cast<png_int_32>(width * channels);
 }
 
+extern "C" void appendPngBytes(png_structp png, png_bytep data, png_size_t length) {
+  auto* out = static_cast<std::vector<std::uint8_t>*>(png_get_io_ptr(png));
+  out->insert(out->end(), data, data + length);
+}
+
+extern "C" void flushNothing(png_structp) {}
+
+extern "C" void keepPngError(png_structp png, png_const_charp message) {
+  *static_cast<std::string*>(png_get_error_ptr(png)) = message;
+  png_longjmp(png, 1);
+}
+
+// One pass of libpng's writer over RGBA rows. libpng reports errors by
+// longjmp: no object with a destructor may live in this frame between setjmp
+// and the end, so the vectors and the message belong to the caller.
+bool writePngRows(std::uint32_t width, std::uint32_t height, bool dropAlpha, PngSpeed speed,
+                  std::vector<png_bytep>& rows, std::vector<std::uint8_t>& out,
+                  std::string& message) {
+  png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, &message, keepPngError, nullptr);
+  if (png == nullptr) {
+    message = "libpng cannot start a writer";
+    return false;
+  }
+  png_infop info = png_create_info_struct(png);
+  if (info == nullptr || setjmp(png_jmpbuf(png)) != 0) {
+    png_destroy_write_struct(&png, &info);
+    if (message.empty()) message = "libpng failed";
+    return false;
+  }
+  png_set_write_fn(png, &out, appendPngBytes, flushNothing);
+  png_set_IHDR(png, info, width, height, 8, dropAlpha ? PNG_COLOR_TYPE_RGB : PNG_COLOR_TYPE_RGBA,
+               PNG_INTERLACE_NONE, PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
+  if (speed == PngSpeed::Fast) {
+    png_set_compression_level(png, 1);
+    png_set_filter(png, PNG_FILTER_TYPE_BASE, PNG_FILTER_SUB);
+  }
+  png_write_info(png, info);
+  if (dropAlpha) png_set_filler(png, 0, PNG_FILLER_AFTER);  // RGBA rows in, RGB out
+  png_write_image(png, rows.data());
+  png_write_end(png, nullptr);
+  png_destroy_write_struct(&png, &info);
+  return true;
+}
+
 }  // namespace
 
 Image::Image(std::uint32_t width, std::uint32_t height, Rgba8 fill)
@@ -58,38 +102,19 @@ void Image::fill(Rgba8 value) {
   for (std::size_t i = 0; i < pixels_.size(); i += 4) std::memcpy(&pixels_[i], value.data(), 4);
 }
 
-std::vector<std::uint8_t> encodePng(const Image& image, bool dropAlpha) {
+std::vector<std::uint8_t> encodePng(const Image& image, bool dropAlpha, PngSpeed speed) {
   if (image.empty()) throw UsageError("encodePng: empty image");
-  std::vector<std::uint8_t> rgb;
-  const void* source = image.bytes().data();
-  const unsigned channels = dropAlpha ? 3u : 4u;
-  if (dropAlpha) {
-    rgb.resize(static_cast<std::size_t>(image.width()) * image.height() * 3);
-    const auto bytes = image.bytes();
-    for (std::size_t i = 0, j = 0; i < bytes.size(); i += 4, j += 3) {
-      std::memcpy(&rgb[j], &bytes[i], 3);
-    }
-    source = rgb.data();
+  std::vector<png_bytep> rows(image.height());
+  // PNG rows run top-down; the image's run bottom-up.
+  for (std::uint32_t y = 0; y < image.height(); ++y) {
+    rows[image.height() - 1 - y] = const_cast<png_bytep>(image.pixel(0, y));
   }
-  png_image png{};
-  png.version = PNG_IMAGE_VERSION;
-  png.width = image.width();
-  png.height = image.height();
-  png.format = dropAlpha ? PNG_FORMAT_RGB : PNG_FORMAT_RGBA;
-  const png_int_32 stride = bottomUpStride(image.width(), channels);
-  png_alloc_size_t size = 0;
-  if (!png_image_write_to_memory(&png, nullptr, &size, 0, source, stride, nullptr)) {
-    const std::string message = png.message;
-    png_image_free(&png);
+  std::vector<std::uint8_t> out;
+  out.reserve(image.byteSize() / 4);
+  std::string message;
+  if (!writePngRows(image.width(), image.height(), dropAlpha, speed, rows, out, message)) {
     throw Error("encodePng: " + message);
   }
-  std::vector<std::uint8_t> out(size);
-  if (!png_image_write_to_memory(&png, out.data(), &size, 0, source, stride, nullptr)) {
-    const std::string message = png.message;
-    png_image_free(&png);
-    throw Error("encodePng: " + message);
-  }
-  out.resize(size);
   return out;
 }
 

@@ -18,6 +18,7 @@
 #include <thread>
 
 #include "common/camera_path.hpp"
+#include "common/clock.hpp"
 #include "common/tool_entry.hpp"
 #include "service/core/frame_encoding.hpp"
 #include "service/core/latency_window.hpp"
@@ -56,10 +57,6 @@ struct ClientOptions {
   std::string curveKey;        // file with this client's secret key
   std::string keygenPrefix;
 };
-
-double millisecondsBetween(SteadyClock::time_point from, SteadyClock::time_point to) {
-  return std::chrono::duration<double, std::milli>(to - from).count();
-}
 
 v1::FrameFormat requestedFormat(const ClientOptions& options) {
   v1::FrameFormat format;

@@ -1,9 +1,6 @@
 #include "service/core/frame_encoding.hpp"
 
-#include <png.h>
 #include <turbojpeg.h>
-
-#include <csetjmp>
 
 #include <cstring>
 #include <memory>
@@ -32,51 +29,6 @@ std::vector<std::uint8_t> rawTopDown(const Image& frame) {
     std::memcpy(out.data() + static_cast<std::size_t>(frame.height() - 1 - y) * row,
                 frame.pixel(0, y), row);
   }
-  return out;
-}
-
-extern "C" void appendPngBytes(png_structp png, png_bytep data, png_size_t length) {
-  auto* out = static_cast<std::vector<std::uint8_t>*>(png_get_io_ptr(png));
-  out->insert(out->end(), data, data + length);
-}
-
-extern "C" void flushNothing(png_structp) {}
-
-// libpng reports errors by longjmp: no object with a destructor may live in
-// this frame between setjmp and the end, so the vectors belong to the caller.
-// Returns false when libpng failed.
-bool writeFastPng(const Image& frame, std::vector<png_bytep>* rows,
-                  std::vector<std::uint8_t>* out) {
-  png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, nullptr, nullptr, nullptr);
-  if (png == nullptr) return false;
-  png_infop info = png_create_info_struct(png);
-  if (info == nullptr || setjmp(png_jmpbuf(png)) != 0) {
-    png_destroy_write_struct(&png, &info);
-    return false;
-  }
-  png_set_write_fn(png, out, appendPngBytes, flushNothing);
-  png_set_IHDR(png, info, frame.width(), frame.height(), 8, PNG_COLOR_TYPE_RGB, PNG_INTERLACE_NONE,
-               PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
-  // Speed over size: the display encodes every frame of every client.
-  png_set_compression_level(png, kPngCompressionLevel);
-  png_set_filter(png, PNG_FILTER_TYPE_BASE, PNG_FILTER_SUB);
-  png_write_info(png, info);
-  png_set_filler(png, 0, PNG_FILLER_AFTER);  // RGBA rows in, RGB out
-  png_write_image(png, rows->data());
-  png_write_end(png, nullptr);
-  png_destroy_write_struct(&png, &info);
-  return true;
-}
-
-std::vector<std::uint8_t> encodePngFast(const Image& frame) {
-  std::vector<png_bytep> rows(frame.height());
-  // PNG rows run top-down; the frame's run bottom-up.
-  for (std::uint32_t y = 0; y < frame.height(); ++y) {
-    rows[frame.height() - 1 - y] = const_cast<png_bytep>(frame.pixel(0, y));
-  }
-  std::vector<std::uint8_t> out;
-  out.reserve(frame.byteSize() / 4);
-  if (!writeFastPng(frame, &rows, &out)) throw Error("PNG encoding failed (libpng)");
   return out;
 }
 
@@ -129,7 +81,7 @@ std::vector<std::uint8_t> encodeFrame(const Image& frame, v1::Encoding encoding,
       return rawTopDown(frame);
     case v1::ENCODING_PNG:
       if (frame.empty()) throw UsageError("no pixels to encode");
-      return encodePngFast(frame);
+      return encodePng(frame, true, PngSpeed::Fast);
     case v1::ENCODING_JPEG:
       if (jpegQuality < 1 || jpegQuality > 100) {
         throw UsageError("JPEG quality " + std::to_string(jpegQuality) + " not in [1, 100]");

@@ -12,10 +12,6 @@
 namespace pointillist::service {
 
 inline constexpr std::uint32_t kDefaultJpegQuality = 90;
-// zlib level for PNG frames: with the Sub filter, 1 encodes a 1280x720 city
-// frame about nine times as fast as libpng's defaults for 4 % more bytes
-// (README, deploy/bench-service.sh).
-inline constexpr int kPngCompressionLevel = 1;
 
 // Throws Error naming the encoding when the encoder fails, UsageError for
 // ENCODING_UNSPECIFIED or a quality outside 1-100.

@@ -8,6 +8,8 @@
 #include <cstring>
 #include <map>
 
+#include "common/clock.hpp"
+
 namespace pointillist::service::web {
 namespace {
 
@@ -96,8 +98,7 @@ class Relay {
     if (found == outstanding_.end()) return;  // not ours (an expired request)
     const Outstanding request = found->second;
     outstanding_.erase(found);
-    const double latencyMs =
-        std::chrono::duration<double, std::milli>(frame.received - request.sent).count();
+    const double latencyMs = millisecondsBetween(request.sent, frame.received);
     const v1::FrameStatus status = frame.header.status();
     const bool hasPixels =
         (status == v1::FRAME_STATUS_OK || status == v1::FRAME_STATUS_INCOMPLETE) &&

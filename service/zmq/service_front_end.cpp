@@ -4,6 +4,7 @@
 #include <random>
 #include <regex>
 
+#include "common/clock.hpp"
 #include "common/errors.hpp"
 #include "common/run_settings.hpp"
 #include "common/view_options.hpp"
@@ -14,10 +15,6 @@ namespace pointillist::service {
 namespace {
 
 using SteadyClock = std::chrono::steady_clock;
-
-double millisecondsBetween(SteadyClock::time_point from, SteadyClock::time_point to) {
-  return std::chrono::duration<double, std::milli>(to - from).count();
-}
 
 std::string randomClientId() {
   static thread_local std::mt19937_64 generator{std::random_device{}()};

@@ -56,6 +56,14 @@ TEST(Image, PngWithoutAlphaReadsOpaque) {
   }
 }
 
+// The service's fast setting trades bytes for time, never pixels.
+TEST(Image, FastPngKeepsEveryPixel) {
+  const Image image = gradient(64, 48);
+  EXPECT_EQ(decodePng(encodePng(image, false, PngSpeed::Fast)), image);
+  const Image opaque = decodePng(encodePng(image, true, PngSpeed::Fast));
+  EXPECT_EQ(opaque, decodePng(encodePng(image, true, PngSpeed::Small)));
+}
+
 TEST(Image, PngIsWrittenTopDown) {
   // Bottom row red, top row blue in our bottom-up storage.
   Image image(2, 2, {0, 0, 255, 255});
