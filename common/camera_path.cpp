@@ -35,7 +35,7 @@ CameraKey orbitKey(const SceneBounds& bounds, const glm::vec3& up, float azimuth
 }  // namespace
 
 std::vector<std::string> builtinCameraPaths() {
-  return {"orbit", "flythrough", "closeup"};
+  return {"orbit", "flythrough", "closeup", "turns"};
 }
 
 bool isBuiltinCameraPath(const std::string& name) {
@@ -73,9 +73,17 @@ std::vector<CameraKey> builtinCameraPath(const std::string& name, const SceneBou
           orbitKey(bounds, up, 60.0f + 90.0f * ease, elevation, distance, centre + slide));
     } else if (name == "closeup") {
       keys.push_back(orbitKey(bounds, up, 10.0f + 40.0f * t, 20.0f, 0.45f, centre));
+    } else if (name == "turns") {
+      // A person swinging the view: two swings of 40 degrees either way with
+      // a nod and a little zoom, so consecutive frames differ by up to ten
+      // degrees at 48 frames (the render cache's hard case).
+      const float swing = std::sin(2.0f * kPi * 2.0f * t);
+      const float nod = std::sin(2.0f * kPi * t);
+      keys.push_back(orbitKey(bounds, up, 30.0f + 40.0f * swing, 25.0f + 10.0f * nod,
+                              0.75f + 0.1f * std::cos(2.0f * kPi * t), centre));
     } else {
       throw UsageError("unknown camera path '" + name +
-                       "' (built-in paths: orbit, flythrough, closeup)");
+                       "' (built-in paths: orbit, flythrough, closeup, turns)");
     }
   }
   return keys;
@@ -148,7 +156,7 @@ std::vector<CameraKey> loadCameraPath(const std::string& nameOrFile, const Scene
   if (isBuiltinCameraPath(nameOrFile)) return builtinCameraPath(nameOrFile, bounds, frames, up);
   if (!std::filesystem::exists(nameOrFile)) {
     throw UsageError("camera path '" + nameOrFile +
-                     "' is neither a file nor a built-in path (orbit, flythrough, closeup)");
+                     "' is neither a file nor a built-in path (orbit, flythrough, closeup, turns)");
   }
   return readCameraPath(nameOrFile, up);
 }

@@ -6,7 +6,7 @@ namespace pointillist {
 
 void addViewOptions(CLI::App& app, ViewOptions& options) {
   app.add_option("--camera-path", options.cameraPath,
-                 "Camera path file, or built-in: orbit, flythrough, closeup");
+                 "Camera path file, or built-in: orbit, flythrough, closeup, turns");
   app.add_option("--frames", options.frames, "Frames for a built-in camera path");
   app.add_option("--size", options.size, "Frame size WxH");
   app.add_option("--mode", options.mode,

@@ -36,7 +36,7 @@ client=("$POINTILLIST_BIN/pointillist-client" --connect "$endpoint" --timeout 60
 quiet_client() { "${client[@]}" "$@" 2>>"$out/clients.err" || { cat "$out/clients.err" >&2; return 1; }; }
 : >"$out/clients.err"
 setsid bash "$POINTILLIST_ROOT/deploy/run.sh" --layout "$layout" --dataset "$dataset" --serve \
-  --listen "$endpoint" --size 1280x720 --stream-hwm 64 --quiet >"$out/job.log" 2>&1 &
+  --listen "$endpoint" --size 1280x720 --stream-hwm 64 --interim-ms -1 --quiet >"$out/job.log" 2>&1 &
 job=$!
 trap 'kill -KILL -- -$job 2>/dev/null || true; rm -rf "$work"' EXIT
 for _ in $(seq 1 600); do
@@ -50,8 +50,9 @@ quiet_client --encoding raw orbit --frames "$frames" >/dev/null
 printf '\n%-6s %12s %12s %12s %14s\n' encoding "median ms" "p95 ms" "frames/s" "KiB per frame"
 for encoding in raw png jpeg; do
   quiet_client --encoding "$encoding" orbit --frames "$frames" >"$out/orbit-$encoding.log"
-  median=$(grep -Eo 'median [0-9.]+' "$out/orbit-$encoding.log" | grep -Eo '[0-9.]+$')
-  p95=$(grep -Eo 'p95 [0-9.]+' "$out/orbit-$encoding.log" | grep -Eo '[0-9.]+$')
+  summary=$(grep -E '^latency request to final frame' "$out/orbit-$encoding.log")
+  median=$(grep -Eo 'median [0-9.]+' <<<"$summary" | grep -Eo '[0-9.]+$')
+  p95=$(grep -Eo 'p95 [0-9.]+' <<<"$summary" | grep -Eo '[0-9.]+$')
   rate=$(grep -Eo '[0-9.]+ frames/s' "$out/orbit-$encoding.log" | grep -Eo '^[0-9.]+')
   kib=$(grep -Eo '[0-9.]+ KiB' "$out/orbit-$encoding.log" | grep -Eo '^[0-9.]+' |
     awk '{s += $1; n++} END {printf "%.0f", n ? s / n : 0}')

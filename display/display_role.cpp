@@ -3,9 +3,13 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
+#include <limits>
 #include <map>
 #include <memory>
+#include <optional>
+#include <set>
 #include <thread>
 
 #include "common/camera_path.hpp"
@@ -55,7 +59,15 @@ struct DisplayOptions {
   std::uint32_t jpegQuality = 90;
   std::string curveSecretKey;
   std::string curveAuthorizedKeys;
+  // Serve mode's render cache (seed 001); unset: on in serve mode.
+  std::optional<double> interimMs;
+  std::size_t cachePoints = 0;
+  std::uint32_t cacheMaxAge = RenderCacheOptions{}.maxAge;
+  float depthCull = RenderCacheOptions{}.depthCullFraction;
 };
+
+// With --serve and no --interim-ms: an interim frame at once.
+constexpr double kServeInterimMs = 0.0;
 
 TilePlanOptions tilePlanOptions(const DisplayOptions& options, std::uint32_t renders) {
   TilePlanOptions plan;
@@ -187,7 +199,12 @@ class DisplayProcess {
                    "authentication (--curve-secret-key, --curve-authorized-keys)\n",
                    options_.listen.c_str());
     }
-    service_ = std::make_unique<ServiceFrameSource>(serviceOptions(), servedDataset());
+    RenderCacheServing cache;
+    cache.interimMs = options_.interimMs.value_or(kServeInterimMs);
+    cache.cache.capacity = options_.cachePoints;
+    cache.cache.maxAge = options_.cacheMaxAge;
+    cache.cache.depthCullFraction = options_.depthCull;
+    service_ = std::make_unique<ServiceFrameSource>(serviceOptions(), servedDataset(), cache);
     source_ = service_.get();
     std::printf("display: service listening on %s (frames on %s%s)\n",
                 service_->frontEnd().controlEndpoint().c_str(),
@@ -219,9 +236,11 @@ class DisplayProcess {
         for (const FrameRequest& frame : source_->take(room)) {
           const Camera& camera = frame.camera;
           frameSizes_[framesAppended_++] = {camera.image_width(), camera.image_height()};
-          assembly.appendCamera(camera, frame.settings);
+          assembly.appendCamera(camera, frame.settings, frame.tilePriority);
+          if (frame.settings.tile_depth()) depthFrames_.insert(framesAppended_ - 1);
           worked = true;
         }
+        source_->poll();
       }
       while (true) {
         meter.switchTo("receive");
@@ -260,6 +279,7 @@ class DisplayProcess {
     stats.totalSeconds = since(start, Clock::now());
     stats_ = std::move(stats);
     if (service_) {
+      std::printf("%s", service_->renderCacheSummary().c_str());
       std::printf("display: service stopped (%s)\n", service_->stopReason().c_str());
       service_->close();
     }
@@ -301,8 +321,14 @@ class DisplayProcess {
       case MessageKind::TileImage: {
         const auto header = envelope.as<v1::TileImageHeader>();
         const v1::TileRect& rect = header.rect();
-        const std::uint64_t expectedBytes =
+        const std::uint64_t pixelBytes =
             static_cast<std::uint64_t>(rect.width()) * rect.height() * 4;
+        const bool withDepth = header.depth() == v1::DEPTH_FORMAT_EYE_FLOAT32;
+        if (header.depth() != v1::DEPTH_FORMAT_NONE && !withDepth) {
+          throw ProtocolError("tile image from rank " + std::to_string(envelope.source) +
+                              " has an unknown depth format " + std::to_string(header.depth()));
+        }
+        const std::uint64_t expectedBytes = pixelBytes * (withDepth ? 2 : 1);
         if (header.format() != v1::PIXEL_FORMAT_RGBA8 || envelope.payload.size() != expectedBytes) {
           throw ProtocolError("tile image from rank " + std::to_string(envelope.source) + " has " +
                               std::to_string(envelope.payload.size()) + " bytes, expected " +
@@ -313,10 +339,12 @@ class DisplayProcess {
         if (image == images_.end()) {
           image = images_.emplace(header.frame_id(), blankImage(header.frame_id())).first;
         }
-        blit(std::span<const std::uint8_t>(
-                 reinterpret_cast<const std::uint8_t*>(envelope.payload.data()),
-                 envelope.payload.size()),
-             rect.width(), rect.height(), image->second, rect.x(), rect.y());
+        const auto* bytes = reinterpret_cast<const std::uint8_t*>(envelope.payload.data());
+        blit(std::span<const std::uint8_t>(bytes, pixelBytes), rect.width(), rect.height(),
+             image->second, rect.x(), rect.y());
+        if (withDepth && depthFrames_.contains(header.frame_id())) {
+          composeDepth(header.frame_id(), image->second, rect, bytes + pixelBytes);
+        }
         break;
       }
       case MessageKind::ErrorReport: {
@@ -373,9 +401,39 @@ class DisplayProcess {
     }
     if (source_ != nullptr) {
       frameSizes_.erase(record.frame);
-      source_->frameDone(frame, std::move(image));
+      std::vector<float> depth;
+      if (depthFrames_.erase(record.frame) > 0) {
+        const auto composed = depths_.find(record.frame);
+        // No tile at all (nothing in view): background everywhere.
+        depth = composed != depths_.end()
+                    ? std::move(composed->second)
+                    : std::vector<float>(static_cast<std::size_t>(image.width()) * image.height(),
+                                         std::numeric_limits<float>::infinity());
+        if (composed != depths_.end()) depths_.erase(composed);
+      }
+      source_->frameDone(frame, std::move(image), std::move(depth));
     } else if (spareImages_.size() <= options_.framesInFlight) {
       spareImages_.push_back(std::move(image));
+    }
+  }
+
+  // A tile's eye-space depth into its frame's depth image (+infinity where
+  // no tile drew), rows bottom-up as the pixels.
+  void composeDepth(std::uint64_t frame, const Image& image, const v1::TileRect& rect,
+                    const std::uint8_t* depthBytes) {
+    auto found = depths_.find(frame);
+    if (found == depths_.end()) {
+      found = depths_
+                  .emplace(frame, std::vector<float>(
+                                      static_cast<std::size_t>(image.width()) * image.height(),
+                                      std::numeric_limits<float>::infinity()))
+                  .first;
+    }
+    const std::size_t rowBytes = static_cast<std::size_t>(rect.width()) * sizeof(float);
+    for (std::uint32_t row = 0; row < rect.height(); ++row) {
+      std::memcpy(found->second.data() + static_cast<std::size_t>(rect.y() + row) * image.width() +
+                      rect.x(),
+                  depthBytes + row * rowBytes, rowBytes);
     }
   }
 
@@ -408,6 +466,10 @@ class DisplayProcess {
   // Served frames' sizes until they are emitted, by frame number.
   std::map<std::uint64_t, std::pair<std::uint32_t, std::uint32_t>> frameSizes_;
   std::uint64_t framesAppended_ = 0;
+  // Served frames whose tiles carry depth (the render cache), and their
+  // depth images so far.
+  std::set<std::uint64_t> depthFrames_;
+  std::map<std::uint64_t, std::vector<float>> depths_;
 };
 
 void stayIdle(double seconds) {
@@ -472,6 +534,21 @@ int runDisplayMain(int argc, char** argv) {
                  "Serve mode: CURVE: the server's secret key file (pointillist-client keygen)");
   app.add_option("--curve-authorized-keys", options.curveAuthorizedKeys,
                  "Serve mode: CURVE: file of client public keys admitted, one per line");
+  app.add_option("--interim-ms", options.interimMs,
+                 "Serve mode: render cache (seed 001): a client's new camera gets an interim "
+                 "frame reprojected from its earlier frames when the final one is not composed "
+                 "this many ms after it started (default 0: at once); negative: no render cache");
+  app.add_option("--cache-points", options.cachePoints,
+                 "Serve mode: points each client's render cache holds (default: twice the "
+                 "frame's pixels)");
+  app.add_option("--cache-max-age", options.cacheMaxAge,
+                 "Serve mode: final frames a cached point survives unseen")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 250));
+  app.add_option("--depth-cull", options.depthCull,
+                 "Serve mode: render cache depth cull threshold, relative to the filtered depth")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
   return runRoleMain(argc, argv, v1::ROLE_DISPLAY, app, [&](Job& job) {
     const auto start = Clock::now();
     std::unique_ptr<DisplayProcess> process;

@@ -14,6 +14,8 @@ namespace pointillist::display {
 struct FrameRequest {
   Camera camera;
   v1::FrameSettings settings;
+  // Which tiles to draw first (serve mode's render cache); none: plan order.
+  TilePriority tilePriority;
 };
 
 class FrameSource {
@@ -24,8 +26,11 @@ class FrameSource {
   // True once no frame will be asked for any more; the run ends when the
   // frames already out are done.
   virtual bool finished() = 0;
-  // A composed frame, in the order take() gave the cameras.
-  virtual void frameDone(const FinishedFrame& frame, Image image) = 0;
+  // A composed frame, in the order take() gave the cameras, with its
+  // eye-space depth when its settings asked for tile depth (else empty).
+  virtual void frameDone(const FinishedFrame& frame, Image image, std::vector<float> depth) = 0;
+  // Every turn of the display's loop: what is due by time (interim frames).
+  virtual void poll() {}
 };
 
 }  // namespace pointillist::display

@@ -1,6 +1,11 @@
 #include "display/service_frame_source.hpp"
 
+#include <algorithm>
 #include <csignal>
+#include <cstdio>
+
+#include "common/clock.hpp"
+#include "common/run_settings.hpp"
 
 namespace pointillist::display {
 namespace {
@@ -14,9 +19,11 @@ extern "C" void onStopSignal(int signal) {
 }  // namespace
 
 ServiceFrameSource::ServiceFrameSource(service::ServiceOptions options,
-                                       service::ServedDataset dataset)
-    : frontEnd_(
-          std::make_unique<service::ServiceFrontEnd>(std::move(options), std::move(dataset))) {
+                                       service::ServedDataset dataset,
+                                       RenderCacheServing renderCache)
+    : run_(dataset.run), renderCache_(renderCache) {
+  dataset.info.set_interim_ms(renderCache_.interimMs);
+  frontEnd_ = std::make_unique<service::ServiceFrontEnd>(std::move(options), std::move(dataset));
   // A clean stop: the frames out are finished and every process is shut down.
   struct sigaction action {};
   action.sa_handler = onStopSignal;
@@ -29,15 +36,76 @@ ServiceFrameSource::~ServiceFrameSource() {
   close();
 }
 
+ServiceFrameSource::ClientCache* ServiceFrameSource::cacheFor(const std::string& clientId,
+                                                              v1::RenderMode mode) {
+  auto found = caches_.find(clientId);
+  if (found == caches_.end()) {
+    if (caches_.size() >= std::max<std::size_t>(1, renderCache_.maxClients)) {
+      const auto eldest = std::min_element(caches_.begin(), caches_.end(), [](auto& a, auto& b) {
+        return a.second.used < b.second.used;
+      });
+      caches_.erase(eldest);
+    }
+    found = caches_.emplace(clientId, ClientCache{RenderCache(renderCache_.cache), mode, {}}).first;
+  }
+  ClientCache& entry = found->second;
+  // Another mode draws other pixels: what was cached would be wrong.
+  if (entry.mode != mode) {
+    entry.cache.clear();
+    entry.mode = mode;
+  }
+  entry.used = std::chrono::steady_clock::now();
+  return &entry;
+}
+
 std::vector<FrameRequest> ServiceFrameSource::take(std::size_t room) {
   std::vector<FrameRequest> frames;
   while (frames.size() < room) {
     auto order = frontEnd_->nextFrame();
     if (!order) break;
-    frames.push_back({order->camera, order->settings});
-    orders_.push_back(std::move(*order));
+    FrameRequest request{order->camera, order->settings, {}};
+    Started started{std::move(*order), nextFrame_++, nullptr, {}, false};
+    const v1::RenderMode mode = frameRunSettings(run_, request.settings).mode();
+    // Render requests (a person moving the view), in a mode with one visible
+    // surface per pixel; path frames are a film, shown exactly as drawn.
+    if (renderCache_.interimMs >= 0.0 && started.order.request.single &&
+        mode != v1::RENDER_MODE_BLENDED) {
+      request.settings.set_tile_depth(true);
+      ClientCache* client = cacheFor(started.order.request.clientId, mode);
+      if (!client->cache.empty()) {
+        auto interim =
+            std::make_shared<const InterimFrame>(client->cache.reproject(request.camera));
+        ++interimsMade_;
+        reprojectSeconds_ += interim->seconds;
+        filledSum_ += interim->filledShare();
+        request.tilePriority = [interim](const TileRect& rect) {
+          return meanPriority(*interim, rect);
+        };
+        started.interim = std::move(interim);
+        started.due = std::chrono::steady_clock::now() +
+                      std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                          std::chrono::duration<double, std::milli>(renderCache_.interimMs));
+      }
+    }
+    frames.push_back(std::move(request));
+    started_.push_back(std::move(started));
   }
+  poll();  // a deadline of 0 sends at once
   return frames;
+}
+
+void ServiceFrameSource::poll() {
+  const auto now = std::chrono::steady_clock::now();
+  for (Started& started : started_) {
+    if (!started.interim || started.interimSent || now < started.due) continue;
+    started.interimSent = true;
+    ++interimsSent_;
+    service::InterimOutcome outcome;
+    outcome.frameId = started.frame;
+    outcome.filledShare = started.interim->filledShare();
+    outcome.reprojectMs = started.interim->seconds * 1000.0;
+    frontEnd_->interimFrame(started.order, outcome, started.interim->image);
+  }
 }
 
 bool ServiceFrameSource::finished() {
@@ -47,13 +115,26 @@ bool ServiceFrameSource::finished() {
   return frontEnd_->shutdownRequested();
 }
 
-void ServiceFrameSource::frameDone(const FinishedFrame& frame, Image image) {
-  if (orders_.empty()) {
+void ServiceFrameSource::frameDone(const FinishedFrame& frame, Image image,
+                                   std::vector<float> depth) {
+  if (started_.empty()) {
     throw ProtocolError("display: frame " + std::to_string(frame.record.frame) +
                         " finished, but no client asked for it");
   }
-  service::FrameOrder order = std::move(orders_.front());
-  orders_.pop_front();
+  Started started = std::move(started_.front());
+  started_.pop_front();
+  service::FrameOrder& order = started.order;
+  // A frame with tiles missing would teach the cache holes.
+  if (!depth.empty() && frame.failedTiles.empty()) {
+    const auto found = caches_.find(order.request.clientId);
+    if (found != caches_.end() &&
+        found->second.mode == frameRunSettings(run_, order.settings).mode()) {
+      const auto start = std::chrono::steady_clock::now();
+      found->second.cache.insert(order.camera, image, depth);
+      insertSeconds_ += secondsBetween(start, std::chrono::steady_clock::now());
+      ++framesCached_;
+    }
+  }
   service::FrameOutcome outcome;
   outcome.frameId = frame.record.frame;
   outcome.splats = frame.record.splats;
@@ -61,6 +142,23 @@ void ServiceFrameSource::frameDone(const FinishedFrame& frame, Image image) {
   outcome.bytesOrdered = frame.record.bytesOrdered;
   outcome.incomplete = !frame.failedTiles.empty();
   frontEnd_->frameDone(std::move(order), outcome, std::move(image));
+}
+
+std::string ServiceFrameSource::renderCacheSummary() const {
+  if (renderCache_.interimMs < 0.0) return "";
+  const auto made = static_cast<double>(interimsMade_);
+  const auto cached = static_cast<double>(framesCached_);
+  char line[256];
+  std::snprintf(line, sizeof line,
+                "render cache: %llu interim frames made (%.2f ms each, %.1f %% filled), %llu "
+                "sent; %llu final frames cached (%.2f ms each)\n",
+                static_cast<unsigned long long>(interimsMade_),
+                interimsMade_ > 0 ? reprojectSeconds_ * 1000.0 / made : 0.0,
+                interimsMade_ > 0 ? filledSum_ * 100.0 / made : 0.0,
+                static_cast<unsigned long long>(interimsSent_),
+                static_cast<unsigned long long>(framesCached_),
+                framesCached_ > 0 ? insertSeconds_ * 1000.0 / cached : 0.0);
+  return line;
 }
 
 std::string ServiceFrameSource::stopReason() const {

@@ -2,32 +2,72 @@
 // Serve mode's frame source: frames clients ask for over ZeroMQ, composed
 // frames handed back to the service for encoding and sending. SIGINT and
 // SIGTERM end it like a shutdown request.
+//
+// With the render cache on (interimMs >= 0), each client that sends single
+// cameras (render requests: a person moving the view) has a RenderCache fed
+// with its final frames and their depth. A new camera is reprojected from it
+// at once: the interim frame goes to the client when the final one is not
+// composed interimMs after the frame started, and its priority image orders
+// the frame's tiles (the regions the cache could not fill are drawn first).
+#include <chrono>
 #include <deque>
+#include <map>
 #include <memory>
 #include <string>
 
+#include "display/core/render_cache.hpp"
 #include "display/frame_source.hpp"
 #include "service/zmq/service_front_end.hpp"
 
 namespace pointillist::display {
 
+struct RenderCacheServing {
+  double interimMs = -1.0;  // negative: no render cache
+  RenderCacheOptions cache;
+  std::size_t maxClients = 8;  // caches kept; the least recently used goes
+};
+
 class ServiceFrameSource final : public FrameSource {
  public:
-  ServiceFrameSource(service::ServiceOptions options, service::ServedDataset dataset);
+  ServiceFrameSource(service::ServiceOptions options, service::ServedDataset dataset,
+                     RenderCacheServing renderCache = {});
   ~ServiceFrameSource() override;
 
   std::vector<FrameRequest> take(std::size_t room) override;
   bool finished() override;
-  void frameDone(const FinishedFrame& frame, Image image) override;
+  void frameDone(const FinishedFrame& frame, Image image, std::vector<float> depth) override;
+  void poll() override;
 
   const service::ServiceFrontEnd& frontEnd() const { return *frontEnd_; }
   std::string stopReason() const;
   // Sends what is encoded and closes the sockets.
   void close();
+  // Render cache figures over the run, for the display's summary.
+  std::string renderCacheSummary() const;
 
  private:
+  struct ClientCache {
+    RenderCache cache;
+    v1::RenderMode mode = v1::RENDER_MODE_UNSPECIFIED;  // the frames it holds
+    std::chrono::steady_clock::time_point used;
+  };
+  struct Started {
+    service::FrameOrder order;
+    std::uint64_t frame = 0;
+    std::shared_ptr<const InterimFrame> interim;  // none: no cache for it
+    std::chrono::steady_clock::time_point due;
+    bool interimSent = false;
+  };
+  ClientCache* cacheFor(const std::string& clientId, v1::RenderMode mode);
+
   std::unique_ptr<service::ServiceFrontEnd> frontEnd_;
-  std::deque<service::FrameOrder> orders_;  // started frames, oldest first
+  v1::RunSettings run_;
+  RenderCacheServing renderCache_;
+  std::map<std::string, ClientCache> caches_;
+  std::deque<Started> started_;  // oldest first
+  std::uint64_t nextFrame_ = 0;
+  std::uint64_t interimsMade_ = 0, interimsSent_ = 0, framesCached_ = 0;
+  double reprojectSeconds_ = 0.0, insertSeconds_ = 0.0, filledSum_ = 0.0;
 };
 
 }  // namespace pointillist::display

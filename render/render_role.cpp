@@ -156,14 +156,23 @@ class RenderProcess final : public WorkerProcess {
     settings.mode =
         splatModeFromProto(mode == v1::RENDER_MODE_UNSPECIFIED ? v1::RENDER_MODE_POINTS : mode);
     useRendererFor(mode, settings);
+    // The display's render cache asks for depth; blended tiles have no single
+    // visible surface, so they come without and the cache skips that frame.
+    settings.keepDepth = packet.has_frame_settings() && packet.frame_settings().tile_depth() &&
+                         settings.mode != SplatMode::Blended;
     const RenderStats stats = renderer_->render(packet.camera(), packet.rect(), ranges, settings);
     RenderEffects effects;
-    const v1::TileImageHeader header =
+    v1::TileImageHeader header =
         core_.packetDrawn(ready, stats.splats, stats.seconds, Clock::now(), effects);
     const auto pixels = renderer_->pixels();
-    auto payload = std::make_shared<const std::vector<std::byte>>(
-        reinterpret_cast<const std::byte*>(pixels.data()),
-        reinterpret_cast<const std::byte*>(pixels.data()) + pixels.size());
+    const auto depths = settings.keepDepth ? renderer_->depths() : std::span<const float>();
+    if (settings.keepDepth) header.set_depth(v1::DEPTH_FORMAT_EYE_FLOAT32);
+    auto payload = std::make_shared<std::vector<std::byte>>();
+    payload->reserve(pixels.size() + depths.size_bytes());
+    payload->insert(payload->end(), reinterpret_cast<const std::byte*>(pixels.data()),
+                    reinterpret_cast<const std::byte*>(pixels.data()) + pixels.size());
+    payload->insert(payload->end(), reinterpret_cast<const std::byte*>(depths.data()),
+                    reinterpret_cast<const std::byte*>(depths.data()) + depths.size_bytes());
     const std::span<const std::byte> bytes(*payload);
     job_.sends().post(job_.displayRank(), MessageKind::TileImage, header, bytes,
                       std::move(payload));

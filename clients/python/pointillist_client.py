@@ -174,7 +174,9 @@ class PointillistClient:
         request_id = self.request_frame(camera, encoding, width, height)
         while True:
             header, pixels = self.receive_frame(timeout)
-            if header.request_id == request_id:
+            # Interim frames (the display's render cache) come first; the
+            # final one is the answer.
+            if header.request_id == request_id and not header.interim:
                 if header.status != pb.FRAME_STATUS_OK:
                     raise RuntimeError(f"frame {pb.FrameStatus.Name(header.status)}")
                 return header, pixels

@@ -1,6 +1,7 @@
 #include "display/core/frame_assembly.hpp"
 
 #include <algorithm>
+#include <numeric>
 
 #include "display/core/tiling.hpp"
 
@@ -33,13 +34,25 @@ void FrameAssembly::admitFrames() {
             boxOfInterest(camera, config_.bounds.min, config_.bounds.max, config_.marginWorld)) {
       tiles = planner_.plan(*area);
     }
+    std::vector<std::uint32_t> order;
+    if (const auto priority = tilePriority_.find(index); priority != tilePriority_.end()) {
+      std::vector<double> value(tiles.size());
+      for (std::size_t i = 0; i < tiles.size(); ++i) value[i] = priority->second(tiles[i]);
+      order.resize(tiles.size());
+      std::iota(order.begin(), order.end(), 0u);
+      std::stable_sort(order.begin(), order.end(),
+                       [&](std::uint32_t a, std::uint32_t b) { return value[a] > value[b]; });
+      tilePriority_.erase(priority);
+    }
     feedback_[index].assign(tiles.size(), TileFeedback{});
-    frames_.addFrame(index, camera, std::move(tiles));
+    frames_.addFrame(index, camera, std::move(tiles), std::move(order));
   }
 }
 
-void FrameAssembly::appendCamera(const Camera& camera, const v1::FrameSettings& settings) {
+void FrameAssembly::appendCamera(const Camera& camera, const v1::FrameSettings& settings,
+                                 TilePriority priority) {
   if (settings.ByteSizeLong() > 0) frameSettings_[config_.cameras.size()] = settings;
+  if (priority) tilePriority_[config_.cameras.size()] = std::move(priority);
   config_.cameras.push_back(camera);
   admitFrames();
 }

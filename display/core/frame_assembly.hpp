@@ -10,6 +10,7 @@
 #include <chrono>
 #include <cstdint>
 #include <deque>
+#include <functional>
 #include <map>
 #include <optional>
 #include <vector>
@@ -38,6 +39,9 @@ struct FrameAssemblyConfig {
   std::uint32_t prefetchFrames = 0;
 };
 
+// How much a tile matters to draw early; higher first.
+using TilePriority = std::function<double(const TileRect&)>;
+
 struct FinishedFrame {
   FrameRecord record;                 // also appended to stats().frames
   std::vector<TileRect> failedTiles;  // never came back: the caller marks them
@@ -52,7 +56,10 @@ class FrameAssembly {
   // as clients ask); it enters the window at once when there is room. Its
   // tiles carry `settings` to the traverse and render processes; a scheduler
   // named there holds for this frame and the ones after it.
-  void appendCamera(const Camera& camera, const v1::FrameSettings& settings = {});
+  // `priority`, when given, orders its tiles: the highest go out first
+  // (serve mode: where the render cache could not fill the interim frame).
+  void appendCamera(const Camera& camera, const v1::FrameSettings& settings = {},
+                    TilePriority priority = {});
   // Frames admitted and not yet finished.
   std::size_t framesInFlight() const { return framesAdded_ - stats_.frames.size(); }
 
@@ -92,6 +99,7 @@ class FrameAssembly {
   // Served frames' own settings (mode, level of detail), by frame; the
   // scheduler part is applied to the planner as the frame is admitted.
   std::map<std::uint64_t, v1::FrameSettings> frameSettings_;
+  std::map<std::uint64_t, TilePriority> tilePriority_;
   std::uint64_t framesAdded_ = 0;
   std::deque<int> idleTraverses_;
   std::map<std::uint64_t, std::vector<TileFeedback>> feedback_;

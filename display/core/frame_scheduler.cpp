@@ -13,8 +13,19 @@ FrameScheduler::FrameScheduler(std::uint32_t framesInFlight, std::chrono::millis
       maxAttempts_(std::max<std::uint32_t>(1, maxAttempts)) {}
 
 void FrameScheduler::addFrame(std::uint64_t index, const Camera& camera,
-                              std::vector<TileRect> tiles) {
+                              std::vector<TileRect> tiles, std::vector<std::uint32_t> order) {
+  if (!order.empty()) {
+    std::vector<std::uint32_t> sorted = order;
+    std::sort(sorted.begin(), sorted.end());
+    for (std::uint32_t i = 0; i < sorted.size(); ++i) {
+      if (sorted[i] != i || sorted.size() != tiles.size()) {
+        throw UsageError("frame " + std::to_string(index) +
+                         ": the tile order is not a permutation of its tiles");
+      }
+    }
+  }
   FrameState state;
+  state.order = std::move(order);
   state.index = index;
   state.camera = camera;
   state.tiles.reserve(tiles.size());
@@ -31,8 +42,8 @@ void FrameScheduler::addFrame(std::uint64_t index, const Camera& camera,
 void FrameScheduler::admitFrames() {
   while (admitted_ < frames_.size() && admitted_ < framesInFlight_) {
     FrameState& state = frames_[admitted_++];
-    for (std::uint32_t tile = 0; tile < state.tiles.size(); ++tile) {
-      queue_.push_back({state.index, tile, 0});
+    for (std::uint32_t i = 0; i < state.tiles.size(); ++i) {
+      queue_.push_back({state.index, state.order.empty() ? i : state.order[i], 0});
     }
   }
 }

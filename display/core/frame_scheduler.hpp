@@ -26,6 +26,7 @@ struct FrameState {
   std::uint64_t index = 0;
   Camera camera;
   std::vector<TileState> tiles;
+  std::vector<std::uint32_t> order;  // dispatch order; empty: as listed
   std::uint32_t remaining = 0;
   std::chrono::steady_clock::time_point started;
   bool hasStarted = false;
@@ -44,8 +45,10 @@ class FrameScheduler {
   FrameScheduler(std::uint32_t framesInFlight, std::chrono::milliseconds tileTimeout,
                  std::uint32_t maxAttempts);
 
-  // Adds a frame; its tiles are queued once it enters the window.
-  void addFrame(std::uint64_t index, const Camera& camera, std::vector<TileRect> tiles);
+  // Adds a frame; its tiles are queued once it enters the window, in
+  // `order` (indices into tiles) when given, else as listed.
+  void addFrame(std::uint64_t index, const Camera& camera, std::vector<TileRect> tiles,
+                std::vector<std::uint32_t> order = {});
   // The next tile to hand out, if any frame in the window has one waiting.
   std::optional<TileTaskRef> nextTask(Clock::time_point now);
   // A tile image arrived. Returns false when it is stale (frame gone, tile

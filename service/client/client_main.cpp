@@ -50,6 +50,10 @@ struct ClientOptions {
   double readDelayMs = 0.0;
   bool neverRead = false;
   double frameTimeoutSeconds = 120.0;
+  // render: also write the interim frame (render cache) beside the output
+  bool keepInterim = false;
+  // orbit: per-frame figures as CSV
+  std::string csv;
   // shutdown
   std::string reason = "asked by pointillist-client";
   // CURVE
@@ -146,14 +150,19 @@ void printFrame(const ReceivedFrame& frame, double latencyMs) {
   std::fflush(stdout);
 }
 
+// The final frame of a render request; interim frames from the display's
+// render cache that come first go to `interim` when given, else are skipped.
 ReceivedFrame awaitFrame(ServiceClient& client, std::uint64_t requestId,
-                         const ClientOptions& options) {
+                         const ClientOptions& options,
+                         std::vector<ReceivedFrame>* interim = nullptr) {
   const auto timeout =
       std::chrono::milliseconds(static_cast<long>(options.frameTimeoutSeconds * 1e3));
   while (true) {
     auto frame = client.receiveFrame(timeout);
     if (!frame) throw TimeoutError("no frame for request " + std::to_string(requestId));
-    if (frame->header.request_id() == requestId) return std::move(*frame);
+    if (frame->header.request_id() != requestId) continue;
+    if (!frame->header.interim()) return std::move(*frame);
+    if (interim != nullptr) interim->push_back(std::move(*frame));
   }
 }
 
@@ -183,6 +192,12 @@ int info(ServiceClient& client) {
   std::printf("job %s: mode %s (available: %s), lod %g px, scheduler %s; paths: %s\n",
               info.layout().c_str(), info.mode().c_str(), modes.c_str(),
               static_cast<double>(info.lod_pixels()), info.scheduler().c_str(), paths.c_str());
+  if (info.interim_ms() >= 0.0) {
+    std::printf("render cache: interim frames for render requests after %g ms\n",
+                info.interim_ms());
+  } else {
+    std::printf("render cache: off\n");
+  }
   const v1::FrameFormat& format = client.helloReply().format();
   std::printf("frames: %ux%u %s by default\n", format.width(), format.height(),
               encodingName(format.encoding()));
@@ -192,7 +207,19 @@ int info(ServiceClient& client) {
 int renderOne(ServiceClient& client, const ClientOptions& options) {
   const auto sent = SteadyClock::now();
   const std::uint64_t id = client.render(parseCamera(options.camera), requestedFormat(options));
-  const ReceivedFrame frame = awaitFrame(client, id, options);
+  std::vector<ReceivedFrame> interim;
+  const ReceivedFrame frame = awaitFrame(client, id, options, &interim);
+  for (const ReceivedFrame& early : interim) {
+    std::printf("interim frame after %.1f ms: reprojected in %.1f ms, %.1f %% of pixels filled\n",
+                millisecondsBetween(sent, early.received), early.header.reproject_ms(),
+                static_cast<double>(early.header.cache_filled()) * 100.0);
+    if (options.keepInterim && !options.output.empty()) {
+      std::filesystem::path path(options.output);
+      path.replace_extension(".interim" + path.extension().string());
+      writeFrame(early, path);
+      std::printf("wrote %s\n", path.c_str());
+    }
+  }
   printFrame(frame, millisecondsBetween(sent, frame.received));
   if (frame.header.status() == v1::FRAME_STATUS_SUPERSEDED) return 1;
   if (!options.output.empty()) {
@@ -277,28 +304,94 @@ int renderPath(ServiceClient& client, const ClientOptions& options) {
   return failed == 0 ? 0 : 1;
 }
 
-// One camera at a time round the data, each sent when the last frame came:
-// the latency a user moving the view sees, and the frames/s it allows.
+// One camera at a time along a built-in path, each sent when the last final
+// frame came: the latency a user moving the view sees, and the frames/s it
+// allows. With the display's render cache, the interim frame that comes
+// first is what the user sees at once: its latency, its PSNR against the
+// final frame and the share of pixels the cache filled are measured too.
 int orbit(ServiceClient& client, const ClientOptions& options) {
   const v1::DatasetInfo info = client.info();
   const SceneBounds bounds{{info.bounds_min().x(), info.bounds_min().y(), info.bounds_min().z()},
                            {info.bounds_max().x(), info.bounds_max().y(), info.bounds_max().z()}};
   const glm::vec3 up{info.default_up().x(), info.default_up().y(), info.default_up().z()};
-  const auto keys = builtinCameraPath("orbit", bounds, options.frames, up);
-  LatencyWindow latency;
+  const auto keys = builtinCameraPath(options.cameraPath, bounds, options.frames, up);
+  std::unique_ptr<std::ofstream> csv;
+  if (!options.csv.empty()) {
+    const std::filesystem::path file(options.csv);
+    if (file.has_parent_path()) std::filesystem::create_directories(file.parent_path());
+    csv = std::make_unique<std::ofstream>(file);
+    if (!*csv) throw Error("cannot write " + options.csv);
+    *csv << "frame,final_ms,first_shown_ms,interim,interim_ms,reproject_ms,cache_filled,"
+            "interim_psnr,interim_identical,covered_filled\n";
+  }
+  LatencyWindow latency, firstShown, interimPsnr, filled;
+  std::size_t interims = 0;
   const auto start = SteadyClock::now();
-  for (const CameraKey& key : keys) {
+  for (std::size_t index = 0; index < keys.size(); ++index) {
     const auto sent = SteadyClock::now();
-    const std::uint64_t id = client.render(cameraKeyMessage(key), requestedFormat(options));
-    const ReceivedFrame frame = awaitFrame(client, id, options);
+    const std::uint64_t id = client.render(cameraKeyMessage(keys[index]), requestedFormat(options));
+    std::vector<ReceivedFrame> early;
+    const ReceivedFrame frame = awaitFrame(client, id, options, &early);
     const double ms = millisecondsBetween(sent, frame.received);
     latency.add(ms);
+    const double shownMs = early.empty() ? ms : millisecondsBetween(sent, early.front().received);
+    firstShown.add(shownMs);
     printFrame(frame, ms);
+    if (!options.output.empty()) {
+      char name[64];
+      std::snprintf(name, sizeof name, "frame_%05zu.png", index);
+      writeFrame(frame, std::filesystem::path(options.output) / name);
+    }
+    double psnr = 0.0, identical = 0.0, coveredFilled = 0.0;
+    if (!early.empty() && frame.header.status() == v1::FRAME_STATUS_OK) {
+      ++interims;
+      const ReceivedFrame& interim = early.front();
+      const Image finalImage = decodeFrame(frame.pixels, frame.header.encoding(),
+                                           frame.header.width(), frame.header.height());
+      const Image interimImage = decodeFrame(interim.pixels, interim.header.encoding(),
+                                             interim.header.width(), interim.header.height());
+      const ImageQuality quality = measureQuality(interimImage, finalImage);
+      psnr = std::min(quality.psnr, 99.0);
+      identical = quality.identicalShare();
+      // Of the pixels the final frame covers, the share the interim one had.
+      std::uint64_t covered = 0, had = 0;
+      const Rgba8 background{0, 0, 0, 255};
+      for (std::uint32_t y = 0; y < finalImage.height(); ++y) {
+        for (std::uint32_t x = 0; x < finalImage.width(); ++x) {
+          if (finalImage.at(x, y) == background) continue;
+          ++covered;
+          had += interimImage.at(x, y) != background ? 1u : 0u;
+        }
+      }
+      coveredFilled = covered > 0 ? static_cast<double>(had) / static_cast<double>(covered) : 1.0;
+      interimPsnr.add(psnr);
+      filled.add(coveredFilled * 100.0);
+      std::printf(
+          "  interim after %.1f ms: PSNR %.1f dB against the final frame, %.1f %% of "
+          "its covered pixels filled\n",
+          shownMs, psnr, coveredFilled * 100.0);
+    }
+    if (csv) {
+      *csv << index << ',' << ms << ',' << shownMs << ',' << (early.empty() ? 0 : 1) << ','
+           << (early.empty() ? 0.0 : shownMs) << ','
+           << (early.empty() ? 0.0 : early.front().header.reproject_ms()) << ','
+           << (early.empty() ? 0.0 : static_cast<double>(early.front().header.cache_filled()))
+           << ',' << psnr << ',' << identical << ',' << coveredFilled << '\n';
+    }
   }
   const double seconds = millisecondsBetween(start, SteadyClock::now()) / 1e3;
-  printLatency("latency request to frame", latency);
-  std::printf("orbit: %zu frames in %.2f s, %.2f frames/s\n", keys.size(), seconds,
-              seconds > 0.0 ? static_cast<double>(keys.size()) / seconds : 0.0);
+  printLatency("latency request to final frame", latency);
+  printLatency("latency request to first frame shown", firstShown);
+  if (interims > 0) {
+    const LatencyFigures quality = interimPsnr.figures();
+    const LatencyFigures share = filled.figures();
+    std::printf(
+        "interim frames: %zu of %zu, PSNR against the final frame median %.1f dB, "
+        "covered pixels filled median %.1f %%\n",
+        interims, keys.size(), quality.median, share.median);
+  }
+  std::printf("%s: %zu frames in %.2f s, %.2f frames/s\n", options.cameraPath.c_str(), keys.size(),
+              seconds, seconds > 0.0 ? static_cast<double>(keys.size()) / seconds : 0.0);
   return 0;
 }
 
@@ -322,6 +415,11 @@ int stats(ServiceClient& client) {
   line("request to sent", stats.request_to_sent());
   line("render", stats.render());
   line("encode", stats.encode());
+  if (stats.frames_interim() > 0) {
+    std::printf("interim frames (render cache): %llu\n",
+                static_cast<unsigned long long>(stats.frames_interim()));
+    line("reproject", stats.reproject());
+  }
   for (const auto& client_ : stats.clients()) {
     std::printf(
         "client %s (%s): %llu frames sent, %llu dropped, %llu superseded, %.1f MiB, %u queued\n",
@@ -361,17 +459,25 @@ int run(int argc, char** argv) {
   auto* render = app.add_subcommand("render", "Render one frame");
   render->add_option("--camera", options.camera, "ex,ey,ez,tx,ty,tz[,ux,uy,uz[,fovY]]")->required();
   render->add_option("-o,--output", options.output, "File (.png, .jpg or .rgba)");
+  render->add_flag("--keep-interim", options.keepInterim,
+                   "Also write the render cache's interim frame (OUTPUT.interim.png)");
   auto* path = app.add_subcommand("path", "Render a built-in camera path");
-  path->add_option("--camera-path", options.cameraPath, "orbit, flythrough or closeup")
+  path->add_option("--camera-path", options.cameraPath, "orbit, flythrough, closeup or turns")
       ->capture_default_str();
   path->add_option("--frames", options.frames, "Frames of the path")->capture_default_str();
   path->add_option("-o,--output", options.output, "Directory for frame_NNNNN.png");
   path->add_option("--read-delay-ms", options.readDelayMs,
                    "Sleep after each frame (a slow reader)");
   path->add_flag("--never-read", options.neverRead, "Ask, then never read (for tests)")->group("");
-  auto* orbitCommand = app.add_subcommand("orbit", "One camera at a time round the data");
-  orbitCommand->add_option("--frames", options.frames, "Frames of the orbit")
+  auto* orbitCommand = app.add_subcommand(
+      "orbit", "One camera at a time along a path, each sent when the last frame came");
+  orbitCommand->add_option("--frames", options.frames, "Frames of the path")->capture_default_str();
+  orbitCommand->add_option("--camera-path", options.cameraPath, "A built-in path")
       ->capture_default_str();
+  orbitCommand->add_option("-o,--output", options.output,
+                           "Directory for the final frames, frame_NNNNN.png");
+  orbitCommand->add_option("--csv", options.csv,
+                           "Per-frame latency and interim-frame figures as CSV");
   app.add_subcommand("stats", "The service's statistics");
   auto* keygen =
       app.add_subcommand("keygen", "Write a CURVE key pair: PREFIX.secret, PREFIX.public");

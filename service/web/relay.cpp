@@ -97,7 +97,8 @@ class Relay {
     const auto found = outstanding_.find(frame.header.request_id());
     if (found == outstanding_.end()) return;  // not ours (an expired request)
     const Outstanding request = found->second;
-    outstanding_.erase(found);
+    // An interim frame (render cache) is shown at once; the final one answers.
+    if (!frame.header.interim()) outstanding_.erase(found);
     const double latencyMs = millisecondsBetween(request.sent, frame.received);
     const v1::FrameStatus status = frame.header.status();
     const bool hasPixels =

@@ -179,7 +179,19 @@ void ServiceFrontEnd::frameDone(FrameOrder order, const FrameOutcome& outcome, I
     ++framesRendered_;
     splats_ += outcome.splats;
     renderLatency_.add(millisecondsBetween(order.admitted, SteadyClock::now()));
-    encodeQueue_.push_back({std::move(order), outcome, std::move(image)});
+    encodeQueue_.push_back({std::move(order), outcome, std::move(image), std::nullopt});
+  }
+  encodeReady_.notify_one();
+}
+
+void ServiceFrontEnd::interimFrame(const FrameOrder& order, const InterimOutcome& outcome,
+                                   Image image) {
+  {
+    std::lock_guard lock(mutex_);
+    reprojectLatency_.add(outcome.reprojectMs);
+    FrameOutcome stand;
+    stand.frameId = outcome.frameId;
+    encodeQueue_.push_back({order, stand, std::move(image), outcome});
   }
   encodeReady_.notify_one();
 }
@@ -229,6 +241,12 @@ void ServiceFrontEnd::encodeLoop() {
     header.set_mode(renderModeName(drawn.mode()));
     header.set_lod_pixels(drawn.lod_pixels());
     header.set_scheduler(pointillist::schedulerName(drawn.scheduler()));
+    if (job.interim) {
+      header.set_interim(true);
+      header.set_cache_filled(static_cast<float>(job.interim->filledShare));
+      header.set_reproject_ms(job.interim->reprojectMs);
+      header.set_render_ms(0.0);
+    }
     {
       std::lock_guard lock(mutex_);
       encodeLatency_.add(encodeMs);
@@ -430,7 +448,9 @@ void ServiceFrontEnd::send(Outgoing out) {
   }
   std::lock_guard lock(mutex_);
   const auto client = clients_.find(id);
-  const bool frame = out.header.status() != v1::FRAME_STATUS_SUPERSEDED;
+  // Interim frames are counted apart: a client's frames are its final ones.
+  const bool frame = out.header.status() != v1::FRAME_STATUS_SUPERSEDED && !out.header.interim();
+  if (sent && out.header.interim()) ++framesInterim_;
   if (sent) {
     bytesSent_ += bytes;
     if (frame) requestToSent_.add(millisecondsBetween(out.requested, SteadyClock::now()));
@@ -646,6 +666,8 @@ v1::Reply ServiceFrontEnd::statistics(const v1::Request& request) {
   fillLatency(stats.mutable_request_to_sent(), requestToSent_);
   fillLatency(stats.mutable_render(), renderLatency_);
   fillLatency(stats.mutable_encode(), encodeLatency_);
+  fillLatency(stats.mutable_reproject(), reprojectLatency_);
+  stats.set_frames_interim(framesInterim_);
   for (const auto& [id, client] : clients_) {
     v1::ClientStatistics& entry = *stats.add_clients();
     entry = client.stats;

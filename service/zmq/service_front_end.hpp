@@ -85,6 +85,13 @@ struct FrameOutcome {
   bool incomplete = false;  // some tiles never came back
 };
 
+// What the render cache made of an interim frame.
+struct InterimOutcome {
+  std::uint64_t frameId = 0;  // the job's frame it stands in for
+  double filledShare = 0.0;   // pixels the cache coloured
+  double reprojectMs = 0.0;
+};
+
 // The frames endpoint beside a control endpoint: tcp port + 1 (an ephemeral
 // port stays ephemeral), ipc and inproc names with ".frames" appended.
 std::string streamEndpointFor(const std::string& control);
@@ -109,6 +116,9 @@ class ServiceFrontEnd {
   std::optional<FrameOrder> nextFrame();
   // Main thread: a composed frame; encoded and sent on the encoder thread.
   void frameDone(FrameOrder order, const FrameOutcome& outcome, Image image);
+  // Main thread: an interim frame of an order not yet done (the display's
+  // render cache); encoded and sent ahead of the final frame.
+  void interimFrame(const FrameOrder& order, const InterimOutcome& outcome, Image image);
 
   bool shutdownRequested() const { return shutdown_.load(); }
   void requestShutdown(const std::string& reason);
@@ -129,6 +139,7 @@ class ServiceFrontEnd {
     FrameOrder order;
     FrameOutcome outcome;
     Image image;
+    std::optional<InterimOutcome> interim;
   };
   struct Outgoing {
     std::string clientId;
@@ -180,8 +191,8 @@ class ServiceFrontEnd {
   std::string shutdownReason_;
   pointillist::v1::Scheduler scheduler_;  // every client's frames' (set_options)
   std::uint64_t requests_ = 0, errors_ = 0, framesRendered_ = 0, framesSuperseded_ = 0,
-                framesDropped_ = 0, bytesSent_ = 0, splats_ = 0;
-  LatencyWindow requestToSent_, renderLatency_, encodeLatency_;
+                framesDropped_ = 0, bytesSent_ = 0, splats_ = 0, framesInterim_ = 0;
+  LatencyWindow requestToSent_, renderLatency_, encodeLatency_, reprojectLatency_;
 
   std::atomic<bool> shutdown_{false};
   std::atomic<bool> stopping_{false};

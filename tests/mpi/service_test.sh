@@ -12,6 +12,11 @@
 #             the other the job's points; then blended under a scheduler
 #             switched to round-robin; every frame equals the reference
 #             renderer's for its mode and level of detail
+#   render-cache  the display's render cache (on by default in serve mode): a
+#             client moving the camera one render request at a time gets an
+#             interim frame before each final one after the first, close to
+#             it; final frames still equal the reference renderer's; path
+#             frames get none; with --interim-ms -1 no interim frame comes
 #   curve     CURVE with keys from files: an authorized client renders, a client
 #             with another key or without CURVE gets nothing
 #   sigint    SIGINT to the display: clean shutdown of every process
@@ -29,6 +34,45 @@ python=(env POINTILLIST_PYTHON="$PYTHON_MODULES" /usr/bin/python3)
 floors=(--min-lit-fraction "$MIN_LIT_FRACTION" --min-splats "$MIN_SPLATS")
 
 case "$scenario" in
+  render-cache)
+    start_service_job
+    "${client[@]}" info >"$WORK/info.log" 2>&1 || fail "info: $(cat "$WORK/info.log")"
+    grep -q "render cache: interim frames for render requests after 0 ms" "$WORK/info.log" ||
+      fail "serve mode has no render cache: $(cat "$WORK/info.log")"
+    "${client[@]}" orbit --camera-path orbit --frames 24 -o "$WORK/orbit" --csv "$WORK/orbit.csv" \
+      >"$WORK/orbit.log" 2>&1 || fail "orbit: $(cat "$WORK/orbit.log")"
+    grep -E "^(latency|interim frames|orbit)" "$WORK/orbit.log"
+    # Every camera after the first had an interim frame, drawn before the final one.
+    interims=$(awk -F, 'NR > 2 && $4 == 1' "$WORK/orbit.csv" | wc -l)
+    ((interims == 23)) || fail "$interims of 23 cameras had an interim frame"
+    awk -F, 'NR == 2 && $4 != 0 { exit 1 }' "$WORK/orbit.csv" ||
+      fail "an interim frame came before any frame was cached"
+    # Close to the final frame (15 degrees apart: most pixels reprojected).
+    awk -F, 'NR > 2 && ($8 < 15 || $10 < 0.6) { print; bad = 1 } END { exit bad }' \
+      "$WORK/orbit.csv" || fail "an interim frame is far from its final frame (PSNR, filled)"
+    awk -F, 'NR > 2 && $3 > $2 { bad = 1 } END { exit bad }' "$WORK/orbit.csv" ||
+      fail "an interim frame came after its final frame"
+    "${client[@]}" path --camera-path flythrough --frames 3 >"$WORK/path.log" 2>&1 ||
+      fail "path: $(cat "$WORK/path.log")"
+    "${client[@]}" stats >"$WORK/stats.log" 2>&1 || fail "stats"
+    cat "$WORK/stats.log"
+    grep -q "^interim frames (render cache): 23$" "$WORK/stats.log" ||
+      fail "path frames got interim frames, or interim frames were lost"
+    echo "reference comparison of the final frames"
+    "$BIN/pointillist-reference" --dataset "$DATASET" --camera-path orbit --frames 24 \
+      --size 480x270 --compare "$WORK/orbit" "${floors[@]}" || fail "final frames"
+    "${client[@]}" shutdown --reason "test done" >/dev/null || fail "shutdown"
+    wait_job_exit 60
+    grep -E "^render cache:" "$JOB_LOG" || fail "the display's summary has no render cache line"
+    # Without the cache: no interim frame.
+    start_service_job --interim-ms -1
+    "${client[@]}" orbit --camera-path orbit --frames 3 --csv "$WORK/off.csv" \
+      >"$WORK/off.log" 2>&1 || fail "orbit without the cache: $(cat "$WORK/off.log")"
+    awk -F, 'NR > 1 && $4 != 0 { exit 1 }' "$WORK/off.csv" ||
+      fail "an interim frame came with --interim-ms -1"
+    "${client[@]}" shutdown --reason "test done" >/dev/null || fail "shutdown"
+    wait_job_exit 60
+    ;;
   clients)
     # A small stream high-water mark, so the client that never reads fills its own stream.
     start_service_job --stream-hwm 4

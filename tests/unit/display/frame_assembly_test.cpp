@@ -3,6 +3,8 @@
 // the tile planner only from frames that fully came back.
 #include "display/core/frame_assembly.hpp"
 
+#include <algorithm>
+
 #include <gtest/gtest.h>
 
 namespace pointillist::display {
@@ -234,6 +236,56 @@ TEST(FrameAssembly, ServedFramesCarryTheirSettingsAndSchedulerToTheirTiles) {
   for (const auto& task : serve(4, cost)) {
     EXPECT_FALSE(task.frame_settings().has_scheduler()) << "the run's scheduler needs no override";
   }
+}
+
+}  // namespace
+}  // namespace pointillist::display
+
+namespace pointillist::display {
+namespace {
+
+// Serve mode's render cache orders a frame's tiles: the regions it could not
+// fill go out first; the feedback still follows the plan's order.
+TEST(FrameAssembly, ATilePriorityOrdersTheTilesHandedOut) {
+  FrameAssembly plain(config(0), kPeers, kStart);
+  plain.appendCamera(camera(0.0f));
+  const auto planned = takeAll(plain, kStart);
+  ASSERT_EQ(planned.size(), 4u);
+
+  FrameAssembly prioritized(config(0), kPeers, kStart);
+  // Right before left, top before bottom.
+  prioritized.appendCamera(camera(0.0f), {}, [](const TileRect& rect) {
+    return static_cast<double>(rect.x()) * 1000.0 + rect.y();
+  });
+  const auto ordered = takeAll(prioritized, kStart);
+  ASSERT_EQ(ordered.size(), planned.size());
+  for (std::size_t i = 1; i < ordered.size(); ++i) {
+    const auto& before = ordered[i - 1].rect();
+    const auto& after = ordered[i].rect();
+    EXPECT_GE(before.x() * 1000.0 + before.y(), after.x() * 1000.0 + after.y());
+  }
+  // The same tiles, each once, under the plan's tile ids.
+  auto sortedPlanned = rects(planned), sortedOrdered = rects(ordered);
+  std::sort(sortedPlanned.begin(), sortedPlanned.end());
+  std::sort(sortedOrdered.begin(), sortedOrdered.end());
+  EXPECT_EQ(sortedPlanned, sortedOrdered);
+  for (const auto& task : ordered) {
+    EXPECT_EQ(rects({planned[task.tile_id()]}), rects({task}));
+  }
+  for (const auto& task : ordered) {
+    EXPECT_TRUE(prioritized.tileArrived(tile(task, 100), kStart + 10ms));
+  }
+  EXPECT_EQ(prioritized.finishFrames(kStart + 10ms).size(), 1u);
+}
+
+TEST(FrameScheduler, RefusesATileOrderThatIsNotAPermutation) {
+  FrameScheduler scheduler(1, std::chrono::seconds(1), 3);
+  const std::vector<TileRect> tiles{makeTileRect(0, 0, 8, 8), makeTileRect(8, 0, 8, 8)};
+  EXPECT_THROW(scheduler.addFrame(0, camera(0.0f), tiles, {0, 0}), UsageError);
+  EXPECT_THROW(scheduler.addFrame(0, camera(0.0f), tiles, {1}), UsageError);
+  scheduler.addFrame(0, camera(0.0f), tiles, {1, 0});
+  EXPECT_EQ(scheduler.nextTask(FrameScheduler::Clock::now())->tile, 1u);
+  EXPECT_EQ(scheduler.nextTask(FrameScheduler::Clock::now())->tile, 0u);
 }
 
 }  // namespace

@@ -1,0 +1,128 @@
+#pragma once
+// Seed 001's render cache at the display (MPI-free): the samples of recent
+// final frames kept as coloured 3D points with an age, reprojected to a new
+// camera at once, so a client sees an interim frame while the tiles of the
+// exact one are still being drawn, and the tiles where the cache knows least
+// are drawn first.
+//
+//   insert     a final frame with its eye-space depth. Each covered pixel
+//              becomes a point (the pixel centre at its depth). A cached
+//              point that lands on that pixel at about that depth is
+//              refreshed in place; one that lands in front of the frame's
+//              surface, or where the frame shows background, was wrong and
+//              goes; hidden ones behind it stay. Points not refreshed age and
+//              leave after maxAge frames; when the cache is full the eldest
+//              make room (the paper's fixed-size point cloud).
+//   reproject  one pass over the points with a z-buffer (depth bits and
+//              point index packed in one 64-bit word: one compare per point),
+//              the depth cull (a sample goes when every side of its 7x7
+//              neighbourhood holds a nearer one, by more than
+//              depthCullFraction: it shows through a gap of a nearer
+//              surface; the paper's filtered depth, per side), interpolation (a 3x3
+//              centre-weighted kernel where neighbours remain, a 7x7 box
+//              where samples are sparse) and the priority image (age of the
+//              sample, or how far the nearest samples are).
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "common/camera.hpp"
+#include "common/image.hpp"
+
+namespace pointillist::display {
+
+struct RenderCacheOptions {
+  // Points held; 0: twice the pixels of the first frame inserted.
+  std::size_t capacity = 0;
+  // Final frames a point survives without being seen again.
+  std::uint32_t maxAge = 16;
+  // Depth cull threshold, relative to the filtered depth. The paper pushes
+  // its filtered depth back by 5 % of the scene's size; relative to the depth
+  // itself the same test holds for a camera in a street and far above a city.
+  float depthCullFraction = 0.05f;
+  // Refresh in place when a cached point lies within this share of the
+  // frame's depth at its pixel.
+  float sameSurfaceFraction = 0.02f;
+  Rgba8 background{0, 0, 0, 255};
+};
+
+// Priority image values (0: nothing to gain from a new sample, 255: no sample
+// anywhere near). A sample's priority grows with its age.
+inline constexpr std::uint8_t kPriorityFreshSample = 0;
+inline constexpr std::uint8_t kPriorityPerAge = 12;
+inline constexpr std::uint8_t kPriorityDense = 128;   // filled from the 3x3 neighbourhood
+inline constexpr std::uint8_t kPrioritySparse = 192;  // filled from the 7x7 neighbourhood
+inline constexpr std::uint8_t kPriorityHole = 255;
+
+struct InterimFrame {
+  Image image;
+  // One value per pixel, rows bottom-up as the image.
+  std::vector<std::uint8_t> priority;
+  std::uint64_t pointsInView = 0;  // points that landed on a pixel (before the z-test)
+  std::uint64_t samples = 0;       // pixels showing a cached point
+  std::uint64_t culled = 0;        // samples the depth cull removed
+  std::uint64_t dense = 0;         // pixels interpolated from the 3x3 neighbourhood
+  std::uint64_t sparse = 0;        // ... from the 7x7 neighbourhood
+  std::uint64_t holes = 0;         // pixels left at the background colour
+  double seconds = 0.0;            // reproject() from start to end
+  std::uint64_t pixels() const { return samples + dense + sparse + holes; }
+  // Pixels the cache coloured (sampled or interpolated), over all pixels.
+  double filledShare() const;
+};
+
+// Mean priority of the pixels of `rect` (0 when the frame has no priority image).
+double meanPriority(const InterimFrame& frame, const TileRect& rect);
+
+struct RenderCacheCounters {
+  std::uint64_t framesInserted = 0;
+  std::uint64_t refreshed = 0;  // points refreshed in place
+  std::uint64_t added = 0;      // new points
+  std::uint64_t removedWrong = 0;
+  std::uint64_t removedOld = 0;   // past maxAge
+  std::uint64_t evictedFull = 0;  // eldest, to make room
+};
+
+class RenderCache {
+ public:
+  explicit RenderCache(RenderCacheOptions options = {});
+
+  // The cache's view from `camera` (any image size); not a copy of any frame,
+  // so it may be called for every camera a client sends.
+  InterimFrame reproject(const Camera& camera);
+  // A final frame of `camera`: `depth` holds each pixel's eye-space depth as
+  // the image (rows bottom-up), +infinity (or any non-finite value) where
+  // the frame shows background. Throws UsageError on a size mismatch.
+  void insert(const Camera& camera, const Image& image, std::span<const float> depth);
+
+  std::size_t size() const { return x_.size(); }
+  std::size_t capacity() const { return options_.capacity; }
+  bool empty() const { return x_.empty(); }
+  std::uint32_t oldestAge() const;
+  const RenderCacheCounters& counters() const { return counters_; }
+  const RenderCacheOptions& options() const { return options_; }
+  void clear();
+
+ private:
+  // Fills zbuffer_ with the nearest point per pixel of `camera`'s frame
+  // (kNoPoint where none); returns how many points landed in the frame.
+  std::uint64_t project(const Camera& camera);
+  void removeMarked();
+  std::size_t makeRoom(std::size_t wanted);
+
+  RenderCacheOptions options_;
+  // The points, structure of arrays so the projection loop streams them.
+  std::vector<float> x_, y_, z_;
+  std::vector<std::uint32_t> colour_;  // RGBA8 as in the image
+  std::vector<std::uint8_t> age_;
+  std::vector<std::uint8_t> remove_;  // scratch: marked for removal
+  // Scratch kept between calls (fresh pages cost more than the work here).
+  std::vector<std::uint64_t> zbuffer_;
+  std::vector<float> sampleDepth_;
+  std::vector<float> columnMinDepth_;  // least depth over 7 rows
+  std::vector<float> rowMinDepth_;     // least depth over 7 columns
+  std::vector<std::uint8_t> blockHasSample_;
+  std::vector<std::uint8_t> blockNearSample_;
+  RenderCacheCounters counters_;
+};
+
+}  // namespace pointillist::display
