@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <csignal>
 #include <cstdio>
+#include <optional>
 
 #include "common/clock.hpp"
 #include "common/run_settings.hpp"
@@ -124,17 +125,19 @@ void ServiceFrameSource::frameDone(const FinishedFrame& frame, Image image,
   Started started = std::move(started_.front());
   started_.pop_front();
   service::FrameOrder& order = started.order;
+  // The client gets its frame first; the cache learns from a copy after.
   // A frame with tiles missing would teach the cache holes.
+  ClientCache* cache = nullptr;
   if (!depth.empty() && frame.failedTiles.empty()) {
     const auto found = caches_.find(order.request.clientId);
     if (found != caches_.end() &&
         found->second.mode == frameRunSettings(run_, order.settings).mode()) {
-      const auto start = std::chrono::steady_clock::now();
-      found->second.cache.insert(order.camera, image, depth);
-      insertSeconds_ += secondsBetween(start, std::chrono::steady_clock::now());
-      ++framesCached_;
+      cache = &found->second;
     }
   }
+  const Camera camera = order.camera;
+  std::optional<Image> copy;
+  if (cache != nullptr) copy = image;
   service::FrameOutcome outcome;
   outcome.frameId = frame.record.frame;
   outcome.splats = frame.record.splats;
@@ -142,6 +145,12 @@ void ServiceFrameSource::frameDone(const FinishedFrame& frame, Image image,
   outcome.bytesOrdered = frame.record.bytesOrdered;
   outcome.incomplete = !frame.failedTiles.empty();
   frontEnd_->frameDone(std::move(order), outcome, std::move(image));
+  if (cache != nullptr) {
+    const auto start = std::chrono::steady_clock::now();
+    cache->cache.insert(camera, *copy, depth);
+    insertSeconds_ += secondsBetween(start, std::chrono::steady_clock::now());
+    ++framesCached_;
+  }
 }
 
 std::string ServiceFrameSource::renderCacheSummary() const {
