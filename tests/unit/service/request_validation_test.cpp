@@ -48,7 +48,7 @@ TEST(RequestValidation, RefusesMessagesOverTheCap) {
 
 TEST(RequestValidation, RefusesOtherVersions) {
   v1::Request request = validRender();
-  request.set_version(2);
+  request.set_version(v1::SERVICE_VERSION_CURRENT + 1);
   EXPECT_EQ(codeOf(request), v1::ERROR_VERSION_MISMATCH);
   request.set_version(0);
   EXPECT_EQ(codeOf(request), v1::ERROR_VERSION_MISMATCH);

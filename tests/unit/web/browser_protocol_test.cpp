@@ -94,7 +94,13 @@ TEST(BrowserProtocol, FrameMetadata) {
   EXPECT_NE(json.find(R"("latency_ms":33.25)"), std::string::npos);
   header.set_mode("splats");
   header.set_lod_pixels(1.5f);
-  EXPECT_NE(frameJson(header, 5, 1.0, "ok").find(R"("mode":"splats","lod_pixels":1.5})"),
+  EXPECT_NE(frameJson(header, 5, 1.0, "ok").find(R"("mode":"splats","lod_pixels":1.5,)"),
+            std::string::npos);
+  // The render cache's interim frames say so, with the share they filled.
+  EXPECT_NE(frameJson(header, 5, 1.0, "ok").find(R"("interim":false)"), std::string::npos);
+  header.set_interim(true);
+  header.set_cache_filled(0.75f);
+  EXPECT_NE(frameJson(header, 5, 1.0, "ok").find(R"("interim":true,"cache_filled":0.750})"),
             std::string::npos);
 }
 
