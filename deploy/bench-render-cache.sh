@@ -38,26 +38,6 @@ build_all
 out="${BENCH_OUT:-$POINTILLIST_ROOT/out/bench-render-cache}"
 mkdir -p "$out"
 
-dataset_for() {
-  local dir
-  case "$1" in
-    bunny-10M)
-      dir="$POINTILLIST_ROOT/datasets/bunny-10M"
-      if ! "$POINTILLIST_BIN/pointillist-preprocess" --check "$dir" >/dev/null 2>&1; then
-        bash "$POINTILLIST_ROOT/deploy/fetch-test-data.sh" >&2
-        log "sampling bunny00.off to 10 M points into $dir"
-        "$POINTILLIST_BIN/pointillist-preprocess" \
-          "$POINTILLIST_ROOT/.cache/cgal-data/data/meshes/bunny00.off" --points 10000000 \
-          -o "$dir" --force --quiet >&2
-      fi ;;
-    city)
-      dir="$POINTILLIST_ROOT/datasets/city-2000000"
-      ensure_city_dataset "$dir" 2000000 >&2 ;;
-    *) echo "bench-render-cache.sh: unknown scene '$1' (city or bunny-10M)" >&2; exit 2 ;;
-  esac
-  echo "$dir"
-}
-
 # Runs one job (interim ms as given) and the client; leaves LOG and CSV.
 run_case() {
   local dataset="$1" interim="$2" tag="$3" work job endpoint
@@ -104,7 +84,7 @@ table="$out/table.txt"
 } >"$table"
 IFS=',' read -r -a scene_list <<<"$scenes"
 for scene in "${scene_list[@]}"; do
-  dataset=$(dataset_for "$scene")
+  dataset=$(scene_dataset "$scene")
   for interim in -1 0; do
     tag="$scene-$([[ "$interim" == -1 ]] && echo off || echo on)"
     log "$scene: render cache $([[ "$interim" == -1 ]] && echo off || echo on)"

@@ -56,31 +56,6 @@ fi
 cmake --build "$POINTILLIST_BUILD" -j "$(nproc)" >/dev/null
 use_malloc_tuning  # for the job and the reference alike
 
-# Makes a scene's dataset unless it is there in the current format.
-dataset_for() {
-  local scene="$1" dir
-  case "$scene" in
-    bunny-10M)
-      dir="$POINTILLIST_ROOT/datasets/bunny-10M"
-      if ! "$POINTILLIST_BIN/pointillist-preprocess" --check "$dir" >/dev/null 2>&1; then
-        bash "$POINTILLIST_ROOT/deploy/fetch-test-data.sh"
-        log "sampling bunny00.off to 10 M points into $dir"
-        "$POINTILLIST_BIN/pointillist-preprocess" \
-          "$POINTILLIST_ROOT/.cache/cgal-data/data/meshes/bunny00.off" --points 10000000 \
-          -o "$dir" --force --quiet >&2
-      fi ;;
-    city)
-      dir="$POINTILLIST_ROOT/datasets/city-2000000"
-      if ! "$POINTILLIST_BIN/pointillist-preprocess" --check "$dir" >/dev/null 2>&1; then
-        log "generating the city (2 M points) into $dir"
-        "$POINTILLIST_BIN/pointillist-preprocess" --generate city --points 2000000 \
-          -o "$dir" --force --quiet >&2
-      fi ;;
-    *) die "unknown scene '$scene' (bunny-10M or city)" ;;
-  esac
-  echo "$dir"
-}
-
 mkdir -p "$out"
 report="$out/goals.md"
 {
@@ -90,7 +65,7 @@ report="$out/goals.md"
 
 IFS=, read -r -a scene_list <<<"$scenes"
 for scene in "${scene_list[@]}"; do
-  dataset=$(dataset_for "$scene")
+  dataset=$(scene_dataset "$scene")
   dir="$out/$scene"
   mkdir -p "$dir"
   for ((run = 1; run <= repeat; run++)); do

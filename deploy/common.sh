@@ -95,6 +95,29 @@ build_all() {
   fi
 }
 
+# Prints the dataset folder of a benchmark scene, made first when it is not
+# there in this build's format: bunny-10M (Debian's bunny00.off from
+# libcgal-demo sampled to 10 M points) or city (the built-in city, 2 M points).
+scene_dataset() {
+  local dir
+  case "$1" in
+    bunny-10M)
+      dir="$POINTILLIST_ROOT/datasets/bunny-10M"
+      if ! "$POINTILLIST_BIN/pointillist-preprocess" --check "$dir" >/dev/null 2>&1; then
+        bash "$POINTILLIST_ROOT/deploy/fetch-test-data.sh" >&2
+        log "sampling bunny00.off to 10 M points into $dir"
+        "$POINTILLIST_BIN/pointillist-preprocess" \
+          "$POINTILLIST_ROOT/.cache/cgal-data/data/meshes/bunny00.off" --points 10000000 \
+          -o "$dir" --force --quiet >&2
+      fi ;;
+    city)
+      dir="$POINTILLIST_ROOT/datasets/city-2000000"
+      ensure_city_dataset "$dir" 2000000 >&2 ;;
+    *) echo "unknown scene '$1' (bunny-10M or city)" >&2; return 2 ;;
+  esac
+  echo "$dir"
+}
+
 # Generates the built-in city scene with POINTS points into DIR unless DIR
 # already holds a sound dataset of this build's format (an older format or a
 # damaged one is rebuilt, saying why). Progress goes to stderr.

@@ -144,7 +144,6 @@ void RenderCache::removeMarked() {
   z_.resize(kept);
   colour_.resize(kept);
   age_.resize(kept);
-  remove_.assign(kept, 0);
 }
 
 // Evicts the eldest points until `wanted` new ones fit; returns how many fit.
@@ -195,6 +194,7 @@ void RenderCache::insert(const Camera& camera, const Image& image, std::span<con
 
   const PixelUnprojector unproject(camera);
   std::vector<std::uint32_t> fresh;  // pixels that become new points
+  std::size_t marked = 0;            // points marked for removal
   for (std::uint32_t y = 0; y < height; ++y) {
     for (std::uint32_t x = 0; x < width; ++x) {
       const std::size_t pixel = static_cast<std::size_t>(y) * width + x;
@@ -208,6 +208,7 @@ void RenderCache::insert(const Camera& camera, const Image& image, std::span<con
       const auto index = static_cast<std::size_t>(key & 0xffffffffu);
       if (!covered) {  // the frame sees nothing along this ray: the point was wrong
         remove_[index] = 1;
+        ++marked;
         ++counters_.removedWrong;
         continue;
       }
@@ -232,10 +233,11 @@ void RenderCache::insert(const Camera& camera, const Image& image, std::span<con
   for (std::size_t i = 0; i < age_.size(); ++i) {
     if (age_[i] > options_.maxAge && remove_[i] == 0) {
       remove_[i] = 1;
+      ++marked;
       ++counters_.removedOld;
     }
   }
-  removeMarked();
+  if (marked > 0) removeMarked();  // most frames remove nothing
   const std::size_t fits = makeRoom(fresh.size());
   for (std::size_t i = 0; i < fits; ++i) {
     const std::uint32_t pixel = fresh[i];
@@ -249,7 +251,6 @@ void RenderCache::insert(const Camera& camera, const Image& image, std::span<con
     age_.push_back(0);
   }
   counters_.added += fits;
-  remove_.assign(size(), 0);
 }
 
 InterimFrame RenderCache::reproject(const Camera& camera) {

@@ -114,7 +114,7 @@ class RenderCache {
   std::vector<float> x_, y_, z_;
   std::vector<std::uint32_t> colour_;  // RGBA8 as in the image
   std::vector<std::uint8_t> age_;
-  std::vector<std::uint8_t> remove_;  // scratch: marked for removal
+  std::vector<std::uint8_t> remove_;  // scratch: marked for removal; cleared by each user
   // Scratch kept between calls (fresh pages cost more than the work here).
   std::vector<std::uint64_t> zbuffer_;
   std::vector<float> sampleDepth_;
