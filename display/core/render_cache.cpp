@@ -12,11 +12,215 @@
 #include "common/clock.hpp"
 #include "common/errors.hpp"
 
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+// The passes over whole images and all points also get an AVX2 build, chosen
+// when the program loads (ifunc): twice the lanes of the x86-64 baseline,
+// and the binary still runs on machines without AVX2.
+#define POINTILLIST_VECTOR_KERNEL __attribute__((target_clones("avx2", "default")))
+#else
+#define POINTILLIST_VECTOR_KERNEL
+#endif
+
 namespace pointillist::display {
 namespace {
 
-constexpr std::uint64_t kNoPoint = ~std::uint64_t{0};
-constexpr std::uint32_t kBlock = 8;  // hole test granularity (pixels)
+// The z-buffer holds one word per pixel: the eye depth's bits above (positive
+// floats order as their bits) and a payload below, so one compare finds the
+// nearest point and carries what the pass needs of it: the point's index for
+// insert, its colour and age for reproject (no lookup into the cloud after).
+constexpr std::uint64_t kNoSample = ~std::uint64_t{0};
+constexpr std::uint32_t kNoPixel = ~std::uint32_t{0};  // a point outside the frame
+constexpr std::size_t kPointBlock = 4096;  // points projected at a time (stays in L1/L2)
+constexpr std::uint32_t kReach = 3;        // the 7x7 neighbourhood's half width
+constexpr float kFar = std::numeric_limits<float>::infinity();
+
+// The rows of the view-projection matrix a point needs, and the viewport.
+struct ScreenProjection {
+  float x0, x1, x2, x3;  // clip x
+  float y0, y1, y2, y3;  // clip y
+  float w0, w1, w2, w3;  // clip w: the eye depth
+  float nearPlane, farPlane;
+  float halfWidth, halfHeight, width, height;
+  std::uint32_t rowPixels;
+};
+
+ScreenProjection screenProjection(const Camera& camera) {
+  const glm::mat4 m = viewProjectionMatrix(camera);
+  return {m[0][0],
+          m[1][0],
+          m[2][0],
+          m[3][0],
+          m[0][1],
+          m[1][1],
+          m[2][1],
+          m[3][1],
+          m[0][3],
+          m[1][3],
+          m[2][3],
+          m[3][3],
+          camera.near_plane(),
+          camera.far_plane(),
+          0.5f * static_cast<float>(camera.image_width()),
+          0.5f * static_cast<float>(camera.image_height()),
+          static_cast<float>(camera.image_width()),
+          static_cast<float>(camera.image_height()),
+          camera.image_width()};
+}
+
+// Pixel (kNoPixel outside the frame or the depth range) and eye depth of
+// each point (its bits; positive inside); branch-free so that it vectorises.
+POINTILLIST_VECTOR_KERNEL
+void projectPoints(const ScreenProjection p, const float* __restrict xs, const float* __restrict ys,
+                   const float* __restrict zs, std::size_t count, std::uint32_t* __restrict pixels,
+                   std::uint32_t* __restrict depthBits) {
+  for (std::size_t i = 0; i < count; ++i) {
+    const float px = xs[i], py = ys[i], pz = zs[i];
+    const float w = p.w0 * px + p.w1 * py + p.w2 * pz + p.w3;
+    const float cx = p.x0 * px + p.x1 * py + p.x2 * pz + p.x3;
+    const float cy = p.y0 * px + p.y1 * py + p.y2 * pz + p.y3;
+    const float inverseW = 1.0f / w;
+    const float wx = (cx * inverseW + 1.0f) * p.halfWidth;
+    const float wy = (cy * inverseW + 1.0f) * p.halfHeight;
+    const bool inside = (w > p.nearPlane) & (w < p.farPlane) & (wx >= 0.0f) & (wx < p.width) &
+                        (wy >= 0.0f) & (wy < p.height);
+    // Converted only in range (NaN and overflow are undefined as integers).
+    const auto column = static_cast<std::uint32_t>(static_cast<std::int32_t>(inside ? wx : 0.0f));
+    const auto row = static_cast<std::uint32_t>(static_cast<std::int32_t>(inside ? wy : 0.0f));
+    pixels[i] = inside ? row * p.rowPixels + column : kNoPixel;
+    depthBits[i] = std::bit_cast<std::uint32_t>(w);
+  }
+}
+
+// The z-test of a block of projected points: the nearest wins (on equal
+// depths, the lower payload). Returns how many landed in the frame. The
+// z-buffer is larger than the caches and points that were hidden in the
+// last frame land anywhere: the pixels a few points ahead are fetched early.
+template <class PayloadOf>
+std::uint64_t depthTest(const std::uint32_t* __restrict pixels,
+                        const std::uint32_t* __restrict depthBits, std::size_t count,
+                        PayloadOf payloadOf, std::uint64_t* __restrict zbuffer) {
+  constexpr std::size_t kAhead = 16;
+  std::uint64_t landed = 0;
+  for (std::size_t i = 0; i < count; ++i) {
+    if (i + kAhead < count && pixels[i + kAhead] != kNoPixel) {
+      __builtin_prefetch(zbuffer + pixels[i + kAhead], 1);
+    }
+    const std::uint32_t pixel = pixels[i];
+    if (pixel == kNoPixel) continue;
+    ++landed;
+    const std::uint64_t key = (std::uint64_t{depthBits[i]} << 32) | payloadOf(i);
+    zbuffer[pixel] = std::min(zbuffer[pixel], key);
+  }
+  return landed;
+}
+
+// Eye depths of one row of the z-buffer; +infinity where no sample.
+POINTILLIST_VECTOR_KERNEL
+void depthRow(const std::uint64_t* __restrict keys, std::uint32_t width, float* __restrict depth) {
+  for (std::uint32_t x = 0; x < width; ++x) {
+    const std::uint64_t key = keys[x];
+    depth[x] =
+        key == kNoSample ? kFar : std::bit_cast<float>(static_cast<std::uint32_t>(key >> 32));
+  }
+}
+
+// By value: std::min returns a reference, which can keep a loop from vectorising.
+inline float least(float a, float b) {
+  return b < a ? b : a;
+}
+
+// out = least of seven rows, element by element.
+POINTILLIST_VECTOR_KERNEL
+void minOfSevenRows(const std::array<const float*, 7> rows, std::uint32_t width,
+                    float* __restrict out) {
+  const float* __restrict r0 = rows[0];
+  const float* __restrict r1 = rows[1];
+  const float* __restrict r2 = rows[2];
+  const float* __restrict r3 = rows[3];
+  const float* __restrict r4 = rows[4];
+  const float* __restrict r5 = rows[5];
+  const float* __restrict r6 = rows[6];
+  for (std::uint32_t x = 0; x < width; ++x) {
+    const float a = least(least(r0[x], r1[x]), least(r2[x], r3[x]));
+    const float b = least(least(r4[x], r5[x]), r6[x]);
+    out[x] = least(a, b);
+  }
+}
+
+// Least of in[x-3 .. x+3], clipped at the ends of the row.
+float leastAround(const float* in, std::uint32_t width, std::uint32_t x) {
+  float lowest = kFar;
+  const std::uint32_t last = std::min(x + kReach, width - 1);
+  for (std::uint32_t xx = x < kReach ? 0 : x - kReach; xx <= last; ++xx) {
+    lowest = least(lowest, in[xx]);
+  }
+  return lowest;
+}
+
+// out[x] = least of in[x-3 .. x+3] (clipped at the ends).
+POINTILLIST_VECTOR_KERNEL
+void minOfSevenColumns(const float* __restrict in, std::uint32_t width, float* __restrict out) {
+  if (width <= 2 * kReach) {
+    for (std::uint32_t x = 0; x < width; ++x) out[x] = leastAround(in, width, x);
+    return;
+  }
+  const std::uint32_t end = width - kReach;
+  for (std::uint32_t x = 0; x < kReach; ++x) out[x] = leastAround(in, width, x);
+  for (std::uint32_t x = kReach; x < end; ++x) {
+    const float a = least(least(in[x - 3], in[x - 2]), least(in[x - 1], in[x]));
+    const float b = least(least(in[x + 1], in[x + 2]), in[x + 3]);
+    out[x] = least(a, b);
+  }
+  for (std::uint32_t x = end; x < width; ++x) out[x] = leastAround(in, width, x);
+}
+
+// The depth cull of one row's interior (see reproject): `nearRows` are the
+// 7-column minima of the three rows below and the three above.
+POINTILLIST_VECTOR_KERNEL
+std::uint64_t cullRow(const float* __restrict depth, const float* __restrict columnMin,
+                      const std::array<const float*, 6> nearRows, std::uint32_t width,
+                      float pullForward, std::uint64_t* __restrict keys) {
+  const float* __restrict below3 = nearRows[0];
+  const float* __restrict below2 = nearRows[1];
+  const float* __restrict below1 = nearRows[2];
+  const float* __restrict above1 = nearRows[3];
+  const float* __restrict above2 = nearRows[4];
+  const float* __restrict above3 = nearRows[5];
+  std::uint64_t culled = 0;
+  const std::uint32_t end = width - kReach;  // callers: width > 2 * kReach
+  for (std::uint32_t x = kReach; x < end; ++x) {
+    const float nearer = depth[x] * pullForward;
+    const float left = least(least(columnMin[x - 1], columnMin[x - 2]), columnMin[x - 3]);
+    const float right = least(least(columnMin[x + 1], columnMin[x + 2]), columnMin[x + 3]);
+    const float below = least(least(below1[x], below2[x]), below3[x]);
+    const float above = least(least(above1[x], above2[x]), above3[x]);
+    const bool cull = (keys[x] != kNoSample) & (left < nearer) & (right < nearer) &
+                      (below < nearer) & (above < nearer);
+    keys[x] = cull ? kNoSample : keys[x];
+    culled += cull ? 1u : 0u;
+  }
+  return culled;
+}
+
+// The colour (opaque) and priority of one row's samples; background and
+// the hole priority elsewhere (interpolation comes after). Returns the samples.
+POINTILLIST_VECTOR_KERNEL
+std::uint64_t shadeRow(const std::uint64_t* __restrict keys, std::uint32_t width,
+                       std::uint32_t background, std::uint32_t* __restrict rgba,
+                       std::uint8_t* __restrict priority) {
+  std::uint64_t samples = 0;
+  for (std::uint32_t x = 0; x < width; ++x) {
+    const std::uint64_t key = keys[x];
+    const bool sample = key != kNoSample;
+    const auto payload = static_cast<std::uint32_t>(key);
+    const std::uint32_t aged =
+        std::min<std::uint32_t>(kPriorityDense - 1, (payload >> 24) * kPriorityPerAge);
+    rgba[x] = sample ? (payload | 0xff000000u) : background;
+    priority[x] = static_cast<std::uint8_t>(sample ? kPriorityFreshSample + aged : kPriorityHole);
+    samples += sample ? 1u : 0u;
+  }
+  return samples;
+}
 
 std::uint32_t packRgba(const std::uint8_t* rgba) {
   std::uint32_t value;
@@ -24,13 +228,36 @@ std::uint32_t packRgba(const std::uint8_t* rgba) {
   return value;
 }
 
-void unpackRgba(std::uint32_t value, std::uint8_t* rgba) {
-  std::memcpy(rgba, &value, 4);
-}
-
-std::uint8_t channel(std::uint32_t value, int index) {
-  return static_cast<std::uint8_t>(value >> (8 * index));
-}
+// A weighted mean of the colours of z-buffer words; words without a sample
+// add nothing.
+struct Blend {
+  unsigned weight = 0, r = 0, g = 0, b = 0;
+  // `shift` 0: weight 1, 1: weight 2. Masks, not multiplies or branches.
+  void add(std::uint64_t key, unsigned shift) {
+    const unsigned mask = key != kNoSample ? ~0u : 0u;
+    const auto c = static_cast<std::uint32_t>(key) & mask;
+    weight += (1u & mask) << shift;
+    r += (c & 0xffu) << shift;
+    g += ((c >> 8) & 0xffu) << shift;
+    b += ((c >> 16) & 0xffu) << shift;
+  }
+  // The mean, rounded (one reciprocal, not three integer divisions).
+  void write(std::uint8_t* rgba) const {
+    const float inverse = 1.0f / static_cast<float>(weight);
+    rgba[0] = static_cast<std::uint8_t>(static_cast<float>(r) * inverse + 0.5f);
+    rgba[1] = static_cast<std::uint8_t>(static_cast<float>(g) * inverse + 0.5f);
+    rgba[2] = static_cast<std::uint8_t>(static_cast<float>(b) * inverse + 0.5f);
+    rgba[3] = 255;
+  }
+  // A sum kept as {weight, r, g, b}.
+  std::array<std::uint32_t, 4> sums() const { return {weight, r, g, b}; }
+  void add(const std::array<std::uint32_t, 4>& sums) {
+    weight += sums[0];
+    r += sums[1];
+    g += sums[2];
+    b += sums[3];
+  }
+};
 
 // Eye rays of pixel centres: world = eye + depth * (forward + ndcX sx right + ndcY sy up).
 struct PixelUnprojector {
@@ -79,100 +306,75 @@ RenderCache::RenderCache(RenderCacheOptions options) : options_(options) {}
 
 std::uint32_t RenderCache::oldestAge() const {
   std::uint8_t oldest = 0;
-  for (const std::uint8_t age : age_) oldest = std::max(oldest, age);
+  for (const std::uint8_t age : points_.age) oldest = std::max(oldest, age);
   return oldest;
 }
 
 void RenderCache::clear() {
-  x_.clear();
-  y_.clear();
-  z_.clear();
-  colour_.clear();
-  age_.clear();
+  points_.clear();
 }
 
-std::uint64_t RenderCache::project(const Camera& camera) {
+void RenderCache::Points::clear() {
+  x.clear();
+  y.clear();
+  z.clear();
+  colour.clear();
+  age.clear();
+}
+
+void RenderCache::Points::reserve(std::size_t count) {
+  x.reserve(count);
+  y.reserve(count);
+  z.reserve(count);
+  colour.reserve(count);
+  age.reserve(count);
+}
+
+void RenderCache::Points::push(const glm::vec3& position, std::uint32_t rgba,
+                               std::uint8_t pointAge) {
+  x.push_back(position.x);
+  y.push_back(position.y);
+  z.push_back(position.z);
+  colour.push_back(rgba);
+  age.push_back(pointAge);
+}
+
+std::uint64_t RenderCache::project(const Camera& camera, Payload payload) {
   validateCamera(camera);
-  const std::uint32_t width = camera.image_width();
-  const std::uint32_t height = camera.image_height();
-  zbuffer_.resize(static_cast<std::size_t>(width) * height);
-  std::fill(zbuffer_.begin(), zbuffer_.end(), kNoPoint);
-  const glm::mat4 m = viewProjectionMatrix(camera);
-  const float nearPlane = camera.near_plane();
-  const float farPlane = camera.far_plane();
-  const float halfWidth = 0.5f * static_cast<float>(width);
-  const float halfHeight = 0.5f * static_cast<float>(height);
-  const float widthLimit = static_cast<float>(width);
-  const float heightLimit = static_cast<float>(height);
+  const std::size_t pixels = static_cast<std::size_t>(camera.image_width()) * camera.image_height();
+  // The passes that read the z-buffer leave it clear for the next frame
+  // (their rows are in cache then; a separate pass costs a trip to memory).
+  if (zbuffer_.size() != pixels || !zbufferClear_) zbuffer_.assign(pixels, kNoSample);
+  zbufferClear_ = false;
+  blockPixel_.resize(kPointBlock);
+  blockDepth_.resize(kPointBlock);
+  const ScreenProjection projection = screenProjection(camera);
   std::uint64_t landed = 0;
-  const std::size_t count = x_.size();
-  for (std::size_t i = 0; i < count; ++i) {
-    const float px = x_[i], py = y_[i], pz = z_[i];
-    const float w = m[0][3] * px + m[1][3] * py + m[2][3] * pz + m[3][3];
-    if (!(w > nearPlane && w < farPlane)) continue;
-    const float inverseW = 1.0f / w;
-    const float cx = m[0][0] * px + m[1][0] * py + m[2][0] * pz + m[3][0];
-    const float cy = m[0][1] * px + m[1][1] * py + m[2][1] * pz + m[3][1];
-    const float wx = (cx * inverseW + 1.0f) * halfWidth;
-    const float wy = (cy * inverseW + 1.0f) * halfHeight;
-    if (!(wx >= 0.0f && wx < widthLimit && wy >= 0.0f && wy < heightLimit)) continue;
-    ++landed;
-    // Positive floats order as their bits: depth and index compare as one word.
-    const std::uint64_t key =
-        (std::uint64_t{std::bit_cast<std::uint32_t>(w)} << 32) | static_cast<std::uint32_t>(i);
-    std::uint64_t& slot =
-        zbuffer_[static_cast<std::size_t>(wy) * width + static_cast<std::size_t>(wx)];
-    slot = std::min(slot, key);
-  }
-  return landed;
-}
-
-void RenderCache::removeMarked() {
-  std::size_t kept = 0;
-  const std::size_t count = x_.size();
-  for (std::size_t i = 0; i < count; ++i) {
-    if (remove_[i] != 0) continue;
-    x_[kept] = x_[i];
-    y_[kept] = y_[i];
-    z_[kept] = z_[i];
-    colour_[kept] = colour_[i];
-    age_[kept] = age_[i];
-    ++kept;
-  }
-  x_.resize(kept);
-  y_.resize(kept);
-  z_.resize(kept);
-  colour_.resize(kept);
-  age_.resize(kept);
-}
-
-// Evicts the eldest points until `wanted` new ones fit; returns how many fit.
-std::size_t RenderCache::makeRoom(std::size_t wanted) {
-  const std::size_t capacity = options_.capacity;
-  if (size() + wanted <= capacity) return wanted;
-  std::size_t excess = std::min(size(), size() + wanted - capacity);
-  std::array<std::size_t, 256> byAge{};
-  for (const std::uint8_t age : age_) ++byAge[age];
-  // Every point older than `threshold` goes, and enough of those at it.
-  int threshold = 255;
-  std::size_t older = 0;
-  while (threshold > 0 && older + byAge[static_cast<std::size_t>(threshold)] < excess) {
-    older += byAge[static_cast<std::size_t>(threshold)];
-    --threshold;
-  }
-  std::size_t atThreshold = excess - std::min(excess, older);
-  remove_.assign(size(), 0);
-  for (std::size_t i = 0; i < age_.size(); ++i) {
-    if (age_[i] > threshold) {
-      remove_[i] = 1;
-    } else if (age_[i] == threshold && atThreshold > 0) {
-      remove_[i] = 1;
-      --atThreshold;
+  const std::size_t count = points_.size();
+  // In blocks: the projection vectorises, the scattered z-test cannot, and
+  // the block between them stays in cache.
+  for (std::size_t first = 0; first < count; first += kPointBlock) {
+    const std::size_t n = std::min(kPointBlock, count - first);
+    projectPoints(projection, points_.x.data() + first, points_.y.data() + first,
+                  points_.z.data() + first, n, blockPixel_.data(), blockDepth_.data());
+    if (payload == Payload::pointIndex) {
+      const auto firstPoint = static_cast<std::uint32_t>(first);
+      landed += depthTest(
+          blockPixel_.data(), blockDepth_.data(), n,
+          [firstPoint](std::size_t i) { return firstPoint + static_cast<std::uint32_t>(i); },
+          zbuffer_.data());
+    } else {
+      const std::uint32_t* colour = points_.colour.data() + first;
+      const std::uint8_t* age = points_.age.data() + first;
+      landed += depthTest(
+          blockPixel_.data(), blockDepth_.data(), n,
+          [colour, age](std::size_t i) {
+            return (colour[i] & 0x00ffffffu) | (std::uint32_t{age[i]} << 24);
+          },
+          zbuffer_.data());
     }
   }
-  counters_.evictedFull += excess;
-  removeMarked();
-  return std::min(wanted, capacity - size());
+  return landed;
 }
 
 void RenderCache::insert(const Camera& camera, const Image& image, std::span<const float> depth) {
@@ -187,88 +389,123 @@ void RenderCache::insert(const Camera& camera, const Image& image, std::span<con
                      " depth values");
   }
   if (options_.capacity == 0) options_.capacity = 2 * pixels;
+  const std::size_t capacity = options_.capacity;
   ++counters_.framesInserted;
-  project(camera);
-  for (std::uint8_t& age : age_) age = static_cast<std::uint8_t>(std::min(255, age + 1));
-  remove_.assign(size(), 0);
+  project(camera, Payload::pointIndex);
+  const std::size_t previous = size();
+  taken_.assign(previous, 0);  // replaced by the frame's sample, or wrong
+  next_.clear();
+  next_.reserve(std::min(capacity, previous + pixels));
 
+  // The frame's samples first, in pixel order: the next camera is close to
+  // this one, so its reprojection then reads the points almost in order.
   const PixelUnprojector unproject(camera);
-  std::vector<std::uint32_t> fresh;  // pixels that become new points
-  std::size_t marked = 0;            // points marked for removal
+  const float behind = 1.0f + options_.sameSurfaceFraction;
+  const float inFront = 1.0f - options_.sameSurfaceFraction;
   for (std::uint32_t y = 0; y < height; ++y) {
+    const std::uint8_t* colours = image.pixel(0, y);
     for (std::uint32_t x = 0; x < width; ++x) {
       const std::size_t pixel = static_cast<std::size_t>(y) * width + x;
       const std::uint64_t key = zbuffer_[pixel];
+      zbuffer_[pixel] = kNoSample;
+      const auto index = static_cast<std::uint32_t>(key);
       const float d = depth[pixel];
       const bool covered = std::isfinite(d) && d > 0.0f;
-      if (key == kNoPoint) {
-        if (covered) fresh.push_back(static_cast<std::uint32_t>(pixel));
-        continue;
-      }
-      const auto index = static_cast<std::size_t>(key & 0xffffffffu);
-      if (!covered) {  // the frame sees nothing along this ray: the point was wrong
-        remove_[index] = 1;
-        ++marked;
-        ++counters_.removedWrong;
-        continue;
-      }
-      const float cachedDepth = std::bit_cast<float>(static_cast<std::uint32_t>(key >> 32));
-      if (cachedDepth > d * (1.0f + options_.sameSurfaceFraction)) {
-        fresh.push_back(static_cast<std::uint32_t>(pixel));  // hidden behind: it stays
-        continue;
-      }
-      if (cachedDepth < d * (1.0f - options_.sameSurfaceFraction)) {
-        ++counters_.removedWrong;  // in front of the surface the frame shows
+      if (key != kNoSample) {
+        if (!covered) {  // the frame sees nothing along this ray: the point was wrong
+          taken_[index] = 1;
+          ++counters_.removedWrong;
+          continue;
+        }
+        const float cachedDepth = std::bit_cast<float>(static_cast<std::uint32_t>(key >> 32));
+        if (cachedDepth > d * behind) {
+          ++counters_.added;  // hidden behind the frame's surface: it stays
+        } else {
+          taken_[index] = 1;  // this sample replaces it
+          if (cachedDepth < d * inFront) {
+            ++counters_.removedWrong;  // it lay in front of the surface the frame shows
+          } else {
+            ++counters_.refreshed;
+          }
+        }
+      } else if (covered) {
+        ++counters_.added;
       } else {
-        ++counters_.refreshed;
+        continue;
       }
+      if (next_.size() == capacity) continue;  // a frame larger than the cache
       const glm::vec3 world = unproject(x, y, d);
-      x_[index] = world.x;
-      y_[index] = world.y;
-      z_[index] = world.z;
-      colour_[index] = packRgba(image.pixel(x, y));
-      age_[index] = 0;
+      next_.push(world, packRgba(colours + 4 * std::size_t{x}), 0);
     }
   }
-  for (std::size_t i = 0; i < age_.size(); ++i) {
-    if (age_[i] > options_.maxAge && remove_[i] == 0) {
-      remove_[i] = 1;
-      ++marked;
+
+  zbufferClear_ = true;  // the loop cleared each pixel it read
+
+  // Then the cached points the frame did not replace, a frame older. Those
+  // past maxAge leave; when the cache is full the eldest make room.
+  std::array<std::size_t, 256> byAge{};
+  for (std::size_t i = 0; i < previous; ++i) {
+    if (taken_[i] != 0) continue;
+    const auto age = static_cast<std::uint8_t>(std::min(255, points_.age[i] + 1));
+    if (age > options_.maxAge) {
+      taken_[i] = 1;
       ++counters_.removedOld;
+      continue;
     }
+    ++byAge[age];
   }
-  if (marked > 0) removeMarked();  // most frames remove nothing
-  const std::size_t fits = makeRoom(fresh.size());
-  for (std::size_t i = 0; i < fits; ++i) {
-    const std::uint32_t pixel = fresh[i];
-    const std::uint32_t x = pixel % width;
-    const std::uint32_t y = pixel / width;
-    const glm::vec3 world = unproject(x, y, depth[pixel]);
-    x_.push_back(world.x);
-    y_.push_back(world.y);
-    z_.push_back(world.z);
-    colour_.push_back(packRgba(image.pixel(x, y)));
-    age_.push_back(0);
+  std::size_t candidates = 0;
+  for (const std::size_t count : byAge) candidates += count;
+  const std::size_t room = capacity - next_.size();
+  std::size_t excess = candidates > room ? candidates - room : 0;
+  counters_.evictedFull += excess;
+  // Every point older than `threshold` goes, and the first `atThreshold` at it.
+  std::size_t threshold = byAge.size() - 1;
+  std::size_t older = 0;
+  while (threshold > 0 && older + byAge[threshold] < excess) {
+    older += byAge[threshold];
+    --threshold;
   }
-  counters_.added += fits;
+  std::size_t atThreshold = excess > older ? excess - older : 0;
+  if (excess == 0) threshold = byAge.size();  // nothing to evict
+  for (std::size_t i = 0; i < previous; ++i) {
+    if (taken_[i] != 0) continue;
+    const auto age = static_cast<std::uint8_t>(std::min(255, points_.age[i] + 1));
+    if (age > threshold) continue;
+    if (age == threshold && atThreshold > 0) {
+      --atThreshold;
+      continue;
+    }
+    next_.push({points_.x[i], points_.y[i], points_.z[i]}, points_.colour[i], age);
+  }
+  std::swap(points_, next_);
 }
 
 InterimFrame RenderCache::reproject(const Camera& camera) {
   const auto start = Clock::now();
   InterimFrame frame;
-  frame.pointsInView = project(camera);
+  frame.pointsInView = project(camera, Payload::colourAndAge);
   const std::uint32_t width = camera.image_width();
   const std::uint32_t height = camera.image_height();
   const std::size_t pixels = static_cast<std::size_t>(width) * height;
-  // The nearest point's depth per pixel, +infinity where none landed.
-  constexpr float kFar = std::numeric_limits<float>::infinity();
-  sampleDepth_.resize(pixels);
-  for (std::size_t pixel = 0; pixel < pixels; ++pixel) {
-    const std::uint64_t key = zbuffer_[pixel];
-    sampleDepth_[pixel] =
-        key == kNoPoint ? kFar : std::bit_cast<float>(static_cast<std::uint32_t>(key >> 32));
+  frame.image = Image(width, height, options_.background);
+  frame.priority.resize(pixels);
+  if (frame.pointsInView == 0) {  // nothing cached in view: all holes
+    std::fill(frame.priority.begin(), frame.priority.end(), kPriorityHole);
+    frame.holes = pixels;
+    frame.seconds = secondsBetween(start, Clock::now());
+    return frame;
   }
+  std::uint64_t* keys = zbuffer_.data();
+  const auto keyRow = [&](std::int64_t y) { return keys + static_cast<std::size_t>(y) * width; };
 
+  // The passes after the projection run as a pipeline down the rows, a few
+  // rows apart, so that each z-buffer row is still in cache when the next
+  // pass reads it (the z-buffer itself is far larger than the caches):
+  //   row t      its depths, and their least over 7 columns;
+  //   row t - 3  the least depth over 7 rows, the depth cull, the colours;
+  //   row t - 6  interpolation, which reads the culled rows 3 above.
+  //
   // Depth cull, the paper's filtered-depth test taken per side: a sample is
   // culled when each side of its 7x7 neighbourhood (the three columns left,
   // the three right, the three rows below, the three above) holds a sample
@@ -276,174 +513,129 @@ InterimFrame RenderCache::reproject(const Camera& camera) {
   // through a gap of a nearer surface. The paper's filter, the mean of the
   // 3x3 neighbourhood, also culls the far side of every silhouette (a
   // background pixel beside an object); one side alone never culls here.
-  // Minimum depths over 7 rows, then over 7 columns: both vectorise.
-  constexpr std::uint32_t kReach = 3;
-  std::vector<float>& columnMin = columnMinDepth_;
-  std::vector<float>& rowMin = rowMinDepth_;
-  columnMin.resize(pixels);
-  rowMin.resize(pixels);
-  for (std::uint32_t y = 0; y < height; ++y) {
-    float* out = columnMin.data() + static_cast<std::size_t>(y) * width;
-    std::fill(out, out + width, kFar);
-    for (std::uint32_t yy = y < kReach ? 0 : y - kReach; yy <= std::min(y + kReach, height - 1);
-         ++yy) {
-      const float* in = sampleDepth_.data() + static_cast<std::size_t>(yy) * width;
-      for (std::uint32_t x = 0; x < width; ++x) out[x] = in[x] < out[x] ? in[x] : out[x];
-    }
-    // Seven shifted rows, so the interior vectorises; the borders apart.
-    const float* in = sampleDepth_.data() + static_cast<std::size_t>(y) * width;
-    float* across = rowMin.data() + static_cast<std::size_t>(y) * width;
-    const auto edge = [&](std::uint32_t x) {
-      float least = kFar;
-      for (std::uint32_t xx = x < kReach ? 0 : x - kReach; xx <= std::min(x + kReach, width - 1);
-           ++xx) {
-        least = std::min(least, in[xx]);
-      }
-      across[x] = least;
-    };
-    if (width <= 2 * kReach) {
-      for (std::uint32_t x = 0; x < width; ++x) edge(x);
-      continue;
-    }
-    for (std::uint32_t x = 0; x < kReach; ++x) edge(x);
-    for (std::uint32_t x = kReach; x + kReach < width; ++x) {
-      float least = in[x - 3] < in[x - 2] ? in[x - 3] : in[x - 2];
-      least = in[x - 1] < least ? in[x - 1] : least;
-      least = in[x] < least ? in[x] : least;
-      least = in[x + 1] < least ? in[x + 1] : least;
-      least = in[x + 2] < least ? in[x + 2] : least;
-      across[x] = in[x + 3] < least ? in[x + 3] : least;
-    }
-    for (std::uint32_t x = width - kReach; x < width; ++x) edge(x);
-  }
+  // The tests read the depths, so culling a sample does not change its
+  // neighbours' tests.
+  constexpr std::uint32_t kRing = 8;  // rows kept of each per-row buffer
+  const auto ring = [&](std::vector<float>& buffer, std::int64_t y) {
+    return buffer.data() + static_cast<std::size_t>(y % kRing) * width;
+  };
+  const auto clampRow = [&](std::int64_t y) {
+    return std::clamp<std::int64_t>(y, 0, std::int64_t{height} - 1);
+  };
+  sampleDepth_.resize(std::size_t{kRing} * width);
+  rowMinDepth_.resize(std::size_t{kRing} * width);
+  columnMinDepth_.resize(width);
+  boxMinDepth_.resize(std::size_t{kRing} * width);
   const float pullForward = 1.0f / (1.0f + options_.depthCullFraction);
-  for (std::uint32_t y = kReach; y + kReach < height; ++y) {
-    const std::size_t row = static_cast<std::size_t>(y) * width;
-    for (std::uint32_t x = kReach; x + kReach < width; ++x) {
-      const std::size_t pixel = row + x;
-      if (zbuffer_[pixel] == kNoPoint) continue;
-      const float nearer = sampleDepth_[pixel] * pullForward;
-      const float* columns = columnMin.data() + pixel;
-      const float* rows = rowMin.data() + pixel;
-      const float left = std::min({columns[-1], columns[-2], columns[-3]});
-      const float right = std::min({columns[1], columns[2], columns[3]});
-      const float below = std::min({rows[-static_cast<std::ptrdiff_t>(width)],
-                                    rows[-2 * static_cast<std::ptrdiff_t>(width)],
-                                    rows[-3 * static_cast<std::ptrdiff_t>(width)]});
-      const float above = std::min({rows[width], rows[2 * static_cast<std::size_t>(width)],
-                                    rows[3 * static_cast<std::size_t>(width)]});
-      if (left < nearer && right < nearer && below < nearer && above < nearer) {
-        zbuffer_[pixel] = kNoPoint;  // its neighbours' tests used the depth image
-        ++frame.culled;
+  const std::uint32_t background = packRgba(options_.background.data());
+  shadedRow_.resize(width);
+  columnBlend_.resize(width);
+  columnBlendRow_.assign(width, ~std::uint32_t{0});
+  const std::int64_t rows = height;
+  for (std::int64_t t = 0; t < rows + 2 * kReach; ++t) {
+    if (t < rows) {
+      depthRow(keyRow(t), width, ring(sampleDepth_, t));
+      minOfSevenColumns(ring(sampleDepth_, t), width, ring(rowMinDepth_, t));
+    }
+    if (const std::int64_t y = t - kReach; y >= 0 && y < rows) {
+      // Rows past the border repeat the edge row: the least of a set is
+      // unchanged by repeats.
+      std::array<const float*, 7> around{};
+      for (std::size_t k = 0; k < around.size(); ++k) {
+        around[k] = ring(sampleDepth_, clampRow(y + static_cast<std::int64_t>(k) - kReach));
       }
+      minOfSevenRows(around, width, columnMinDepth_.data());
+      minOfSevenColumns(columnMinDepth_.data(), width, ring(boxMinDepth_, y));
+      if (y >= kReach && y + kReach < rows && width > 2 * kReach) {
+        frame.culled += cullRow(
+            ring(sampleDepth_, y), columnMinDepth_.data(),
+            {ring(rowMinDepth_, y - 3), ring(rowMinDepth_, y - 2), ring(rowMinDepth_, y - 1),
+             ring(rowMinDepth_, y + 1), ring(rowMinDepth_, y + 2), ring(rowMinDepth_, y + 3)},
+            width, pullForward, keyRow(y));
+      }
+      // Colour and priority through a buffer (the image holds bytes).
+      frame.samples += shadeRow(keyRow(y), width, background, shadedRow_.data(),
+                                frame.priority.data() + static_cast<std::size_t>(y) * width);
+      std::memcpy(frame.image.pixel(0, static_cast<std::uint32_t>(y)), shadedRow_.data(),
+                  std::size_t{width} * 4);
+    }
+    if (const std::int64_t y = t - 2 * kReach; y >= 0) {
+      interpolateRow(static_cast<std::uint32_t>(y), ring(boxMinDepth_, y), frame);
+      // No pass reads that row again.
+      if (y >= kReach) std::fill_n(keyRow(y - kReach), width, kNoSample);
     }
   }
-
-  // Which 8x8 blocks have a sample within reach of the 7x7 box (the block or
-  // a neighbour): most empty pixels are far from any, and holes at once.
-  const std::uint32_t blocksX = (width + kBlock - 1) / kBlock;
-  const std::uint32_t blocksY = (height + kBlock - 1) / kBlock;
-  std::vector<std::uint8_t>& blockHasSample = blockHasSample_;
-  blockHasSample.assign(static_cast<std::size_t>(blocksX) * blocksY, 0);
-  for (std::uint32_t y = 0; y < height; ++y) {
-    const std::uint64_t* row = zbuffer_.data() + static_cast<std::size_t>(y) * width;
-    std::uint8_t* blocks = blockHasSample.data() + static_cast<std::size_t>(y / kBlock) * blocksX;
-    for (std::uint32_t x = 0; x < width; ++x) {
-      if (row[x] != kNoPoint) blocks[x / kBlock] = 1;
-    }
-  }
-  std::vector<std::uint8_t>& blockNear = blockNearSample_;
-  blockNear.assign(blockHasSample.size(), 0);
-  for (std::uint32_t by = 0; by < blocksY; ++by) {
-    for (std::uint32_t bx = 0; bx < blocksX; ++bx) {
-      if (blockHasSample[static_cast<std::size_t>(by) * blocksX + bx] == 0) continue;
-      for (std::uint32_t ny = by == 0 ? 0 : by - 1; ny <= std::min(by + 1, blocksY - 1); ++ny) {
-        for (std::uint32_t nx = bx == 0 ? 0 : bx - 1; nx <= std::min(bx + 1, blocksX - 1); ++nx) {
-          blockNear[static_cast<std::size_t>(ny) * blocksX + nx] = 1;
-        }
-      }
-    }
-  }
-
-  frame.image = Image(width, height, options_.background);
-  frame.priority.assign(pixels, kPriorityHole);
-  // After the cull: the colour of the point a pixel shows, if any.
-  const auto sampleAt = [&](std::uint32_t x, std::uint32_t y) {
-    return zbuffer_[static_cast<std::size_t>(y) * width + x] != kNoPoint;
-  };
-  const auto colourAt = [&](std::size_t pixel) {
-    return colour_[static_cast<std::size_t>(zbuffer_[pixel] & 0xffffffffu)];
-  };
-  for (std::uint32_t y = 0; y < height; ++y) {
-    const std::uint8_t* near = blockNear.data() + static_cast<std::size_t>(y / kBlock) * blocksX;
-    for (std::uint32_t x = 0; x < width; ++x) {
-      const std::size_t pixel = static_cast<std::size_t>(y) * width + x;
-      if (const std::uint64_t key = zbuffer_[pixel]; key != kNoPoint) {
-        const auto index = static_cast<std::size_t>(key & 0xffffffffu);
-        unpackRgba(colour_[index], frame.image.pixel(x, y));
-        frame.priority[pixel] = static_cast<std::uint8_t>(std::min<unsigned>(
-            kPriorityDense - 1, kPriorityFreshSample + unsigned{age_[index]} * kPriorityPerAge));
-        ++frame.samples;
-        continue;
-      }
-      if (near[x / kBlock] == 0) {
-        ++frame.holes;
-        continue;
-      }
-      std::uint8_t* out = frame.image.pixel(x, y);
-      // 3x3, centre-weighted: edge neighbours count twice the corners.
-      unsigned weight = 0, r = 0, g = 0, b = 0;
-      for (int dy = -1; dy <= 1; ++dy) {
-        const int yy = static_cast<int>(y) + dy;
-        if (yy < 0 || yy >= static_cast<int>(height)) continue;
-        for (int dx = -1; dx <= 1; ++dx) {
-          const int xx = static_cast<int>(x) + dx;
-          if (xx < 0 || xx >= static_cast<int>(width) || (dx == 0 && dy == 0)) continue;
-          if (!sampleAt(static_cast<std::uint32_t>(xx), static_cast<std::uint32_t>(yy))) continue;
-          const unsigned w = (dx == 0 || dy == 0) ? 2u : 1u;
-          const std::uint32_t c =
-              colourAt(static_cast<std::size_t>(yy) * width + static_cast<std::size_t>(xx));
-          weight += w;
-          r += w * channel(c, 0);
-          g += w * channel(c, 1);
-          b += w * channel(c, 2);
-        }
-      }
-      std::uint8_t priority = kPriorityDense;
-      if (weight == 0) {
-        // Sparse: a 7x7 box.
-        const std::uint32_t x0 = x < 3 ? 0 : x - 3, x1 = std::min(x + 3, width - 1);
-        const std::uint32_t y0 = y < 3 ? 0 : y - 3, y1 = std::min(y + 3, height - 1);
-        for (std::uint32_t yy = y0; yy <= y1; ++yy) {
-          for (std::uint32_t xx = x0; xx <= x1; ++xx) {
-            if (!sampleAt(xx, yy)) continue;
-            const std::uint32_t c = colourAt(static_cast<std::size_t>(yy) * width + xx);
-            ++weight;
-            r += channel(c, 0);
-            g += channel(c, 1);
-            b += channel(c, 2);
-          }
-        }
-        priority = kPrioritySparse;
-      }
-      if (weight == 0) {
-        ++frame.holes;
-        continue;
-      }
-      out[0] = static_cast<std::uint8_t>((r + weight / 2) / weight);
-      out[1] = static_cast<std::uint8_t>((g + weight / 2) / weight);
-      out[2] = static_cast<std::uint8_t>((b + weight / 2) / weight);
-      out[3] = 255;
-      frame.priority[pixel] = priority;
-      if (priority == kPriorityDense) {
-        ++frame.dense;
-      } else {
-        ++frame.sparse;
-      }
-    }
-  }
+  std::fill(keyRow(std::max<std::int64_t>(0, rows - kReach)), keyRow(rows), kNoSample);
+  zbufferClear_ = true;
   frame.seconds = secondsBetween(start, Clock::now());
   return frame;
+}
+
+// The pixels of row `y` without a sample take a weighted mean of the samples
+// near: 3x3 where there are some, else a 7x7 box. `boxMin`, the least depth
+// over each pixel's 7x7 box, says at once whether there is any (culled
+// samples count there, so a box may still turn out empty).
+void RenderCache::interpolateRow(std::uint32_t y, const float* boxMin, InterimFrame& frame) {
+  const std::uint32_t width = frame.image.width();
+  const std::uint32_t height = frame.image.height();
+  const std::uint64_t* keys = zbuffer_.data();
+  const auto keyAt = [&](std::uint32_t x, std::uint32_t yy) {
+    return keys[static_cast<std::size_t>(yy) * width + x];
+  };
+  const std::uint32_t y0 = y < kReach ? 0 : y - kReach, y1 = std::min(y + kReach, height - 1);
+  // The 7x7 box as seven columns of seven: the sparse pixels of a row share
+  // most columns with their neighbours, so each column is summed once a row.
+  const auto columnBlend = [&](std::uint32_t x) -> const std::array<std::uint32_t, 4>& {
+    if (columnBlendRow_[x] != y) {
+      Blend column;
+      for (std::uint32_t yy = y0; yy <= y1; ++yy) column.add(keyAt(x, yy), 0);
+      columnBlend_[x] = column.sums();
+      columnBlendRow_[x] = y;
+    }
+    return columnBlend_[x];
+  };
+  // Pixels without a sample have the hole priority so far (shadeRow): a
+  // byte search finds them many pixels at a time.
+  std::uint8_t* priorities = frame.priority.data() + static_cast<std::size_t>(y) * width;
+  for (std::uint32_t x = 0; x < width; ++x) {
+    const void* found = std::memchr(priorities + x, kPriorityHole, width - x);
+    if (found == nullptr) break;
+    x = static_cast<std::uint32_t>(static_cast<const std::uint8_t*>(found) - priorities);
+    if (boxMin[x] == kFar) {
+      ++frame.holes;
+      continue;
+    }
+    // 3x3, centre-weighted: edge neighbours count twice the corners.
+    // Without branches on which neighbours hold samples: in sparse regions
+    // that is a coin toss.
+    Blend blend;
+    const std::uint32_t left = x == 0 ? 0 : x - 1, right = std::min(x + 1, width - 1);
+    const std::uint32_t down = y == 0 ? 0 : y - 1, up = std::min(y + 1, height - 1);
+    const auto add = [&](std::uint32_t xx, std::uint32_t yy, unsigned shift) {
+      blend.add(keyAt(xx, yy), shift);
+    };
+    // Clamped at the image's edge, where a neighbour may count twice.
+    add(left, down, 0), add(x, down, 1), add(right, down, 0);
+    add(left, y, 1), add(right, y, 1);
+    add(left, up, 0), add(x, up, 1), add(right, up, 0);
+    std::uint8_t priority = kPriorityDense;
+    if (blend.weight == 0) {
+      const std::uint32_t x0 = x < kReach ? 0 : x - kReach, x1 = std::min(x + kReach, width - 1);
+      for (std::uint32_t xx = x0; xx <= x1; ++xx) blend.add(columnBlend(xx));
+      priority = kPrioritySparse;
+    }
+    if (blend.weight == 0) {
+      ++frame.holes;
+      continue;
+    }
+    blend.write(frame.image.pixel(x, y));
+    priorities[x] = priority;
+    if (priority == kPriorityDense) {
+      ++frame.dense;
+    } else {
+      ++frame.sparse;
+    }
+  }
 }
 
 }  // namespace pointillist::display
