@@ -7,7 +7,11 @@
 # change to the first frame shown (median, 95th percentile) and to the final
 # frame; with it: PSNR of each interim frame against its final frame, the share
 # of the final frame's covered pixels the interim one filled, and the time to
-# reproject. Plots the time to first frame per camera.
+# reproject. Plots the time to first frame per camera. Three cases per scene:
+# off (--interim-ms -1), on (the paper's: each camera reprojected before its
+# tiles go out, the tiles the cache could not fill first) and on-np
+# (--tile-priority none: the tiles go out at once, the reprojection runs
+# while they are drawn).
 #
 #   deploy/bench-render-cache.sh [--scenes city,bunny-10M] [--frames 48] [--layout 1,2,1,4]
 #       [--size 1280x720] [--path turns]
@@ -38,13 +42,14 @@ build_all
 out="${BENCH_OUT:-$POINTILLIST_ROOT/out/bench-render-cache}"
 mkdir -p "$out"
 
-# Runs one job (interim ms as given) and the client; leaves LOG and CSV.
+# Runs one job (display options as given) and the client; leaves LOG and CSV.
 run_case() {
-  local dataset="$1" interim="$2" tag="$3" work job endpoint
+  local dataset="$1" tag="$2" work job endpoint
+  shift 2
   work=$(mktemp -d /tmp/pointillist-bench-cache.XXXXXX)
   endpoint="ipc://$work/control"
   setsid bash "$POINTILLIST_ROOT/deploy/run.sh" --layout "$layout" --dataset "$dataset" --serve \
-    --listen "$endpoint" --size "$size" --interim-ms "$interim" --quiet >"$out/$tag-job.log" 2>&1 &
+    --listen "$endpoint" --size "$size" "$@" --quiet >"$out/$tag-job.log" 2>&1 &
   job=$!
   for _ in $(seq 1 600); do
     grep -q "service listening on" "$out/$tag-job.log" && break
@@ -85,10 +90,14 @@ table="$out/table.txt"
 IFS=',' read -r -a scene_list <<<"$scenes"
 for scene in "${scene_list[@]}"; do
   dataset=$(scene_dataset "$scene")
-  for interim in -1 0; do
-    tag="$scene-$([[ "$interim" == -1 ]] && echo off || echo on)"
-    log "$scene: render cache $([[ "$interim" == -1 ]] && echo off || echo on)"
-    run_case "$dataset" "$interim" "$tag"
+  for case_name in off on on-np; do
+    tag="$scene-$case_name"
+    log "$scene: render cache $case_name"
+    case "$case_name" in
+      off) run_case "$dataset" "$tag" --interim-ms -1 ;;
+      on) run_case "$dataset" "$tag" --interim-ms 0 --tile-priority cache ;;
+      on-np) run_case "$dataset" "$tag" --interim-ms 0 --tile-priority none ;;
+    esac
     csv="$out/$tag.csv"
     count=$(awk -F, 'NR > 1 && $4 == 1' "$csv" | wc -l)
     psnr=$(stats_of "$csv" 8 4 | awk '{print $1}')
@@ -96,10 +105,11 @@ for scene in "${scene_list[@]}"; do
       awk '{ v[NR] = $1 } END { if (NR) printf "%.1f", (NR % 2) ? v[(NR + 1) / 2] : (v[NR / 2] + v[NR / 2 + 1]) / 2; else printf "-" }')
     reproject=$(stats_of "$csv" 6 4 | awk '{print $1}')
     printf '%-10s %-8s | %s | %s | %7s %13s %12s %12s\n' "$scene" \
-      "$([[ "$interim" == -1 ]] && echo off || echo on)" "$(stats_of "$csv" 3)" \
+      "$case_name" "$(stats_of "$csv" 3)" \
       "$(stats_of "$csv" 2)" "$count/$frames" "$psnr" "$filled" "$reproject" >>"$table"
   done
 done
+echo "on-np: --tile-priority none (tiles at once, reprojection while they are drawn)" >>"$table"
 echo
 cat "$table"
 if command -v gnuplot >/dev/null; then
@@ -107,6 +117,7 @@ if command -v gnuplot >/dev/null; then
   for scene in "${scene_list[@]}"; do
     plots+="\"$out/$scene-off.csv\" using 1:3 with linespoints title \"$scene, no cache\", "
     plots+="\"$out/$scene-on.csv\" using 1:3 with linespoints title \"$scene, render cache\", "
+    plots+="\"$out/$scene-on-np.csv\" using 1:3 with linespoints title \"$scene, cache, tiles at once\", "
   done
   gnuplot <<PLOT
 set terminal pngcairo size 1000,560 font "sans,11" noenhanced

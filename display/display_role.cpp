@@ -64,6 +64,7 @@ struct DisplayOptions {
   std::size_t cachePoints = 0;
   std::uint32_t cacheMaxAge = RenderCacheOptions{}.maxAge;
   float depthCull = RenderCacheOptions{}.depthCullFraction;
+  std::string tilePriority = "cache";
 };
 
 // With --serve and no --interim-ms: an interim frame at once.
@@ -204,6 +205,7 @@ class DisplayProcess {
     cache.cache.capacity = options_.cachePoints;
     cache.cache.maxAge = options_.cacheMaxAge;
     cache.cache.depthCullFraction = options_.depthCull;
+    cache.tilePriority = options_.tilePriority == "cache";
     service_ = std::make_unique<ServiceFrameSource>(serviceOptions(), servedDataset(), cache);
     source_ = service_.get();
     std::printf("display: service listening on %s (frames on %s%s)\n",
@@ -240,7 +242,6 @@ class DisplayProcess {
           if (frame.settings.tile_depth()) depthFrames_.insert(framesAppended_ - 1);
           worked = true;
         }
-        source_->poll();
       }
       while (true) {
         meter.switchTo("receive");
@@ -264,6 +265,12 @@ class DisplayProcess {
       meter.switchTo("send");
       job_.sends().post(out);
       job_.sends().reap();
+      // After the new frames' tiles went out: a reprojection here runs while
+      // they are drawn.
+      if (source_ != nullptr) {
+        meter.switchTo("frame source");
+        source_->poll();
+      }
       meter.switchTo("finish frames");
       for (FinishedFrame& frame : assembly.finishFrames(Clock::now())) {
         emit(frame);
@@ -549,6 +556,13 @@ int runDisplayMain(int argc, char** argv) {
                  "Serve mode: render cache depth cull threshold, relative to the filtered depth")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
+  app.add_option("--tile-priority", options.tilePriority,
+                 "Serve mode: cache: a new camera is reprojected before its tiles go out, and "
+                 "the tiles the render cache could not fill go first (seed 001); none: the "
+                 "tiles go out at once and the reprojection runs while they are drawn (the "
+                 "final frame comes sooner)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"cache", "none"}));
   return runRoleMain(argc, argv, v1::ROLE_DISPLAY, app, [&](Job& job) {
     const auto start = Clock::now();
     std::unique_ptr<DisplayProcess> process;

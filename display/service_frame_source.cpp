@@ -1,9 +1,13 @@
 #include "display/service_frame_source.hpp"
 
 #include <algorithm>
+#include <condition_variable>
 #include <csignal>
 #include <cstdio>
-#include <optional>
+#include <exception>
+#include <mutex>
+#include <thread>
+#include <utility>
 
 #include "common/clock.hpp"
 #include "common/run_settings.hpp"
@@ -19,10 +23,119 @@ extern "C" void onStopSignal(int signal) {
 
 }  // namespace
 
+// Inserts final frames into the client caches on its own thread, in order.
+// When a client's next frame comes before its last one went in, the newer
+// replaces it in the queue: the cache wants the latest view.
+class ServiceFrameSource::Inserter {
+ public:
+  Inserter() : thread_([this] { run(); }) {}
+  ~Inserter() {
+    {
+      const std::lock_guard lock(mutex_);
+      stopping_ = true;
+      jobs_.clear();  // shutting down: what is not in yet is not needed
+    }
+    wake_.notify_all();
+    thread_.join();
+  }
+  Inserter(const Inserter&) = delete;
+  Inserter& operator=(const Inserter&) = delete;
+
+  void push(RenderCache* cache, const Camera& camera, Image image, std::vector<float> depth) {
+    {
+      const std::lock_guard lock(mutex_);
+      rethrowLocked();
+      const auto queued = std::find_if(jobs_.begin(), jobs_.end(),
+                                       [cache](const Job& job) { return job.cache == cache; });
+      Job job{cache, camera, std::move(image), std::move(depth)};
+      if (queued != jobs_.end()) {
+        *queued = std::move(job);
+        ++replaced_;
+      } else {
+        jobs_.push_back(std::move(job));
+      }
+    }
+    wake_.notify_one();
+  }
+
+  // Returns when no insert is queued or running (before a cache is cleared or
+  // dropped); rethrows an insert's failure.
+  void waitIdle() {
+    std::unique_lock lock(mutex_);
+    idle_.wait(lock, [this] { return jobs_.empty() && !busy_; });
+    rethrowLocked();
+  }
+
+  void rethrowFailure() {
+    const std::lock_guard lock(mutex_);
+    rethrowLocked();
+  }
+
+  struct Figures {
+    std::uint64_t inserted = 0, replaced = 0;
+    double seconds = 0.0;
+  };
+  Figures figures() const {
+    const std::lock_guard lock(mutex_);
+    return {inserted_, replaced_, seconds_};
+  }
+
+ private:
+  struct Job {
+    RenderCache* cache = nullptr;
+    Camera camera;
+    Image image;
+    std::vector<float> depth;
+  };
+
+  void rethrowLocked() {
+    if (failure_) std::rethrow_exception(std::exchange(failure_, nullptr));
+  }
+
+  void run() {
+    std::unique_lock lock(mutex_);
+    while (true) {
+      wake_.wait(lock, [this] { return stopping_ || !jobs_.empty(); });
+      if (stopping_) return;
+      Job job = std::move(jobs_.front());
+      jobs_.pop_front();
+      busy_ = true;
+      lock.unlock();
+      const auto start = std::chrono::steady_clock::now();
+      std::exception_ptr failure;
+      try {
+        job.cache->insert(job.camera, job.image, job.depth);
+      } catch (...) {
+        failure = std::current_exception();
+      }
+      const double seconds = secondsBetween(start, std::chrono::steady_clock::now());
+      lock.lock();
+      busy_ = false;
+      if (failure) {
+        failure_ = failure;
+      } else {
+        ++inserted_;
+        seconds_ += seconds;
+      }
+      idle_.notify_all();
+    }
+  }
+
+  mutable std::mutex mutex_;
+  std::condition_variable wake_, idle_;
+  std::deque<Job> jobs_;
+  bool busy_ = false, stopping_ = false;
+  std::exception_ptr failure_;
+  std::uint64_t inserted_ = 0, replaced_ = 0;
+  double seconds_ = 0.0;
+  std::thread thread_;  // last: it starts once the members it uses exist
+};
+
 ServiceFrameSource::ServiceFrameSource(service::ServiceOptions options,
                                        service::ServedDataset dataset,
                                        RenderCacheServing renderCache)
     : run_(dataset.run), renderCache_(renderCache) {
+  if (renderCache_.interimMs >= 0.0) inserter_ = std::make_unique<Inserter>();
   dataset.info.set_interim_ms(renderCache_.interimMs);
   frontEnd_ = std::make_unique<service::ServiceFrontEnd>(std::move(options), std::move(dataset));
   // A clean stop: the frames out are finished and every process is shut down.
@@ -42,16 +155,24 @@ ServiceFrameSource::ClientCache* ServiceFrameSource::cacheFor(const std::string&
   auto found = caches_.find(clientId);
   if (found == caches_.end()) {
     if (caches_.size() >= std::max<std::size_t>(1, renderCache_.maxClients)) {
+      inserter_->waitIdle();  // no insert may still use the cache that goes
       const auto eldest = std::min_element(caches_.begin(), caches_.end(), [](auto& a, auto& b) {
         return a.second.used < b.second.used;
       });
+      for (Started& started : started_) {
+        if (started.reprojectFrom == &eldest->second) started.reprojectFrom = nullptr;
+      }
       caches_.erase(eldest);
     }
-    found = caches_.emplace(clientId, ClientCache{RenderCache(renderCache_.cache), mode, {}}).first;
+    found = caches_.try_emplace(clientId, renderCache_.cache, mode).first;
   }
   ClientCache& entry = found->second;
   // Another mode draws other pixels: what was cached would be wrong.
   if (entry.mode != mode) {
+    inserter_->waitIdle();
+    for (Started& started : started_) {
+      if (started.reprojectFrom == &entry) started.reprojectFrom = nullptr;
+    }
     entry.cache.clear();
     entry.mode = mode;
   }
@@ -65,7 +186,7 @@ std::vector<FrameRequest> ServiceFrameSource::take(std::size_t room) {
     auto order = frontEnd_->nextFrame();
     if (!order) break;
     FrameRequest request{order->camera, order->settings, {}};
-    Started started{std::move(*order), nextFrame_++, nullptr, {}, false};
+    Started started{std::move(*order), nextFrame_++, nullptr, nullptr, {}, false};
     const v1::RenderMode mode = frameRunSettings(run_, request.settings).mode();
     // Render requests (a person moving the view), in a mode with one visible
     // surface per pixel; path frames are a film, shown exactly as drawn.
@@ -74,28 +195,44 @@ std::vector<FrameRequest> ServiceFrameSource::take(std::size_t room) {
       request.settings.set_tile_depth(true);
       ClientCache* client = cacheFor(started.order.request.clientId, mode);
       if (!client->cache.empty()) {
-        auto interim =
-            std::make_shared<const InterimFrame>(client->cache.reproject(request.camera));
-        ++interimsMade_;
-        reprojectSeconds_ += interim->seconds;
-        filledSum_ += interim->filledShare();
-        request.tilePriority = [interim](const TileRect& rect) {
-          return meanPriority(*interim, rect);
-        };
-        started.interim = std::move(interim);
         started.due = std::chrono::steady_clock::now() +
                       std::chrono::duration_cast<std::chrono::steady_clock::duration>(
                           std::chrono::duration<double, std::milli>(renderCache_.interimMs));
+        if (renderCache_.tilePriority) {
+          auto interim = reproject(*client, request.camera);
+          request.tilePriority = [interim](const TileRect& rect) {
+            return meanPriority(*interim, rect);
+          };
+          started.interim = std::move(interim);
+        } else {
+          started.reprojectFrom = client;
+        }
       }
     }
     frames.push_back(std::move(request));
     started_.push_back(std::move(started));
   }
-  poll();  // a deadline of 0 sends at once
+  if (renderCache_.tilePriority) poll();  // a deadline of 0 sends at once
   return frames;
 }
 
+std::shared_ptr<const InterimFrame> ServiceFrameSource::reproject(ClientCache& client,
+                                                                  const Camera& camera) {
+  auto interim = std::make_shared<const InterimFrame>(client.cache.reproject(camera));
+  ++interimsMade_;
+  reprojectSeconds_ += interim->seconds;
+  filledSum_ += interim->filledShare();
+  return interim;
+}
+
 void ServiceFrameSource::poll() {
+  if (inserter_) inserter_->rethrowFailure();
+  for (Started& started : started_) {
+    if (started.reprojectFrom != nullptr) {
+      started.interim = reproject(*started.reprojectFrom, started.order.camera);
+      started.reprojectFrom = nullptr;
+    }
+  }
   const auto now = std::chrono::steady_clock::now();
   for (Started& started : started_) {
     if (!started.interim || started.interimSent || now < started.due) continue;
@@ -136,7 +273,7 @@ void ServiceFrameSource::frameDone(const FinishedFrame& frame, Image image,
     }
   }
   const Camera camera = order.camera;
-  std::optional<Image> copy;
+  Image copy;
   if (cache != nullptr) copy = image;
   service::FrameOutcome outcome;
   outcome.frameId = frame.record.frame;
@@ -145,28 +282,26 @@ void ServiceFrameSource::frameDone(const FinishedFrame& frame, Image image,
   outcome.bytesOrdered = frame.record.bytesOrdered;
   outcome.incomplete = !frame.failedTiles.empty();
   frontEnd_->frameDone(std::move(order), outcome, std::move(image));
-  if (cache != nullptr) {
-    const auto start = std::chrono::steady_clock::now();
-    cache->cache.insert(camera, *copy, depth);
-    insertSeconds_ += secondsBetween(start, std::chrono::steady_clock::now());
-    ++framesCached_;
-  }
+  if (cache != nullptr) inserter_->push(&cache->cache, camera, std::move(copy), std::move(depth));
 }
 
 std::string ServiceFrameSource::renderCacheSummary() const {
   if (renderCache_.interimMs < 0.0) return "";
   const auto made = static_cast<double>(interimsMade_);
-  const auto cached = static_cast<double>(framesCached_);
-  char line[256];
-  std::snprintf(line, sizeof line,
-                "render cache: %llu interim frames made (%.2f ms each, %.1f %% filled), %llu "
-                "sent; %llu final frames cached (%.2f ms each)\n",
-                static_cast<unsigned long long>(interimsMade_),
-                interimsMade_ > 0 ? reprojectSeconds_ * 1000.0 / made : 0.0,
-                interimsMade_ > 0 ? filledSum_ * 100.0 / made : 0.0,
-                static_cast<unsigned long long>(interimsSent_),
-                static_cast<unsigned long long>(framesCached_),
-                framesCached_ > 0 ? insertSeconds_ * 1000.0 / cached : 0.0);
+  const Inserter::Figures inserts = inserter_->figures();
+  char line[320];
+  std::snprintf(
+      line, sizeof line,
+      "render cache: %llu interim frames made (%.2f ms each, %.1f %% filled), %llu "
+      "sent; %llu final frames cached (%.2f ms each, on the cache thread), %llu "
+      "passed over for a newer one\n",
+      static_cast<unsigned long long>(interimsMade_),
+      interimsMade_ > 0 ? reprojectSeconds_ * 1000.0 / made : 0.0,
+      interimsMade_ > 0 ? filledSum_ * 100.0 / made : 0.0,
+      static_cast<unsigned long long>(interimsSent_),
+      static_cast<unsigned long long>(inserts.inserted),
+      inserts.inserted > 0 ? inserts.seconds * 1000.0 / static_cast<double>(inserts.inserted) : 0.0,
+      static_cast<unsigned long long>(inserts.replaced));
   return line;
 }
 

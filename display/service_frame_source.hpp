@@ -9,6 +9,9 @@
 // at once: the interim frame goes to the client when the final one is not
 // composed interimMs after the frame started, and its priority image orders
 // the frame's tiles (the regions the cache could not fill are drawn first).
+// Final frames go into the caches on a thread of their own, after they went
+// to the client: the display goes on receiving tiles and starting frames
+// meanwhile, and a reprojection may run during an insert.
 #include <chrono>
 #include <deque>
 #include <map>
@@ -25,6 +28,10 @@ struct RenderCacheServing {
   double interimMs = -1.0;  // negative: no render cache
   RenderCacheOptions cache;
   std::size_t maxClients = 8;  // caches kept; the least recently used goes
+  // Reproject before the frame's tiles go out and order them by the cache's
+  // priority; false: reproject at the next poll, the tiles in the
+  // scheduler's order.
+  bool tilePriority = true;
 };
 
 class ServiceFrameSource final : public FrameSource {
@@ -47,6 +54,8 @@ class ServiceFrameSource final : public FrameSource {
 
  private:
   struct ClientCache {
+    ClientCache(const RenderCacheOptions& options, v1::RenderMode cachedMode)
+        : cache(options), mode(cachedMode) {}
     RenderCache cache;
     v1::RenderMode mode = v1::RENDER_MODE_UNSPECIFIED;  // the frames it holds
     std::chrono::steady_clock::time_point used;
@@ -55,19 +64,24 @@ class ServiceFrameSource final : public FrameSource {
     service::FrameOrder order;
     std::uint64_t frame = 0;
     std::shared_ptr<const InterimFrame> interim;  // none: no cache for it
+    ClientCache* reprojectFrom = nullptr;         // reprojection still to do
     std::chrono::steady_clock::time_point due;
     bool interimSent = false;
   };
   ClientCache* cacheFor(const std::string& clientId, v1::RenderMode mode);
+  std::shared_ptr<const InterimFrame> reproject(ClientCache& client, const Camera& camera);
+  class Inserter;
 
   std::unique_ptr<service::ServiceFrontEnd> frontEnd_;
   v1::RunSettings run_;
   RenderCacheServing renderCache_;
   std::map<std::string, ClientCache> caches_;
+  // After caches_: its jobs point into them, so it stops first.
+  std::unique_ptr<Inserter> inserter_;
   std::deque<Started> started_;  // oldest first
   std::uint64_t nextFrame_ = 0;
-  std::uint64_t interimsMade_ = 0, interimsSent_ = 0, framesCached_ = 0;
-  double reprojectSeconds_ = 0.0, insertSeconds_ = 0.0, filledSum_ = 0.0;
+  std::uint64_t interimsMade_ = 0, interimsSent_ = 0;
+  double reprojectSeconds_ = 0.0, filledSum_ = 0.0;
 };
 
 }  // namespace pointillist::display

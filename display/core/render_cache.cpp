@@ -304,13 +304,20 @@ double meanPriority(const InterimFrame& frame, const TileRect& rect) {
 
 RenderCache::RenderCache(RenderCacheOptions options) : options_(options) {}
 
+std::size_t RenderCache::size() const {
+  const std::shared_lock lock(pointsMutex_);
+  return points_.size();
+}
+
 std::uint32_t RenderCache::oldestAge() const {
+  const std::shared_lock lock(pointsMutex_);
   std::uint8_t oldest = 0;
   for (const std::uint8_t age : points_.age) oldest = std::max(oldest, age);
   return oldest;
 }
 
 void RenderCache::clear() {
+  const std::unique_lock lock(pointsMutex_);
   points_.clear();
 }
 
@@ -339,15 +346,16 @@ void RenderCache::Points::push(const glm::vec3& position, std::uint32_t rgba,
   age.push_back(pointAge);
 }
 
-std::uint64_t RenderCache::project(const Camera& camera, Payload payload) {
+std::uint64_t RenderCache::project(const Camera& camera, Payload payload, ZBuffer& zbuffer) const {
   validateCamera(camera);
   const std::size_t pixels = static_cast<std::size_t>(camera.image_width()) * camera.image_height();
   // The passes that read the z-buffer leave it clear for the next frame
   // (their rows are in cache then; a separate pass costs a trip to memory).
-  if (zbuffer_.size() != pixels || !zbufferClear_) zbuffer_.assign(pixels, kNoSample);
-  zbufferClear_ = false;
-  blockPixel_.resize(kPointBlock);
-  blockDepth_.resize(kPointBlock);
+  if (zbuffer.words.size() != pixels || !zbuffer.clear) zbuffer.words.assign(pixels, kNoSample);
+  zbuffer.clear = false;
+  zbuffer.blockPixel.resize(kPointBlock);
+  zbuffer.blockDepth.resize(kPointBlock);
+  const std::shared_lock lock(pointsMutex_);
   const ScreenProjection projection = screenProjection(camera);
   std::uint64_t landed = 0;
   const std::size_t count = points_.size();
@@ -356,22 +364,23 @@ std::uint64_t RenderCache::project(const Camera& camera, Payload payload) {
   for (std::size_t first = 0; first < count; first += kPointBlock) {
     const std::size_t n = std::min(kPointBlock, count - first);
     projectPoints(projection, points_.x.data() + first, points_.y.data() + first,
-                  points_.z.data() + first, n, blockPixel_.data(), blockDepth_.data());
+                  points_.z.data() + first, n, zbuffer.blockPixel.data(),
+                  zbuffer.blockDepth.data());
     if (payload == Payload::pointIndex) {
       const auto firstPoint = static_cast<std::uint32_t>(first);
       landed += depthTest(
-          blockPixel_.data(), blockDepth_.data(), n,
+          zbuffer.blockPixel.data(), zbuffer.blockDepth.data(), n,
           [firstPoint](std::size_t i) { return firstPoint + static_cast<std::uint32_t>(i); },
-          zbuffer_.data());
+          zbuffer.words.data());
     } else {
       const std::uint32_t* colour = points_.colour.data() + first;
       const std::uint8_t* age = points_.age.data() + first;
       landed += depthTest(
-          blockPixel_.data(), blockDepth_.data(), n,
+          zbuffer.blockPixel.data(), zbuffer.blockDepth.data(), n,
           [colour, age](std::size_t i) {
             return (colour[i] & 0x00ffffffu) | (std::uint32_t{age[i]} << 24);
           },
-          zbuffer_.data());
+          zbuffer.words.data());
     }
   }
   return landed;
@@ -391,7 +400,9 @@ void RenderCache::insert(const Camera& camera, const Image& image, std::span<con
   if (options_.capacity == 0) options_.capacity = 2 * pixels;
   const std::size_t capacity = options_.capacity;
   ++counters_.framesInserted;
-  project(camera, Payload::pointIndex);
+  // Only insert changes points_ (at the swap), so it reads them unlocked.
+  project(camera, Payload::pointIndex, insertZbuffer_);
+  std::uint64_t* keys = insertZbuffer_.words.data();
   const std::size_t previous = size();
   taken_.assign(previous, 0);  // replaced by the frame's sample, or wrong
   next_.clear();
@@ -406,8 +417,8 @@ void RenderCache::insert(const Camera& camera, const Image& image, std::span<con
     const std::uint8_t* colours = image.pixel(0, y);
     for (std::uint32_t x = 0; x < width; ++x) {
       const std::size_t pixel = static_cast<std::size_t>(y) * width + x;
-      const std::uint64_t key = zbuffer_[pixel];
-      zbuffer_[pixel] = kNoSample;
+      const std::uint64_t key = keys[pixel];
+      keys[pixel] = kNoSample;
       const auto index = static_cast<std::uint32_t>(key);
       const float d = depth[pixel];
       const bool covered = std::isfinite(d) && d > 0.0f;
@@ -439,7 +450,7 @@ void RenderCache::insert(const Camera& camera, const Image& image, std::span<con
     }
   }
 
-  zbufferClear_ = true;  // the loop cleared each pixel it read
+  insertZbuffer_.clear = true;  // the loop cleared each pixel it read
 
   // Then the cached points the frame did not replace, a frame older. Those
   // past maxAge leave; when the cache is full the eldest make room.
@@ -478,13 +489,14 @@ void RenderCache::insert(const Camera& camera, const Image& image, std::span<con
     }
     next_.push({points_.x[i], points_.y[i], points_.z[i]}, points_.colour[i], age);
   }
+  const std::unique_lock lock(pointsMutex_);
   std::swap(points_, next_);
 }
 
 InterimFrame RenderCache::reproject(const Camera& camera) {
   const auto start = Clock::now();
   InterimFrame frame;
-  frame.pointsInView = project(camera, Payload::colourAndAge);
+  frame.pointsInView = project(camera, Payload::colourAndAge, zbuffer_);
   const std::uint32_t width = camera.image_width();
   const std::uint32_t height = camera.image_height();
   const std::size_t pixels = static_cast<std::size_t>(width) * height;
@@ -493,10 +505,11 @@ InterimFrame RenderCache::reproject(const Camera& camera) {
   if (frame.pointsInView == 0) {  // nothing cached in view: all holes
     std::fill(frame.priority.begin(), frame.priority.end(), kPriorityHole);
     frame.holes = pixels;
+    zbuffer_.clear = true;  // nothing landed
     frame.seconds = secondsBetween(start, Clock::now());
     return frame;
   }
-  std::uint64_t* keys = zbuffer_.data();
+  std::uint64_t* keys = zbuffer_.words.data();
   const auto keyRow = [&](std::int64_t y) { return keys + static_cast<std::size_t>(y) * width; };
 
   // The passes after the projection run as a pipeline down the rows, a few
@@ -566,7 +579,7 @@ InterimFrame RenderCache::reproject(const Camera& camera) {
     }
   }
   std::fill(keyRow(std::max<std::int64_t>(0, rows - kReach)), keyRow(rows), kNoSample);
-  zbufferClear_ = true;
+  zbuffer_.clear = true;
   frame.seconds = secondsBetween(start, Clock::now());
   return frame;
 }
@@ -578,7 +591,7 @@ InterimFrame RenderCache::reproject(const Camera& camera) {
 void RenderCache::interpolateRow(std::uint32_t y, const float* boxMin, InterimFrame& frame) {
   const std::uint32_t width = frame.image.width();
   const std::uint32_t height = frame.image.height();
-  const std::uint64_t* keys = zbuffer_.data();
+  const std::uint64_t* keys = zbuffer_.words.data();
   const auto keyAt = [&](std::uint32_t x, std::uint32_t yy) {
     return keys[static_cast<std::size_t>(yy) * width + x];
   };

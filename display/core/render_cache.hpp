@@ -33,6 +33,7 @@
 // about 8 ms on one core (deploy/bench-render-cache.sh reports it per frame).
 #include <array>
 #include <cstdint>
+#include <shared_mutex>
 #include <span>
 #include <vector>
 
@@ -92,6 +93,12 @@ struct RenderCacheCounters {
   std::uint64_t evictedFull = 0;  // eldest, to make room
 };
 
+// One insert and one reprojection may run at the same time on two threads
+// (a display inserts the last final frame while it reprojects for the next
+// camera): insert builds the new cloud beside the old one and swaps them
+// under a lock, and the two keep their own scratch. Two inserts, or two
+// reprojections, at once are not allowed, nor clear() or counters() during
+// an insert.
 class RenderCache {
  public:
   explicit RenderCache(RenderCacheOptions options = {});
@@ -104,9 +111,9 @@ class RenderCache {
   // the frame shows background. Throws UsageError on a size mismatch.
   void insert(const Camera& camera, const Image& image, std::span<const float> depth);
 
-  std::size_t size() const { return points_.size(); }
+  std::size_t size() const;
   std::size_t capacity() const { return options_.capacity; }
-  bool empty() const { return points_.size() == 0; }
+  bool empty() const { return size() == 0; }
   std::uint32_t oldestAge() const;
   const RenderCacheCounters& counters() const { return counters_; }
   const RenderCacheOptions& options() const { return options_; }
@@ -115,9 +122,15 @@ class RenderCache {
  private:
   // What the z-buffer keeps of the nearest point beside its depth.
   enum class Payload { pointIndex, colourAndAge };
-  // Fills zbuffer_ with the nearest point per pixel of `camera`'s frame;
+  struct ZBuffer {
+    std::vector<std::uint64_t> words;       // depth bits above, the payload below
+    bool clear = false;                     // all empty: project need not clear it
+    std::vector<std::uint32_t> blockPixel;  // projection of a block of points
+    std::vector<std::uint32_t> blockDepth;
+  };
+  // Fills `zbuffer` with the nearest point per pixel of `camera`'s frame;
   // returns how many points landed in the frame.
-  std::uint64_t project(const Camera& camera, Payload payload);
+  std::uint64_t project(const Camera& camera, Payload payload, ZBuffer& zbuffer) const;
   void interpolateRow(std::uint32_t y, const float* boxMin, InterimFrame& frame);
 
   // Structure of arrays, so that the projection streams the positions.
@@ -132,18 +145,18 @@ class RenderCache {
   };
 
   RenderCacheOptions options_;
+  // Read by both; swapped (written) only by insert, under a unique lock.
+  mutable std::shared_mutex pointsMutex_;
   Points points_;
   // Each insert builds the new cloud here, then the two swap (the scratch
   // keeps its memory for the next frame).
   Points next_;
   std::vector<std::uint8_t> taken_;  // per cached point: replaced or removed by this insert
   // Scratch kept between calls (fresh pages cost more than the work here).
-  std::vector<std::uint64_t> zbuffer_;  // depth bits above, the payload below
-  bool zbufferClear_ = false;           // all kNoSample: project need not clear it
+  ZBuffer insertZbuffer_;
+  ZBuffer zbuffer_;  // reproject's
   // Rows of reproject's pipeline (see there).
-  std::vector<float> sampleDepth_;         // the z-buffer's depths
-  std::vector<std::uint32_t> blockPixel_;  // projection of a block of points
-  std::vector<std::uint32_t> blockDepth_;
+  std::vector<float> sampleDepth_;  // the z-buffer's depths
   std::vector<std::uint32_t> shadedRow_;
   std::vector<float> columnMinDepth_;                      // least depth over 7 rows
   std::vector<float> rowMinDepth_;                         // least depth over 7 columns

@@ -7,6 +7,7 @@
 
 #include <cmath>
 #include <limits>
+#include <thread>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -255,6 +256,33 @@ TEST(RenderCache, PriorityGrowsWithAgeAndWhereSamplesAreMissing) {
   insert(cache, downCamera(500.0f, 0.0f, 5.0f), {{0.0f}});
   const InterimFrame older = cache.reproject(camera);
   EXPECT_EQ(meanPriority(older, left), kPriorityFreshSample + kPriorityPerAge);
+}
+
+// A display inserts the last final frame on one thread while it reprojects
+// for the next camera on another: each reprojection sees the cloud before or
+// after an insert, never a mixture.
+TEST(RenderCache, AnInsertAndAReprojectionMayRunAtOnce) {
+  const std::vector<Sheet> plane{{0.0f}};
+  const Camera before = downCamera(0.0f, 0.0f, 5.0f);
+  const float pixelsPerUnit = static_cast<float>(focalLengthPixels(before)) / 5.0f;
+  const Camera after = downCamera(8.0f / pixelsPerUnit, 0.0f, 5.0f);
+  RenderCache cache;
+  insert(cache, before, plane);
+  const std::uint64_t samplesBefore = cache.reproject(after).samples;
+  const std::uint64_t pixels = std::uint64_t{kWidth} * kHeight;
+  ASSERT_LT(samplesBefore, pixels);
+  const Frame frame = castFrame(after, plane);
+  constexpr int kInserts = 50;
+  std::thread inserter([&] {
+    for (int i = 0; i < kInserts; ++i) cache.insert(after, frame.image, frame.depth);
+  });
+  for (int i = 0; i < kInserts; ++i) {
+    const std::uint64_t samples = cache.reproject(after).samples;
+    EXPECT_TRUE(samples == samplesBefore || samples == pixels) << samples;
+  }
+  inserter.join();
+  EXPECT_EQ(cache.reproject(after).samples, pixels);
+  EXPECT_EQ(cache.counters().framesInserted, 1u + kInserts);
 }
 
 TEST(RenderCache, ReprojectionIsRejectedForAnInvalidCameraAndSizesMustMatch) {
