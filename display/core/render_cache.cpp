@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <utility>
 
 #include <glm/gtc/matrix_inverse.hpp>
 
@@ -99,7 +100,7 @@ template <class PayloadOf>
 std::uint64_t depthTest(const std::uint32_t* __restrict pixels,
                         const std::uint32_t* __restrict depthBits, std::size_t count,
                         PayloadOf payloadOf, std::uint64_t* __restrict zbuffer) {
-  constexpr std::size_t kAhead = 16;
+  constexpr std::size_t kAhead = 128;
   std::uint64_t landed = 0;
   for (std::size_t i = 0; i < count; ++i) {
     if (i + kAhead < count && pixels[i + kAhead] != kNoPixel) {
@@ -200,6 +201,23 @@ std::uint64_t cullRow(const float* __restrict depth, const float* __restrict col
     culled += cull ? 1u : 0u;
   }
   return culled;
+}
+
+// Lists the pixels of a row without a sample (hole priority) but with some
+// sample in their 7x7 box (least depth there finite); returns how many, and
+// how many pixels have no sample.
+POINTILLIST_VECTOR_KERNEL
+std::pair<std::uint32_t, std::uint32_t> interpolationCandidates(
+    const std::uint8_t* __restrict priorities, const float* __restrict boxMin, std::uint32_t width,
+    std::uint32_t* __restrict listed) {
+  std::uint32_t count = 0, withoutSample = 0;
+  for (std::uint32_t x = 0; x < width; ++x) {
+    const bool empty = priorities[x] == kPriorityHole;
+    withoutSample += empty ? 1u : 0u;
+    listed[count] = x;
+    count += (empty & (boxMin[x] != kFar)) ? 1u : 0u;
+  }
+  return {count, withoutSample};
 }
 
 // The colour (opaque) and priority of one row's samples; background and
@@ -544,6 +562,7 @@ InterimFrame RenderCache::reproject(const Camera& camera) {
   shadedRow_.resize(width);
   columnBlend_.resize(width);
   columnBlendRow_.assign(width, ~std::uint32_t{0});
+  candidates_.resize(width);
   const std::int64_t rows = height;
   for (std::int64_t t = 0; t < rows + 2 * kReach; ++t) {
     if (t < rows) {
@@ -607,17 +626,15 @@ void RenderCache::interpolateRow(std::uint32_t y, const float* boxMin, InterimFr
     }
     return columnBlend_[x];
   };
-  // Pixels without a sample have the hole priority so far (shadeRow): a
-  // byte search finds them many pixels at a time.
+  // Pixels without a sample have the hole priority so far (shadeRow). Those
+  // with samples near are listed first, without branches (a row of sky is
+  // as quick as a row of samples); the others stay holes.
   std::uint8_t* priorities = frame.priority.data() + static_cast<std::size_t>(y) * width;
-  for (std::uint32_t x = 0; x < width; ++x) {
-    const void* found = std::memchr(priorities + x, kPriorityHole, width - x);
-    if (found == nullptr) break;
-    x = static_cast<std::uint32_t>(static_cast<const std::uint8_t*>(found) - priorities);
-    if (boxMin[x] == kFar) {
-      ++frame.holes;
-      continue;
-    }
+  const auto [candidates, withoutSample] =
+      interpolationCandidates(priorities, boxMin, width, candidates_.data());
+  frame.holes += withoutSample - candidates;
+  for (std::uint32_t i = 0; i < candidates; ++i) {
+    const std::uint32_t x = candidates_[i];
     // 3x3, centre-weighted: edge neighbours count twice the corners.
     // Without branches on which neighbours hold samples: in sparse regions
     // that is a coin toss.

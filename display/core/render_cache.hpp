@@ -163,6 +163,7 @@ class RenderCache {
   std::vector<float> boxMinDepth_;                         // least depth over the 7x7 box
   std::vector<std::array<std::uint32_t, 4>> columnBlend_;  // sparse interpolation: 7-row sums
   std::vector<std::uint32_t> columnBlendRow_;              // the row each column sum is for
+  std::vector<std::uint32_t> candidates_;                  // a row's pixels to interpolate
   RenderCacheCounters counters_;
 };
 
