@@ -115,14 +115,19 @@ std::uint64_t depthTest(const std::uint32_t* __restrict pixels,
   return landed;
 }
 
-// Eye depths of one row of the z-buffer; +infinity where no sample.
+// Eye depths of one row of the z-buffer, +infinity where no sample; returns
+// the samples.
 POINTILLIST_VECTOR_KERNEL
-void depthRow(const std::uint64_t* __restrict keys, std::uint32_t width, float* __restrict depth) {
+std::uint32_t depthRow(const std::uint64_t* __restrict keys, std::uint32_t width,
+                       float* __restrict depth) {
+  std::uint32_t samples = 0;
   for (std::uint32_t x = 0; x < width; ++x) {
     const std::uint64_t key = keys[x];
-    depth[x] =
-        key == kNoSample ? kFar : std::bit_cast<float>(static_cast<std::uint32_t>(key >> 32));
+    const bool sample = key != kNoSample;
+    depth[x] = sample ? std::bit_cast<float>(static_cast<std::uint32_t>(key >> 32)) : kFar;
+    samples += sample ? 1u : 0u;
   }
+  return samples;
 }
 
 // By value: std::min returns a reference, which can keep a loop from vectorising.
@@ -564,12 +569,29 @@ InterimFrame RenderCache::reproject(const Camera& camera) {
   columnBlendRow_.assign(width, ~std::uint32_t{0});
   candidates_.resize(width);
   const std::int64_t rows = height;
+  // Rows with no sample within three rows (open sky) are holes throughout:
+  // no filter, cull or interpolation runs there.
+  std::array<std::uint32_t, kRing> rowSamples{};
+  std::array<bool, kRing> emptyAround{};
+  const auto slot = [](std::int64_t y) { return static_cast<std::size_t>(y % kRing); };
   for (std::int64_t t = 0; t < rows + 2 * kReach; ++t) {
     if (t < rows) {
-      depthRow(keyRow(t), width, ring(sampleDepth_, t));
-      minOfSevenColumns(ring(sampleDepth_, t), width, ring(rowMinDepth_, t));
+      rowSamples[slot(t)] = depthRow(keyRow(t), width, ring(sampleDepth_, t));
+      if (rowSamples[slot(t)] == 0) {
+        std::fill_n(ring(rowMinDepth_, t), width, kFar);
+      } else {
+        minOfSevenColumns(ring(sampleDepth_, t), width, ring(rowMinDepth_, t));
+      }
     }
     if (const std::int64_t y = t - kReach; y >= 0 && y < rows) {
+      std::uint32_t near = 0;
+      constexpr auto kSignedReach = static_cast<std::int64_t>(kReach);
+      for (std::int64_t k = -kSignedReach; k <= kSignedReach; ++k) {
+        near += rowSamples[slot(clampRow(y + k))];
+      }
+      emptyAround[slot(y)] = near == 0;
+    }
+    if (const std::int64_t y = t - kReach; y >= 0 && y < rows && !emptyAround[slot(y)]) {
       // Rows past the border repeat the edge row: the least of a set is
       // unchanged by repeats.
       std::array<const float*, 7> around{};
@@ -585,6 +607,8 @@ InterimFrame RenderCache::reproject(const Camera& camera) {
              ring(rowMinDepth_, y + 1), ring(rowMinDepth_, y + 2), ring(rowMinDepth_, y + 3)},
             width, pullForward, keyRow(y));
       }
+    }
+    if (const std::int64_t y = t - kReach; y >= 0 && y < rows) {
       // Colour and priority through a buffer (the image holds bytes).
       frame.samples += shadeRow(keyRow(y), width, background, shadedRow_.data(),
                                 frame.priority.data() + static_cast<std::size_t>(y) * width);
@@ -592,7 +616,11 @@ InterimFrame RenderCache::reproject(const Camera& camera) {
                   std::size_t{width} * 4);
     }
     if (const std::int64_t y = t - 2 * kReach; y >= 0) {
-      interpolateRow(static_cast<std::uint32_t>(y), ring(boxMinDepth_, y), frame);
+      if (emptyAround[slot(y)]) {
+        frame.holes += width;
+      } else {
+        interpolateRow(static_cast<std::uint32_t>(y), ring(boxMinDepth_, y), frame);
+      }
       // No pass reads that row again.
       if (y >= kReach) std::fill_n(keyRow(y - kReach), width, kNoSample);
     }
