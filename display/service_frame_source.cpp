@@ -66,6 +66,17 @@ class ServiceFrameSource::Inserter {
     rethrowLocked();
   }
 
+  // Returns when `cache` has no insert queued or running.
+  void waitFor(const RenderCache* cache) {
+    std::unique_lock lock(mutex_);
+    idle_.wait(lock, [this, cache] {
+      return running_ != cache && std::none_of(jobs_.begin(), jobs_.end(), [cache](const Job& job) {
+               return job.cache == cache;
+             });
+    });
+    rethrowLocked();
+  }
+
   void rethrowFailure() {
     const std::lock_guard lock(mutex_);
     rethrowLocked();
@@ -100,6 +111,7 @@ class ServiceFrameSource::Inserter {
       Job job = std::move(jobs_.front());
       jobs_.pop_front();
       busy_ = true;
+      running_ = job.cache;
       lock.unlock();
       const auto start = std::chrono::steady_clock::now();
       std::exception_ptr failure;
@@ -111,6 +123,7 @@ class ServiceFrameSource::Inserter {
       const double seconds = secondsBetween(start, std::chrono::steady_clock::now());
       lock.lock();
       busy_ = false;
+      running_ = nullptr;
       if (failure) {
         failure_ = failure;
       } else {
@@ -125,6 +138,7 @@ class ServiceFrameSource::Inserter {
   std::condition_variable wake_, idle_;
   std::deque<Job> jobs_;
   bool busy_ = false, stopping_ = false;
+  const RenderCache* running_ = nullptr;
   std::exception_ptr failure_;
   std::uint64_t inserted_ = 0, replaced_ = 0;
   double seconds_ = 0.0;
@@ -194,6 +208,10 @@ std::vector<FrameRequest> ServiceFrameSource::take(std::size_t room) {
         mode != v1::RENDER_MODE_BLENDED) {
       request.settings.set_tile_depth(true);
       ClientCache* client = cacheFor(started.order.request.clientId, mode);
+      // The client's first final frame may still be going in: a cache that
+      // is about to hold it is worth the wait (later frames reproject from
+      // what the cache holds, an insert running or not).
+      if (client->cache.empty()) inserter_->waitFor(&client->cache);
       if (!client->cache.empty()) {
         started.due = std::chrono::steady_clock::now() +
                       std::chrono::duration_cast<std::chrono::steady_clock::duration>(
