@@ -11,7 +11,9 @@
 # off (--interim-ms -1), on (the paper's: each camera reprojected before its
 # tiles go out, the tiles the cache could not fill first) and on-np
 # (--tile-priority none: the tiles go out at once, the reprojection runs
-# while they are drawn).
+# while they are drawn). First, pointillist-bench-render-cache times the cache
+# alone on one core (a toy city cast by rays, fully covered and a quarter
+# covered frame) and its lines open the table.
 #
 #   deploy/bench-render-cache.sh [--scenes city,bunny-10M] [--frames 48] [--layout 1,2,1,4]
 #       [--size 1280x720] [--path turns]
@@ -83,6 +85,11 @@ stats_of() {
 : >"$out/clients.err"
 table="$out/table.txt"
 {
+  for coverage in 1 0.25; do
+    "$POINTILLIST_BIN/pointillist-bench-render-cache" --size "$size" --coverage "$coverage" \
+      --reps 100
+  done
+  echo
   printf '%-10s %-8s | %17s | %17s | %7s %13s %12s %12s\n' scene cache "first shown ms" \
     "final ms" interims "PSNR dB (med)" "filled %" "reproject ms"
   printf '%-10s %-8s | %8s %8s | %8s %8s |\n' "" "" median p95 median p95
