@@ -16,7 +16,9 @@
 #             client moving the camera one render request at a time gets an
 #             interim frame before each final one after the first, close to
 #             it; final frames still equal the reference renderer's; path
-#             frames get none; with --interim-ms -1 no interim frame comes
+#             frames get none; the same with --tile-priority none (tiles
+#             out at once, reprojection after); with --interim-ms -1 no
+#             interim frame comes
 #   curve     CURVE with keys from files: an authorized client renders, a client
 #             with another key or without CURVE gets nothing
 #   sigint    SIGINT to the display: clean shutdown of every process
@@ -64,6 +66,19 @@ case "$scenario" in
     "${client[@]}" shutdown --reason "test done" >/dev/null || fail "shutdown"
     wait_job_exit 60
     grep -E "^render cache:" "$JOB_LOG" || fail "the display's summary has no render cache line"
+    # Tiles out at once, the reprojection while they are drawn: still an
+    # interim frame for each camera after the first, and final frames exact.
+    start_service_job --tile-priority none
+    "${client[@]}" orbit --camera-path orbit --frames 8 -o "$WORK/at-once" \
+      --csv "$WORK/at-once.csv" >"$WORK/at-once.log" 2>&1 ||
+      fail "orbit with --tile-priority none: $(cat "$WORK/at-once.log")"
+    interims=$(awk -F, 'NR > 2 && $4 == 1' "$WORK/at-once.csv" | wc -l)
+    ((interims == 7)) || fail "--tile-priority none: $interims of 7 cameras had an interim frame"
+    "$BIN/pointillist-reference" --dataset "$DATASET" --camera-path orbit --frames 8 \
+      --size 480x270 --compare "$WORK/at-once" "${floors[@]}" ||
+      fail "final frames with --tile-priority none"
+    "${client[@]}" shutdown --reason "test done" >/dev/null || fail "shutdown"
+    wait_job_exit 60
     # Without the cache: no interim frame.
     start_service_job --interim-ms -1
     "${client[@]}" orbit --camera-path orbit --frames 3 --csv "$WORK/off.csv" \
