@@ -210,17 +210,28 @@ std::uint64_t cullRow(const float* __restrict depth, const float* __restrict col
 
 // Lists the pixels of a row without a sample (hole priority) but with some
 // sample in their 7x7 box (least depth there finite); returns how many, and
-// how many pixels have no sample.
+// how many pixels have no sample. A vectorised look at each 64 pixels first:
+// most spans have no candidate (all samples, or open sky).
 POINTILLIST_VECTOR_KERNEL
 std::pair<std::uint32_t, std::uint32_t> interpolationCandidates(
     const std::uint8_t* __restrict priorities, const float* __restrict boxMin, std::uint32_t width,
     std::uint32_t* __restrict listed) {
+  constexpr std::uint32_t kSpan = 64;
   std::uint32_t count = 0, withoutSample = 0;
-  for (std::uint32_t x = 0; x < width; ++x) {
-    const bool empty = priorities[x] == kPriorityHole;
-    withoutSample += empty ? 1u : 0u;
-    listed[count] = x;
-    count += (empty & (boxMin[x] != kFar)) ? 1u : 0u;
+  for (std::uint32_t first = 0; first < width; first += kSpan) {
+    const std::uint32_t end = std::min(width, first + kSpan);
+    std::uint32_t empty = 0, candidates = 0;
+    for (std::uint32_t x = first; x < end; ++x) {
+      const bool noSample = priorities[x] == kPriorityHole;
+      empty += noSample ? 1u : 0u;
+      candidates += (noSample & (boxMin[x] != kFar)) ? 1u : 0u;
+    }
+    withoutSample += empty;
+    if (candidates == 0) continue;
+    for (std::uint32_t x = first; x < end; ++x) {
+      listed[count] = x;
+      count += (priorities[x] == kPriorityHole && boxMin[x] != kFar) ? 1u : 0u;
+    }
   }
   return {count, withoutSample};
 }
