@@ -173,9 +173,6 @@ ServiceFrameSource::ClientCache* ServiceFrameSource::cacheFor(const std::string&
       const auto eldest = std::min_element(caches_.begin(), caches_.end(), [](auto& a, auto& b) {
         return a.second.used < b.second.used;
       });
-      for (Started& started : started_) {
-        if (started.reprojectFrom == &eldest->second) started.reprojectFrom = nullptr;
-      }
       caches_.erase(eldest);
     }
     found = caches_.try_emplace(clientId, renderCache_.cache, mode).first;
@@ -184,14 +181,21 @@ ServiceFrameSource::ClientCache* ServiceFrameSource::cacheFor(const std::string&
   // Another mode draws other pixels: what was cached would be wrong.
   if (entry.mode != mode) {
     inserter_->waitIdle();
-    for (Started& started : started_) {
-      if (started.reprojectFrom == &entry) started.reprojectFrom = nullptr;
-    }
     entry.cache.clear();
     entry.mode = mode;
   }
   entry.used = std::chrono::steady_clock::now();
   return &entry;
+}
+
+ServiceFrameSource::ClientCache* ServiceFrameSource::cacheHolding(
+    const service::FrameOrder& order) {
+  const auto found = caches_.find(order.request.clientId);
+  if (found == caches_.end() ||
+      found->second.mode != frameRunSettings(run_, order.settings).mode()) {
+    return nullptr;
+  }
+  return &found->second;
 }
 
 std::vector<FrameRequest> ServiceFrameSource::take(std::size_t room) {
@@ -200,7 +204,7 @@ std::vector<FrameRequest> ServiceFrameSource::take(std::size_t room) {
     auto order = frontEnd_->nextFrame();
     if (!order) break;
     FrameRequest request{order->camera, order->settings, {}};
-    Started started{std::move(*order), nextFrame_++, nullptr, nullptr, {}, false};
+    Started started{std::move(*order), nextFrame_++, nullptr, false, {}, false};
     const v1::RenderMode mode = frameRunSettings(run_, request.settings).mode();
     // Render requests (a person moving the view), in a mode with one visible
     // surface per pixel; path frames are a film, shown exactly as drawn.
@@ -223,7 +227,7 @@ std::vector<FrameRequest> ServiceFrameSource::take(std::size_t room) {
           };
           started.interim = std::move(interim);
         } else {
-          started.reprojectFrom = client;
+          started.reprojectPending = true;
         }
       }
     }
@@ -246,9 +250,11 @@ std::shared_ptr<const InterimFrame> ServiceFrameSource::reproject(ClientCache& c
 void ServiceFrameSource::poll() {
   if (inserter_) inserter_->rethrowFailure();
   for (Started& started : started_) {
-    if (started.reprojectFrom != nullptr) {
-      started.interim = reproject(*started.reprojectFrom, started.order.camera);
-      started.reprojectFrom = nullptr;
+    if (!started.reprojectPending) continue;
+    started.reprojectPending = false;
+    // The client's cache may have gone (or changed mode) since take().
+    if (ClientCache* client = cacheHolding(started.order); client != nullptr) {
+      started.interim = reproject(*client, started.order.camera);
     }
   }
   const auto now = std::chrono::steady_clock::now();
@@ -283,13 +289,7 @@ void ServiceFrameSource::frameDone(const FinishedFrame& frame, Image image,
   // The client gets its frame first; the cache learns from a copy after.
   // A frame with tiles missing would teach the cache holes.
   ClientCache* cache = nullptr;
-  if (!depth.empty() && frame.failedTiles.empty()) {
-    const auto found = caches_.find(order.request.clientId);
-    if (found != caches_.end() &&
-        found->second.mode == frameRunSettings(run_, order.settings).mode()) {
-      cache = &found->second;
-    }
-  }
+  if (!depth.empty() && frame.failedTiles.empty()) cache = cacheHolding(order);
   const Camera camera = order.camera;
   Image copy;
   if (cache != nullptr) copy = image;

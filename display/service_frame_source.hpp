@@ -64,11 +64,13 @@ class ServiceFrameSource final : public FrameSource {
     service::FrameOrder order;
     std::uint64_t frame = 0;
     std::shared_ptr<const InterimFrame> interim;  // none: no cache for it
-    ClientCache* reprojectFrom = nullptr;         // reprojection still to do
+    bool reprojectPending = false;                // --tile-priority none: at the next poll
     std::chrono::steady_clock::time_point due;
     bool interimSent = false;
   };
   ClientCache* cacheFor(const std::string& clientId, v1::RenderMode mode);
+  // The client's cache if it holds frames of `order`'s mode; none otherwise.
+  ClientCache* cacheHolding(const service::FrameOrder& order);
   std::shared_ptr<const InterimFrame> reproject(ClientCache& client, const Camera& camera);
   class Inserter;
 

@@ -24,6 +24,7 @@
 #include <glm/gtc/matrix_inverse.hpp>
 
 #include "common/camera.hpp"
+#include "common/camera_path.hpp"
 #include "common/clock.hpp"
 #include "common/image.hpp"
 #include "display/core/render_cache.hpp"
@@ -119,11 +120,7 @@ int run(int argc, char** argv) {
   app.add_option("--step-degrees", stepDegrees, "Camera turn between frames")
       ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
-  std::uint32_t width = 0, height = 0;
-  if (std::sscanf(size.c_str(), "%ux%u", &width, &height) != 2 || width == 0 || height == 0) {
-    std::fprintf(stderr, "pointillist-bench-render-cache: --size %s is not WxH\n", size.c_str());
-    return 2;
-  }
+  const auto [width, height] = parseImageSize(size);
   const float step = stepDegrees * 3.14159265f / 180.0f;
   RenderCache cache;
   std::vector<double> insertMs;
