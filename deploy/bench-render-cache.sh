@@ -7,11 +7,14 @@
 # change to the first frame shown (median, 95th percentile) and to the final
 # frame; with it: PSNR of each interim frame against its final frame, the share
 # of the final frame's covered pixels the interim one filled, and the time to
-# reproject. Plots the time to first frame per camera. Three cases per scene:
+# reproject. Plots the time to first frame per camera. Four cases per scene:
 # off (--interim-ms -1), on (the paper's: each camera reprojected before its
-# tiles go out, the tiles the cache could not fill first) and on-np
+# tiles go out, the tiles the cache could not fill first), on-np
 # (--tile-priority none: the tiles go out at once, the reprojection runs
-# while they are drawn). First, pointillist-bench-render-cache times the cache
+# while they are drawn) and refresh (as on, and the interim frame goes again
+# as tiles arrive, --interim-refresh-ms 0: the columns "updates", interim
+# frames per camera, and "final px %", the share of pixels equal to the final
+# frame's in the last interim one). First, pointillist-bench-render-cache times the cache
 # alone on one core (a toy city cast by rays, fully covered and a quarter
 # covered frame) and its lines open the table.
 #
@@ -90,20 +93,23 @@ table="$out/table.txt"
       --reps 100
   done
   echo
-  printf '%-10s %-8s | %17s | %17s | %7s %13s %12s %12s\n' scene cache "first shown ms" \
-    "final ms" interims "PSNR dB (med)" "filled %" "reproject ms"
+  printf '%-10s %-8s | %17s | %17s | %7s %13s %12s %12s %8s %11s\n' scene cache \
+    "first shown ms" "final ms" interims "PSNR dB (med)" "filled %" "reproject ms" updates \
+    "final px %"
   printf '%-10s %-8s | %8s %8s | %8s %8s |\n' "" "" median p95 median p95
 } >"$table"
 IFS=',' read -r -a scene_list <<<"$scenes"
 for scene in "${scene_list[@]}"; do
   dataset=$(scene_dataset "$scene")
-  for case_name in off on on-np; do
+  for case_name in off on on-np refresh; do
     tag="$scene-$case_name"
     log "$scene: render cache $case_name"
     case "$case_name" in
       off) run_case "$dataset" "$tag" --interim-ms -1 ;;
       on) run_case "$dataset" "$tag" --interim-ms 0 --tile-priority cache ;;
       on-np) run_case "$dataset" "$tag" --interim-ms 0 --tile-priority none ;;
+      refresh) run_case "$dataset" "$tag" --interim-ms 0 --tile-priority cache \
+        --interim-refresh-ms 0 ;;
     esac
     csv="$out/$tag.csv"
     count=$(awk -F, 'NR > 1 && $4 == 1' "$csv" | wc -l)
@@ -111,12 +117,17 @@ for scene in "${scene_list[@]}"; do
     filled=$(awk -F, 'NR > 1 && $4 == 1 { print $10 * 100 }' "$csv" | sort -g |
       awk '{ v[NR] = $1 } END { if (NR) printf "%.1f", (NR % 2) ? v[(NR + 1) / 2] : (v[NR / 2] + v[NR / 2 + 1]) / 2; else printf "-" }')
     reproject=$(stats_of "$csv" 6 4 | awk '{print $1}')
-    printf '%-10s %-8s | %s | %s | %7s %13s %12s %12s\n' "$scene" \
+    updates=$(awk -F, 'NR > 1 && $4 == 1 { n++; s += $11 } END { if (n) printf "%.2f", s / n; else printf "-" }' "$csv")
+    final_px=$(awk -F, 'NR > 1 && $4 == 1 { print $13 * 100 }' "$csv" | sort -g |
+      awk '{ v[NR] = $1 } END { if (NR) printf "%.1f", (NR % 2) ? v[(NR + 1) / 2] : (v[NR / 2] + v[NR / 2 + 1]) / 2; else printf "-" }')
+    printf '%-10s %-8s | %s | %s | %7s %13s %12s %12s %8s %11s\n' "$scene" \
       "$case_name" "$(stats_of "$csv" 3)" \
-      "$(stats_of "$csv" 2)" "$count/$frames" "$psnr" "$filled" "$reproject" >>"$table"
+      "$(stats_of "$csv" 2)" "$count/$frames" "$psnr" "$filled" "$reproject" "$updates" \
+      "$final_px" >>"$table"
   done
 done
 echo "on-np: --tile-priority none (tiles at once, reprojection while they are drawn)" >>"$table"
+echo "refresh: as on, with --interim-refresh-ms 0 (the interim frame again as tiles arrive)" >>"$table"
 echo
 cat "$table"
 if command -v gnuplot >/dev/null; then

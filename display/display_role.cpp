@@ -65,6 +65,7 @@ struct DisplayOptions {
   std::uint32_t cacheMaxAge = RenderCacheOptions{}.maxAge;
   float depthCull = RenderCacheOptions{}.depthCullFraction;
   std::string tilePriority = "cache";
+  double interimRefreshMs = -1.0;
 };
 
 // With --serve and no --interim-ms: an interim frame at once.
@@ -206,6 +207,7 @@ class DisplayProcess {
     cache.cache.maxAge = options_.cacheMaxAge;
     cache.cache.depthCullFraction = options_.depthCull;
     cache.tilePriority = options_.tilePriority == "cache";
+    cache.refreshMs = options_.interimRefreshMs;
     service_ = std::make_unique<ServiceFrameSource>(serviceOptions(), servedDataset(), cache);
     source_ = service_.get();
     std::printf("display: service listening on %s (frames on %s%s)\n",
@@ -351,6 +353,10 @@ class DisplayProcess {
              image->second, rect.x(), rect.y());
         if (withDepth && depthFrames_.contains(header.frame_id())) {
           composeDepth(header.frame_id(), image->second, rect, bytes + pixelBytes);
+        }
+        if (source_ != nullptr) {
+          const auto [done, tiles] = assembly.tileProgress(header.frame_id());
+          source_->tileComposed({header.frame_id(), rect, done, tiles}, image->second);
         }
         break;
       }
@@ -545,6 +551,11 @@ int runDisplayMain(int argc, char** argv) {
                  "Serve mode: render cache (seed 001): a client's new camera gets an interim "
                  "frame reprojected from its earlier frames when the final one is not composed "
                  "this many ms after it started (default 0: at once); negative: no render cache");
+  app.add_option("--interim-refresh-ms", options.interimRefreshMs,
+                 "Serve mode: after the interim frame, send it again with the tiles that came "
+                 "since pasted in (exact there), at most this often (0: as they come), until the "
+                 "final frame; negative: one interim frame. Each costs an encode")
+      ->capture_default_str();
   app.add_option("--cache-points", options.cachePoints,
                  "Serve mode: points each client's render cache holds (default: twice the "
                  "frame's pixels)");

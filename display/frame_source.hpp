@@ -18,6 +18,14 @@ struct FrameRequest {
   TilePriority tilePriority;
 };
 
+// A tile just composed into its frame.
+struct ComposedTile {
+  std::uint64_t frame = 0;  // in the order take() gave the cameras
+  TileRect rect;
+  std::uint32_t tilesDone = 0;  // of the frame, this one included
+  std::uint32_t tiles = 0;
+};
+
 class FrameSource {
  public:
   virtual ~FrameSource() = default;
@@ -29,6 +37,9 @@ class FrameSource {
   // A composed frame, in the order take() gave the cameras, with its
   // eye-space depth when its settings asked for tile depth (else empty).
   virtual void frameDone(const FinishedFrame& frame, Image image, std::vector<float> depth) = 0;
+  // `composed`: the frame so far, this tile's pixels in it (serve mode's
+  // interim frames show the tiles that came).
+  virtual void tileComposed(const ComposedTile& /*tile*/, const Image& /*composed*/) {}
   // Every turn of the display's loop: what is due by time (interim frames).
   virtual void poll() {}
 };

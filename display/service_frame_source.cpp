@@ -4,6 +4,7 @@
 #include <condition_variable>
 #include <csignal>
 #include <cstdio>
+#include <cstring>
 #include <exception>
 #include <mutex>
 #include <thread>
@@ -204,7 +205,9 @@ std::vector<FrameRequest> ServiceFrameSource::take(std::size_t room) {
     auto order = frontEnd_->nextFrame();
     if (!order) break;
     FrameRequest request{order->camera, order->settings, {}};
-    Started started{std::move(*order), nextFrame_++, nullptr, false, {}, false};
+    Started started;
+    started.order = std::move(*order);
+    started.frame = nextFrame_++;
     const v1::RenderMode mode = frameRunSettings(run_, request.settings).mode();
     // Render requests (a person moving the view), in a mode with one visible
     // surface per pixel; path frames are a film, shown exactly as drawn.
@@ -247,26 +250,75 @@ std::shared_ptr<const InterimFrame> ServiceFrameSource::reproject(ClientCache& c
   return interim;
 }
 
+void ServiceFrameSource::reprojectIfPending(Started& started) {
+  if (!started.reprojectPending) return;
+  started.reprojectPending = false;
+  // The client's cache may have gone (or changed mode) since take().
+  if (ClientCache* client = cacheHolding(started.order); client != nullptr) {
+    started.interim = reproject(*client, started.order.camera);
+  }
+}
+
+void ServiceFrameSource::tileComposed(const ComposedTile& tile, const Image& composed) {
+  const auto found = std::find_if(started_.begin(), started_.end(), [&](const Started& started) {
+    return started.frame == tile.frame;
+  });
+  if (found == started_.end()) return;
+  Started& started = *found;
+  reprojectIfPending(started);
+  if (!started.interim) return;
+  if (started.shown.empty()) started.shown = started.interim->image;
+  const TileRect& rect = tile.rect;
+  if (started.shown.width() != composed.width() || started.shown.height() != composed.height() ||
+      rect.x() + rect.width() > composed.width() || rect.y() + rect.height() > composed.height()) {
+    throw ProtocolError("display: tile " + std::to_string(rect.width()) + "x" +
+                        std::to_string(rect.height()) + " at " + std::to_string(rect.x()) + "," +
+                        std::to_string(rect.y()) + " does not fit frame " +
+                        std::to_string(tile.frame) + "'s interim image");
+  }
+  // The exact pixels replace the reprojected ones, region by region.
+  for (std::uint32_t y = rect.y(); y < rect.y() + rect.height(); ++y) {
+    std::memcpy(started.shown.pixel(rect.x(), y), composed.pixel(rect.x(), y),
+                std::size_t{rect.width()} * 4);
+  }
+  started.tilesShown = tile.tilesDone;
+  started.tiles = tile.tiles;
+}
+
+void ServiceFrameSource::sendInterim(Started& started, std::chrono::steady_clock::time_point now) {
+  if (started.interimSent) ++refreshesSent_;
+  started.interimSent = true;
+  started.lastSent = now;
+  started.tilesSent = started.tilesShown;
+  ++interimsSent_;
+  service::InterimOutcome outcome;
+  outcome.frameId = started.frame;
+  outcome.filledShare = started.interim->filledShare();
+  outcome.reprojectMs = started.interim->seconds * 1000.0;
+  outcome.tilesComposed = started.tilesShown;
+  outcome.tiles = started.tiles;
+  frontEnd_->interimFrame(started.order, outcome,
+                          started.shown.empty() ? started.interim->image : started.shown);
+}
+
 void ServiceFrameSource::poll() {
   if (inserter_) inserter_->rethrowFailure();
-  for (Started& started : started_) {
-    if (!started.reprojectPending) continue;
-    started.reprojectPending = false;
-    // The client's cache may have gone (or changed mode) since take().
-    if (ClientCache* client = cacheHolding(started.order); client != nullptr) {
-      started.interim = reproject(*client, started.order.camera);
-    }
-  }
+  for (Started& started : started_) reprojectIfPending(started);
   const auto now = std::chrono::steady_clock::now();
+  const auto refresh = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+      std::chrono::duration<double, std::milli>(renderCache_.refreshMs));
   for (Started& started : started_) {
-    if (!started.interim || started.interimSent || now < started.due) continue;
-    started.interimSent = true;
-    ++interimsSent_;
-    service::InterimOutcome outcome;
-    outcome.frameId = started.frame;
-    outcome.filledShare = started.interim->filledShare();
-    outcome.reprojectMs = started.interim->seconds * 1000.0;
-    frontEnd_->interimFrame(started.order, outcome, started.interim->image);
+    if (!started.interim || now < started.due) continue;
+    if (!started.interimSent) {
+      sendInterim(started, now);
+      continue;
+    }
+    // Again with the tiles that came since; not once all came (the final
+    // frame is on its way).
+    if (renderCache_.refreshMs >= 0.0 && started.tilesShown > started.tilesSent &&
+        started.tilesShown < started.tiles && now >= started.lastSent + refresh) {
+      sendInterim(started, now);
+    }
   }
 }
 
@@ -307,16 +359,18 @@ std::string ServiceFrameSource::renderCacheSummary() const {
   if (renderCache_.interimMs < 0.0) return "";
   const auto made = static_cast<double>(interimsMade_);
   const Inserter::Figures inserts = inserter_->figures();
-  char line[320];
+  char line[400];
   std::snprintf(
       line, sizeof line,
       "render cache: %llu interim frames made (%.2f ms each, %.1f %% filled), %llu "
-      "sent; %llu final frames cached (%.2f ms each, on the cache thread), %llu "
+      "sent (%llu of them again with the tiles that came); %llu final frames cached (%.2f ms each, "
+      "on the cache thread), %llu "
       "passed over for a newer one\n",
       static_cast<unsigned long long>(interimsMade_),
       interimsMade_ > 0 ? reprojectSeconds_ * 1000.0 / made : 0.0,
       interimsMade_ > 0 ? filledSum_ * 100.0 / made : 0.0,
       static_cast<unsigned long long>(interimsSent_),
+      static_cast<unsigned long long>(refreshesSent_),
       static_cast<unsigned long long>(inserts.inserted),
       inserts.inserted > 0 ? inserts.seconds * 1000.0 / static_cast<double>(inserts.inserted) : 0.0,
       static_cast<unsigned long long>(inserts.replaced));

@@ -32,6 +32,10 @@ struct RenderCacheServing {
   // priority; false: reproject at the next poll, the tiles in the
   // scheduler's order.
   bool tilePriority = true;
+  // After the interim frame went out, it goes again with the tiles that
+  // arrived since, at most this often (0: every turn with new tiles), until
+  // the final frame; negative: one interim frame only. Each costs an encode.
+  double refreshMs = -1.0;
 };
 
 class ServiceFrameSource final : public FrameSource {
@@ -43,6 +47,7 @@ class ServiceFrameSource final : public FrameSource {
   std::vector<FrameRequest> take(std::size_t room) override;
   bool finished() override;
   void frameDone(const FinishedFrame& frame, Image image, std::vector<float> depth) override;
+  void tileComposed(const ComposedTile& tile, const Image& composed) override;
   void poll() override;
 
   const service::ServiceFrontEnd& frontEnd() const { return *frontEnd_; }
@@ -67,11 +72,19 @@ class ServiceFrameSource final : public FrameSource {
     bool reprojectPending = false;                // --tile-priority none: at the next poll
     std::chrono::steady_clock::time_point due;
     bool interimSent = false;
+    // The interim image with the tiles composed so far pasted in (made at
+    // the first tile); what the client sees until the final frame.
+    Image shown;
+    std::uint32_t tilesShown = 0, tilesSent = 0, tiles = 0;
+    std::chrono::steady_clock::time_point lastSent;
   };
   ClientCache* cacheFor(const std::string& clientId, v1::RenderMode mode);
   // The client's cache if it holds frames of `order`'s mode; none otherwise.
   ClientCache* cacheHolding(const service::FrameOrder& order);
   std::shared_ptr<const InterimFrame> reproject(ClientCache& client, const Camera& camera);
+  // A `--tile-priority none` frame's reprojection, when it is still to run.
+  void reprojectIfPending(Started& started);
+  void sendInterim(Started& started, std::chrono::steady_clock::time_point now);
   class Inserter;
 
   std::unique_ptr<service::ServiceFrontEnd> frontEnd_;
@@ -82,7 +95,7 @@ class ServiceFrameSource final : public FrameSource {
   std::unique_ptr<Inserter> inserter_;
   std::deque<Started> started_;  // oldest first
   std::uint64_t nextFrame_ = 0;
-  std::uint64_t interimsMade_ = 0, interimsSent_ = 0;
+  std::uint64_t interimsMade_ = 0, interimsSent_ = 0, refreshesSent_ = 0;
   double reprojectSeconds_ = 0.0, filledSum_ = 0.0;
 };
 

@@ -149,6 +149,13 @@ bool FrameAssembly::tileArrived(const v1::TileImageHeader& header, TimePoint now
   return true;
 }
 
+std::pair<std::uint32_t, std::uint32_t> FrameAssembly::tileProgress(std::uint64_t frame) {
+  const FrameState* state = frames_.frame(frame);
+  if (state == nullptr) return {0, 0};
+  const auto tiles = static_cast<std::uint32_t>(state->tiles.size());
+  return {tiles - state->remaining, tiles};
+}
+
 std::vector<FinishedFrame> FrameAssembly::finishFrames(TimePoint now) {
   std::vector<FinishedFrame> finished;
   while (auto state = frames_.popCompleteFrame()) {

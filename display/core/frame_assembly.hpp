@@ -13,6 +13,7 @@
 #include <functional>
 #include <map>
 #include <optional>
+#include <utility>
 #include <vector>
 
 #include "common/camera.hpp"
@@ -73,6 +74,9 @@ class FrameAssembly {
   // when its frame was waiting for it: the caller composes it then; false for
   // a late copy of a re-issued tile, which is only counted.
   bool tileArrived(const v1::TileImageHeader& header, TimePoint now);
+  // Tiles of an admitted frame done (arrived or given up) and in all; {0, 0}
+  // for a frame not in the window.
+  std::pair<std::uint32_t, std::uint32_t> tileProgress(std::uint64_t frame);
   // Frames whose every tile arrived or was given up, in order; later frames
   // enter the window as these leave it.
   std::vector<FinishedFrame> finishFrames(TimePoint now);

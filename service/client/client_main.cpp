@@ -322,10 +322,11 @@ int orbit(ServiceClient& client, const ClientOptions& options) {
     csv = std::make_unique<std::ofstream>(file);
     if (!*csv) throw Error("cannot write " + options.csv);
     *csv << "frame,final_ms,first_shown_ms,interim,interim_ms,reproject_ms,cache_filled,"
-            "interim_psnr,interim_identical,covered_filled\n";
+            "interim_psnr,interim_identical,covered_filled,interims,last_tiles_composed,"
+            "last_interim_identical,interims_converge\n";
   }
   LatencyWindow latency, firstShown, interimPsnr, filled;
-  std::size_t interims = 0;
+  std::size_t interims = 0, refreshes = 0;
   const auto start = SteadyClock::now();
   for (std::size_t index = 0; index < keys.size(); ++index) {
     const auto sent = SteadyClock::now();
@@ -342,7 +343,10 @@ int orbit(ServiceClient& client, const ClientOptions& options) {
       std::snprintf(name, sizeof name, "frame_%05zu.png", index);
       writeFrame(frame, std::filesystem::path(options.output) / name);
     }
-    double psnr = 0.0, identical = 0.0, coveredFilled = 0.0;
+    double psnr = 0.0, identical = 0.0, coveredFilled = 0.0, lastIdentical = 0.0;
+    // Later interim frames (--interim-refresh-ms) carry more of the final
+    // frame's tiles: more tiles each time, never fewer pixels as final.
+    bool converge = true;
     if (!early.empty() && frame.header.status() == v1::FRAME_STATUS_OK) {
       ++interims;
       const ReceivedFrame& interim = early.front();
@@ -366,17 +370,38 @@ int orbit(ServiceClient& client, const ClientOptions& options) {
       coveredFilled = covered > 0 ? static_cast<double>(had) / static_cast<double>(covered) : 1.0;
       interimPsnr.add(psnr);
       filled.add(coveredFilled * 100.0);
+      lastIdentical = identical;
+      for (std::size_t i = 1; i < early.size(); ++i) {
+        const v1::FrameHeader& header = early[i].header;
+        const double share = measureQuality(decodeFrame(early[i].pixels, header.encoding(),
+                                                        header.width(), header.height()),
+                                            finalImage)
+                                 .identicalShare();
+        converge = converge && header.tiles_composed() > early[i - 1].header.tiles_composed() &&
+                   share >= lastIdentical;
+        lastIdentical = share;
+        ++refreshes;
+      }
       std::printf(
           "  interim after %.1f ms: PSNR %.1f dB against the final frame, %.1f %% of "
           "its covered pixels filled\n",
           shownMs, psnr, coveredFilled * 100.0);
+      if (early.size() > 1) {
+        std::printf(
+            "  %zu more with the tiles that came (the last with %u of %u tiles): %.1f %% of "
+            "pixels as final, from %.1f %%\n",
+            early.size() - 1, early.back().header.tiles_composed(), early.back().header.tiles(),
+            lastIdentical * 100.0, identical * 100.0);
+      }
     }
     if (csv) {
       *csv << index << ',' << ms << ',' << shownMs << ',' << (early.empty() ? 0 : 1) << ','
            << (early.empty() ? 0.0 : shownMs) << ','
            << (early.empty() ? 0.0 : early.front().header.reproject_ms()) << ','
            << (early.empty() ? 0.0 : static_cast<double>(early.front().header.cache_filled()))
-           << ',' << psnr << ',' << identical << ',' << coveredFilled << '\n';
+           << ',' << psnr << ',' << identical << ',' << coveredFilled << ',' << early.size() << ','
+           << (early.empty() ? 0u : early.back().header.tiles_composed()) << ',' << lastIdentical
+           << ',' << (converge ? 1 : 0) << '\n';
     }
   }
   const double seconds = millisecondsBetween(start, SteadyClock::now()) / 1e3;
@@ -389,6 +414,9 @@ int orbit(ServiceClient& client, const ClientOptions& options) {
         "interim frames: %zu of %zu, PSNR against the final frame median %.1f dB, "
         "covered pixels filled median %.1f %%\n",
         interims, keys.size(), quality.median, share.median);
+    if (refreshes > 0) {
+      std::printf("interim frames again with the tiles that came: %zu\n", refreshes);
+    }
   }
   std::printf("%s: %zu frames in %.2f s, %.2f frames/s\n", options.cameraPath.c_str(), keys.size(),
               seconds, seconds > 0.0 ? static_cast<double>(keys.size()) / seconds : 0.0);

@@ -245,6 +245,8 @@ void ServiceFrontEnd::encodeLoop() {
       header.set_interim(true);
       header.set_cache_filled(static_cast<float>(job.interim->filledShare));
       header.set_reproject_ms(job.interim->reprojectMs);
+      header.set_tiles_composed(job.interim->tilesComposed);
+      header.set_tiles(job.interim->tiles);
       header.set_render_ms(0.0);
     }
     {

@@ -90,6 +90,9 @@ struct InterimOutcome {
   std::uint64_t frameId = 0;  // the job's frame it stands in for
   double filledShare = 0.0;   // pixels the cache coloured
   double reprojectMs = 0.0;
+  // Tiles of the final frame already pasted in (they replace the cache's
+  // pixels region by region), and its tiles in all.
+  std::uint32_t tilesComposed = 0, tiles = 0;
 };
 
 // The frames endpoint beside a control endpoint: tcp port + 1 (an ephemeral

@@ -17,8 +17,10 @@
 #             interim frame before each final one after the first, close to
 #             it; final frames still equal the reference renderer's; path
 #             frames get none; the same with --tile-priority none (tiles
-#             out at once, reprojection after); with --interim-ms -1 no
-#             interim frame comes
+#             out at once, reprojection after) and --interim-refresh-ms 0:
+#             the interim frame goes again as tiles arrive, each time with
+#             more tiles and never fewer pixels equal to the final frame's;
+#             with --interim-ms -1 no interim frame comes
 #   curve     CURVE with keys from files: an authorized client renders, a client
 #             with another key or without CURVE gets nothing
 #   sigint    SIGINT to the display: clean shutdown of every process
@@ -68,12 +70,19 @@ case "$scenario" in
     grep -E "^render cache:" "$JOB_LOG" || fail "the display's summary has no render cache line"
     # Tiles out at once, the reprojection while they are drawn: still an
     # interim frame for each camera after the first, and final frames exact.
-    start_service_job --tile-priority none
+    # Refreshed as the tiles come: the arriving tiles replace the cache's
+    # pixels region by region.
+    start_service_job --tile-priority none --interim-refresh-ms 0
     "${client[@]}" orbit --camera-path orbit --frames 8 -o "$WORK/at-once" \
       --csv "$WORK/at-once.csv" >"$WORK/at-once.log" 2>&1 ||
       fail "orbit with --tile-priority none: $(cat "$WORK/at-once.log")"
+    grep -E "^(  [0-9]+ more|interim frames)" "$WORK/at-once.log"
     interims=$(awk -F, 'NR > 2 && $4 == 1' "$WORK/at-once.csv" | wc -l)
     ((interims == 7)) || fail "--tile-priority none: $interims of 7 cameras had an interim frame"
+    awk -F, 'NR > 2 && $14 != 1 { print; bad = 1 } END { exit bad }' "$WORK/at-once.csv" ||
+      fail "a later interim frame had no more tiles, or fewer pixels as final, than the one before"
+    refreshed=$(awk -F, 'NR > 2 && $11 > 1' "$WORK/at-once.csv" | wc -l)
+    ((refreshed > 0)) || fail "no interim frame went again with the tiles that came"
     "$BIN/pointillist-reference" --dataset "$DATASET" --camera-path orbit --frames 8 \
       --size 480x270 --compare "$WORK/at-once" "${floors[@]}" ||
       fail "final frames with --tile-priority none"

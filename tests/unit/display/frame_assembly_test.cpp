@@ -106,8 +106,10 @@ TEST(FrameAssembly, ReissuesALateTileAndCountsTheLateCopyWithoutComposingIt) {
   FrameAssembly assembly(config(1), kPeers, kStart);
   const auto first = takeAll(assembly, kStart);
   ASSERT_EQ(first.size(), 4u);
+  EXPECT_EQ(assembly.tileProgress(0), std::make_pair(0u, 4u));
   for (std::size_t i = 1; i < first.size(); ++i) {
     EXPECT_TRUE(assembly.tileArrived(tile(first[i], 100), kStart + 100ms));
+    EXPECT_EQ(assembly.tileProgress(0), std::make_pair(static_cast<std::uint32_t>(i), 4u));
   }
   EXPECT_TRUE(assembly.finishFrames(kStart + 100ms).empty());
   ASSERT_TRUE(assembly.nextDeadline());
@@ -125,6 +127,7 @@ TEST(FrameAssembly, ReissuesALateTileAndCountsTheLateCopyWithoutComposingIt) {
   EXPECT_EQ(again[0].tile_id(), first[0].tile_id());
   EXPECT_EQ(again[0].attempt(), 1u);
   EXPECT_TRUE(assembly.tileArrived(tile(again[0], 100), kStart + 1200ms));
+  EXPECT_EQ(assembly.tileProgress(0), std::make_pair(4u, 4u));
   const auto finished = assembly.finishFrames(kStart + 1200ms);
   ASSERT_EQ(finished.size(), 1u);
   EXPECT_EQ(finished[0].record.reissuedTiles, 1u);
@@ -135,6 +138,7 @@ TEST(FrameAssembly, ReissuesALateTileAndCountsTheLateCopyWithoutComposingIt) {
   // The first attempt turns up after all: counted, not composed.
   EXPECT_FALSE(assembly.tileArrived(tile(first[0], 100), kStart + 1300ms));
   EXPECT_EQ(assembly.stats().lateTiles, 1u);
+  EXPECT_EQ(assembly.tileProgress(0), std::make_pair(0u, 0u));  // out of the window
   EXPECT_TRUE(assembly.done());
 }
 

@@ -96,11 +96,14 @@ TEST(BrowserProtocol, FrameMetadata) {
   header.set_lod_pixels(1.5f);
   EXPECT_NE(frameJson(header, 5, 1.0, "ok").find(R"("mode":"splats","lod_pixels":1.5,)"),
             std::string::npos);
-  // The render cache's interim frames say so, with the share they filled.
+  // The render cache's interim frames say so, with the share they filled
+  // and the final frame's tiles already pasted in.
   EXPECT_NE(frameJson(header, 5, 1.0, "ok").find(R"("interim":false)"), std::string::npos);
   header.set_interim(true);
   header.set_cache_filled(0.75f);
-  EXPECT_NE(frameJson(header, 5, 1.0, "ok").find(R"("interim":true,"cache_filled":0.750})"),
+  header.set_tiles_composed(3);
+  EXPECT_NE(frameJson(header, 5, 1.0, "ok")
+                .find(R"("interim":true,"cache_filled":0.750,"tiles_composed":3})"),
             std::string::npos);
 }
 
