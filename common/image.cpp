@@ -89,6 +89,14 @@ Image::Image(std::uint32_t width, std::uint32_t height, std::span<const std::uin
   pixels_.assign(rgbaBottomUp.begin(), rgbaBottomUp.end());
 }
 
+Image Image::uninitialized(std::uint32_t width, std::uint32_t height) {
+  Image image;
+  image.width_ = width;
+  image.height_ = height;
+  image.pixels_.resize(rgbaBytes(width, height));
+  return image;
+}
+
 Rgba8 Image::at(std::uint32_t x, std::uint32_t y) const {
   const std::uint8_t* p = pixel(x, y);
   return {p[0], p[1], p[2], p[3]};

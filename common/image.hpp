@@ -6,13 +6,41 @@
 #include <cstddef>
 #include <cstdint>
 #include <filesystem>
+#include <memory>
 #include <span>
 #include <string>
+#include <type_traits>
+#include <utility>
 #include <vector>
 
 namespace pointillist {
 
 using Rgba8 = std::array<std::uint8_t, 4>;
+
+// An allocator whose containers leave new elements of trivial types
+// unwritten: buffers that a pass writes in full anyway are not filled first
+// (a frame-sized fill costs as much as a cheap pass over it).
+template <class T>
+struct DefaultInitAllocator : std::allocator<T> {
+  template <class U>
+  struct rebind {
+    using other = DefaultInitAllocator<U>;
+  };
+  DefaultInitAllocator() = default;
+  template <class U>
+  explicit DefaultInitAllocator(const DefaultInitAllocator<U>& /*other*/) noexcept {}
+  template <class U>
+  void construct(U* at) noexcept(std::is_nothrow_default_constructible_v<U>) {
+    ::new (static_cast<void*>(at)) U;
+  }
+  template <class U, class... Args>
+  void construct(U* at, Args&&... args) {
+    std::allocator_traits<std::allocator<T>>::construct(static_cast<std::allocator<T>&>(*this), at,
+                                                        std::forward<Args>(args)...);
+  }
+};
+// Bytes that resize() leaves unwritten.
+using UninitializedBytes = std::vector<std::uint8_t, DefaultInitAllocator<std::uint8_t>>;
 
 class Image {
  public:
@@ -20,6 +48,8 @@ class Image {
   Image(std::uint32_t width, std::uint32_t height, Rgba8 fill = {0, 0, 0, 0});
   // Copies width*height*4 bytes, rows bottom-up. Throws UsageError on a size mismatch.
   Image(std::uint32_t width, std::uint32_t height, std::span<const std::uint8_t> rgbaBottomUp);
+  // Pixels left unwritten: for a caller that writes every one.
+  static Image uninitialized(std::uint32_t width, std::uint32_t height);
 
   std::uint32_t width() const { return width_; }
   std::uint32_t height() const { return height_; }
@@ -47,7 +77,7 @@ class Image {
 
   std::uint32_t width_ = 0;
   std::uint32_t height_ = 0;
-  std::vector<std::uint8_t> pixels_;
+  UninitializedBytes pixels_;
 };
 
 // How hard PNG encoding works. Small: libpng's default zlib level and filters

@@ -96,15 +96,15 @@ void projectPoints(const ScreenProjection p, const float* __restrict xs, const f
 // depths, the lower payload). Returns how many landed in the frame. The
 // z-buffer is larger than the caches and points that were hidden in the
 // last frame land anywhere: the pixels a few points ahead are fetched early.
+constexpr std::size_t kPrefetchAhead = 128;
 template <class PayloadOf>
 std::uint64_t depthTest(const std::uint32_t* __restrict pixels,
                         const std::uint32_t* __restrict depthBits, std::size_t count,
                         PayloadOf payloadOf, std::uint64_t* __restrict zbuffer) {
-  constexpr std::size_t kAhead = 128;
   std::uint64_t landed = 0;
   for (std::size_t i = 0; i < count; ++i) {
-    if (i + kAhead < count && pixels[i + kAhead] != kNoPixel) {
-      __builtin_prefetch(zbuffer + pixels[i + kAhead], 1);
+    if (i + kPrefetchAhead < count && pixels[i + kPrefetchAhead] != kNoPixel) {
+      __builtin_prefetch(zbuffer + pixels[i + kPrefetchAhead], 1);
     }
     const std::uint32_t pixel = pixels[i];
     if (pixel == kNoPixel) continue;
@@ -208,6 +208,16 @@ std::uint64_t cullRow(const float* __restrict depth, const float* __restrict col
   return culled;
 }
 
+// The top bit of each byte of `bytes` that holds kPriorityHole (0xff), the
+// other bits clear; exact for every byte (no borrow from one to the next).
+constexpr std::uint64_t holeBytes(std::uint64_t bytes) {
+  static_assert(kPriorityHole == 0xff);
+  constexpr std::uint64_t kLow7 = 0x7f7f7f7f7f7f7f7full;
+  const std::uint64_t inverted = ~bytes;  // holes are the zero bytes now
+  return ~(((inverted & kLow7) + kLow7) | inverted | kLow7);
+}
+static_assert(holeBytes(0x00ff7f80fe01ffffull) == 0x0080000000008080ull);
+
 // Lists the pixels of a row without a sample (hole priority) but with some
 // sample in their 7x7 box (least depth there finite); returns how many, and
 // how many pixels have no sample. A vectorised look at each 64 pixels first:
@@ -228,9 +238,15 @@ std::pair<std::uint32_t, std::uint32_t> interpolationCandidates(
     }
     withoutSample += empty;
     if (candidates == 0) continue;
-    for (std::uint32_t x = first; x < end; ++x) {
-      listed[count] = x;
-      count += (priorities[x] == kPriorityHole && boxMin[x] != kFar) ? 1u : 0u;
+    // Eight priorities at a time: the holes' bits, then one look each.
+    for (std::uint32_t x = first; x < end; x += 8) {
+      std::uint64_t bytes = 0;  // past the row's end: 0, not a hole
+      std::memcpy(&bytes, priorities + x, std::min<std::uint32_t>(8, end - x));
+      for (std::uint64_t holes = holeBytes(bytes); holes != 0; holes &= holes - 1) {
+        const std::uint32_t at = x + static_cast<std::uint32_t>(std::countr_zero(holes)) / 8;
+        listed[count] = at;
+        count += boxMin[at] != kFar ? 1u : 0u;
+      }
     }
   }
   return {count, withoutSample};
@@ -240,7 +256,7 @@ std::pair<std::uint32_t, std::uint32_t> interpolationCandidates(
 // the hole priority elsewhere (interpolation comes after). Returns the samples.
 POINTILLIST_VECTOR_KERNEL
 std::uint64_t shadeRow(const std::uint64_t* __restrict keys, std::uint32_t width,
-                       std::uint32_t background, std::uint32_t* __restrict rgba,
+                       std::uint32_t background, std::uint8_t* __restrict rgba,
                        std::uint8_t* __restrict priority) {
   std::uint64_t samples = 0;
   for (std::uint32_t x = 0; x < width; ++x) {
@@ -249,7 +265,8 @@ std::uint64_t shadeRow(const std::uint64_t* __restrict keys, std::uint32_t width
     const auto payload = static_cast<std::uint32_t>(key);
     const std::uint32_t aged =
         std::min<std::uint32_t>(kPriorityDense - 1, (payload >> 24) * kPriorityPerAge);
-    rgba[x] = sample ? (payload | 0xff000000u) : background;
+    const std::uint32_t colour = sample ? (payload | 0xff000000u) : background;
+    std::memcpy(rgba + 4 * std::size_t{x}, &colour, 4);
     priority[x] = static_cast<std::uint8_t>(sample ? kPriorityFreshSample + aged : kPriorityHole);
     samples += sample ? 1u : 0u;
   }
@@ -346,7 +363,7 @@ std::size_t RenderCache::size() const {
 std::uint32_t RenderCache::oldestAge() const {
   const std::shared_lock lock(pointsMutex_);
   std::uint8_t oldest = 0;
-  for (const std::uint8_t age : points_.age) oldest = std::max(oldest, age);
+  for (std::size_t i = 0; i < points_.size(); ++i) oldest = std::max(oldest, points_.age(i));
   return oldest;
 }
 
@@ -359,16 +376,14 @@ void RenderCache::Points::clear() {
   x.clear();
   y.clear();
   z.clear();
-  colour.clear();
-  age.clear();
+  colourAndAge.clear();
 }
 
 void RenderCache::Points::reserve(std::size_t count) {
   x.reserve(count);
   y.reserve(count);
   z.reserve(count);
-  colour.reserve(count);
-  age.reserve(count);
+  colourAndAge.reserve(count);
 }
 
 void RenderCache::Points::push(const glm::vec3& position, std::uint32_t rgba,
@@ -376,8 +391,7 @@ void RenderCache::Points::push(const glm::vec3& position, std::uint32_t rgba,
   x.push_back(position.x);
   y.push_back(position.y);
   z.push_back(position.z);
-  colour.push_back(rgba);
-  age.push_back(pointAge);
+  colourAndAge.push_back((rgba & 0x00ffffffu) | (std::uint32_t{pointAge} << 24));
 }
 
 std::uint64_t RenderCache::project(const Camera& camera, Payload payload, ZBuffer& zbuffer) const {
@@ -407,14 +421,10 @@ std::uint64_t RenderCache::project(const Camera& camera, Payload payload, ZBuffe
           [firstPoint](std::size_t i) { return firstPoint + static_cast<std::uint32_t>(i); },
           zbuffer.words.data());
     } else {
-      const std::uint32_t* colour = points_.colour.data() + first;
-      const std::uint8_t* age = points_.age.data() + first;
+      const std::uint32_t* colourAndAge = points_.colourAndAge.data() + first;
       landed += depthTest(
           zbuffer.blockPixel.data(), zbuffer.blockDepth.data(), n,
-          [colour, age](std::size_t i) {
-            return (colour[i] & 0x00ffffffu) | (std::uint32_t{age[i]} << 24);
-          },
-          zbuffer.words.data());
+          [colourAndAge](std::size_t i) { return colourAndAge[i]; }, zbuffer.words.data());
     }
   }
   return landed;
@@ -491,7 +501,7 @@ void RenderCache::insert(const Camera& camera, const Image& image, std::span<con
   std::array<std::size_t, 256> byAge{};
   for (std::size_t i = 0; i < previous; ++i) {
     if (taken_[i] != 0) continue;
-    const auto age = static_cast<std::uint8_t>(std::min(255, points_.age[i] + 1));
+    const auto age = static_cast<std::uint8_t>(std::min(255, points_.age(i) + 1));
     if (age > options_.maxAge) {
       taken_[i] = 1;
       ++counters_.removedOld;
@@ -515,13 +525,13 @@ void RenderCache::insert(const Camera& camera, const Image& image, std::span<con
   if (excess == 0) threshold = byAge.size();  // nothing to evict
   for (std::size_t i = 0; i < previous; ++i) {
     if (taken_[i] != 0) continue;
-    const auto age = static_cast<std::uint8_t>(std::min(255, points_.age[i] + 1));
+    const auto age = static_cast<std::uint8_t>(std::min(255, points_.age(i) + 1));
     if (age > threshold) continue;
     if (age == threshold && atThreshold > 0) {
       --atThreshold;
       continue;
     }
-    next_.push({points_.x[i], points_.y[i], points_.z[i]}, points_.colour[i], age);
+    next_.push({points_.x[i], points_.y[i], points_.z[i]}, points_.colourAndAge[i], age);
   }
   const std::unique_lock lock(pointsMutex_);
   std::swap(points_, next_);
@@ -534,9 +544,11 @@ InterimFrame RenderCache::reproject(const Camera& camera) {
   const std::uint32_t width = camera.image_width();
   const std::uint32_t height = camera.image_height();
   const std::size_t pixels = static_cast<std::size_t>(width) * height;
-  frame.image = Image(width, height, options_.background);
+  // Every pixel and priority is written below.
+  frame.image = Image::uninitialized(width, height);
   frame.priority.resize(pixels);
   if (frame.pointsInView == 0) {  // nothing cached in view: all holes
+    frame.image.fill(options_.background);
     std::fill(frame.priority.begin(), frame.priority.end(), kPriorityHole);
     frame.holes = pixels;
     zbuffer_.clear = true;  // nothing landed
@@ -575,7 +587,6 @@ InterimFrame RenderCache::reproject(const Camera& camera) {
   boxMinDepth_.resize(std::size_t{kRing} * width);
   const float pullForward = 1.0f / (1.0f + options_.depthCullFraction);
   const std::uint32_t background = packRgba(options_.background.data());
-  shadedRow_.resize(width);
   columnBlend_.resize(width);
   columnBlendRow_.assign(width, ~std::uint32_t{0});
   candidates_.resize(width);
@@ -620,11 +631,9 @@ InterimFrame RenderCache::reproject(const Camera& camera) {
       }
     }
     if (const std::int64_t y = t - kReach; y >= 0 && y < rows) {
-      // Colour and priority through a buffer (the image holds bytes).
-      frame.samples += shadeRow(keyRow(y), width, background, shadedRow_.data(),
+      frame.samples += shadeRow(keyRow(y), width, background,
+                                frame.image.pixel(0, static_cast<std::uint32_t>(y)),
                                 frame.priority.data() + static_cast<std::size_t>(y) * width);
-      std::memcpy(frame.image.pixel(0, static_cast<std::uint32_t>(y)), shadedRow_.data(),
-                  std::size_t{width} * 4);
     }
     if (const std::int64_t y = t - 2 * kReach; y >= 0) {
       if (emptyAround[slot(y)]) {

@@ -69,7 +69,7 @@ inline constexpr std::uint8_t kPriorityHole = 255;
 struct InterimFrame {
   Image image;
   // One value per pixel, rows bottom-up as the image.
-  std::vector<std::uint8_t> priority;
+  UninitializedBytes priority;
   std::uint64_t pointsInView = 0;  // points that landed on a pixel (before the z-test)
   std::uint64_t samples = 0;       // pixels showing a cached point
   std::uint64_t culled = 0;        // samples the depth cull removed
@@ -137,12 +137,16 @@ class RenderCache {
   // Structure of arrays, so that the projection streams the positions.
   struct Points {
     std::vector<float> x, y, z;
-    std::vector<std::uint32_t> colour;  // RGBA8 as in the image
-    std::vector<std::uint8_t> age;
+    // RGB as in the image's bytes, the age in place of alpha: the z-buffer
+    // payload as it is (one stream less to read).
+    std::vector<std::uint32_t> colourAndAge;
     std::size_t size() const { return x.size(); }
     void clear();
     void reserve(std::size_t count);
     void push(const glm::vec3& position, std::uint32_t rgba, std::uint8_t pointAge);
+    std::uint8_t age(std::size_t i) const {
+      return static_cast<std::uint8_t>(colourAndAge[i] >> 24);
+    }
   };
 
   RenderCacheOptions options_;
@@ -157,8 +161,7 @@ class RenderCache {
   ZBuffer insertZbuffer_;
   ZBuffer zbuffer_;  // reproject's
   // Rows of reproject's pipeline (see there).
-  std::vector<float> sampleDepth_;  // the z-buffer's depths
-  std::vector<std::uint32_t> shadedRow_;
+  std::vector<float> sampleDepth_;                         // the z-buffer's depths
   std::vector<float> columnMinDepth_;                      // least depth over 7 rows
   std::vector<float> rowMinDepth_;                         // least depth over 7 columns
   std::vector<float> boxMinDepth_;                         // least depth over the 7x7 box
