@@ -30,7 +30,6 @@ namespace {
 // nearest point and carries what the pass needs of it: the point's index for
 // insert, its colour and age for reproject (no lookup into the cloud after).
 constexpr std::uint64_t kNoSample = ~std::uint64_t{0};
-constexpr std::uint32_t kNoPixel = ~std::uint32_t{0};  // a point outside the frame
 constexpr std::size_t kPointBlock = 4096;  // points projected at a time (stays in L1/L2)
 constexpr std::uint32_t kReach = 3;        // the 7x7 neighbourhood's half width
 constexpr float kFar = std::numeric_limits<float>::infinity();
@@ -43,6 +42,9 @@ struct ScreenProjection {
   float nearPlane, farPlane;
   float halfWidth, halfHeight, width, height;
   std::uint32_t rowPixels;
+  // Where points outside the frame go: a word past the z-buffer's pixels, so
+  // that the z-test needs no branch.
+  std::uint32_t outside;
 };
 
 ScreenProjection screenProjection(const Camera& camera) {
@@ -65,15 +67,19 @@ ScreenProjection screenProjection(const Camera& camera) {
           0.5f * static_cast<float>(camera.image_height()),
           static_cast<float>(camera.image_width()),
           static_cast<float>(camera.image_height()),
-          camera.image_width()};
+          camera.image_width(),
+          camera.image_width() * camera.image_height()};
 }
 
-// Pixel (kNoPixel outside the frame or the depth range) and eye depth of
+// Pixel (p.outside outside the frame or the depth range) and eye depth of
 // each point (its bits; positive inside); branch-free so that it vectorises.
+// Returns how many points landed in the frame.
 POINTILLIST_VECTOR_KERNEL
-void projectPoints(const ScreenProjection p, const float* __restrict xs, const float* __restrict ys,
-                   const float* __restrict zs, std::size_t count, std::uint32_t* __restrict pixels,
-                   std::uint32_t* __restrict depthBits) {
+std::uint32_t projectPoints(const ScreenProjection p, const float* __restrict xs,
+                            const float* __restrict ys, const float* __restrict zs,
+                            std::size_t count, std::uint32_t* __restrict pixels,
+                            std::uint32_t* __restrict depthBits) {
+  std::uint32_t landed = 0;
   for (std::size_t i = 0; i < count; ++i) {
     const float px = xs[i], py = ys[i], pz = zs[i];
     const float w = p.w0 * px + p.w1 * py + p.w2 * pz + p.w3;
@@ -87,32 +93,29 @@ void projectPoints(const ScreenProjection p, const float* __restrict xs, const f
     // Converted only in range (NaN and overflow are undefined as integers).
     const auto column = static_cast<std::uint32_t>(static_cast<std::int32_t>(inside ? wx : 0.0f));
     const auto row = static_cast<std::uint32_t>(static_cast<std::int32_t>(inside ? wy : 0.0f));
-    pixels[i] = inside ? row * p.rowPixels + column : kNoPixel;
+    pixels[i] = inside ? row * p.rowPixels + column : p.outside;
     depthBits[i] = std::bit_cast<std::uint32_t>(w);
+    landed += inside ? 1u : 0u;
   }
+  return landed;
 }
 
 // The z-test of a block of projected points: the nearest wins (on equal
-// depths, the lower payload). Returns how many landed in the frame. The
-// z-buffer is larger than the caches and points that were hidden in the
-// last frame land anywhere: the pixels a few points ahead are fetched early.
+// depths, the lower payload); no branch. The z-buffer is larger than the
+// caches and points that were hidden in the last frame land anywhere: the
+// pixels a few points ahead are fetched early. `pixels` holds
+// kPrefetchAhead entries past `count`, any value (clamped to `outside`).
 constexpr std::size_t kPrefetchAhead = 128;
 template <class PayloadOf>
-std::uint64_t depthTest(const std::uint32_t* __restrict pixels,
-                        const std::uint32_t* __restrict depthBits, std::size_t count,
-                        PayloadOf payloadOf, std::uint64_t* __restrict zbuffer) {
-  std::uint64_t landed = 0;
+void depthTest(const std::uint32_t* __restrict pixels, const std::uint32_t* __restrict depthBits,
+               std::size_t count, std::uint32_t outside, PayloadOf payloadOf,
+               std::uint64_t* __restrict zbuffer) {
   for (std::size_t i = 0; i < count; ++i) {
-    if (i + kPrefetchAhead < count && pixels[i + kPrefetchAhead] != kNoPixel) {
-      __builtin_prefetch(zbuffer + pixels[i + kPrefetchAhead], 1);
-    }
-    const std::uint32_t pixel = pixels[i];
-    if (pixel == kNoPixel) continue;
-    ++landed;
+    __builtin_prefetch(zbuffer + std::min(pixels[i + kPrefetchAhead], outside), 1);
     const std::uint64_t key = (std::uint64_t{depthBits[i]} << 32) | payloadOf(i);
-    zbuffer[pixel] = std::min(zbuffer[pixel], key);
+    std::uint64_t& word = zbuffer[pixels[i]];
+    word = key < word ? key : word;
   }
-  return landed;
 }
 
 // Eye depths of one row of the z-buffer, +infinity where no sample; returns
@@ -399,9 +402,12 @@ std::uint64_t RenderCache::project(const Camera& camera, Payload payload, ZBuffe
   const std::size_t pixels = static_cast<std::size_t>(camera.image_width()) * camera.image_height();
   // The passes that read the z-buffer leave it clear for the next frame
   // (their rows are in cache then; a separate pass costs a trip to memory).
-  if (zbuffer.words.size() != pixels || !zbuffer.clear) zbuffer.words.assign(pixels, kNoSample);
+  // One word more: where points outside the frame go.
+  if (zbuffer.words.size() != pixels + 1 || !zbuffer.clear) {
+    zbuffer.words.assign(pixels + 1, kNoSample);
+  }
   zbuffer.clear = false;
-  zbuffer.blockPixel.resize(kPointBlock);
+  zbuffer.blockPixel.resize(kPointBlock + kPrefetchAhead);
   zbuffer.blockDepth.resize(kPointBlock);
   const std::shared_lock lock(pointsMutex_);
   const ScreenProjection projection = screenProjection(camera);
@@ -411,19 +417,19 @@ std::uint64_t RenderCache::project(const Camera& camera, Payload payload, ZBuffe
   // the block between them stays in cache.
   for (std::size_t first = 0; first < count; first += kPointBlock) {
     const std::size_t n = std::min(kPointBlock, count - first);
-    projectPoints(projection, points_.x.data() + first, points_.y.data() + first,
-                  points_.z.data() + first, n, zbuffer.blockPixel.data(),
-                  zbuffer.blockDepth.data());
+    landed += projectPoints(projection, points_.x.data() + first, points_.y.data() + first,
+                            points_.z.data() + first, n, zbuffer.blockPixel.data(),
+                            zbuffer.blockDepth.data());
     if (payload == Payload::pointIndex) {
       const auto firstPoint = static_cast<std::uint32_t>(first);
-      landed += depthTest(
-          zbuffer.blockPixel.data(), zbuffer.blockDepth.data(), n,
+      depthTest(
+          zbuffer.blockPixel.data(), zbuffer.blockDepth.data(), n, projection.outside,
           [firstPoint](std::size_t i) { return firstPoint + static_cast<std::uint32_t>(i); },
           zbuffer.words.data());
     } else {
       const std::uint32_t* colourAndAge = points_.colourAndAge.data() + first;
-      landed += depthTest(
-          zbuffer.blockPixel.data(), zbuffer.blockDepth.data(), n,
+      depthTest(
+          zbuffer.blockPixel.data(), zbuffer.blockDepth.data(), n, projection.outside,
           [colourAndAge](std::size_t i) { return colourAndAge[i]; }, zbuffer.words.data());
     }
   }
