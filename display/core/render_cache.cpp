@@ -118,16 +118,19 @@ void depthTest(const std::uint32_t* __restrict pixels, const std::uint32_t* __re
   }
 }
 
-// Eye depths of one row of the z-buffer, +infinity where no sample; returns
-// the samples.
+// One row of the z-buffer split into eye depths (+infinity where no sample)
+// and payloads, and cleared for the next frame: the only pass that reads the
+// z-buffer's (large) words. Returns the samples.
 POINTILLIST_VECTOR_KERNEL
-std::uint32_t depthRow(const std::uint64_t* __restrict keys, std::uint32_t width,
-                       float* __restrict depth) {
+std::uint32_t splitRow(std::uint64_t* __restrict keys, std::uint32_t width, float* __restrict depth,
+                       std::uint32_t* __restrict payload) {
   std::uint32_t samples = 0;
   for (std::uint32_t x = 0; x < width; ++x) {
     const std::uint64_t key = keys[x];
     const bool sample = key != kNoSample;
     depth[x] = sample ? std::bit_cast<float>(static_cast<std::uint32_t>(key >> 32)) : kFar;
+    payload[x] = static_cast<std::uint32_t>(key);
+    keys[x] = kNoSample;
     samples += sample ? 1u : 0u;
   }
   return samples;
@@ -183,34 +186,6 @@ void minOfSevenColumns(const float* __restrict in, std::uint32_t width, float* _
   for (std::uint32_t x = end; x < width; ++x) out[x] = leastAround(in, width, x);
 }
 
-// The depth cull of one row's interior (see reproject): `nearRows` are the
-// 7-column minima of the three rows below and the three above.
-POINTILLIST_VECTOR_KERNEL
-std::uint64_t cullRow(const float* __restrict depth, const float* __restrict columnMin,
-                      const std::array<const float*, 6> nearRows, std::uint32_t width,
-                      float pullForward, std::uint64_t* __restrict keys) {
-  const float* __restrict below3 = nearRows[0];
-  const float* __restrict below2 = nearRows[1];
-  const float* __restrict below1 = nearRows[2];
-  const float* __restrict above1 = nearRows[3];
-  const float* __restrict above2 = nearRows[4];
-  const float* __restrict above3 = nearRows[5];
-  std::uint64_t culled = 0;
-  const std::uint32_t end = width - kReach;  // callers: width > 2 * kReach
-  for (std::uint32_t x = kReach; x < end; ++x) {
-    const float nearer = depth[x] * pullForward;
-    const float left = least(least(columnMin[x - 1], columnMin[x - 2]), columnMin[x - 3]);
-    const float right = least(least(columnMin[x + 1], columnMin[x + 2]), columnMin[x + 3]);
-    const float below = least(least(below1[x], below2[x]), below3[x]);
-    const float above = least(least(above1[x], above2[x]), above3[x]);
-    const bool cull = (keys[x] != kNoSample) & (left < nearer) & (right < nearer) &
-                      (below < nearer) & (above < nearer);
-    keys[x] = cull ? kNoSample : keys[x];
-    culled += cull ? 1u : 0u;
-  }
-  return culled;
-}
-
 // The top bit of each byte of `bytes` that holds kPriorityHole (0xff), the
 // other bits clear; exact for every byte (no borrow from one to the next).
 constexpr std::uint64_t holeBytes(std::uint64_t bytes) {
@@ -255,20 +230,50 @@ std::pair<std::uint32_t, std::uint32_t> interpolationCandidates(
   return {count, withoutSample};
 }
 
-// The colour (opaque) and priority of one row's samples; background and
-// the hole priority elsewhere (interpolation comes after). Returns the samples.
+// The depth cull of one row's interior (see reproject): `nearRows` are the
+// 7-column minima of the three rows below and the three above. Writes the
+// row's depths with the culled samples gone (+infinity); returns how many.
 POINTILLIST_VECTOR_KERNEL
-std::uint64_t shadeRow(const std::uint64_t* __restrict keys, std::uint32_t width,
-                       std::uint32_t background, std::uint8_t* __restrict rgba,
+std::uint32_t cullRow(const float* __restrict depth, const float* __restrict columnMin,
+                      const std::array<const float*, 6> nearRows, std::uint32_t width,
+                      float pullForward, float* __restrict shownDepth) {
+  const float* __restrict below3 = nearRows[0];
+  const float* __restrict below2 = nearRows[1];
+  const float* __restrict below1 = nearRows[2];
+  const float* __restrict above1 = nearRows[3];
+  const float* __restrict above2 = nearRows[4];
+  const float* __restrict above3 = nearRows[5];
+  std::uint32_t culled = 0;
+  const std::uint32_t end = width - kReach;  // callers: width > 2 * kReach
+  for (std::uint32_t x = 0; x < kReach; ++x) shownDepth[x] = depth[x];
+  for (std::uint32_t x = kReach; x < end; ++x) {
+    const float nearer = depth[x] * pullForward;
+    const float left = least(least(columnMin[x - 1], columnMin[x - 2]), columnMin[x - 3]);
+    const float right = least(least(columnMin[x + 1], columnMin[x + 2]), columnMin[x + 3]);
+    const float below = least(least(below1[x], below2[x]), below3[x]);
+    const float above = least(least(above1[x], above2[x]), above3[x]);
+    const bool cull = (left < nearer) & (right < nearer) & (below < nearer) & (above < nearer) &
+                      (depth[x] != kFar);
+    shownDepth[x] = cull ? kFar : depth[x];
+    culled += cull ? 1u : 0u;
+  }
+  for (std::uint32_t x = end; x < width; ++x) shownDepth[x] = depth[x];
+  return culled;
+}
+
+// The colour (opaque) and priority of one row: its samples' (depth finite),
+// background and the hole priority elsewhere (interpolation comes after).
+// Returns the samples.
+POINTILLIST_VECTOR_KERNEL
+std::uint32_t shadeRow(const float* __restrict depth, const std::uint32_t* __restrict payload,
+                       std::uint32_t width, std::uint32_t background, std::uint8_t* __restrict rgba,
                        std::uint8_t* __restrict priority) {
-  std::uint64_t samples = 0;
+  std::uint32_t samples = 0;
   for (std::uint32_t x = 0; x < width; ++x) {
-    const std::uint64_t key = keys[x];
-    const bool sample = key != kNoSample;
-    const auto payload = static_cast<std::uint32_t>(key);
+    const bool sample = depth[x] != kFar;
     const std::uint32_t aged =
-        std::min<std::uint32_t>(kPriorityDense - 1, (payload >> 24) * kPriorityPerAge);
-    const std::uint32_t colour = sample ? (payload | 0xff000000u) : background;
+        std::min<std::uint32_t>(kPriorityDense - 1, (payload[x] >> 24) * kPriorityPerAge);
+    const std::uint32_t colour = sample ? (payload[x] | 0xff000000u) : background;
     std::memcpy(rgba + 4 * std::size_t{x}, &colour, 4);
     priority[x] = static_cast<std::uint8_t>(sample ? kPriorityFreshSample + aged : kPriorityHole);
     samples += sample ? 1u : 0u;
@@ -282,14 +287,13 @@ std::uint32_t packRgba(const std::uint8_t* rgba) {
   return value;
 }
 
-// A weighted mean of the colours of z-buffer words; words without a sample
-// add nothing.
+// A weighted mean of the colours of samples; pixels without one add nothing.
 struct Blend {
   unsigned weight = 0, r = 0, g = 0, b = 0;
   // `shift` 0: weight 1, 1: weight 2. Masks, not multiplies or branches.
-  void add(std::uint64_t key, unsigned shift) {
-    const unsigned mask = key != kNoSample ? ~0u : 0u;
-    const auto c = static_cast<std::uint32_t>(key) & mask;
+  void add(std::uint32_t colour, bool sample, unsigned shift) {
+    const unsigned mask = sample ? ~0u : 0u;
+    const auto c = colour & mask;
     weight += (1u & mask) << shift;
     r += (c & 0xffu) << shift;
     g += ((c >> 8) & 0xffu) << shift;
@@ -565,11 +569,13 @@ InterimFrame RenderCache::reproject(const Camera& camera) {
   const auto keyRow = [&](std::int64_t y) { return keys + static_cast<std::size_t>(y) * width; };
 
   // The passes after the projection run as a pipeline down the rows, a few
-  // rows apart, so that each z-buffer row is still in cache when the next
-  // pass reads it (the z-buffer itself is far larger than the caches):
-  //   row t      its depths, and their least over 7 columns;
-  //   row t - 3  the least depth over 7 rows, the depth cull, the colours;
-  //   row t - 6  interpolation, which reads the culled rows 3 above.
+  // rows apart, so that the rows each pass reads are still in cache (the
+  // z-buffer itself is far larger than the caches):
+  //   row t      its z-buffer words split into depths and payloads (and
+  //              cleared), the depths' least over 7 columns;
+  //   row t - 3  the least depth over 7 rows, the depth cull, the colours
+  //              and priorities;
+  //   row t - 6  interpolation, which reads the shaded rows 3 above.
   //
   // Depth cull, the paper's filtered-depth test taken per side: a sample is
   // culled when each side of its 7x7 neighbourhood (the three columns left,
@@ -578,19 +584,19 @@ InterimFrame RenderCache::reproject(const Camera& camera) {
   // through a gap of a nearer surface. The paper's filter, the mean of the
   // 3x3 neighbourhood, also culls the far side of every silhouette (a
   // background pixel beside an object); one side alone never culls here.
-  // The tests read the depths, so culling a sample does not change its
-  // neighbours' tests.
   constexpr std::uint32_t kRing = 8;  // rows kept of each per-row buffer
-  const auto ring = [&](std::vector<float>& buffer, std::int64_t y) {
+  const auto ring = [&]<class T>(std::vector<T>& buffer, std::int64_t y) {
     return buffer.data() + static_cast<std::size_t>(y % kRing) * width;
   };
   const auto clampRow = [&](std::int64_t y) {
     return std::clamp<std::int64_t>(y, 0, std::int64_t{height} - 1);
   };
   sampleDepth_.resize(std::size_t{kRing} * width);
+  samplePayload_.resize(std::size_t{kRing} * width);
   rowMinDepth_.resize(std::size_t{kRing} * width);
   columnMinDepth_.resize(width);
   boxMinDepth_.resize(std::size_t{kRing} * width);
+  shownDepth_.resize(width);
   const float pullForward = 1.0f / (1.0f + options_.depthCullFraction);
   const std::uint32_t background = packRgba(options_.background.data());
   columnBlend_.resize(width);
@@ -604,7 +610,8 @@ InterimFrame RenderCache::reproject(const Camera& camera) {
   const auto slot = [](std::int64_t y) { return static_cast<std::size_t>(y % kRing); };
   for (std::int64_t t = 0; t < rows + 2 * kReach; ++t) {
     if (t < rows) {
-      rowSamples[slot(t)] = depthRow(keyRow(t), width, ring(sampleDepth_, t));
+      rowSamples[slot(t)] =
+          splitRow(keyRow(t), width, ring(sampleDepth_, t), ring(samplePayload_, t));
       if (rowSamples[slot(t)] == 0) {
         std::fill_n(ring(rowMinDepth_, t), width, kFar);
       } else {
@@ -628,16 +635,18 @@ InterimFrame RenderCache::reproject(const Camera& camera) {
       }
       minOfSevenRows(around, width, columnMinDepth_.data());
       minOfSevenColumns(columnMinDepth_.data(), width, ring(boxMinDepth_, y));
-      if (y >= kReach && y + kReach < rows && width > 2 * kReach) {
-        frame.culled += cullRow(
-            ring(sampleDepth_, y), columnMinDepth_.data(),
-            {ring(rowMinDepth_, y - 3), ring(rowMinDepth_, y - 2), ring(rowMinDepth_, y - 1),
-             ring(rowMinDepth_, y + 1), ring(rowMinDepth_, y + 2), ring(rowMinDepth_, y + 3)},
-            width, pullForward, keyRow(y));
-      }
     }
     if (const std::int64_t y = t - kReach; y >= 0 && y < rows) {
-      frame.samples += shadeRow(keyRow(y), width, background,
+      const float* depth = ring(sampleDepth_, y);
+      if (!emptyAround[slot(y)] && y >= kReach && y + kReach < rows && width > 2 * kReach) {
+        frame.culled += cullRow(
+            depth, columnMinDepth_.data(),
+            {ring(rowMinDepth_, y - 3), ring(rowMinDepth_, y - 2), ring(rowMinDepth_, y - 1),
+             ring(rowMinDepth_, y + 1), ring(rowMinDepth_, y + 2), ring(rowMinDepth_, y + 3)},
+            width, pullForward, shownDepth_.data());
+        depth = shownDepth_.data();
+      }
+      frame.samples += shadeRow(depth, ring(samplePayload_, y), width, background,
                                 frame.image.pixel(0, static_cast<std::uint32_t>(y)),
                                 frame.priority.data() + static_cast<std::size_t>(y) * width);
     }
@@ -647,12 +656,9 @@ InterimFrame RenderCache::reproject(const Camera& camera) {
       } else {
         interpolateRow(static_cast<std::uint32_t>(y), ring(boxMinDepth_, y), frame);
       }
-      // No pass reads that row again.
-      if (y >= kReach) std::fill_n(keyRow(y - kReach), width, kNoSample);
     }
   }
-  std::fill(keyRow(std::max<std::int64_t>(0, rows - kReach)), keyRow(rows), kNoSample);
-  zbuffer_.clear = true;
+  zbuffer_.clear = true;  // splitRow cleared each row
   frame.seconds = secondsBetween(start, Clock::now());
   return frame;
 }
@@ -664,9 +670,15 @@ InterimFrame RenderCache::reproject(const Camera& camera) {
 void RenderCache::interpolateRow(std::uint32_t y, const float* boxMin, InterimFrame& frame) {
   const std::uint32_t width = frame.image.width();
   const std::uint32_t height = frame.image.height();
-  const std::uint64_t* keys = zbuffer_.words.data();
-  const auto keyAt = [&](std::uint32_t x, std::uint32_t yy) {
-    return keys[static_cast<std::size_t>(yy) * width + x];
+  // Samples are the pixels shaded with a sample's priority (interpolated
+  // ones, from this row or those below, are not).
+  const std::uint8_t* shadedPriority = frame.priority.data();
+  const std::uint8_t* shadedColour = frame.image.bytes().data();
+  const auto addSample = [&](Blend& blend, std::uint32_t x, std::uint32_t yy, unsigned shift) {
+    const std::size_t at = static_cast<std::size_t>(yy) * width + x;
+    std::uint32_t colour;
+    std::memcpy(&colour, shadedColour + 4 * at, 4);
+    blend.add(colour, shadedPriority[at] < kPriorityDense, shift);
   };
   const std::uint32_t y0 = y < kReach ? 0 : y - kReach, y1 = std::min(y + kReach, height - 1);
   // The 7x7 box as seven columns of seven: the sparse pixels of a row share
@@ -674,7 +686,7 @@ void RenderCache::interpolateRow(std::uint32_t y, const float* boxMin, InterimFr
   const auto columnBlend = [&](std::uint32_t x) -> const std::array<std::uint32_t, 4>& {
     if (columnBlendRow_[x] != y) {
       Blend column;
-      for (std::uint32_t yy = y0; yy <= y1; ++yy) column.add(keyAt(x, yy), 0);
+      for (std::uint32_t yy = y0; yy <= y1; ++yy) addSample(column, x, yy, 0);
       columnBlend_[x] = column.sums();
       columnBlendRow_[x] = y;
     }
@@ -696,7 +708,7 @@ void RenderCache::interpolateRow(std::uint32_t y, const float* boxMin, InterimFr
     const std::uint32_t left = x == 0 ? 0 : x - 1, right = std::min(x + 1, width - 1);
     const std::uint32_t down = y == 0 ? 0 : y - 1, up = std::min(y + 1, height - 1);
     const auto add = [&](std::uint32_t xx, std::uint32_t yy, unsigned shift) {
-      blend.add(keyAt(xx, yy), shift);
+      addSample(blend, xx, yy, shift);
     };
     // Clamped at the image's edge, where a neighbour may count twice.
     add(left, down, 0), add(x, down, 1), add(right, down, 0);

@@ -162,6 +162,8 @@ class RenderCache {
   ZBuffer zbuffer_;  // reproject's
   // Rows of reproject's pipeline (see there).
   std::vector<float> sampleDepth_;                         // the z-buffer's depths
+  std::vector<std::uint32_t> samplePayload_;               // ... and payloads
+  std::vector<float> shownDepth_;                          // a row's depths after the cull
   std::vector<float> columnMinDepth_;                      // least depth over 7 rows
   std::vector<float> rowMinDepth_;                         // least depth over 7 columns
   std::vector<float> boxMinDepth_;                         // least depth over the 7x7 box

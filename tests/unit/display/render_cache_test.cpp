@@ -95,6 +95,81 @@ TEST(RenderCache, ReprojectingToTheSameCameraGivesTheFrameBack) {
   EXPECT_EQ(meanPriority(interim, fullFrameRect(camera)), 0.0);
 }
 
+// A frame with samples only on a sparse grid, reprojected to its own camera:
+// each hole between them takes the mean of the samples in its 3x3
+// neighbourhood (edge neighbours count twice the corners), or where there
+// are none, of its 7x7 box.
+TEST(RenderCache, HolesTakeTheMeanOfTheSamplesAround) {
+  const Camera camera = downCamera(0.0f, 0.0f, 5.0f);
+  Frame frame = castFrame(camera, {{0.0f}});
+  // Samples where x and y are both even (dense holes between them), and none
+  // in the block x, y in [40, 48) but its centre (sparse holes around that).
+  const auto sampled = [](std::uint32_t x, std::uint32_t y) {
+    const bool block = x >= 40 && x < 48 && y >= 24 && y < 32;
+    return block ? x == 44 && y == 28 : x % 2 == 0 && y % 2 == 0;
+  };
+  for (std::uint32_t y = 0; y < kHeight; ++y) {
+    for (std::uint32_t x = 0; x < kWidth; ++x) {
+      if (!sampled(x, y)) {
+        frame.depth[std::size_t{y} * kWidth + x] = kInfinity;
+        frame.image.set(x, y, {0, 0, 0, 255});
+      }
+    }
+  }
+  RenderCache cache;
+  cache.insert(camera, frame.image, frame.depth);
+  const InterimFrame interim = cache.reproject(camera);
+  EXPECT_EQ(interim.holes, 0u);
+  // The mean as the cache rounds it.
+  const auto mean = [&](const std::vector<std::pair<Rgba8, unsigned>>& samples) {
+    float sums[3] = {0, 0, 0}, weight = 0;
+    for (const auto& [colour, w] : samples) {
+      for (int c = 0; c < 3; ++c)
+        sums[c] += static_cast<float>(colour[static_cast<std::size_t>(c)] * w);
+      weight += static_cast<float>(w);
+    }
+    Rgba8 out{0, 0, 0, 255};
+    for (int c = 0; c < 3; ++c) {
+      out[static_cast<std::size_t>(c)] =
+          static_cast<std::uint8_t>(sums[c] * (1.0f / weight) + 0.5f);
+    }
+    return out;
+  };
+  std::uint64_t dense = 0, sparse = 0;
+  for (std::uint32_t y = 1; y + 1 < kHeight; ++y) {
+    for (std::uint32_t x = 1; x + 1 < kWidth; ++x) {
+      const std::size_t at = std::size_t{y} * kWidth + x;
+      if (sampled(x, y)) {
+        EXPECT_EQ(interim.image.at(x, y), frame.image.at(x, y));
+        continue;
+      }
+      std::vector<std::pair<Rgba8, unsigned>> near;
+      for (std::uint32_t yy = y - 1; yy <= y + 1; ++yy) {
+        for (std::uint32_t xx = x - 1; xx <= x + 1; ++xx) {
+          if (sampled(xx, yy)) near.push_back({frame.image.at(xx, yy), xx == x || yy == y ? 2 : 1});
+        }
+      }
+      if (!near.empty()) {
+        ++dense;
+        EXPECT_EQ(interim.priority[at], kPriorityDense);
+        ASSERT_EQ(interim.image.at(x, y), mean(near)) << x << "," << y;
+        continue;
+      }
+      for (std::uint32_t yy = y - 3; yy <= y + 3; ++yy) {
+        for (std::uint32_t xx = x - 3; xx <= x + 3; ++xx) {
+          if (sampled(xx, yy)) near.push_back({frame.image.at(xx, yy), 1});
+        }
+      }
+      ++sparse;
+      EXPECT_EQ(interim.priority[at], kPrioritySparse);
+      ASSERT_EQ(interim.image.at(x, y), mean(near)) << x << "," << y;
+    }
+  }
+  EXPECT_GT(dense, 1000u);
+  EXPECT_GT(sparse, 20u);
+  EXPECT_EQ(interim.sparse, sparse);
+}
+
 // The test the issue names: a camera translating over a flat textured plane
 // leaves holes only in the border it uncovers.
 TEST(RenderCache, TranslationOverAPlaneLeavesHolesOnlyInTheUncoveredBorder) {
