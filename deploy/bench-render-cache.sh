@@ -12,14 +12,14 @@
 # tiles go out, the tiles the cache could not fill first), on-np
 # (--tile-priority none: the tiles go out at once, the reprojection runs
 # while they are drawn) and refresh (as on, and the interim frame goes again
-# as tiles arrive, --interim-refresh-ms 0: the columns "updates", interim
-# frames per camera, and "final px %", the share of pixels equal to the final
-# frame's in the last interim one). First, pointillist-bench-render-cache times the cache
+# as tiles arrive, --interim-refresh-ms as --refresh-ms: the columns
+# "updates", interim frames per camera, and "final px %", the share of pixels
+# equal to the final frame's in the last interim one). First, pointillist-bench-render-cache times the cache
 # alone on one core (a toy city cast by rays, fully covered and a quarter
 # covered frame) and its lines open the table.
 #
 #   deploy/bench-render-cache.sh [--scenes city,bunny-10M] [--frames 48] [--layout 1,2,1,4]
-#       [--size 1280x720] [--path turns]
+#       [--size 1280x720] [--path turns] [--cases off,on,on-np,refresh] [--refresh-ms 5]
 #
 # Scenes: city is the built-in city (2 M points); bunny-10M is Debian's
 # bunny00.off (libcgal-demo) sampled to 10 M points (made on first use, as
@@ -32,6 +32,8 @@ frames=48
 layout="1,2,1,4"
 size="1280x720"
 path="turns"
+cases="off,on,on-np,refresh"
+refresh_ms=5
 while (($#)); do
   case "$1" in
     --scenes) scenes="$2"; shift 2 ;;
@@ -39,6 +41,8 @@ while (($#)); do
     --layout) layout="$2"; shift 2 ;;
     --size) size="$2"; shift 2 ;;
     --path) path="$2"; shift 2 ;;
+    --cases) cases="$2"; shift 2 ;;
+    --refresh-ms) refresh_ms="$2"; shift 2 ;;
     -h|--help) awk 'NR > 1 && /^#/ { sub(/^# ?/, ""); print; next } NR > 1 { exit }' "${BASH_SOURCE[0]}"; exit 0 ;;
     *) echo "bench-render-cache.sh: unknown option $1" >&2; exit 2 ;;
   esac
@@ -101,7 +105,8 @@ table="$out/table.txt"
 IFS=',' read -r -a scene_list <<<"$scenes"
 for scene in "${scene_list[@]}"; do
   dataset=$(scene_dataset "$scene")
-  for case_name in off on on-np refresh; do
+  IFS=',' read -r -a case_list <<<"$cases"
+  for case_name in "${case_list[@]}"; do
     tag="$scene-$case_name"
     log "$scene: render cache $case_name"
     case "$case_name" in
@@ -109,7 +114,8 @@ for scene in "${scene_list[@]}"; do
       on) run_case "$dataset" "$tag" --interim-ms 0 --tile-priority cache ;;
       on-np) run_case "$dataset" "$tag" --interim-ms 0 --tile-priority none ;;
       refresh) run_case "$dataset" "$tag" --interim-ms 0 --tile-priority cache \
-        --interim-refresh-ms 0 ;;
+        --interim-refresh-ms "$refresh_ms" ;;
+      *) echo "bench-render-cache.sh: unknown case $case_name" >&2; exit 2 ;;
     esac
     csv="$out/$tag.csv"
     count=$(awk -F, 'NR > 1 && $4 == 1' "$csv" | wc -l)
@@ -127,15 +133,21 @@ for scene in "${scene_list[@]}"; do
   done
 done
 echo "on-np: --tile-priority none (tiles at once, reprojection while they are drawn)" >>"$table"
-echo "refresh: as on, with --interim-refresh-ms 0 (the interim frame again as tiles arrive)" >>"$table"
+echo "refresh: as on, with --interim-refresh-ms $refresh_ms (the interim frame again as tiles arrive)" >>"$table"
 echo
 cat "$table"
 if command -v gnuplot >/dev/null; then
   plots=""
   for scene in "${scene_list[@]}"; do
-    plots+="\"$out/$scene-off.csv\" using 1:3 with linespoints title \"$scene, no cache\", "
-    plots+="\"$out/$scene-on.csv\" using 1:3 with linespoints title \"$scene, render cache\", "
-    plots+="\"$out/$scene-on-np.csv\" using 1:3 with linespoints title \"$scene, cache, tiles at once\", "
+    for case_name in "${case_list[@]}"; do
+      case "$case_name" in
+        off) title="no cache" ;;
+        on) title="render cache" ;;
+        on-np) title="cache, tiles at once" ;;
+        refresh) title="cache, refreshed" ;;
+      esac
+      plots+="\"$out/$scene-$case_name.csv\" using 1:3 with linespoints title \"$scene, $title\", "
+    done
   done
   gnuplot <<PLOT
 set terminal pngcairo size 1000,560 font "sans,11" noenhanced

@@ -283,22 +283,44 @@ void ServiceFrameSource::tileComposed(const ComposedTile& tile, const Image& com
   }
   started.tilesShown = tile.tilesDone;
   started.tiles = tile.tiles;
+  if (started.changedX1 <= started.changedX0) {
+    started.changedX0 = rect.x(), started.changedY0 = rect.y();
+    started.changedX1 = rect.x() + rect.width(), started.changedY1 = rect.y() + rect.height();
+  } else {
+    started.changedX0 = std::min(started.changedX0, rect.x());
+    started.changedY0 = std::min(started.changedY0, rect.y());
+    started.changedX1 = std::max(started.changedX1, rect.x() + rect.width());
+    started.changedY1 = std::max(started.changedY1, rect.y() + rect.height());
+  }
 }
 
 void ServiceFrameSource::sendInterim(Started& started, std::chrono::steady_clock::time_point now) {
-  if (started.interimSent) ++refreshesSent_;
-  started.interimSent = true;
-  started.lastSent = now;
-  started.tilesSent = started.tilesShown;
-  ++interimsSent_;
   service::InterimOutcome outcome;
   outcome.frameId = started.frame;
   outcome.filledShare = started.interim->filledShare();
   outcome.reprojectMs = started.interim->seconds * 1000.0;
   outcome.tilesComposed = started.tilesShown;
   outcome.tiles = started.tiles;
-  frontEnd_->interimFrame(started.order, outcome,
-                          started.shown.empty() ? started.interim->image : started.shown);
+  Image image;
+  if (!started.interimSent) {  // the whole frame, with the tiles that came
+    image = started.shown.empty() ? started.interim->image : started.shown;
+  } else {  // the tiles that came since: the client paints them over
+    ++refreshesSent_;
+    outcome.regionX = started.changedX0;
+    outcome.regionY = started.changedY0;
+    outcome.regionWidth = started.changedX1 - started.changedX0;
+    outcome.regionHeight = started.changedY1 - started.changedY0;
+    outcome.frameWidth = started.shown.width();
+    outcome.frameHeight = started.shown.height();
+    image = crop(started.shown, outcome.regionX, outcome.regionY, outcome.regionWidth,
+                 outcome.regionHeight);
+  }
+  started.interimSent = true;
+  started.lastSent = now;
+  started.tilesSent = started.tilesShown;
+  started.changedX0 = started.changedY0 = started.changedX1 = started.changedY1 = 0;
+  ++interimsSent_;
+  frontEnd_->interimFrame(started.order, outcome, std::move(image));
 }
 
 void ServiceFrameSource::poll() {
@@ -363,7 +385,7 @@ std::string ServiceFrameSource::renderCacheSummary() const {
   std::snprintf(
       line, sizeof line,
       "render cache: %llu interim frames made (%.2f ms each, %.1f %% filled), %llu "
-      "sent (%llu of them again with the tiles that came); %llu final frames cached (%.2f ms each, "
+      "sent (%llu of them the tiles that came since); %llu final frames cached (%.2f ms each, "
       "on the cache thread), %llu "
       "passed over for a newer one\n",
       static_cast<unsigned long long>(interimsMade_),

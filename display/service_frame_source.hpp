@@ -32,9 +32,9 @@ struct RenderCacheServing {
   // priority; false: reproject at the next poll, the tiles in the
   // scheduler's order.
   bool tilePriority = true;
-  // After the interim frame went out, it goes again with the tiles that
-  // arrived since, at most this often (0: every turn with new tiles), until
-  // the final frame; negative: one interim frame only. Each costs an encode.
+  // After the interim frame went out, the tiles that arrived since go too
+  // (the region they cover), at most this often (0: every turn with new
+  // tiles), until the final frame; negative: one interim frame only.
   double refreshMs = -1.0;
 };
 
@@ -76,6 +76,9 @@ class ServiceFrameSource final : public FrameSource {
     // the first tile); what the client sees until the final frame.
     Image shown;
     std::uint32_t tilesShown = 0, tilesSent = 0, tiles = 0;
+    // The bounding box of the tiles pasted since the last interim frame went
+    // (empty: x1 <= x0): a refresh sends only that region.
+    std::uint32_t changedX0 = 0, changedY0 = 0, changedX1 = 0, changedY1 = 0;
     std::chrono::steady_clock::time_point lastSent;
   };
   ClientCache* cacheFor(const std::string& clientId, v1::RenderMode mode);

@@ -58,9 +58,13 @@ def read_curve_key(path):
 
 class PointillistClient:
     def __init__(self, endpoint="tcp://127.0.0.1:5570", name="pointillist-client.py",
-                 timeout=30.0, curve_server_key=None, curve_secret_key=None):
+                 timeout=30.0, curve_server_key=None, curve_secret_key=None,
+                 stream_receive_hwm=None):
         """curve_server_key and curve_secret_key: key files (the server's public key,
-        this client's secret key) for a service started with --curve-secret-key."""
+        this client's secret key) for a service started with --curve-secret-key.
+        stream_receive_hwm: frames held here unread at most (ZeroMQ's default
+        otherwise); the service keeps the rest of a render request's frames
+        until there is room, and drops path frames."""
         self.timeout_ms = int(timeout * 1000)
         self._ids = itertools.count(1)
         self._context = zmq.Context()
@@ -78,6 +82,8 @@ class PointillistClient:
         self.default_format = hello.format
         self.stream = self._socket()
         self.stream.setsockopt(zmq.ROUTING_ID, self.client_id.encode())
+        if stream_receive_hwm is not None:
+            self.stream.setsockopt(zmq.RCVHWM, stream_receive_hwm)
         self.stream.connect(self._reachable(hello.stream_endpoint, endpoint))
         attach = pb.Request(version=pb.SERVICE_VERSION_CURRENT, client_id=self.client_id,
                             request_id=next(self._ids), attach=pb.AttachRequest())

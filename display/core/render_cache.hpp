@@ -17,9 +17,11 @@
 //              reprojection (a camera close to this one) reads it in order.
 //   reproject  one pass over the points with a z-buffer whose words carry
 //              depth, colour and age (projection in blocks the compiler
-//              vectorises, then one compare per point), then a pipeline down
-//              the rows, each pass a few rows behind the last so the rows it
-//              reads are still in cache: the depth cull (a sample goes when
+//              vectorises, then one compare per point, no branch), then a
+//              pipeline down the rows, each pass a few rows behind the last
+//              so the rows it reads are still in cache: each z-buffer row
+//              read once (split into depth and payload rows, and cleared for
+//              the next frame), the depth cull (a sample goes when
 //              every side of its 7x7 neighbourhood holds a nearer one, by
 //              more than depthCullFraction: it shows through a gap of a
 //              nearer surface; the paper's filtered depth, per side),
@@ -29,8 +31,8 @@
 //              sparse).
 //
 // The whole-image passes also get an AVX2 build chosen at load time. On this
-// project's 2-core VM a 1280x720 reprojection takes about 8.7 ms on one core
-// for a fully covered frame and 1.25 M cached points, 5.5 ms for a quarter
+// project's 2-core VM a 1280x720 reprojection takes about 7 ms on one core
+// for a fully covered frame and 1.25 M cached points, 4 ms for a quarter
 // covered one (pointillist-bench-render-cache).
 #include <array>
 #include <cstdint>

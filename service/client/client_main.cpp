@@ -166,6 +166,32 @@ ReceivedFrame awaitFrame(ServiceClient& client, std::uint64_t requestId,
   }
 }
 
+// What the client shows after an interim frame: the whole frame, or a region
+// of it (service version 3) painted over the interim frame shown so far.
+void showInterim(const ReceivedFrame& frame, Image& shown) {
+  const v1::FrameHeader& header = frame.header;
+  if (header.region_width() == 0) {
+    shown = decodeFrame(frame.pixels, header.encoding(), header.width(), header.height());
+    return;
+  }
+  if (shown.width() != header.width() || shown.height() != header.height() ||
+      header.region_height() == 0 || header.region_x() > header.width() ||
+      header.region_width() > header.width() - header.region_x() ||
+      header.region_y() > header.height() ||
+      header.region_height() > header.height() - header.region_y()) {
+    throw ProtocolError(
+        "interim frame " + std::to_string(header.frame_id()) + ": region " +
+        std::to_string(header.region_width()) + "x" + std::to_string(header.region_height()) +
+        " at " + std::to_string(header.region_x()) + "," + std::to_string(header.region_y()) +
+        " does not fit the " + std::to_string(shown.width()) + "x" +
+        std::to_string(shown.height()) + " frame shown");
+  }
+  const Image region =
+      decodeFrame(frame.pixels, header.encoding(), header.region_width(), header.region_height());
+  blit(region, shown, header.region_x(),
+       header.height() - header.region_y() - header.region_height());
+}
+
 void printLatency(const char* what, const LatencyWindow& window) {
   const LatencyFigures figures = window.figures();
   std::printf("%s: %llu frames, median %.1f ms, p95 %.1f ms, max %.1f ms\n", what,
@@ -209,16 +235,29 @@ int renderOne(ServiceClient& client, const ClientOptions& options) {
   const std::uint64_t id = client.render(parseCamera(options.camera), requestedFormat(options));
   std::vector<ReceivedFrame> interim;
   const ReceivedFrame frame = awaitFrame(client, id, options, &interim);
+  Image shown;
   for (const ReceivedFrame& early : interim) {
-    std::printf("interim frame after %.1f ms: reprojected in %.1f ms, %.1f %% of pixels filled\n",
-                millisecondsBetween(sent, early.received), early.header.reproject_ms(),
-                static_cast<double>(early.header.cache_filled()) * 100.0);
-    if (options.keepInterim && !options.output.empty()) {
-      std::filesystem::path path(options.output);
-      path.replace_extension(".interim" + path.extension().string());
-      writeFrame(early, path);
-      std::printf("wrote %s\n", path.c_str());
+    const v1::FrameHeader& header = early.header;
+    if (header.region_width() == 0) {
+      std::printf(
+          "interim frame after %.1f ms: reprojected in %.1f ms, %.1f %% of pixels filled, %u "
+          "tiles final\n",
+          millisecondsBetween(sent, early.received), header.reproject_ms(),
+          static_cast<double>(header.cache_filled()) * 100.0, header.tiles_composed());
+    } else {
+      std::printf("  then after %.1f ms: the tiles that came, %ux%u at %u,%u (%u of %u final)\n",
+                  millisecondsBetween(sent, early.received), header.region_width(),
+                  header.region_height(), header.region_x(), header.region_y(),
+                  header.tiles_composed(), header.tiles());
     }
+    showInterim(early, shown);
+  }
+  if (!interim.empty() && options.keepInterim && !options.output.empty()) {
+    // The first interim frame as the cache made it (the tiles after are the final frame's).
+    std::filesystem::path path(options.output);
+    path.replace_extension(".interim" + path.extension().string());
+    writeFrame(interim.front(), path);
+    std::printf("wrote %s\n", path.c_str());
   }
   printFrame(frame, millisecondsBetween(sent, frame.received));
   if (frame.header.status() == v1::FRAME_STATUS_SUPERSEDED) return 1;
@@ -371,13 +410,13 @@ int orbit(ServiceClient& client, const ClientOptions& options) {
       interimPsnr.add(psnr);
       filled.add(coveredFilled * 100.0);
       lastIdentical = identical;
+      Image shown = interimImage;
       for (std::size_t i = 1; i < early.size(); ++i) {
         const v1::FrameHeader& header = early[i].header;
-        const double share = measureQuality(decodeFrame(early[i].pixels, header.encoding(),
-                                                        header.width(), header.height()),
-                                            finalImage)
-                                 .identicalShare();
-        converge = converge && header.tiles_composed() > early[i - 1].header.tiles_composed() &&
+        showInterim(early[i], shown);
+        const double share = measureQuality(shown, finalImage).identicalShare();
+        converge = converge && header.region_width() > 0 &&
+                   header.tiles_composed() > early[i - 1].header.tiles_composed() &&
                    share >= lastIdentical;
         lastIdentical = share;
         ++refreshes;
@@ -415,7 +454,7 @@ int orbit(ServiceClient& client, const ClientOptions& options) {
         "covered pixels filled median %.1f %%\n",
         interims, keys.size(), quality.median, share.median);
     if (refreshes > 0) {
-      std::printf("interim frames again with the tiles that came: %zu\n", refreshes);
+      std::printf("interim updates with the tiles that came: %zu\n", refreshes);
     }
   }
   std::printf("%s: %zu frames in %.2f s, %.2f frames/s\n", options.cameraPath.c_str(), keys.size(),

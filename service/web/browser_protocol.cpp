@@ -194,20 +194,21 @@ const char* frameStatusName(v1::FrameStatus status) {
 std::string frameJson(const v1::FrameHeader& header, std::uint64_t browserId, double latencyMs,
                       const char* status) {
   char text[768];
-  std::snprintf(text, sizeof text,
-                R"({"type":"frame","id":%llu,"status":"%s","frame_id":%llu,"width":%u,"height":%u,)"
-                R"("encoding":"%s","bytes":%llu,"splats":%llu,"tiles":%u,"latency_ms":%.2f,)"
-                R"("queued_ms":%.2f,"render_ms":%.2f,"encode_ms":%.2f,"mode":"%s","lod_pixels":%g,)"
-                R"("interim":%s,"cache_filled":%.3f,"tiles_composed":%u})",
-                static_cast<unsigned long long>(browserId), status,
-                static_cast<unsigned long long>(header.frame_id()), header.width(), header.height(),
-                encodingName(header.encoding()),
-                static_cast<unsigned long long>(header.encoded_bytes()),
-                static_cast<unsigned long long>(header.splats()), header.tiles(), latencyMs,
-                header.queued_ms(), header.render_ms(), header.encode_ms(),
-                jsonEscape(header.mode().substr(0, 32)).c_str(),
-                static_cast<double>(header.lod_pixels()), header.interim() ? "true" : "false",
-                static_cast<double>(header.cache_filled()), header.tiles_composed());
+  std::snprintf(
+      text, sizeof text,
+      R"({"type":"frame","id":%llu,"status":"%s","frame_id":%llu,"width":%u,"height":%u,)"
+      R"("encoding":"%s","bytes":%llu,"splats":%llu,"tiles":%u,"latency_ms":%.2f,)"
+      R"("queued_ms":%.2f,"render_ms":%.2f,"encode_ms":%.2f,"mode":"%s","lod_pixels":%g,)"
+      R"("interim":%s,"cache_filled":%.3f,"tiles_composed":%u,"region":[%u,%u,%u,%u]})",
+      static_cast<unsigned long long>(browserId), status,
+      static_cast<unsigned long long>(header.frame_id()), header.width(), header.height(),
+      encodingName(header.encoding()), static_cast<unsigned long long>(header.encoded_bytes()),
+      static_cast<unsigned long long>(header.splats()), header.tiles(), latencyMs,
+      header.queued_ms(), header.render_ms(), header.encode_ms(),
+      jsonEscape(header.mode().substr(0, 32)).c_str(), static_cast<double>(header.lod_pixels()),
+      header.interim() ? "true" : "false", static_cast<double>(header.cache_filled()),
+      header.tiles_composed(), header.region_x(), header.region_y(), header.region_width(),
+      header.region_height());
   return text;
 }
 

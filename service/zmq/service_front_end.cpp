@@ -211,6 +211,7 @@ void ServiceFrontEnd::encodeLoop() {
     Outgoing out;
     out.clientId = request.clientId;
     out.requested = request.requested;
+    out.single = request.single;
     v1::FrameHeader& header = out.header;
     header.set_request_id(request.requestId);
     header.set_frame_id(job.outcome.frameId);
@@ -247,6 +248,14 @@ void ServiceFrontEnd::encodeLoop() {
       header.set_reproject_ms(job.interim->reprojectMs);
       header.set_tiles_composed(job.interim->tilesComposed);
       header.set_tiles(job.interim->tiles);
+      if (const InterimOutcome& region = *job.interim; region.regionWidth > 0) {
+        header.set_width(region.frameWidth);
+        header.set_height(region.frameHeight);
+        header.set_region_x(region.regionX);
+        header.set_region_y(region.frameHeight - region.regionY - region.regionHeight);
+        header.set_region_width(region.regionWidth);
+        header.set_region_height(region.regionHeight);
+      }
       header.set_render_ms(0.0);
     }
     {
@@ -272,8 +281,9 @@ void ServiceFrontEnd::ioLoop() {
                                      {wakeReceiver_.handle(), 0, ZMQ_POLLIN, 0}};
   if (curve()) items.push_back({zap_.handle(), 0, ZMQ_POLLIN, 0});
   while (true) {
-    // The timeout only bounds how late stopping is noticed.
-    zmq::poll(items, std::chrono::milliseconds(100));
+    // The timeout only bounds how late stopping is noticed, and how soon
+    // frames that waited for room are tried again.
+    zmq::poll(items, std::chrono::milliseconds(deferred_.empty() ? 100 : 2));
     if ((items[0].revents & ZMQ_POLLIN) != 0) {
       for (int i = 0; i < 64 && (control_.get(zmq::sockopt::events) & ZMQ_POLLIN) != 0; ++i) {
         handleControl();
@@ -429,25 +439,58 @@ void ServiceFrontEnd::sendOutgoing() {
     std::lock_guard lock(mutex_);
     batch.swap(outgoing_);
   }
+  // What waited for room first, each client's in order.
+  for (auto waiting = deferred_.begin(); waiting != deferred_.end();) {
+    std::deque<Outgoing>& queue = waiting->second;
+    while (!queue.empty()) {
+      const Delivery delivery = transmit(queue.front());
+      if (delivery == Delivery::full) break;
+      noteDelivery(queue.front(), delivery);
+      queue.pop_front();
+      if (delivery == Delivery::gone) {
+        for (const Outgoing& out : queue) noteDelivery(out, Delivery::gone);
+        queue.clear();
+      }
+    }
+    waiting = queue.empty() ? deferred_.erase(waiting) : std::next(waiting);
+  }
   for (Outgoing& out : batch) send(std::move(out));
 }
 
 void ServiceFrontEnd::send(Outgoing out) {
+  // Behind what this client already waits for, to keep its frames in order.
+  const auto waiting = deferred_.find(out.clientId);
+  const Delivery delivery = waiting == deferred_.end() ? transmit(out) : Delivery::full;
+  const bool mustArrive = out.single && !out.header.interim();
+  if (delivery == Delivery::full && mustArrive &&
+      (waiting == deferred_.end() || waiting->second.size() < kDeferredPerClient)) {
+    deferred_[out.clientId].push_back(std::move(out));
+    return;
+  }
+  noteDelivery(out, delivery);
+}
+
+ServiceFrontEnd::Delivery ServiceFrontEnd::transmit(const Outgoing& out) {
+  try {
+    if (!stream_.send(zmq::buffer(out.clientId),
+                      zmq::send_flags::sndmore | zmq::send_flags::dontwait)) {
+      return Delivery::full;
+    }
+    // The first part was taken: the rest of the message is queued whole.
+    stream_.send(zmq::buffer(std::string_view(kStreamFrameTag)), zmq::send_flags::sndmore);
+    stream_.send(serialized(out.header), zmq::send_flags::sndmore);
+    stream_.send(zmq::message_t(out.pixels.data(), out.pixels.size()), zmq::send_flags::none);
+    return Delivery::sent;
+  } catch (const zmq::error_t& error) {
+    return error.num() == EHOSTUNREACH ? Delivery::gone : Delivery::full;
+  }
+}
+
+void ServiceFrontEnd::noteDelivery(const Outgoing& out, Delivery delivery) {
   const std::string& id = out.clientId;
   const std::size_t bytes = out.pixels.size();
-  bool sent = false;
-  bool gone = false;
-  try {
-    if (stream_.send(zmq::buffer(id), zmq::send_flags::sndmore | zmq::send_flags::dontwait)) {
-      // The first part was taken: the rest of the message is queued whole.
-      stream_.send(zmq::buffer(std::string_view(kStreamFrameTag)), zmq::send_flags::sndmore);
-      stream_.send(serialized(out.header), zmq::send_flags::sndmore);
-      stream_.send(zmq::message_t(out.pixels.data(), out.pixels.size()), zmq::send_flags::none);
-      sent = true;
-    }
-  } catch (const zmq::error_t& error) {
-    gone = error.num() == EHOSTUNREACH;
-  }
+  const bool sent = delivery == Delivery::sent;
+  const bool gone = delivery == Delivery::gone;
   std::lock_guard lock(mutex_);
   const auto client = clients_.find(id);
   // Interim frames are counted apart: a client's frames are its final ones.
@@ -481,6 +524,7 @@ void ServiceFrontEnd::noteSuperseded(const std::vector<QueuedFrame>& frames) {
     }
     Outgoing out;
     out.clientId = frame.clientId;
+    out.single = frame.single;
     out.header.set_request_id(frame.requestId);
     out.header.set_status(v1::FRAME_STATUS_SUPERSEDED);
     out.header.set_path_index(frame.pathIndex);

@@ -93,6 +93,11 @@ struct InterimOutcome {
   // Tiles of the final frame already pasted in (they replace the cache's
   // pixels region by region), and its tiles in all.
   std::uint32_t tilesComposed = 0, tiles = 0;
+  // When regionWidth > 0, the image is only the rectangle at (regionX,
+  // regionY) (from the bottom-left, as Image) of a frameWidth x frameHeight
+  // frame.
+  std::uint32_t regionX = 0, regionY = 0, regionWidth = 0, regionHeight = 0;
+  std::uint32_t frameWidth = 0, frameHeight = 0;
 };
 
 // The frames endpoint beside a control endpoint: tcp port + 1 (an ephemeral
@@ -147,6 +152,7 @@ class ServiceFrontEnd {
   struct Outgoing {
     std::string clientId;
     std::chrono::steady_clock::time_point requested;
+    bool single = true;  // a render request's (not a path's)
     v1::FrameHeader header;
     std::vector<std::uint8_t> pixels;
   };
@@ -168,6 +174,9 @@ class ServiceFrontEnd {
                           const v1::FrameFormat& requested) const;
   void noteSuperseded(const std::vector<QueuedFrame>& frames);
   void send(Outgoing outgoing);
+  enum class Delivery { sent, full, gone };
+  Delivery transmit(const Outgoing& out);
+  void noteDelivery(const Outgoing& out, Delivery delivery);
   void wake(zmq::socket_t& pusher);
 
   ServiceOptions options_;
@@ -189,6 +198,11 @@ class ServiceFrontEnd {
   std::map<std::string, ClientState> clients_;
   std::deque<EncodeJob> encodeQueue_;
   std::deque<Outgoing> outgoing_;
+  // IO thread only: render requests' final frames and superseded notices
+  // that found their client's stream full, sent first when it has room (the
+  // client waits for them; interim and path frames are dropped instead).
+  std::map<std::string, std::deque<Outgoing>> deferred_;
+  static constexpr std::size_t kDeferredPerClient = 16;
   std::size_t encoding_ = 0;  // frames the encoder holds
   std::condition_variable encodeReady_;
   std::string shutdownReason_;

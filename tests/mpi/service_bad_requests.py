@@ -150,11 +150,16 @@ for i in range(12):
     ids.append(client.request_frame(client.camera(tuple(eye_i), tuple(centre)), "jpeg"))
 outcome = {}
 deadline = time.monotonic() + 120
-while len(outcome) < len(ids) and time.monotonic() < deadline:
-    header, pixels = client.receive_frame(timeout=120)
-    if header.interim:
-        continue  # the render cache's; the final frame follows
-    outcome[header.request_id] = (header.status, len(pixels))
+try:
+    while len(outcome) < len(ids) and time.monotonic() < deadline:
+        header, pixels = client.receive_frame(timeout=120)
+        if header.interim:
+            continue  # the render cache's; the final frame follows
+        outcome[header.request_id] = (header.status, len(pixels))
+except Exception as error:  # a timeout: say what is missing, then the checks fail
+    missing = [i for i in ids if i not in outcome]
+    print(f"supersede: {error}; nothing for requests {missing}; got {outcome}; "
+          f"{client.stats().frames_dropped} frames dropped")
 superseded = sum(1 for status, _ in outcome.values() if status == pb.FRAME_STATUS_SUPERSEDED)
 check(len(outcome) == len(ids), f"every request got a frame or a notice ({len(outcome)})")
 check(outcome.get(ids[-1], (0, 0))[0] == pb.FRAME_STATUS_OK and outcome[ids[-1]][1] > 0,
@@ -163,6 +168,35 @@ check(superseded >= 1, f"{superseded} queued camera(s) superseded by newer ones"
 check(all(n == 0 for status, n in outcome.values() if status == pb.FRAME_STATUS_SUPERSEDED),
       "superseded notices carry no pixels")
 client.close()
+
+# A reader slower than its frames: with its stream full (the job's
+# --stream-hwm 4, one frame held here), a render request's final frame or
+# superseded notice waits at the service for room instead of being lost.
+slow = PointillistClient(endpoint, name="slow-reader", stream_receive_hwm=1)
+slow.call(pb.Request(set_options=pb.SetOptionsRequest(
+    format=pb.FrameFormat(width=640, height=360))))
+ids = []
+for i in range(12):
+    angle = 0.3 + i * 0.05
+    eye_i = centre + (hi - lo) * np.array([0.9 * np.cos(angle), -0.9 * np.sin(angle) - 0.9, 0.6])
+    ids.append(slow.request_frame(slow.camera(tuple(eye_i), tuple(centre)), "raw"))
+    time.sleep(0.15)  # drawn before the next comes: a frame each, not superseded
+time.sleep(2)  # still not reading: the stream is full
+outcome = {}
+deadline = time.monotonic() + 60
+try:
+    while len(outcome) < len(ids) and time.monotonic() < deadline:
+        header, pixels = slow.receive_frame(timeout=30)
+        if not header.interim:
+            outcome[header.request_id] = header.status
+except Exception as error:  # a timeout: the check below says what is missing
+    print(f"slow reader: {error}")
+print(f"slow reader: statuses {sorted(outcome.values())}, "
+      f"{slow.stats().frames_dropped} frames dropped")
+check(len(outcome) == len(ids),
+      f"a slow reader got a frame or a notice for every request ({len(outcome)} of {len(ids)})")
+check(outcome.get(ids[-1]) == pb.FRAME_STATUS_OK, "the slow reader's newest camera's frame came")
+slow.close()
 if failures:
     print(f"{len(failures)} check(s) failed")
     sys.exit(1)

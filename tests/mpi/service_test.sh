@@ -6,8 +6,10 @@
 #             all get their frames, equal to the reference renderer's; a
 #             shutdown request ends every process
 #   bad       each kind of bad message gets an error reply and changes
-#             nothing; newer cameras supersede queued ones; a path reader the
-#             job outruns learns its frames were dropped; the job serves on
+#             nothing; newer cameras supersede queued ones; a reader slower
+#             than its render requests' frames still gets every one; a path
+#             reader the job outruns learns its frames were dropped; the job
+#             serves on
 #   options   live options: two clients at once, one drawing splats at 2 px,
 #             the other the job's points; then blended under a scheduler
 #             switched to round-robin; every frame equals the reference

@@ -102,9 +102,16 @@ TEST(BrowserProtocol, FrameMetadata) {
   header.set_interim(true);
   header.set_cache_filled(0.75f);
   header.set_tiles_composed(3);
-  EXPECT_NE(frameJson(header, 5, 1.0, "ok")
-                .find(R"("interim":true,"cache_filled":0.750,"tiles_composed":3})"),
-            std::string::npos);
+  EXPECT_NE(
+      frameJson(header, 5, 1.0, "ok")
+          .find(R"("interim":true,"cache_filled":0.750,"tiles_composed":3,"region":[0,0,0,0]})"),
+      std::string::npos);
+  // A region of the frame (the tiles that came since), to paint over it.
+  header.set_region_x(10);
+  header.set_region_y(20);
+  header.set_region_width(30);
+  header.set_region_height(40);
+  EXPECT_NE(frameJson(header, 5, 1.0, "ok").find(R"("region":[10,20,30,40]})"), std::string::npos);
 }
 
 TEST(BrowserProtocol, InfoListsTheModesABrowserMaySwitchTo) {
