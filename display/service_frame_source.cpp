@@ -265,6 +265,8 @@ void ServiceFrameSource::tileComposed(const ComposedTile& tile, const Image& com
   });
   if (found == started_.end()) return;
   Started& started = *found;
+  // Once the interim frame went, tiles matter only to refreshes.
+  if (started.interimSent && renderCache_.refreshMs < 0.0) return;
   reprojectIfPending(started);
   if (!started.interim) return;
   if (started.shown.empty()) started.shown = started.interim->image;

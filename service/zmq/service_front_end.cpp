@@ -482,7 +482,7 @@ ServiceFrontEnd::Delivery ServiceFrontEnd::transmit(const Outgoing& out) {
     stream_.send(zmq::message_t(out.pixels.data(), out.pixels.size()), zmq::send_flags::none);
     return Delivery::sent;
   } catch (const zmq::error_t& error) {
-    return error.num() == EHOSTUNREACH ? Delivery::gone : Delivery::full;
+    return error.num() == EHOSTUNREACH ? Delivery::gone : Delivery::failed;
   }
 }
 

@@ -174,7 +174,9 @@ class ServiceFrontEnd {
                           const v1::FrameFormat& requested) const;
   void noteSuperseded(const std::vector<QueuedFrame>& frames);
   void send(Outgoing outgoing);
-  enum class Delivery { sent, full, gone };
+  // full: the client's stream is (EAGAIN); gone: the client is
+  // (EHOSTUNREACH); failed: another error, the message is lost.
+  enum class Delivery { sent, full, gone, failed };
   Delivery transmit(const Outgoing& out);
   void noteDelivery(const Outgoing& out, Delivery delivery);
   void wake(zmq::socket_t& pusher);
