@@ -43,7 +43,8 @@ FileReader::FileReader(const std::filesystem::path& file) : path_(file) {
   if (file_ == nullptr) failFile(file, std::string("cannot open: ") + std::strerror(errno));
   size_ = std::filesystem::file_size(file, ec);
   if (ec) size_ = 0;
-  buffer_.resize(kInitialBuffer);
+  // Small files get a small buffer (it grows when a line or record needs it).
+  buffer_.resize(std::clamp<std::size_t>(size_ + 1, 4096, kInitialBuffer));
 }
 
 FileReader::~FileReader() {
