@@ -5,8 +5,9 @@
 #   deploy/fuzz.sh [SECONDS per target, default 60] [TARGET ...]
 #
 # Targets: fuzz_ply, fuzz_xyz, fuzz_las, fuzz_off (pointillist-preprocess's
-# readers) and fuzz_service_request (every client message's parser and
-# checks). Installs clang and libFuzzer when missing, builds them in
+# readers), fuzz_dataset_manifest (the manifest every role reads first; what
+# parses must print and parse again the same) and fuzz_service_request (every
+# client message's parser and checks). Installs clang and libFuzzer when missing, builds them in
 # build-fuzz/ (only what they need), seeds each corpus from real files
 # (libcgal-demo's scans and meshes, cut to 32 KiB; a small LAS file written
 # here; service requests the Python client's module makes) and runs each
@@ -19,7 +20,8 @@ source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
 seconds="${1:-60}"
 shift || true
 targets=("$@")
-((${#targets[@]})) || targets=(fuzz_ply fuzz_xyz fuzz_las fuzz_off fuzz_service_request)
+((${#targets[@]})) ||
+  targets=(fuzz_ply fuzz_xyz fuzz_las fuzz_off fuzz_dataset_manifest fuzz_service_request)
 
 POINTILLIST_PACKAGES+=(clang libfuzzer-14-dev)
 install_packages
@@ -33,6 +35,8 @@ if [[ ! -f "$build/CMakeCache.txt" ]]; then
   CC=clang CXX=clang++ cmake -S "$POINTILLIST_ROOT" -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
     -DPOINTILLIST_FUZZ=ON -DPOINTILLIST_SANITIZE=address,undefined \
     -DPOINTILLIST_BUILD_TESTS=OFF >/dev/null
+else
+  cmake "$build" >/dev/null  # targets added since
 fi
 log "building ${targets[*]} (log: $build/build.log)"
 if ! cmake --build "$build" -j "$(nproc)" --target "${targets[@]}" pointillist_proto_python \
@@ -108,6 +112,12 @@ for target in "${targets[@]}"; do
     fuzz_xyz) seed_files "$corpus" '*.xyz'; seed_files "$corpus" '*.pwn' ;;
     fuzz_off) seed_files "$corpus" '*.off' ;;
     fuzz_las) write_las_seed "$corpus" ;;
+    fuzz_dataset_manifest)
+      # Manifests of the datasets made here, and of the built-in city.
+      find "$POINTILLIST_ROOT/datasets" "$POINTILLIST_ROOT/build" -maxdepth 3 -name manifest.txt \
+        2>/dev/null | head -n 10 | while read -r file; do
+        cp "$file" "$corpus/$(echo "$file" | md5sum | cut -c1-12)"
+      done ;;
     fuzz_service_request) write_request_seeds "$corpus" ;;
   esac
   log "$target: $seconds s from $(ls "$corpus" | wc -l) inputs"
