@@ -6,41 +6,18 @@
 #include <cstddef>
 #include <cstdint>
 #include <filesystem>
-#include <memory>
 #include <span>
 #include <string>
-#include <type_traits>
-#include <utility>
 #include <vector>
+
+#include "common/uninitialized_allocator.hpp"
 
 namespace pointillist {
 
 using Rgba8 = std::array<std::uint8_t, 4>;
 
-// An allocator whose containers leave new elements of trivial types
-// unwritten: buffers that a pass writes in full anyway are not filled first
-// (a frame-sized fill costs as much as a cheap pass over it).
-template <class T>
-struct DefaultInitAllocator : std::allocator<T> {
-  template <class U>
-  struct rebind {
-    using other = DefaultInitAllocator<U>;
-  };
-  DefaultInitAllocator() = default;
-  template <class U>
-  explicit DefaultInitAllocator(const DefaultInitAllocator<U>& /*other*/) noexcept {}
-  template <class U>
-  void construct(U* at) noexcept(std::is_nothrow_default_constructible_v<U>) {
-    ::new (static_cast<void*>(at)) U;
-  }
-  template <class U, class... Args>
-  void construct(U* at, Args&&... args) {
-    std::allocator_traits<std::allocator<T>>::construct(static_cast<std::allocator<T>&>(*this), at,
-                                                        std::forward<Args>(args)...);
-  }
-};
 // Bytes that resize() leaves unwritten.
-using UninitializedBytes = std::vector<std::uint8_t, DefaultInitAllocator<std::uint8_t>>;
+using UninitializedBytes = std::vector<std::uint8_t, UninitializedAllocator<std::uint8_t>>;
 
 class Image {
  public:

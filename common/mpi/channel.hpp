@@ -25,6 +25,7 @@
 
 #include "common/errors.hpp"
 #include "common/messages.hpp"
+#include "common/uninitialized_allocator.hpp"
 
 namespace pointillist {
 
@@ -50,26 +51,8 @@ class Backoff {
   std::chrono::microseconds sleep_;
 };
 
-// Leaves elements uninitialised on resize: a received payload is written by
-// MPI at once, and zeroing it first cost a render process a tenth of its time.
-template <class T>
-struct UninitializedAllocator : std::allocator<T> {
-  template <class U>
-  struct rebind {
-    using other = UninitializedAllocator<U>;
-  };
-  UninitializedAllocator() = default;
-  template <class U>
-  UninitializedAllocator(const UninitializedAllocator<U>&) noexcept {}
-  template <class U>
-  void construct(U* p) noexcept {
-    ::new (static_cast<void*>(p)) U;
-  }
-  template <class U, class... Args>
-  void construct(U* p, Args&&... args) {
-    ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
-  }
-};
+// Left unwritten on resize: a received payload is written by MPI at once, and
+// zeroing it first cost a render process a tenth of its time.
 using PayloadBytes = std::vector<std::byte, UninitializedAllocator<std::byte>>;
 
 // A received message: protobuf header bytes and the raw payload, if any.
