@@ -47,6 +47,18 @@ class TimeoutError : public Error {
   const char* kind() const noexcept override { return "timeout"; }
 };
 
+// A peer went silent: it stopped in the middle of a message (its payload
+// never came), or the display heard nothing from it for the peer timeout.
+class PeerSilentError : public TimeoutError {
+ public:
+  PeerSilentError(int rank, const std::string& message) : TimeoutError(message), rank_(rank) {}
+  int rank() const noexcept { return rank_; }
+  const char* kind() const noexcept override { return "lost process"; }
+
+ private:
+  int rank_;
+};
+
 // OpenGL / OSMesa failures.
 class RenderError : public Error {
  public:

@@ -16,6 +16,10 @@ const char* messageKindName(MessageKind kind) {
       return "ShutdownAck";
     case MessageKind::ErrorReport:
       return "ErrorReport";
+    case MessageKind::Heartbeat:
+      return "Heartbeat";
+    case MessageKind::PeerLost:
+      return "PeerLost";
     case MessageKind::WorkRequest:
       return "WorkRequest";
     case MessageKind::TileTask:

@@ -26,6 +26,8 @@ enum class MessageKind : int {
   Shutdown = 4,
   ShutdownAck = 5,
   ErrorReport = 6,
+  Heartbeat = 7,
+  PeerLost = 8,
   WorkRequest = 10,
   TileTask = 11,
   NoWork = 12,

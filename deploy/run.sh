@@ -9,6 +9,10 @@
 # With --hostfile, Open MPI places ranks on the listed hosts (see deploy/README.md).
 # --serve [--listen ENDPOINT] keeps the job up as a rendering service (README:
 # "The rendering service"); it ends on a shutdown request, SIGINT or SIGTERM.
+# mpirun runs with --enable-recovery, so a lost process does not end the job
+# by itself: the display drops a lost render process and goes on, and ends
+# the job with a message naming any other lost process (--no-recovery: Open
+# MPI's own abort instead).
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
 
@@ -17,7 +21,8 @@ hostfile=""
 mpirun_args=()
 role_args=()
 dry_run=0
-usage() { sed -n '2,12p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+recovery=1
+usage() { sed -n '2,16p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
 while (($#)); do
   case "$1" in
     --layout) layout="$2"; shift 2 ;;
@@ -26,6 +31,7 @@ while (($#)); do
     --hostfile=*) hostfile="${1#*=}"; shift ;;
     --mpirun-arg) mpirun_args+=("$2"); shift 2 ;;
     --dry-run) dry_run=1; shift ;;
+    --no-recovery) recovery=0; shift ;;
     -h|--help) usage; exit 0 ;;
     *) role_args+=("$1"); shift ;;
   esac
@@ -56,6 +62,7 @@ if [[ -z "$single_copy" ]]; then
   [[ -z "$hostfile" ]] && cma_allowed && single_copy=cma
 fi
 launch=(mpirun --mca btl_vader_single_copy_mechanism "$single_copy")
+((recovery)) && launch+=(--enable-recovery)
 if [[ -n "$hostfile" ]]; then
   [[ -r "$hostfile" ]] || { echo "run.sh: cannot read hostfile '$hostfile'" >&2; exit 2; }
   launch+=(--hostfile "$hostfile")
@@ -79,13 +86,43 @@ if ((dry_run)); then
 fi
 serving=0
 for arg in "${role_args[@]}"; do [[ "$arg" == --serve ]] && serving=1; done
-((serving)) || exec "${launch[@]}"
+
+# With --enable-recovery mpirun exits 0 whatever its processes return, so the
+# job's outcome is read from stderr: every role reports a fatal error as
+# "pointillist-ROLE rank N: KIND: MESSAGE" (the display's last word after a
+# lost process is one), and MPI_Abort leaves Open MPI's own banner.
+failures=$(mktemp)
+trap 'rm -f "$failures"' EXIT
+watch_errors() {
+  local line
+  trap '' INT TERM  # a terminal's Ctrl-C must not cut the job's stderr
+  while IFS= read -r line; do
+    printf '%s\n' "$line" >&2
+    if [[ "$line" =~ ^pointillist-[a-z]+(\ rank\ [0-9]+)?:\  || "$line" == "MPI_ABORT was invoked"* ]]; then
+      printf '%s\n' "$line" >>"$failures"
+    fi
+  done
+}
+# The exit status: mpirun's, or 4 (a lost process) / 1 when a process failed.
+job_status() {
+  local code="$1"
+  if ((code == 0)) && [[ -s "$failures" ]]; then
+    if grep -q ": lost process: " "$failures"; then code=4; else code=1; fi
+  fi
+  echo "$code"
+}
+if ((!serving)); then
+  code=0
+  "${launch[@]}" 2> >(watch_errors) || code=$?
+  wait  # and the last process substitution: the watcher has written every line
+  exit "$(job_status "$code")"
+fi
 
 # Serve mode: SIGINT (a terminal's Ctrl-C) or SIGTERM (a batch scheduler) to
 # this script becomes SIGINT to the display, which finishes the frames out and
 # shuts every process down cleanly. mpirun runs in a session of its own so a
 # terminal's Ctrl-C does not reach it: Open MPI would kill the ranks.
-setsid "${launch[@]}" &
+setsid "${launch[@]}" 2> >(watch_errors) &
 mpirun_pid=$!
 stop_service() {
   local display
@@ -108,4 +145,5 @@ done
 last=0
 wait "$mpirun_pid" 2>/dev/null || last=$?
 if ((last != 127)); then code=$last; fi
-exit "$code"
+wait  # the watcher has written every line
+exit "$(job_status "$code")"

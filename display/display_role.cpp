@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -17,6 +18,7 @@
 #include "common/dataset.hpp"
 #include "common/image.hpp"
 #include "common/mpi/role_program.hpp"
+#include "common/peer_watch.hpp"
 #include "common/run_settings.hpp"
 #include "common/view_options.hpp"
 #include "display/core/frame_assembly.hpp"
@@ -44,6 +46,8 @@ struct DisplayOptions {
   std::uint32_t minTileSize = 32;
   double tileTimeoutSeconds = 10.0;
   std::uint32_t maxAttempts = 3;
+  LivenessSettings liveness;
+  double checkpointSeconds = 10.0;
   std::string scheduler = "cost";
   bool equalTiles = false;
   std::string costModel = costModelName(kDefaultCostModel);
@@ -103,15 +107,24 @@ v1::RunSettings runSettings(const DisplayOptions& options) {
     settings.set_edl_strength(options.view.edlStrength);
     settings.set_edl_radius(options.view.edlRadius);
   }
+  setLiveness(settings, options.liveness);
   return settings;
 }
+
+// A process the job cannot go on without is gone.
+class JobCannotGoOnError : public Error {
+ public:
+  using Error::Error;
+  const char* kind() const noexcept override { return "lost process"; }
+};
 
 class DisplayProcess {
  public:
   DisplayProcess(Job& job, const DisplayOptions& options)
       : job_(job),
         options_(options),
-        dataset_(Dataset::open(options.datasetPath, DatasetParts::Manifest)) {
+        dataset_(Dataset::open(options.datasetPath, DatasetParts::Manifest)),
+        selfKill_(options.common, job) {
     const auto [width, height] = parseImageSize(options.view.size);
     width_ = width;
     height_ = height;
@@ -219,6 +232,7 @@ class DisplayProcess {
 
   void run() {
     const auto start = Clock::now();
+    runStart_ = start;
     FrameAssembly assembly(config_, job_.peers(), start);
     RunStats& stats = assembly.stats();
     stats.dataset = options_.datasetPath;
@@ -228,6 +242,82 @@ class DisplayProcess {
     stats.mode = options_.view.mode;
     Backoff backoff;
     CpuActivities::Meter meter(job_.activities(), "poll");
+    const LivenessSettings liveness = livenessOf(job_.runSettings());
+    std::vector<int> workers;
+    for (v1::Role role : {v1::ROLE_TRAVERSE, v1::ROLE_DATASEND, v1::ROLE_RENDER}) {
+      for (int rank : job_.ranksOf(role)) workers.push_back(rank);
+    }
+    PeerWatch watch(workers, liveness.peerTimeout, start);
+    HeartbeatTimer heartbeat(liveness.heartbeat, start);
+    HeartbeatTimer checkpoint(
+        std::chrono::milliseconds(static_cast<long>(options_.checkpointSeconds * 1000.0)), start);
+    sendHeartbeats(start);  // arms every process's watch of the display
+    try {
+      runLoop(assembly, watch, heartbeat, checkpoint, backoff, meter);
+    } catch (const JobCannotGoOnError& error) {
+      // What was done so far is kept: the statistics first, in case a
+      // survivor takes the job down while it is being shut down.
+      stats.totalSeconds = since(start, Clock::now());
+      stats_ = std::move(stats);
+      failure_ = error.what();
+      std::fprintf(stderr, "display: %s\n", failure_.c_str());
+      if (!statisticsFile().empty()) writeStatistics(stats_);
+      if (service_) service_->close();
+      return;
+    }
+    stats.totalSeconds = since(start, Clock::now());
+    stats_ = std::move(stats);
+    if (service_) {
+      std::printf("%s", service_->renderCacheSummary().c_str());
+      std::printf("display: service stopped (%s)\n", service_->stopReason().c_str());
+      service_->close();
+    }
+  }
+
+  // Why the job ended early (a process it cannot go on without was lost);
+  // empty when it ran to the end.
+  const std::string& failure() const { return failure_; }
+
+ private:
+  void sendHeartbeats(TimePoint now) {
+    v1::Heartbeat beat;
+    beat.set_sent_ns(now.time_since_epoch().count());
+    for (v1::Role role : {v1::ROLE_TRAVERSE, v1::ROLE_DATASEND, v1::ROLE_RENDER}) {
+      for (int rank : job_.ranksOf(role)) {
+        if (!job_.lost(rank)) job_.sends().post(rank, MessageKind::Heartbeat, beat);
+      }
+    }
+  }
+
+  // A worker is gone. A render process the job can do without: its tiles go
+  // to the others. Any other process, or the last render: the job ends.
+  void peerLost(FrameAssembly& assembly, int rank, const std::string& reason, TimePoint now) {
+    job_.markLost(rank);
+    const v1::Role role = job_.roleOf(rank);
+    const std::string who = job_.describeRank(rank);
+    if (role == v1::ROLE_RENDER && assembly.planner().liveRenders() > 1) {
+      const std::uint32_t reissued = assembly.renderLost(rank, now, reason);
+      std::fprintf(stderr,
+                   "display: %s lost (%s); %u tile(s) out re-issued, going on with %u render "
+                   "process(es)\n",
+                   who.c_str(), reason.c_str(), reissued, assembly.planner().liveRenders());
+      v1::PeerLost lost;
+      lost.set_world_rank(rank);
+      lost.set_role(role);
+      lost.set_reason(reason);
+      for (v1::Role told : {v1::ROLE_TRAVERSE, v1::ROLE_DATASEND}) {
+        for (int peer : job_.ranksOf(told)) job_.sends().post(peer, MessageKind::PeerLost, lost);
+      }
+      return;
+    }
+    assembly.stats().lost.push_back({roleName(role), rank, since(runStart_, now), reason, false});
+    throw JobCannotGoOnError(who + " lost (" + reason + "): the job cannot go on without " +
+                             (role == v1::ROLE_RENDER ? "a render process" : "it"));
+  }
+
+  void runLoop(FrameAssembly& assembly, PeerWatch& watch, HeartbeatTimer& heartbeat,
+               HeartbeatTimer& checkpoint, Backoff& backoff, CpuActivities::Meter& meter) {
+    RunStats& stats = assembly.stats();
     while (true) {
       bool worked = false;
       if (source_ == nullptr) {
@@ -247,14 +337,43 @@ class DisplayProcess {
       }
       while (true) {
         meter.switchTo("receive");
-        auto envelope = job_.channel().tryReceive();
+        std::optional<Envelope> envelope;
+        try {
+          envelope = job_.channel().tryReceive();
+        } catch (const PeerSilentError& silent) {
+          peerLost(assembly, silent.rank(), silent.what(), Clock::now());
+          worked = true;
+          continue;
+        }
         if (!envelope) {
           meter.relabel("poll");
           break;
         }
+        worked = true;
+        if (job_.lost(envelope->source)) continue;  // taken for lost: its work went elsewhere
+        watch.heard(envelope->source, Clock::now());
+        if (envelope->kind == MessageKind::Heartbeat) continue;
+        if (envelope->kind == MessageKind::TileImage) {
+          // A render process says nothing while it draws: twice its longest
+          // tile so far is not silence.
+          const auto drawn = envelope->as<v1::TileImageHeader>().render_time_us();
+          watch.allowSilence(envelope->source,
+                             std::chrono::milliseconds(std::max<std::int64_t>(0, drawn / 500)));
+        }
         meter.switchTo(std::string("handle ") + messageKindName(envelope->kind));
         handle(assembly, *envelope);
+      }
+      meter.switchTo("liveness");
+      const TimePoint now = Clock::now();
+      for (int rank : watch.newlyLost(now)) {
+        peerLost(assembly, rank, silenceText(watch.silentSeconds(rank, now)), now);
         worked = true;
+      }
+      if (heartbeat.due(now)) sendHeartbeats(now);
+      if (checkpoint.due(now) && !statisticsFile().empty()) {
+        meter.switchTo("checkpoint");
+        stats.totalSeconds = secondsBetween(runStart_, now);
+        writeStatistics(stats);
       }
       meter.switchTo("schedule");
       Outbox out;
@@ -276,6 +395,7 @@ class DisplayProcess {
       meter.switchTo("finish frames");
       for (FinishedFrame& frame : assembly.finishFrames(Clock::now())) {
         emit(frame);
+        selfKill_.count();
         worked = true;
       }
       if (worked) {
@@ -285,15 +405,9 @@ class DisplayProcess {
         backoff.wait();
       }
     }
-    stats.totalSeconds = since(start, Clock::now());
-    stats_ = std::move(stats);
-    if (service_) {
-      std::printf("%s", service_->renderCacheSummary().c_str());
-      std::printf("display: service stopped (%s)\n", service_->stopReason().c_str());
-      service_->close();
-    }
   }
 
+ public:
   // After shutdown, with every process's CPU time: the summary and the files.
   void report(const std::vector<v1::ShutdownAck>& acks, const ProcessCpu& display) {
     stats_.processes.push_back(display);
@@ -309,16 +423,26 @@ class DisplayProcess {
       stats_.processes.push_back(std::move(process));
     }
     std::printf("%s", stats_.summary().c_str());
-    const std::string statsFile = !options_.statsFile.empty() ? options_.statsFile
-                                  : !options_.outDir.empty()  ? options_.outDir + "/stats.json"
-                                                              : std::string();
-    if (!statsFile.empty()) {
-      stats_.writeJson(statsFile);
-      const auto csvDir = std::filesystem::path(statsFile).parent_path();
-      stats_.writeCsv(csvDir.empty() ? std::filesystem::path(".") : csvDir);
-      std::printf("display: statistics in %s and the CSV files beside it\n", statsFile.c_str());
+    if (const std::string file = statisticsFile(); !file.empty()) {
+      writeStatistics(stats_);
+      std::printf("display: statistics in %s and the CSV files beside it\n", file.c_str());
     }
     std::fflush(stdout);
+  }
+
+  std::string statisticsFile() const {
+    return !options_.statsFile.empty() ? options_.statsFile
+           : !options_.outDir.empty()  ? options_.outDir + "/stats.json"
+                                       : std::string();
+  }
+
+  // Every write replaces the files whole (a rename), so a display that dies
+  // between checkpoints leaves the last one intact.
+  void writeStatistics(const RunStats& stats) const {
+    const std::filesystem::path file = statisticsFile();
+    stats.writeJson(file);
+    const auto csvDir = file.parent_path();
+    stats.writeCsv(csvDir.empty() ? std::filesystem::path(".") : csvDir);
   }
 
  private:
@@ -469,6 +593,9 @@ class DisplayProcess {
   DisplayOptions options_;
   Dataset dataset_;
   FrameAssemblyConfig config_;
+  TimePoint runStart_{};
+  std::string failure_;
+  SelfKill selfKill_;  // test hook: counts finished frames
   std::uint32_t width_ = 0;
   std::uint32_t height_ = 0;
   RunStats stats_;
@@ -512,6 +639,25 @@ int runDisplayMain(int argc, char** argv) {
                  "Seconds before a missing tile is handed out again");
   app.add_option("--max-attempts", options.maxAttempts,
                  "Times a tile is handed out before it is given up");
+  app.add_option_function<double>(
+         "--heartbeat",
+         [&](double seconds) {
+           options.liveness.heartbeat = std::chrono::milliseconds(std::lround(seconds * 1000.0));
+         },
+         "Seconds between heartbeats of the display and every process (default 1)")
+      ->check(CLI::Range(0.01, 60.0));
+  app.add_option_function<double>(
+         "--peer-timeout",
+         [&](double seconds) {
+           options.liveness.peerTimeout = std::chrono::milliseconds(std::lround(seconds * 1000.0));
+         },
+         "Seconds of silence after which a process is lost (default 5): a lost render process's "
+         "tiles go to the others and the job goes on (mpirun --enable-recovery, as deploy/run.sh "
+         "starts it); any other lost process ends the job")
+      ->check(CLI::Range(0.1, 3600.0));
+  app.add_option("--checkpoint-seconds", options.checkpointSeconds,
+                 "Write the statistics so far this often during the run (0: only at the end)")
+      ->capture_default_str();
   app.add_option("--scheduler", options.scheduler,
                  "How tiles are given to render processes: cost (seed 003), round-robin, "
                  "static, equalizer");
@@ -607,9 +753,23 @@ int runDisplayMain(int argc, char** argv) {
     const double displayCpu = processCpuSeconds() - displayCpuBefore;
     const double displayWall = since(displayStart, Clock::now());
 
-    job.shutdownAll(
-        "job complete",
-        std::chrono::milliseconds(static_cast<long>(options.shutdownTimeoutSeconds * 1000.0)));
+    const bool failed = process && !process->failure().empty();
+    if (failed) {
+      // The survivors are told at once and given little time: the job must
+      // end promptly, and one that does not answer ends itself once the
+      // display is gone (it watches the display's heartbeat).
+      const double seconds = std::min(options.shutdownTimeoutSeconds, 3.0);
+      const std::vector<int> silent = job.shutdownSurvivors(
+          "a process was lost", std::chrono::milliseconds(static_cast<long>(seconds * 1000.0)));
+      for (int rank : silent) {
+        std::fprintf(stderr, "display: %s did not acknowledge shutdown within %.0f s\n",
+                     job.describeRank(rank).c_str(), seconds);
+      }
+    } else {
+      job.shutdownAll(
+          "job complete",
+          std::chrono::milliseconds(static_cast<long>(options.shutdownTimeoutSeconds * 1000.0)));
+    }
     double peerCpu = 0.0;
     double peerWall = 0.0;
     for (const auto& ack : job.lastAcks()) {
@@ -628,6 +788,11 @@ int runDisplayMain(int argc, char** argv) {
     if (process) {
       process->report(job.lastAcks(), {"display", job.worldRank(), displayCpu, displayWall,
                                        job.activities().totals()});
+    }
+    if (failed) {
+      std::fprintf(stderr, "pointillist-display rank %d: lost process: %s\n", job.worldRank(),
+                   process->failure().c_str());
+      return 4;
     }
     return 0;
   });

@@ -76,6 +76,10 @@ class TraverseProcess final : public WorkerProcess {
 
   std::string summary() const override { return planner_ ? planner_->summary() : std::string(); }
 
+  void onPeerLost(int rank, v1::Role role) override {
+    if (role == v1::ROLE_RENDER && planner_) planner_->renderLost(rank);
+  }
+
  private:
   Job& job_;
   std::string datasetPath_;

@@ -67,6 +67,7 @@ void Backoff::wait(std::chrono::microseconds cap) {
 
 SendHandle::SendHandle(SendHandle&& other) noexcept
     : requests_(std::move(other.requests_)),
+      destination_(other.destination_),
       header_(std::move(other.header_)),
       ownedPayload_(std::move(other.ownedPayload_)) {
   other.requests_.clear();
@@ -80,6 +81,7 @@ SendHandle& SendHandle::operator=(SendHandle&& other) noexcept {
       // A failed send surfaces on the peer; here we must not throw from a move.
     }
     requests_ = std::move(other.requests_);
+    destination_ = other.destination_;
     header_ = std::move(other.header_);
     ownedPayload_ = std::move(other.ownedPayload_);
     other.requests_.clear();
@@ -105,6 +107,17 @@ void SendHandle::cancel() {
     }
   }
   requests_.clear();
+}
+
+void SendHandle::abandon(std::vector<std::shared_ptr<const void>>& keep) {
+  // MPI_Request_free lets an active send finish (or not) on its own; Open MPI
+  // cannot cancel sends, and waiting on one to a dead peer never ends.
+  for (MPI_Request& request : requests_) {
+    if (request != MPI_REQUEST_NULL) MPI_Request_free(&request);
+  }
+  requests_.clear();
+  if (header_) keep.push_back(std::shared_ptr<const void>(std::move(header_)));
+  if (ownedPayload_) keep.push_back(std::move(ownedPayload_));
 }
 
 bool SendHandle::waitFor(std::chrono::milliseconds timeout) {
@@ -149,6 +162,7 @@ int Channel::payloadTag(MessageKind kind) {
 SendHandle Channel::post(int dest, MessageKind kind, const google::protobuf::MessageLite& header,
                          std::span<const std::byte> payload) {
   SendHandle handle;
+  handle.destination_ = dest;
   handle.header_ = std::make_unique<std::string>(kPrefixBytes, '\0');
   putU32(handle.header_->data(), kFrameMagic);
   putU32(handle.header_->data() + 4, 0);
@@ -223,10 +237,34 @@ Envelope Channel::receiveMatched(MPI_Message& message, MPI_Status& status) {
              "MPI_Irecv(payload)");
     requests.push_back(request);
   }
-  // The sender posted every chunk with the header, so these complete promptly;
-  // the time-out only guards against a peer that died mid-message.
+  // The sender posted every chunk with the header, so these complete promptly
+  // unless the sender died mid-message.
+  const auto allowed =
+      payloadTimeout_ + std::chrono::milliseconds(static_cast<long long>(payloadBytes / 10'000));
+  const auto deadline = std::chrono::steady_clock::now() + allowed;
+  Backoff backoff;
   for (MPI_Request& request : requests) {
-    waitFor(request, std::chrono::minutes(5), "message payload");
+    while (true) {
+      int done = 0;
+      checkMpi(MPI_Test(&request, &done, MPI_STATUS_IGNORE), "MPI_Test");
+      if (done != 0) break;
+      if (std::chrono::steady_clock::now() >= deadline) {
+        for (MPI_Request& pending : requests) {
+          if (pending == MPI_REQUEST_NULL) continue;
+          MPI_Cancel(&pending);
+          MPI_Request_free(&pending);
+        }
+        // The buffer may still be named by a cancelled receive: keep it.
+        static std::vector<PayloadBytes> orphans;
+        orphans.push_back(std::move(envelope.payload));
+        throw PeerSilentError(envelope.source,
+                              "rank " + std::to_string(envelope.source) + " sent the header of a " +
+                                  messageKindName(envelope.kind) + " message but not its " +
+                                  std::to_string(payloadBytes) + "-byte payload within " +
+                                  std::to_string(allowed.count()) + " ms");
+      }
+      backoff.wait(kTransferPoll);
+    }
   }
   envelope.payloadSeconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - payloadStart).count();
@@ -240,6 +278,24 @@ std::optional<Envelope> Channel::tryReceive(int source, std::optional<MessageKin
   const int tag = kind ? static_cast<int>(*kind) : MPI_ANY_TAG;
   checkMpi(MPI_Improbe(source, tag, comm_, &flag, &message, &status), "MPI_Improbe");
   if (flag == 0) return std::nullopt;
+  while (ignored_.contains(status.MPI_SOURCE)) {
+    // Not waited for: a large message's bytes may sit with the lost sender
+    // for ever. A receive that does not complete keeps its buffer.
+    int count = 0;
+    checkMpi(MPI_Get_count(&status, MPI_BYTE, &count), "MPI_Get_count");
+    auto dropped = std::make_unique<PayloadBytes>(static_cast<std::size_t>(count));
+    MPI_Request request = MPI_REQUEST_NULL;
+    checkMpi(MPI_Imrecv(dropped->data(), count, MPI_BYTE, &message, &request), "MPI_Imrecv");
+    int done = 0;
+    checkMpi(MPI_Test(&request, &done, MPI_STATUS_IGNORE), "MPI_Test");
+    if (done == 0) {
+      MPI_Request_free(&request);
+      static std::vector<std::unique_ptr<PayloadBytes>> orphans;
+      orphans.push_back(std::move(dropped));
+    }
+    checkMpi(MPI_Improbe(source, tag, comm_, &flag, &message, &status), "MPI_Improbe");
+    if (flag == 0) return std::nullopt;
+  }
   if (status.MPI_TAG >= kPayloadTagOffset) {
     throw ProtocolError("payload chunk from rank " + std::to_string(status.MPI_SOURCE) +
                         " arrived without its header");

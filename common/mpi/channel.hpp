@@ -16,6 +16,7 @@
 #include <cstdint>
 #include <memory>
 #include <optional>
+#include <set>
 #include <span>
 #include <string>
 #include <utility>
@@ -95,11 +96,17 @@ class SendHandle {
   bool waitFor(std::chrono::milliseconds timeout);  // false when still pending
   // Gives up a send no peer will take (its receiver has ended).
   void cancel();
+  // Gives up a send to a lost peer without touching it again: MPI may still
+  // hold its buffers, so the header and payload move to `keep`, which the
+  // caller holds until the end of the process.
+  void abandon(std::vector<std::shared_ptr<const void>>& keep);
   bool empty() const { return requests_.empty(); }
+  int destination() const { return destination_; }
 
  private:
   friend class Channel;
   std::vector<MPI_Request> requests_;
+  int destination_ = -1;
   std::unique_ptr<std::string> header_;
   std::shared_ptr<const void> ownedPayload_;
 };
@@ -115,6 +122,13 @@ class Channel {
   int size() const { return size_; }
   MPI_Comm comm() const { return comm_; }
   std::size_t maxChunkBytes() const { return maxChunkBytes_; }
+  // How long a payload may take after its header: `base` plus the payload at
+  // 10 MB/s. Past it the sender is taken as lost (PeerSilentError).
+  void setPayloadTimeout(std::chrono::milliseconds base) { payloadTimeout_ = base; }
+  // From now on messages from `rank` (a lost process) are taken off the
+  // wire and dropped, payloads not waited for.
+  void ignore(int rank) { ignored_.insert(rank); }
+  bool ignored(int rank) const { return ignored_.contains(rank); }
 
   // Starts a send; the payload must stay alive until the handle completes.
   SendHandle post(int dest, MessageKind kind, const google::protobuf::MessageLite& header,
@@ -153,6 +167,8 @@ class Channel {
   int rank_ = 0;
   int size_ = 0;
   std::size_t maxChunkBytes_;
+  std::chrono::milliseconds payloadTimeout_{std::chrono::minutes(5)};
+  std::set<int> ignored_;
 };
 
 }  // namespace pointillist

@@ -1,10 +1,16 @@
 #include "common/mpi/job.hpp"
 
+#include "common/peer_watch.hpp"
+
 #include <sys/resource.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <array>
+#include <cstdio>
+#include <cstdlib>
 #include <iostream>
+#include <set>
 #include <sstream>
 
 namespace pointillist {
@@ -54,6 +60,11 @@ double processCpuSeconds() {
 }
 
 Job::Job(int& argc, char**& argv, v1::Role role) : role_(role) {
+  // Open MPI's MPI_Finalize waits in a fence for every process of the job;
+  // after a lost process (mpirun --enable-recovery) the survivors would wait
+  // there for ever. Each process has already said goodbye to the display by
+  // then, so finalizing on its own loses nothing. A launcher's setting wins.
+  setenv("OMPI_MCA_async_mpi_finalize", "1", 0);
   int provided = 0;
   checkMpi(MPI_Init_thread(&argc, &argv, MPI_THREAD_FUNNELED, &provided), "MPI_Init_thread");
   // Return codes instead of MPI's default abort, so every failure gets our message.
@@ -164,6 +175,7 @@ void Job::handshake(const HandshakeOptions& options) {
       throw CoordinatedError("the display refused this job: " + reply.reason());
     }
     runSettings_ = reply.settings();
+    channel_->setPayloadTimeout(livenessOf(runSettings_).peerTimeout);
     return;
   }
 
@@ -220,6 +232,7 @@ void Job::handshake(const HandshakeOptions& options) {
   reply.set_reason(reason);
   *reply.mutable_settings() = options.settings;
   runSettings_ = options.settings;
+  channel_->setPayloadTimeout(livenessOf(runSettings_).peerTimeout);
   std::vector<SendHandle> sends;
   for (int peer : peers) sends.push_back(channel.post(peer, MessageKind::HandshakeReply, reply));
   for (auto& send : sends) send.wait();
@@ -271,7 +284,42 @@ void Job::acknowledgeShutdown(const std::string& summary) {
   }
   ack.set_wall_seconds_since_ready(
       std::chrono::duration<double>(std::chrono::steady_clock::now() - readyWall_).count());
-  channel_->send(displayRank(), MessageKind::ShutdownAck, ack);
+  // Bounded: a display that went away after sending Shutdown must not keep
+  // this process from ending.
+  SendHandle handle = channel_->post(displayRank(), MessageKind::ShutdownAck, ack);
+  const LivenessSettings liveness = livenessOf(runSettings_);
+  if (!handle.waitFor(liveness.peerTimeout)) {
+    std::vector<std::shared_ptr<const void>> keep;
+    handle.abandon(keep);
+    static std::vector<std::shared_ptr<const void>> abandoned;
+    abandoned.insert(abandoned.end(), keep.begin(), keep.end());
+    std::fprintf(stderr, "%s: the display did not take the shutdown acknowledgement\n",
+                 describe().c_str());
+  }
+}
+
+void Job::markLost(int rank) {
+  if (rank == worldRank_ || !lost_.insert(rank).second) return;
+  sends_->forget(rank);
+  channel_->ignore(rank);
+}
+
+std::string Job::describeRank(int rank) const {
+  for (v1::Role role : {v1::ROLE_DISPLAY, v1::ROLE_TRAVERSE, v1::ROLE_DATASEND, v1::ROLE_RENDER}) {
+    const auto& ranks = ranksOf(role);
+    if (std::find(ranks.begin(), ranks.end(), rank) != ranks.end()) {
+      return executableName(role) + " rank " + std::to_string(rank);
+    }
+  }
+  return "rank " + std::to_string(rank);
+}
+
+v1::Role Job::roleOf(int rank) const {
+  for (v1::Role role : {v1::ROLE_DISPLAY, v1::ROLE_TRAVERSE, v1::ROLE_DATASEND, v1::ROLE_RENDER}) {
+    const auto& ranks = ranksOf(role);
+    if (std::find(ranks.begin(), ranks.end(), rank) != ranks.end()) return role;
+  }
+  return v1::ROLE_UNSPECIFIED;
 }
 
 void Job::shutdownAll(const std::string& reason, std::chrono::milliseconds timeout) {
@@ -283,11 +331,14 @@ void Job::shutdownAll(const std::string& reason, std::chrono::milliseconds timeo
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   for (v1::Role role : {v1::ROLE_TRAVERSE, v1::ROLE_DATASEND, v1::ROLE_RENDER}) {
     std::vector<SendHandle> sends;
+    std::size_t expected = 0;
     for (int rank : ranksOf(role)) {
+      if (lost_.contains(rank)) continue;  // gone: nothing to tell, nothing to wait for
       sends.push_back(channel_->post(rank, MessageKind::Shutdown, shutdown));
+      ++expected;
     }
     std::size_t acked = 0;
-    while (acked < ranksOf(role).size()) {
+    while (acked < expected) {
       const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
           deadline - std::chrono::steady_clock::now());
       // Late messages (a re-issued tile, a work request) are received and
@@ -295,18 +346,59 @@ void Job::shutdownAll(const std::string& reason, std::chrono::milliseconds timeo
       auto envelope = channel_->receive(MPI_ANY_SOURCE, std::nullopt,
                                         std::max(left, std::chrono::milliseconds(0)));
       if (!envelope) {
-        throw TimeoutError("only " + std::to_string(acked) + " of " +
-                           std::to_string(ranksOf(role).size()) + " " + roleName(role) +
-                           " processes acknowledged shutdown within " +
+        throw TimeoutError("only " + std::to_string(acked) + " of " + std::to_string(expected) +
+                           " " + roleName(role) + " processes acknowledged shutdown within " +
                            std::to_string(timeout.count()) + " ms");
       }
-      if (envelope->kind == MessageKind::ShutdownAck) {
+      if (envelope->kind == MessageKind::ShutdownAck && !lost_.contains(envelope->source)) {
         acks_.push_back(envelope->as<v1::ShutdownAck>());
         ++acked;
       }
     }
     for (auto& send : sends) send.wait();
   }
+}
+
+std::vector<int> Job::shutdownSurvivors(const std::string& reason,
+                                        std::chrono::milliseconds timeout) {
+  v1::Shutdown shutdown;
+  shutdown.set_reason(reason);
+  acks_.clear();
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  std::set<int> waiting;
+  std::vector<SendHandle> sends;
+  for (v1::Role role : {v1::ROLE_TRAVERSE, v1::ROLE_DATASEND, v1::ROLE_RENDER}) {
+    for (int rank : ranksOf(role)) {
+      if (lost_.contains(rank)) continue;
+      sends.push_back(channel_->post(rank, MessageKind::Shutdown, shutdown));
+      waiting.insert(rank);
+    }
+  }
+  Backoff backoff;
+  while (!waiting.empty() && std::chrono::steady_clock::now() < deadline) {
+    std::optional<Envelope> envelope;
+    try {
+      envelope = channel_->tryReceive();
+    } catch (const PeerSilentError& silent) {
+      markLost(silent.rank());
+      continue;
+    }
+    if (!envelope) {
+      backoff.wait();
+      continue;
+    }
+    backoff.reset();
+    if (envelope->kind == MessageKind::ShutdownAck && waiting.erase(envelope->source) > 0) {
+      acks_.push_back(envelope->as<v1::ShutdownAck>());
+    }
+  }
+  std::vector<std::shared_ptr<const void>> keep;
+  for (auto& send : sends) {
+    if (!send.test()) send.abandon(keep);
+  }
+  static std::vector<std::shared_ptr<const void>> abandoned;
+  abandoned.insert(abandoned.end(), keep.begin(), keep.end());
+  return {waiting.begin(), waiting.end()};
 }
 
 }  // namespace pointillist

@@ -12,6 +12,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -69,7 +70,15 @@ class Job {
   SendQueue& sends() { return *sends_; }
   // The main thread's CPU time per activity since Ready, sent with the shutdown ack.
   CpuActivities& activities() { return activities_; }
-  std::string describe() const;  // "pointillist-render rank 5"
+  std::string describe() const;              // "pointillist-render rank 5"
+  std::string describeRank(int rank) const;  // any rank of the job, the same way
+  v1::Role roleOf(int rank) const;
+
+  // `rank` is gone: sends to it are abandoned and dropped from now on, and
+  // shutdown neither tells it nor waits for it.
+  void markLost(int rank);
+  bool lost(int rank) const { return lost_.contains(rank); }
+  const std::set<int>& lostRanks() const { return lost_; }
 
   // Every process reports to the display, which checks protocol versions and
   // role counts and answers each one; a mismatch is a ProtocolError everywhere.
@@ -80,6 +89,10 @@ class Job {
   // for every other message (the role's work loop).
   // Display: send Shutdown to every other rank and collect their acks.
   void shutdownAll(const std::string& reason, std::chrono::milliseconds timeout);
+  // Display, after a lost process: Shutdown to every live process at once,
+  // acks collected until `timeout`; never throws for a peer that does not
+  // answer. Returns the processes that did not acknowledge.
+  std::vector<int> shutdownSurvivors(const std::string& reason, std::chrono::milliseconds timeout);
   void reportReady(const std::string& detail);
   std::vector<v1::Ready> awaitReady(std::chrono::milliseconds timeout);
   std::vector<v1::ShutdownAck> lastAcks() const { return acks_; }
@@ -109,6 +122,7 @@ class Job {
   CpuActivities activities_;
   std::chrono::steady_clock::time_point readyWall_;
   bool finalized_ = false;
+  std::set<int> lost_;
 };
 
 const char* roleName(v1::Role role);        // "display"

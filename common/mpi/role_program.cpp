@@ -1,5 +1,8 @@
 #include "common/mpi/role_program.hpp"
 
+#include <chrono>
+#include <csignal>
+#include <iomanip>
 #include <iostream>
 #include <memory>
 #include <sstream>
@@ -26,6 +29,27 @@ void addCommonRoleOptions(CLI::App& app, CommonRoleOptions& options) {
   app.add_option("--protocol-version", options.protocolVersion)->group("");
   app.add_option("--handshake-timeout", options.handshakeTimeoutSeconds,
                  "Seconds to wait for every process to report in");
+  app.add_option("--die-role", options.dieRole)->group("");
+  app.add_option("--die-index", options.dieIndex)->group("");
+  app.add_option("--die-after", options.dieAfter)->group("");
+}
+
+SelfKill::SelfKill(const CommonRoleOptions& options, const Job& job) {
+  if (options.dieAfter > 0 && options.dieRole == roleName(job.role()) &&
+      options.dieIndex == job.indexInRole()) {
+    after_ = options.dieAfter;
+  }
+}
+
+void SelfKill::count() {
+  if (after_ > 0 && ++seen_ == after_) {
+    const auto now = std::chrono::system_clock::now().time_since_epoch();
+    std::cerr << "test hook: " << seen_ << " events, killing this process at " << std::fixed
+              << std::setprecision(3) << std::chrono::duration<double>(now).count()
+              << " s since the epoch\n"
+              << std::flush;
+    std::raise(SIGKILL);
+  }
 }
 
 HandshakeOptions handshakeOptions(const CommonRoleOptions& options) {

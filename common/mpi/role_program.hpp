@@ -15,6 +15,25 @@ struct CommonRoleOptions {
   std::string expectLayout;  // D,T,S,R as launched; checked in the handshake
   std::uint32_t protocolVersion = v1::PROTOCOL_VERSION_CURRENT;
   double handshakeTimeoutSeconds = 60.0;
+  // Test hook: one process kills itself (SIGKILL, as when its node is lost)
+  // after a number of events (messages handled; frames finished for the
+  // display). Hidden options --die-role, --die-index, --die-after.
+  std::string dieRole;
+  int dieIndex = 0;
+  std::uint64_t dieAfter = 0;
+};
+
+// Counts a process's events and kills it at the count the test hook asked for.
+class SelfKill {
+ public:
+  SelfKill() = default;
+  SelfKill(const CommonRoleOptions& options, const Job& job);
+  void count();  // raises SIGKILL on the chosen event
+  bool armed() const { return after_ > 0; }
+
+ private:
+  std::uint64_t after_ = 0;
+  std::uint64_t seen_ = 0;
 };
 
 void addCommonRoleOptions(CLI::App& app, CommonRoleOptions& options);

@@ -5,17 +5,20 @@ namespace pointillist {
 void SendQueue::post(const Outbox& outbox) {
   for (const Outgoing& outgoing : outbox.entries()) {
     for (int dest : outgoing.destinations) {
+      if (lost_.contains(dest)) continue;
       sends_.push_back(channel_.post(dest, outgoing.kind, *outgoing.message));
     }
   }
 }
 
 void SendQueue::post(int dest, MessageKind kind, const google::protobuf::MessageLite& header) {
+  if (lost_.contains(dest)) return;
   sends_.push_back(channel_.post(dest, kind, header));
 }
 
 void SendQueue::post(int dest, MessageKind kind, const google::protobuf::MessageLite& header,
                      std::span<const std::byte> payload, std::shared_ptr<const void> owner) {
+  if (lost_.contains(dest)) return;
   sends_.push_back(channel_.post(dest, kind, header, payload, std::move(owner)));
 }
 
@@ -35,6 +38,19 @@ void SendQueue::drain(std::chrono::milliseconds timeout) {
     }
     sends_.pop_front();
   }
+}
+
+void SendQueue::forget(int rank) {
+  if (!lost_.insert(rank).second) return;
+  std::deque<SendHandle> kept;
+  for (SendHandle& send : sends_) {
+    if (send.destination() == rank) {
+      send.abandon(abandoned_);
+    } else {
+      kept.push_back(std::move(send));
+    }
+  }
+  sends_ = std::move(kept);
 }
 
 }  // namespace pointillist

@@ -6,6 +6,7 @@
 #include <cstddef>
 #include <deque>
 #include <memory>
+#include <set>
 #include <span>
 #include <vector>
 
@@ -35,9 +36,17 @@ class SendQueue {
   // (its receiver has gone), so that an ending process never hangs.
   void drain(std::chrono::milliseconds timeout);
 
+  // `rank` is lost: its sends in flight are abandoned and later ones to it
+  // are dropped, so that nothing waits for it and no memory piles up for it.
+  void forget(int rank);
+  bool forgotten(int rank) const { return lost_.contains(rank); }
+
  private:
   Channel& channel_;
   std::deque<SendHandle> sends_;
+  std::set<int> lost_;
+  // Buffers of abandoned sends: MPI may still name them.
+  std::vector<std::shared_ptr<const void>> abandoned_;
 };
 
 }  // namespace pointillist

@@ -1,23 +1,67 @@
 #include "common/mpi/worker.hpp"
 
 #include "common/mpi/role_program.hpp"
+#include "common/peer_watch.hpp"
+
+#include <cstdio>
+#include <optional>
 
 namespace pointillist {
 
-void serveUntilShutdown(Job& job, WorkerProcess* process) {
+void serveUntilShutdown(Job& job, WorkerProcess* process, SelfKill selfKill) {
   Channel& channel = job.channel();
   SendQueue& sends = job.sends();
   Backoff backoff;
+  const LivenessSettings liveness = livenessOf(job.runSettings());
+  const int display = job.displayRank();
+  HeartbeatTimer heartbeat(liveness.heartbeat, Clock::now());
+  // Armed by the display's first message: it starts speaking only once every
+  // process is ready, which may take a while after this one is.
+  std::optional<TimePoint> displayHeard;
   // Each pass is charged to what it did: polling when nothing came or was done.
   CpuActivities::Meter meter(job.activities(), "poll");
   while (true) {
+    const TimePoint now = Clock::now();
     meter.switchTo("send");
+    if (heartbeat.due(now)) {
+      v1::Heartbeat beat;
+      beat.set_sent_ns(now.time_since_epoch().count());
+      sends.post(display, MessageKind::Heartbeat, beat);
+    }
     sends.reap();
     meter.switchTo("receive");
-    auto envelope = channel.tryReceive();
+    std::optional<Envelope> envelope;
+    try {
+      envelope = channel.tryReceive();
+    } catch (const PeerSilentError& silent) {
+      if (silent.rank() == display) throw;
+      // A peer stopped halfway through a message: it died, or its link is
+      // down for longer than any transfer may take. Nothing more is taken
+      // from it; whether the job goes on is the display's call (it hears
+      // from everyone), and work the message carried is re-issued as late.
+      std::fprintf(stderr, "%s: %s; ignoring it from now on\n", job.describe().c_str(),
+                   silent.what());
+      job.markLost(silent.rank());
+      continue;
+    }
+    // Judged only with nothing waiting: after a long draw the display's
+    // heartbeats are still queued, not missing.
+    if (!envelope && displayHeard && now - *displayHeard > liveness.peerTimeout) {
+      throw PeerSilentError(display, "the display (" + job.describeRank(display) + ") is lost: " +
+                                         silenceText(secondsBetween(*displayHeard, now)) +
+                                         "; the job cannot go on without it");
+    }
     if (!envelope) meter.relabel("poll");
     if (envelope) {
       backoff.reset();
+      if (envelope->source == display) displayHeard = Clock::now();
+      if (envelope->kind == MessageKind::Heartbeat) continue;
+      if (envelope->kind == MessageKind::PeerLost) {
+        const auto lost = envelope->as<v1::PeerLost>();
+        job.markLost(lost.world_rank());
+        if (process != nullptr) process->onPeerLost(lost.world_rank(), lost.role());
+        continue;
+      }
       if (envelope->kind == MessageKind::Shutdown) {
         job.acknowledgeShutdown(process != nullptr ? process->summary() : std::string());
         return;
@@ -33,6 +77,7 @@ void serveUntilShutdown(Job& job, WorkerProcess* process) {
       }
       meter.switchTo(std::string("handle ") + messageKindName(envelope->kind));
       process->onMessage(*envelope);
+      selfKill.count();
       continue;
     }
     if (process != nullptr) {
@@ -67,7 +112,7 @@ int runWorkerMain(
     job.handshake(handshakeOptions(common));
     if (process) process->begin(job.runSettings());
     job.reportReady(process ? process->readyDetail() : std::string("no dataset"));
-    serveUntilShutdown(job, process.get());
+    serveUntilShutdown(job, process.get(), SelfKill(common, job));
     // Sends still in flight may read the process's memory.
     job.sends().drain(std::chrono::seconds(5));
     return 0;

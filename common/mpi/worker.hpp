@@ -9,6 +9,7 @@
 #include <string>
 
 #include "common/mpi/job.hpp"
+#include "common/mpi/role_program.hpp"
 
 namespace pointillist {
 
@@ -29,11 +30,16 @@ class WorkerProcess {
   virtual std::string idleActivity() const { return "idle work"; }
   // Sent back with the ShutdownAck.
   virtual std::string summary() const = 0;
+  // The display says `rank` is gone (the job sends nothing more to it).
+  virtual void onPeerLost(int /*rank*/, v1::Role /*role*/) {}
 };
 
 // Handles messages until Shutdown. Without a process (a job started without a
 // dataset, to check the handshake) any other message is a ProtocolError.
-void serveUntilShutdown(Job& job, WorkerProcess* process);
+// Sends the display a Heartbeat every heartbeat interval; once the display has
+// spoken, a display silent past the peer timeout is a PeerSilentError.
+// `selfKill` counts every message handed to the process (a test hook).
+void serveUntilShutdown(Job& job, WorkerProcess* process, SelfKill selfKill = {});
 
 // A worker role's main. The options are the common ones, --dataset and those
 // `addOptions` adds; `start` loads the dataset and builds the process before

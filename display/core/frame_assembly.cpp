@@ -191,4 +191,10 @@ std::optional<TimePoint> FrameAssembly::nextDeadline() const {
   return frames_.nextDeadline();
 }
 
+std::uint32_t FrameAssembly::renderLost(int renderRank, TimePoint now, const std::string& reason) {
+  planner_.retireRender(static_cast<std::uint32_t>(peers_.indexOf(v1::ROLE_RENDER, renderRank)));
+  stats_.lost.push_back({"render", renderRank, since(now), reason, true});
+  return frames_.reissueOutstanding();
+}
+
 }  // namespace pointillist::display

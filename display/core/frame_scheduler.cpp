@@ -115,6 +115,25 @@ std::uint32_t FrameScheduler::checkTimeouts(Clock::time_point now) {
   return requeued;
 }
 
+std::uint32_t FrameScheduler::reissueOutstanding() {
+  std::uint32_t requeued = 0;
+  for (std::size_t i = 0; i < admitted_ && i < frames_.size(); ++i) {
+    FrameState& state = frames_[i];
+    for (std::uint32_t index = 0; index < state.tiles.size(); ++index) {
+      const TileState& tile = state.tiles[index];
+      if (tile.done || tile.failed || tile.attempts == 0) continue;
+      const bool queued = std::any_of(queue_.begin(), queue_.end(), [&](const TileTaskRef& task) {
+        return task.frame == state.index && task.tile == index;
+      });
+      if (queued) continue;
+      queue_.push_front({state.index, index, tile.attempts});
+      ++reissued_[state.index];
+      ++requeued;
+    }
+  }
+  return requeued;
+}
+
 std::optional<FrameScheduler::Clock::time_point> FrameScheduler::nextDeadline() const {
   std::optional<Clock::time_point> earliest;
   for (std::size_t i = 0; i < admitted_ && i < frames_.size(); ++i) {

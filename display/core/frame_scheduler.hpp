@@ -58,6 +58,9 @@ class FrameScheduler {
   // Tiles past their deadline go back to the queue, or fail after maxAttempts.
   // Returns how many were re-queued.
   std::uint32_t checkTimeouts(Clock::time_point now);
+  // Every tile that is out goes back to the queue at once (a render process
+  // was lost and which tiles it held is not known here). Returns how many.
+  std::uint32_t reissueOutstanding();
   // The earliest deadline of a tile that is out; nullopt when none is.
   std::optional<Clock::time_point> nextDeadline() const;
   // The oldest frame, when every tile of it is done or failed.

@@ -31,6 +31,21 @@ double ratio(std::uint64_t numerator, std::uint64_t denominator) {
 }
 
 // Writes next to the target and renames, so readers never see half a file.
+std::string jsonEscaped(const std::string& text) {
+  std::string escaped;
+  for (const char c : text) {
+    if (c == '"' || c == '\\') {
+      escaped += '\\';
+      escaped += c;
+    } else if (static_cast<unsigned char>(c) < 0x20) {
+      escaped += ' ';
+    } else {
+      escaped += c;
+    }
+  }
+  return escaped;
+}
+
 void writeFile(const std::filesystem::path& file, const std::string& text, const char* what) {
   const auto temporary = std::filesystem::path(file.string() + ".tmp");
   {
@@ -309,6 +324,13 @@ std::string RunStats::toJson() const {
     }
     out << "}}";
   }
+  out << "],\n  \"lost_processes\": [";
+  for (std::size_t i = 0; i < lost.size(); ++i) {
+    const LostProcess& p = lost[i];
+    out << (i ? ", " : "") << "{\"role\": \"" << p.role << "\", \"rank\": " << p.rank
+        << ", \"seconds\": " << number(p.seconds) << ", \"reason\": \"" << jsonEscaped(p.reason)
+        << "\", \"job_went_on\": " << (p.jobWentOn ? "true" : "false") << "}";
+  }
   out << "]\n}\n";
   return out.str();
 }
@@ -432,6 +454,12 @@ std::string RunStats::summary() const {
                 static_cast<unsigned long long>(k.failedTiles),
                 static_cast<unsigned long long>(k.lateTiles));
   out << line;
+  for (const LostProcess& p : lost) {
+    std::snprintf(line, sizeof line, "lost: %s rank %d at %.2f s (%s)%s\n", p.role.c_str(), p.rank,
+                  p.seconds, p.reason.c_str(),
+                  p.jobWentOn ? "; the job went on without it" : "; the job ended");
+    out << line;
+  }
   if (!processes.empty()) {
     std::snprintf(line, sizeof line,
                   "cpu per frame: %.1f core-ms in all: display %.1f, traverse %.1f, data-send "

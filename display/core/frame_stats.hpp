@@ -66,6 +66,15 @@ struct ProcessCpu {
   std::map<std::string, double> activities;
 };
 
+// A process the job lost while running (display/display_role.cpp).
+struct LostProcess {
+  std::string role;  // render, traverse, datasend
+  int rank = 0;
+  double seconds = 0.0;  // since the run began
+  std::string reason;    // "no word from it for 5.0 s"
+  bool jobWentOn = false;
+};
+
 // How evenly one frame's work was spread over the render processes: max/mean
 // over all render processes of the job (1 is perfect balance).
 struct FrameBalance {
@@ -146,6 +155,7 @@ struct RunStats {
   std::uint64_t lateTiles = 0;  // arrived after their frame was done or re-issued
   double totalSeconds = 0.0;
   std::vector<ProcessCpu> processes;  // filled once the job has shut down
+  std::vector<LostProcess> lost;
 
   // Frames per second over frames [first, end).
   double framesPerSecond(std::size_t first) const;

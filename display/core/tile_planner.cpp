@@ -78,6 +78,16 @@ TilePlanner::TilePlanner(const TilePlanOptions& options)
     : options_(options), equalizer_(std::max<std::uint32_t>(1, options.renders)) {
   if (options.renders == 0) throw UsageError("tile planning needs at least one render process");
   if (!(options.tilesPerRender > 0.0)) throw UsageError("--tiles-per-render must be positive");
+  for (std::uint32_t render = 0; render < options.renders; ++render) live_.push_back(render);
+}
+
+void TilePlanner::retireRender(std::uint32_t render) {
+  const auto found = std::find(live_.begin(), live_.end(), render);
+  if (found == live_.end()) return;
+  if (live_.size() == 1) throw UsageError("the last render process cannot be retired");
+  live_.erase(found);
+  equalizer_ = LoadEqualizer(static_cast<std::uint32_t>(live_.size()));
+  equalizerStrips_ = false;
 }
 
 std::vector<TileRect> TilePlanner::plan(const TileRect& area) {
@@ -94,7 +104,7 @@ std::vector<TileRect> TilePlanner::plan(const TileRect& area) {
     }
   }
   const auto target = static_cast<std::uint32_t>(
-      std::max(1.0, std::round(options_.tilesPerRender * static_cast<double>(options_.renders))));
+      std::max(1.0, std::round(options_.tilesPerRender * static_cast<double>(live_.size()))));
   if (options_.scheduler == SchedulerKind::Cost && options_.balancedTiles) {
     return balancedSplit(area, target);
   }
@@ -104,10 +114,10 @@ std::vector<TileRect> TilePlanner::plan(const TileRect& area) {
 std::optional<std::uint32_t> TilePlanner::assign(std::uint32_t tileIndex) {
   switch (options_.scheduler) {
     case SchedulerKind::RoundRobin:
-      return static_cast<std::uint32_t>(roundRobin_++ % options_.renders);
+      return live_[roundRobin_++ % live_.size()];
     case SchedulerKind::Static:
     case SchedulerKind::Equalizer:
-      return tileIndex % options_.renders;
+      return live_[tileIndex % live_.size()];
     case SchedulerKind::Cost:
       break;
   }

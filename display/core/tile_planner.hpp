@@ -55,6 +55,11 @@ class TilePlanner {
   std::optional<std::uint32_t> assign(std::uint32_t tileIndex);
   // Feedback from a completed frame, tiles in the order plan() gave them.
   void frameDone(std::span<const TileFeedback> tiles);
+  // Render process `render` (index among renders) is gone: later frames are
+  // planned for the others and no tile is assigned to it. The equalizer
+  // starts again from even strips. UsageError when it was the last one.
+  void retireRender(std::uint32_t render);
+  std::uint32_t liveRenders() const { return static_cast<std::uint32_t>(live_.size()); }
 
   const TilePlanOptions& options() const { return options_; }
   // Frames planned from now on use `kind` (a served client chose it); what
@@ -70,6 +75,7 @@ class TilePlanner {
   std::uint64_t roundRobin_ = 0;
   std::vector<TileFeedback> density_;  // last completed frame, splats spread over each rect
   bool equalizerStrips_ = false;       // the last plan used the equalizer's strips
+  std::vector<std::uint32_t> live_;    // render indices still in the job
 };
 
 }  // namespace pointillist::display

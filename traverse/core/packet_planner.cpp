@@ -196,6 +196,10 @@ void PacketPlanner::applyReport(int sourceRank, const v1::RenderReport& report, 
   model_.applyReport(render, view, now);
 }
 
+void PacketPlanner::renderLost(int renderRank) {
+  model_.retire(peers_.indexOf(v1::ROLE_RENDER, renderRank));
+}
+
 std::string PacketPlanner::summary() const {
   char line[256];
   std::snprintf(line, sizeof line,

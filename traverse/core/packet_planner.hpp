@@ -74,6 +74,8 @@ class PacketPlanner {
   // A render process's report of its workload, cache changes and rates.
   void applyReport(int sourceRank, const v1::RenderReport& report, TimePoint now);
 
+  // A render process is gone: no packet goes to it any more.
+  void renderLost(int renderRank);
   const RenderModel& model() const { return model_; }
   const PacketLayers& layers() const { return *layers_; }
   std::uint64_t tasksDone() const { return tasksDone_; }

@@ -116,12 +116,15 @@ RenderChoice RenderModel::choose(std::span<const CellPrefix> needs, std::uint64_
   std::uint64_t bestWorkload = std::numeric_limits<std::uint64_t>::max();
   best.missingBytes = std::numeric_limits<std::uint64_t>::max();
   const std::size_t count = renders_.size();
+  if (liveCount() == 0) throw ProtocolError("no render process is left to draw a packet");
   bool allStalled = true;
   for (std::size_t render = 0; render < count; ++render) {
+    if (renders_[render].retired) continue;
     allStalled = allStalled && suspectedStalled(render, now);
   }
   for (std::size_t step = 0; step < count; ++step) {
     const std::size_t render = (rotation_ + step) % count;
+    if (renders_[render].retired) continue;
     if (!allStalled && suspectedStalled(render, now)) continue;
     std::uint64_t missing = 0;
     const double value = cost(render, needs, splats, &missing);
@@ -143,10 +146,23 @@ RenderChoice RenderModel::choose(std::span<const CellPrefix> needs, std::uint64_
 RenderChoice RenderModel::assigned(std::size_t render, std::span<const CellPrefix> needs,
                                    std::uint64_t splats) const {
   RenderChoice choice;
+  if (liveCount() == 0) throw ProtocolError("no render process is left to draw a packet");
   choice.render = render % renders_.size();
+  while (renders_[choice.render].retired) choice.render = (choice.render + 1) % renders_.size();
   choice.cost = cost(choice.render, needs, splats, &choice.missingBytes);
   choice.missing = missing(choice.render, needs);
   return choice;
+}
+
+void RenderModel::retire(std::size_t render) {
+  RenderState& state = renders_.at(render);
+  state = RenderState{};
+  state.retired = true;
+}
+
+std::size_t RenderModel::liveCount() const {
+  return static_cast<std::size_t>(std::count_if(renders_.begin(), renders_.end(),
+                                                [](const RenderState& s) { return !s.retired; }));
 }
 
 void RenderModel::recordPacket(std::size_t render, std::uint64_t packetId, std::uint64_t splats,
@@ -177,6 +193,7 @@ std::vector<CellPrefix> RenderModel::missing(std::size_t render,
 void RenderModel::applyReport(std::size_t render, const RenderReportView& report,
                               Clock::time_point now) {
   RenderState& state = renders_.at(render);
+  if (state.retired) return;  // a report that was on its way when the render was lost
   if (report.packetsDone > state.packetsDone || report.workloadSplats == 0) {
     state.waitingSince.reset();  // progress, or nothing to do
   }

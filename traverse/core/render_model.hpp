@@ -102,6 +102,11 @@ class RenderModel {
   double secondsPerSplat() const;
   double secondsPerByte() const;
   std::size_t renderCount() const { return renders_.size(); }
+  // The render is gone (the display said so): never chosen again, its figures
+  // leave the means. A packet assigned to it goes to the next live render.
+  void retire(std::size_t render);
+  bool retired(std::size_t render) const { return renders_.at(render).retired; }
+  std::size_t liveCount() const;
 
  private:
   struct RenderState {
@@ -116,6 +121,7 @@ class RenderModel {
     std::optional<Clock::time_point> waitingSince;
     double secondsPerSplat = 0.0;  // as last reported; 0: not measured yet
     double secondsPerByte = 0.0;
+    bool retired = false;
   };
   static constexpr double kDefaultSecondsPerSplat = 2e-7;  // until measured: 5 M splats/s
   static constexpr double kDefaultSecondsPerByte = 1e-8;   // until measured: 100 MB/s

@@ -197,6 +197,50 @@ TEST(FrameAssembly, FinishesFramesInOrderAndLetsTheNextOneIn) {
   EXPECT_THROW(assembly.tileArrived(tile(tasks[0], 1, 3), kStart), ProtocolError);
 }
 
+// A render process is lost: every tile out goes out again at once (which of
+// them it held is not known at the display), the frame completes from the
+// others, a late copy from the lost one is not composed, and the run's
+// statistics name it.
+TEST(FrameAssembly, ALostRenderProcessesTilesGoOutAgainAtOnce) {
+  FrameAssembly assembly(config(2), kPeers, kStart);
+  const auto first = takeAll(assembly, kStart);
+  ASSERT_EQ(first.size(), 4u);
+  // Two tiles came back from render 4; render 5 held the other two and died.
+  EXPECT_TRUE(assembly.tileArrived(tile(first[0], 100, 4), kStart + 10ms));
+  EXPECT_TRUE(assembly.tileArrived(tile(first[1], 100, 4), kStart + 10ms));
+  EXPECT_EQ(assembly.renderLost(5, kStart + 200ms, "no word from it for 5.0 s"), 2u);
+  EXPECT_EQ(assembly.planner().liveRenders(), 1u);
+  // Long before the tiles' deadline, they are handed out again.
+  const auto again = takeAll(assembly, kStart + 200ms);
+  ASSERT_EQ(again.size(), 2u);
+  for (const auto& task : again) {
+    EXPECT_EQ(task.attempt(), 1u);
+    EXPECT_TRUE(task.tile_id() == first[2].tile_id() || task.tile_id() == first[3].tile_id());
+    EXPECT_TRUE(assembly.tileArrived(tile(task, 100, 4), kStart + 300ms));
+  }
+  const auto finished = assembly.finishFrames(kStart + 300ms);
+  ASSERT_EQ(finished.size(), 1u);
+  EXPECT_EQ(finished[0].record.reissuedTiles, 2u);
+  EXPECT_EQ(finished[0].record.failedTiles, 0u);
+  EXPECT_FALSE(assembly.tileArrived(tile(first[2], 100, 5), kStart + 350ms));
+  ASSERT_EQ(assembly.stats().lost.size(), 1u);
+  const LostProcess& lost = assembly.stats().lost[0];
+  EXPECT_EQ(lost.role, "render");
+  EXPECT_EQ(lost.rank, 5);
+  EXPECT_DOUBLE_EQ(lost.seconds, 0.2);
+  EXPECT_TRUE(lost.jobWentOn);
+  EXPECT_NE(assembly.stats().summary().find("lost: render rank 5 at 0.20 s (no word from it for "
+                                            "5.0 s); the job went on without it"),
+            std::string::npos);
+  EXPECT_NE(assembly.stats().toJson().find("\"lost_processes\": [{\"role\": \"render\", "
+                                           "\"rank\": 5"),
+            std::string::npos);
+  // The next frame is planned for the one render left, and nothing is re-issued twice.
+  const auto next = takeAll(assembly, kStart + 400ms);
+  EXPECT_EQ(next.size(), 2u);  // tilesPerRender 2 x 1 render
+  EXPECT_THROW(assembly.renderLost(4, kStart + 500ms, "gone"), UsageError);
+}
+
 // Serve mode: each client's frame carries its own mode and level of detail to
 // its tiles; a scheduler named by a frame holds from that frame on, and the
 // run's own scheduler needs no override.

@@ -167,5 +167,30 @@ TEST(TilePlanner, NamesRoundTripAndUnknownNamesAreRefused) {
   EXPECT_THROW(TilePlanner({.renders = 0}), UsageError);
 }
 
+// A lost render process: later plans are cut for the ones left, the baseline
+// schedulers assign only live ones, and the last one cannot go.
+TEST(TilePlanner, ARetiredRenderGetsNoTilesAndPlansShrink) {
+  const TileRect area = makeTileRect(0, 0, 640, 360);
+  TilePlanner roundRobin(
+      {.scheduler = SchedulerKind::RoundRobin, .renders = 3, .tilesPerRender = 2.0});
+  const std::size_t before = roundRobin.plan(area).size();
+  roundRobin.retireRender(1);
+  roundRobin.retireRender(1);  // twice: no change
+  EXPECT_EQ(roundRobin.liveRenders(), 2u);
+  const auto tiles = roundRobin.plan(area);
+  EXPECT_LT(tiles.size(), before);  // two tiles per live render
+  expectExactCover(area, tiles);
+  for (int i = 0; i < 8; ++i) EXPECT_NE(roundRobin.assign(static_cast<std::uint32_t>(i)), 1u);
+  TilePlanner fixed({.scheduler = SchedulerKind::Static, .renders = 3});
+  fixed.retireRender(0);
+  for (std::uint32_t i = 0; i < 6; ++i) EXPECT_NE(fixed.assign(i), 0u);
+  fixed.retireRender(2);
+  EXPECT_EQ(fixed.assign(5), 1u);
+  EXPECT_THROW(fixed.retireRender(1), UsageError);
+  TilePlanner equalizer({.scheduler = SchedulerKind::Equalizer, .renders = 3});
+  equalizer.retireRender(2);
+  expectExactCover(area, equalizer.plan(area));
+}
+
 }  // namespace
 }  // namespace pointillist::display

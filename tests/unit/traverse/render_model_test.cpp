@@ -3,6 +3,7 @@
 
 #include <set>
 
+#include "common/errors.hpp"
 #include "common/splat.hpp"
 #include "traverse/core/render_model.hpp"
 
@@ -248,6 +249,35 @@ TEST(RenderModel, AnIdleRenderWithAStaleSlowFigureStillGetsWork) {
     model.applyReport(choice.render, {.workloadSplats = 0, .lastPacketFromUs = id}, kNow);
   }
   EXPECT_GT(toSlow, 0u);
+}
+
+// A lost render process (the display's PeerLost): never chosen again, even
+// holding every cell; packets assigned to it go to the next live one; a report
+// still on its way changes nothing.
+TEST(RenderModel, ARetiredRenderIsNeverChosenAgain) {
+  const Table cells{10'000'000, 128};
+  RenderModel model(3);
+  const auto loaded = whole(cells, {0, 1});
+  model.applyReport(1, {.workloadSplats = 0, .loaded = loaded}, kNow);
+  const auto needed = whole(cells, {0, 1});
+  EXPECT_EQ(model.choose(needed, 10, kNow).render, 1u);
+  model.retire(1);
+  EXPECT_TRUE(model.retired(1));
+  EXPECT_EQ(model.liveCount(), 2u);
+  EXPECT_EQ(model.choose(needed, 10, kNow).missingBytes, 10'000'128u);  // nobody else has it
+  for (int i = 0; i < 6; ++i) {
+    const auto choice = model.choose(needed, 10, kNow);
+    EXPECT_NE(choice.render, 1u);
+    model.recordPacket(choice.render, static_cast<std::uint64_t>(i), 10, choice.missing, kNow);
+  }
+  EXPECT_EQ(model.assigned(1, needed, 10).render, 2u);
+  EXPECT_EQ(model.assigned(4, needed, 10).render, 2u);  // 4 % 3 = 1: retired, so 2
+  model.applyReport(1, {.workloadSplats = 0, .loaded = loaded}, kNow);
+  EXPECT_NE(model.choose(needed, 10, kNow).render, 1u);
+  model.retire(0);
+  model.retire(2);
+  EXPECT_THROW((void)model.choose(needed, 10, kNow), ProtocolError);
+  EXPECT_THROW((void)model.assigned(0, needed, 10), ProtocolError);
 }
 
 }  // namespace
