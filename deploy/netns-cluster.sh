@@ -3,7 +3,8 @@
 # a Linux network namespace joined by a veth link to a bridge, so that traffic
 # between hosts really crosses TCP (as between cluster nodes), never shared memory.
 #
-#   deploy/netns-cluster.sh [--hosts N] [--layout D,T,S,R] [--subnet A.B.C] [--keep] -- [RUN.SH OPTIONS]
+#   deploy/netns-cluster.sh [--hosts N] [--layout D,T,S,R] [--subnet A.B.C] [--keep]
+#                           [--cut-link H:AFTER:SECONDS] -- [RUN.SH OPTIONS]
 #   deploy/netns-cluster.sh --teardown ID|all
 #
 # Needs root (CAP_SYS_ADMIN and CAP_NET_ADMIN) and iproute2; exits 77 when the
@@ -13,7 +14,8 @@
 # its link during the job. The namespaces are removed afterwards, also on
 # failure, Ctrl-C or SIGTERM; --keep leaves them for inspection (remove them
 # later with --teardown ID, or --teardown all for every cluster whose script
-# is no longer running).
+# is no longer running). --cut-link H:AFTER:SECONDS takes host H's link down
+# AFTER seconds into the job, for SECONDS (a pulled cable, a switch reboot).
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 
@@ -23,6 +25,7 @@ layout="1,2,1,4"
 subnet="10.213.0"
 keep=0
 teardown_id=""
+cut_link=""
 run_args=()
 usage() { awk 'NR > 1 && !/^#/ { exit } NR > 1 { sub(/^# ?/, ""); print }' "${BASH_SOURCE[0]}"; }
 say() { printf 'netns-cluster: %s\n' "$*" >&2; }
@@ -32,6 +35,7 @@ while (($#)); do
     --layout) layout="$2"; shift 2 ;;
     --subnet) subnet="$2"; shift 2 ;;
     --keep) keep=1; shift ;;
+    --cut-link) cut_link="$2"; shift 2 ;;
     --teardown) teardown_id="$2"; shift 2 ;;
     -h|--help) usage; exit 0 ;;
     --) shift; run_args=("$@"); break ;;
@@ -133,14 +137,17 @@ sw=$(switch_ns "$id")
 cidr="$subnet.0/24"
 workdir=""
 job_pid=""
+cut_pid=""
 
 # Stops the job if it still runs, then removes the cluster (unless --keep).
 on_exit() {
   local code=$?
   trap - EXIT INT TERM HUP
   set +e
+  [[ -n "$cut_pid" ]] && kill "$cut_pid" 2>/dev/null
   if [[ -n "$job_pid" ]] && kill -0 "$job_pid" 2>/dev/null; then
-    say "stopping the job (mpirun pid $job_pid)"
+    say "stopping the job (run.sh pid $job_pid and its mpirun)"
+    pkill -TERM -P "$job_pid" 2>/dev/null
     kill -TERM "$job_pid" 2>/dev/null
     for ((i = 0; i < 100; i++)); do kill -0 "$job_pid" 2>/dev/null || break; sleep 0.1; done
     kill -KILL "$job_pid" 2>/dev/null
@@ -229,9 +236,26 @@ for ((h = 1; h <= hosts; h++)); do
 done
 
 # In the background, so that a signal interrupts the wait and the traps run at
-# once, whatever the job does. (ip netns exec and run.sh exec mpirun: same pid.)
+# once, whatever the job does. (ip netns exec execs run.sh: same pid, and
+# mpirun is its child.)
 POINTILLIST_NETNS_MAP="$workdir/hosts.map" "${launch[@]}" &
 job_pid=$!
+if [[ -n "$cut_link" ]]; then
+  IFS=: read -r cut_host cut_after cut_seconds <<<"$cut_link"
+  if ! [[ "$cut_host" =~ ^[0-9]+$ ]] || ((cut_host < 1 || cut_host > hosts)); then
+    say "--cut-link $cut_link: host '$cut_host' is not one of 1..$hosts"
+    exit 2
+  fi
+  (
+    sleep "$cut_after"
+    ip -n "$sw" link set "h$cut_host" down
+    say "link of host $cut_host ($subnet.$((10 + cut_host))) cut for $cut_seconds s"
+    sleep "$cut_seconds"
+    ip -n "$sw" link set "h$cut_host" up
+    say "link of host $cut_host restored"
+  ) &
+  cut_pid=$!
+fi
 set +e
 wait "$job_pid"
 job_code=$?

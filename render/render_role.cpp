@@ -23,6 +23,10 @@ struct RenderOptions {
   unsigned drawThreads = 1;
   // Test hooks: a slow or stalled render process.
   double slowMillisecondsPerPacket = 0.0;
+  int slowIndex = -1;               // this render process (index among renders) draws
+  double slowFactor = 10.0;         // this many times slower
+  std::uint64_t slowFromFrame = 0;  // the tiles of frames [from, to)
+  std::uint64_t slowToFrame = 0;
   int stallIndex = -1;  // which render process (index among renders) stalls
   long stallAfterPackets = 0;
 };
@@ -160,7 +164,15 @@ class RenderProcess final : public WorkerProcess {
     // visible surface, so they come without and the cache skips that frame.
     settings.keepDepth = packet.has_frame_settings() && packet.frame_settings().tile_depth() &&
                          settings.mode != SplatMode::Blended;
-    const RenderStats stats = renderer_->render(packet.camera(), packet.rect(), ranges, settings);
+    RenderStats stats = renderer_->render(packet.camera(), packet.rect(), ranges, settings);
+    if (options_.slowIndex == job_.indexInRole() && packet.frame_id() >= options_.slowFromFrame &&
+        packet.frame_id() < options_.slowToFrame && options_.slowFactor > 1.0) {
+      // As if drawing were this much slower (a node shared with another
+      // job): the time is measured and reported like real drawing.
+      const double extra = stats.seconds * (options_.slowFactor - 1.0);
+      std::this_thread::sleep_for(std::chrono::duration<double>(extra));
+      stats.seconds += extra;
+    }
     RenderEffects effects;
     v1::TileImageHeader header =
         core_.packetDrawn(ready, stats.splats, stats.seconds, Clock::now(), effects);
@@ -242,6 +254,10 @@ int runRenderMain(int argc, char** argv) {
                        "Threads drawing each tile with the cpu renderer")
             ->check(CLI::Range(1, 64));
         app.add_option("--slow-ms", options.slowMillisecondsPerPacket)->group("");
+        app.add_option("--slow-index", options.slowIndex)->group("");
+        app.add_option("--slow-factor", options.slowFactor)->group("");
+        app.add_option("--slow-from-frame", options.slowFromFrame)->group("");
+        app.add_option("--slow-to-frame", options.slowToFrame)->group("");
         app.add_option("--stall-index", options.stallIndex)->group("");
         app.add_option("--stall-after", options.stallAfterPackets)->group("");
       },

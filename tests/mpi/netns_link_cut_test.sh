@@ -1,0 +1,46 @@
+#!/usr/bin/env bash
+# The link of one simulated host (deploy/netns-cluster.sh: namespaces, veth,
+# TCP) is cut for 3 s in the middle of a run, shorter than the peer timeout:
+#   netns_link_cut_test.sh BIN_DIR DATASET
+# Every frame must complete, none with a failed tile, the tiles held behind
+# the cut must be re-issued (--tile-timeout 1) so that no frame waits more
+# than 1.5 s for its predecessor, and no process may be taken for lost.
+# Exits 77 (ctest SKIP_RETURN_CODE) when this machine allows no namespaces.
+set -uo pipefail
+bin="$1" dataset="$2"
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
+# Host 3 holds two of the four render processes (three ranks per host).
+POINTILLIST_BUILD="$(dirname "$bin")" timeout --kill-after=20 240 \
+  bash "$root/deploy/netns-cluster.sh" --hosts 3 --layout 1,2,1,4 --cut-link 3:6:3 -- \
+  --dataset "$dataset" --camera-path orbit --frames 600 --size 480x270 --quiet \
+  --tile-timeout 1 --out "$work/job" >"$work/job.log" 2>&1
+code=$?
+cat "$work/job.log"
+if ((code == 77)); then
+  echo "SKIPPED: this machine does not allow network namespaces (see the message above)"
+  exit 77
+fi
+((code == 0)) || { echo "FAIL: the job exited with code $code"; exit 1; }
+# The cut and its end must fall inside the run (after ready, before shutdown).
+order=$(grep -nE '^display: job .* ready|link of host 3 .*cut|link of host 3 restored|^display: shutdown complete' \
+  "$work/job.log" | cut -d: -f2- | sed -E 's/^(display: job).*/ready/; s/.*cut for.*/cut/; s/.*restored/restored/; s/^display: shutdown.*/done/' | tr '\n' ' ')
+[[ "$order" == "ready cut restored done " ]] || { echo "FAIL: the cut was not inside the run ($order)"; exit 1; }
+python3 - "$work/job/stats.json" <<'PY'
+import json, sys
+stats = json.load(open(sys.argv[1]))
+frames = stats["frames"]
+failed = sum(f["failed_tiles"] for f in frames)
+reissued = sum(f["reissued_tiles"] for f in frames)
+gap = max(b["end"] - a["end"] for a, b in zip(frames, frames[1:]))
+print(f"{len(frames)} frames, {reissued} tiles re-issued, {failed} failed, "
+      f"longest wait between frames {gap:.2f} s, lost: {stats['lost_processes']}")
+assert len(frames) == 600, "frames missing"
+assert failed == 0, "tiles failed"
+assert reissued > 0, "no tile was held behind the cut (did it cut anything?)"
+assert gap < 1.5, "a frame waited longer than the tile timeout and a margin"
+assert not stats["lost_processes"], "a process was taken for lost during a 3 s cut"
+print("PASS")
+PY

@@ -1,0 +1,46 @@
+#!/usr/bin/env bash
+# One render process draws ten times slower for frames [A, B) of a run:
+#   slow_render.sh A B RUN.SH ARGS... --out DIR ...
+# Every frame must complete (no tile failed), and the scheduler must move work
+# away from the slow process and back: its share of the splats in frames
+# [A + 20, B) below 0.6 of its share in [20, A), and in [B + 20, end) back
+# above 0.75 of it. The run's arguments carry --slow-index 0 and the window.
+set -uo pipefail
+from="$1" to="$2"
+shift 2
+export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
+out=""
+args=("$@")
+for ((i = 0; i < ${#args[@]}; ++i)); do
+  [[ "${args[i]}" == --out ]] && out="${args[i + 1]}"
+done
+[[ -n "$out" ]] || { echo "slow_render.sh: the job needs --out DIR" >&2; exit 2; }
+rm -rf "$out"
+timeout --kill-after=10 120 "$@" --slow-index 0 --slow-from-frame "$from" --slow-to-frame "$to"
+code=$?
+((code == 0)) || { echo "FAIL: the job exited with code $code"; exit 1; }
+python3 - "$out" "$from" "$to" <<'PY'
+import csv, json, pathlib, sys
+out, start, end = pathlib.Path(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3])
+stats = json.loads((out / "stats.json").read_text())
+frames = stats["frames"]
+slow = min(int(r["render_rank"]) for r in csv.DictReader(open(out / "per_frame_render.csv")))
+total, mine = {}, {}
+for row in csv.DictReader(open(out / "per_frame_render.csv")):
+    f = int(row["frame"])
+    total[f] = total.get(f, 0) + int(row["splats"])
+    if int(row["render_rank"]) == slow:
+        mine[f] = mine.get(f, 0) + int(row["splats"])
+last = max(total) + 1
+def share(a, b):
+    return sum(mine.get(f, 0) for f in range(a, b)) / max(1, sum(total[f] for f in range(a, b)))
+before, during, after = share(20, start), share(start + 20, end), share(end + 20, last)
+failed = sum(int(f.get("failed_tiles", 0)) for f in frames)
+print(f"render rank {slow} share of splats: before {before:.3f}, while slow {during:.3f}, "
+      f"after {after:.3f}; {len(frames)} frames, {failed} failed tiles")
+assert failed == 0, "tiles failed"
+assert len(frames) == last, "frames missing"
+assert during < 0.6 * before, "the work did not move away from the slow render process"
+assert after > 0.75 * before, "the work did not come back to the render process"
+print("PASS")
+PY
