@@ -128,7 +128,13 @@ std::size_t RunStats::renderProcessCount() const {
 
 FrameBalance RunStats::balance(const FrameRecord& frame) const {
   FrameBalance result;
-  const auto count = static_cast<double>(renderProcessCount());
+  // Render processes lost before the frame began had no share in it.
+  std::size_t gone = 0;
+  for (const LostProcess& p : lost) {
+    if (p.role == "render" && p.jobWentOn && p.seconds <= frame.startSeconds) ++gone;
+  }
+  const std::size_t all = renderProcessCount();
+  const auto count = static_cast<double>(all - std::min(gone, all));
   if (count == 0.0) return result;
   double sumBusy = 0.0, maxSplats = 0.0, sumSplats = 0.0;
   for (const auto& [rank, busy] : frame.busySecondsPerRender) {

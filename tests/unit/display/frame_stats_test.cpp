@@ -47,5 +47,18 @@ TEST(FrameStats, ARenderThatNeverWorkedCountsAgainstTheRun) {
   EXPECT_NEAR(k.imbalanceBusyRun, 4.0 / 3.0, 1e-9);
 }
 
+TEST(FrameStats, ARenderLostBeforeAFrameBeganHasNoShareInItsBalance) {
+  RunStats stats;
+  stats.layout = "1,1,1,3";
+  // Renders 4-6; render 6 is lost at 1.0 s and the others split the work.
+  stats.frames.push_back(frame(0, 0.5, {{4, 0.1}, {5, 0.1}, {6, 0.1}}));
+  stats.frames.push_back(frame(1, 1.5, {{4, 0.1}, {5, 0.1}, {6, 0.0}}));
+  stats.lost.push_back({"render", 6, 1.0, "no word from it for 5.0 s", true});
+  EXPECT_DOUBLE_EQ(*stats.balance(stats.frames[0]).busy, 1.0);
+  EXPECT_DOUBLE_EQ(*stats.balance(stats.frames[1]).busy, 1.0);  // two processes left, even
+  stats.lost.back().seconds = 1.45;  // lost while frame 1 was being drawn: it counts
+  EXPECT_DOUBLE_EQ(*stats.balance(stats.frames[1]).busy, 1.5);
+}
+
 }  // namespace
 }  // namespace pointillist::display
