@@ -6,7 +6,12 @@
 #
 # Targets: fuzz_ply, fuzz_xyz, fuzz_las, fuzz_off (pointillist-preprocess's
 # readers), fuzz_dataset_manifest (the manifest every role reads first; what
-# parses must print and parse again the same) and fuzz_service_request (every
+# parses must print and parse again the same), fuzz_dataset_files (each of a
+# small dataset's binary files replaced by the input, the manifest made to
+# match it, then the dataset opened and every packet read) and
+# fuzz_messages (each MPI message as the roles' cores take it: tile images,
+# render packets, data packets, send orders, render reports, tile tasks) and
+# fuzz_service_request (every
 # client message's parser and checks). Installs clang and libFuzzer when missing, builds them in
 # build-fuzz/ (only what they need), seeds each corpus from real files
 # (libcgal-demo's scans and meshes, cut to 32 KiB; a small LAS file written
@@ -21,7 +26,8 @@ seconds="${1:-60}"
 shift || true
 targets=("$@")
 ((${#targets[@]})) ||
-  targets=(fuzz_ply fuzz_xyz fuzz_las fuzz_off fuzz_dataset_manifest fuzz_service_request)
+  targets=(fuzz_ply fuzz_xyz fuzz_las fuzz_off fuzz_dataset_manifest fuzz_dataset_files
+    fuzz_messages fuzz_service_request)
 
 POINTILLIST_PACKAGES+=(clang libfuzzer-14-dev)
 install_packages
@@ -40,6 +46,7 @@ else
 fi
 log "building ${targets[*]} (log: $build/build.log)"
 if ! cmake --build "$build" -j "$(nproc)" --target "${targets[@]}" pointillist_proto_python \
+    pointillist-preprocess \
     >"$build/build.log" 2>&1; then
   tail -n 40 "$build/build.log" >&2
   exit 1
@@ -102,6 +109,55 @@ PY
     log "no Python protobuf module: the service corpus starts empty"
 }
 
+# MPI messages as the roles send them (tests/fuzz/fuzz_messages.cpp: a kind
+# byte, a two-byte header length, the header, the payload), made with the
+# protocol's own Python module.
+write_message_seeds() {
+  local python="$out/fuzz_messages/python"
+  mkdir -p "$python"
+  protoc --proto_path="$POINTILLIST_ROOT/proto" --python_out="$python" pointillist.proto
+  PYTHONPATH="$python" /usr/bin/python3 - "$1" <<'PY' ||
+import struct, sys
+import pointillist_pb2 as pb
+out = sys.argv[1]
+def seed(name, kind, header, payload=b""):
+    body = header.SerializeToString()
+    open(f"{out}/{name}", "wb").write(bytes([kind]) + struct.pack("<H", len(body)) + body + payload)
+rect = pb.TileRect(x=0, y=0, width=64, height=32)
+seed("tile-image", 0, pb.TileImageHeader(frame_id=0, tile_id=0, rect=rect,
+     format=pb.PIXEL_FORMAT_RGBA8, render_rank=4, splats_rendered=100, render_time_us=50),
+     bytes(64 * 32 * 4))
+seed("tile-image-depth", 0, pb.TileImageHeader(frame_id=1, tile_id=2, rect=rect,
+     format=pb.PIXEL_FORMAT_RGBA8, render_rank=5, depth=pb.DEPTH_FORMAT_EYE_FLOAT32),
+     bytes(64 * 32 * 8))
+seed("render-packet", 1, pb.RenderPacket(frame_id=0, tile_id=1, rect=rect, top_level_cells=[0, 2],
+     range_top_level=[0, 2], range_offset=[0, 0], range_count=[100, 50], total_splats=150,
+     traverse_rank=1, packet_id=7))
+seed("data-packet", 2, pb.DataPacketHeader(top_level_cell=0, splat_count=10, byte_size=320,
+     record_size=32, datasend_rank=3, first_splat=0), bytes(320))
+seed("send-order", 3, pb.SendOrder(render_rank=4, top_level_cells=[0, 1, 5],
+     top_level_splats=[110, 50, 295], requester_rank=1, order_id=1))
+seed("render-report", 4, pb.RenderReport(render_rank=4, sequence=1, workload_splats=1000,
+     loaded_cells=[0, 1], evicted_cells=[2], loaded_splats=[110, 147], packets_done=3))
+# The city of the target is about 0-100 on x and y, 0-30 on z.
+camera = pb.Camera(eye=pb.Vec3(x=-20, y=-20, z=40), target=pb.Vec3(x=50, y=50, z=0),
+                   up=pb.Vec3(x=0, y=0, z=1), fov_y_degrees=60, near_plane=0.1, far_plane=500,
+                   image_width=640, image_height=360)
+ahead = pb.Camera()
+ahead.CopyFrom(camera)
+ahead.eye.x = -10
+seed("tile-task", 6, pb.TileTask(frame_id=3, tile_id=1, camera=camera,
+     rect=pb.TileRect(x=128, y=64, width=128, height=96), lookahead_camera=ahead))
+seed("tile-task-lod", 6, pb.TileTask(frame_id=4, tile_id=0, camera=camera,
+     rect=pb.TileRect(x=0, y=0, width=640, height=360),
+     frame_settings=pb.FrameSettings(lod_pixels=4)))
+seed("traverse-report", 7, pb.RenderReport(render_rank=4, sequence=2, workload_splats=500,
+     loaded_cells=[0, 3], loaded_splats=[40, 80], seconds_per_splat=1e-7,
+     last_packet_from_traverse=[3, 0]))
+PY
+    log "no Python protobuf module: the message corpus starts empty"
+}
+
 printf '%-22s %12s %10s %8s %s\n' target executions "exec/s" coverage result >"$out/summary.txt"
 status=0
 for target in "${targets[@]}"; do
@@ -119,11 +175,27 @@ for target in "${targets[@]}"; do
         cp "$file" "$corpus/$(echo "$file" | md5sum | cut -c1-12)"
       done ;;
     fuzz_service_request) write_request_seeds "$corpus" ;;
+    fuzz_messages) write_message_seeds "$corpus" ;;
+    fuzz_dataset_files)
+      # A small dataset the target copies and damages one file at a time; its
+      # own files are the seeds (the first byte picks the file: the manifest's
+      # order of file.* lines).
+      export POINTILLIST_FUZZ_DATASET="$out/$target/dataset"
+      "$build/bin/pointillist-preprocess" --generate city --points 3000 \
+        -o "$POINTILLIST_FUZZ_DATASET" --force --quiet
+      index=0
+      while read -r name; do
+        { printf "\\x$(printf %02x "$index")"; cat "$POINTILLIST_FUZZ_DATASET/$name"; } \
+          >"$corpus/seed-$name"
+        index=$((index + 1))
+      done < <(awk '$1 ~ /^file\./ { print $3 }' "$POINTILLIST_FUZZ_DATASET/manifest.txt") ;;
   esac
   log "$target: $seconds s from $(ls "$corpus" | wc -l) inputs"
+  max_len=65536
+  [[ "$target" == fuzz_dataset_files ]] && max_len=262144  # a whole small points.bin
   result=ok
   if ! (cd "$out/$target" && "$build/bin/$target" "$corpus" -max_total_time="$seconds" \
-      -timeout=10 -rss_limit_mb=4096 -max_len=65536 -print_final_stats=1 \
+      -timeout=10 -rss_limit_mb=4096 -max_len="$max_len" -print_final_stats=1 \
       -artifact_prefix="$out/$target/" >"$out/$target/log.txt" 2>&1); then
     result="FINDING: $(ls "$out/$target"/crash-* "$out/$target"/timeout-* "$out/$target"/leak-* \
       "$out/$target"/oom-* 2>/dev/null | head -n 1)"

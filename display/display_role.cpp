@@ -41,6 +41,7 @@ struct DisplayOptions {
   ViewOptions view;
   std::string outDir;
   std::string statsFile;
+  std::size_t statsFrames = 4096;
   std::uint32_t framesInFlight = 3;
   double tilesPerRender = 2.0;
   std::uint32_t minTileSize = 32;
@@ -240,6 +241,8 @@ class DisplayProcess {
     stats.width = width_;
     stats.height = height_;
     stats.mode = options_.view.mode;
+    stats.frameLimit = options_.statsFrames;
+    stats.reserveDetail(job_.ranksOf(v1::ROLE_RENDER));
     Backoff backoff;
     CpuActivities::Meter meter(job_.activities(), "poll");
     const LivenessSettings liveness = livenessOf(job_.runSettings());
@@ -455,18 +458,8 @@ class DisplayProcess {
         const auto header = envelope.as<v1::TileImageHeader>();
         const v1::TileRect& rect = header.rect();
         const std::uint64_t pixelBytes =
-            static_cast<std::uint64_t>(rect.width()) * rect.height() * 4;
+            tileImagePixelBytes(header, envelope.payload.size(), envelope.source);
         const bool withDepth = header.depth() == v1::DEPTH_FORMAT_EYE_FLOAT32;
-        if (header.depth() != v1::DEPTH_FORMAT_NONE && !withDepth) {
-          throw ProtocolError("tile image from rank " + std::to_string(envelope.source) +
-                              " has an unknown depth format " + std::to_string(header.depth()));
-        }
-        const std::uint64_t expectedBytes = pixelBytes * (withDepth ? 2 : 1);
-        if (header.format() != v1::PIXEL_FORMAT_RGBA8 || envelope.payload.size() != expectedBytes) {
-          throw ProtocolError("tile image from rank " + std::to_string(envelope.source) + " has " +
-                              std::to_string(envelope.payload.size()) + " bytes, expected " +
-                              std::to_string(expectedBytes));
-        }
         if (!assembly.tileArrived(header, Clock::now())) return;
         auto image = images_.find(header.frame_id());
         if (image == images_.end()) {
@@ -631,6 +624,9 @@ int runDisplayMain(int argc, char** argv) {
   addViewOptions(app, options.view);
   app.add_option("--out", options.outDir, "Directory for PNG frames and stats.json");
   app.add_option("--stats", options.statsFile, "Statistics JSON file (default OUT/stats.json)");
+  app.add_option("--stats-frames", options.statsFrames,
+                 "Per-frame records kept in the statistics; past it they thin evenly "
+                 "(the run's figures stay exact; 0 keeps every frame)");
   app.add_option("--frames-in-flight", options.framesInFlight, "Frames handed out at once");
   app.add_option("--tiles-per-render", options.tilesPerRender,
                  "Mini frusta per frame per render process");

@@ -110,16 +110,7 @@ class RenderProcess final : public WorkerProcess {
     const std::uint32_t cell = header.top_level_cell();
     const std::string what = "data packet for top-level cell " + std::to_string(cell) +
                              " from rank " + std::to_string(envelope.source);
-    if (header.byte_size() != envelope.payload.size() || header.record_size() != sizeof(Splat) ||
-        header.splat_count() * sizeof(Splat) != header.byte_size() ||
-        header.splat_count() > std::numeric_limits<std::uint32_t>::max() ||
-        header.first_splat() > std::numeric_limits<std::uint32_t>::max()) {
-      throw ProtocolError(what + " has " + std::to_string(envelope.payload.size()) + " bytes of " +
-                          std::to_string(header.record_size()) + "-byte records; its header says " +
-                          std::to_string(header.splat_count()) + " splats, " +
-                          std::to_string(header.byte_size()) + " bytes of " +
-                          std::to_string(sizeof(Splat)));
-    }
+    checkDataPacketHeader(header, envelope.payload.size(), envelope.source);
     const auto first = static_cast<std::uint32_t>(header.first_splat());
     const auto count = static_cast<std::uint32_t>(header.splat_count());
     const bool wholePacket =

@@ -251,7 +251,7 @@ class Simulation {
  private:
   // --- events and network ---------------------------------------------------
 
-  std::size_t framesDone() const { return assembly_.stats().frames.size(); }
+  std::size_t framesDone() const { return assembly_.stats().frameCount(); }
 
   void schedule(double time, Step step, int rank, Delivery delivery = {}) {
     events_.push_back(Event{time, ++sequence_, step, rank, std::move(delivery)});
@@ -600,6 +600,7 @@ class Simulation {
       record.bytesOrdered = trace(record.frame).bytesMoved;
       record.bytesPrefetched = trace(record.frame).bytesPrefetched;
     }
+    stats.recountFrames();
     out.figures = stats.keyFigures();
     for (std::uint64_t frame : completionOrder_) out.frames.push_back(trace(frame));
 

@@ -22,7 +22,7 @@ FrameAssembly::FrameAssembly(FrameAssemblyConfig config, PeerRanks peers, TimePo
 // completed frame applies to the next one.
 void FrameAssembly::admitFrames() {
   while (framesAdded_ < config_.cameras.size() &&
-         framesAdded_ < stats_.frames.size() + std::max<std::uint32_t>(1, config_.framesInFlight)) {
+         framesAdded_ < stats_.frameCount() + std::max<std::uint32_t>(1, config_.framesInFlight)) {
     const std::uint64_t index = framesAdded_++;
     const Camera& camera = config_.cameras[index];
     if (const auto settings = frameSettings_.find(index);
@@ -111,7 +111,7 @@ bool FrameAssembly::tileArrived(const v1::TileImageHeader& header, TimePoint now
   sample.cacheMisses = header.cache_misses();
   sample.evictions = header.evictions();
   sample.dataBytesReceived = header.data_bytes_received();
-  stats_.renders[render].push_back(sample);
+  stats_.addRenderSample(render, sample);
 
   TileRecord tile;
   tile.frame = header.frame_id();
@@ -132,7 +132,7 @@ bool FrameAssembly::tileArrived(const v1::TileImageHeader& header, TimePoint now
   tile.pixels = static_cast<std::uint64_t>(header.rect().width()) * header.rect().height();
   tile.orderedBytes = header.ordered_bytes();
   tile.prefetchBytes = header.prefetch_bytes();
-  stats_.tiles.push_back(tile);
+  stats_.addTile(tile);
 
   if (!frames_.tileArrived(header.frame_id(), header.tile_id(), header.rect())) {
     ++stats_.lateTiles;
@@ -180,7 +180,7 @@ std::vector<FinishedFrame> FrameAssembly::finishFrames(TimePoint now) {
     for (const TileState& tile : state->tiles) {
       if (tile.failed) frame.failedTiles.push_back(tile.rect);
     }
-    stats_.frames.push_back(record);
+    stats_.addFrame(record);
     finished.push_back(std::move(frame));
   }
   if (!finished.empty()) admitFrames();
@@ -195,6 +195,25 @@ std::uint32_t FrameAssembly::renderLost(int renderRank, TimePoint now, const std
   planner_.retireRender(static_cast<std::uint32_t>(peers_.indexOf(v1::ROLE_RENDER, renderRank)));
   stats_.lost.push_back({"render", renderRank, since(now), reason, true});
   return frames_.reissueOutstanding();
+}
+
+std::uint64_t tileImagePixelBytes(const v1::TileImageHeader& header, std::size_t payloadBytes,
+                                  int sourceRank) {
+  const v1::TileRect& rect = header.rect();
+  const bool withDepth = header.depth() == v1::DEPTH_FORMAT_EYE_FLOAT32;
+  if (header.depth() != v1::DEPTH_FORMAT_NONE && !withDepth) {
+    throw ProtocolError("tile image from rank " + std::to_string(sourceRank) +
+                        " has an unknown depth format " + std::to_string(header.depth()));
+  }
+  // In 64 bits: two 32-bit sides times 8 bytes cannot wrap.
+  const std::uint64_t pixelBytes = static_cast<std::uint64_t>(rect.width()) * rect.height() * 4;
+  const std::uint64_t expectedBytes = pixelBytes * (withDepth ? 2 : 1);
+  if (header.format() != v1::PIXEL_FORMAT_RGBA8 || payloadBytes != expectedBytes) {
+    throw ProtocolError("tile image from rank " + std::to_string(sourceRank) + " has " +
+                        std::to_string(payloadBytes) + " bytes, expected " +
+                        std::to_string(expectedBytes));
+  }
+  return pixelBytes;
 }
 
 }  // namespace pointillist::display

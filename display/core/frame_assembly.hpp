@@ -49,6 +49,13 @@ struct FinishedFrame {
   std::vector<TileRect> failedTiles;  // never came back: the caller marks them
 };
 
+// The bytes of a TileImage's pixels (RGBA8 rows of its rect), checked
+// against its payload (`payloadBytes`: the pixels, then as many again of
+// float depth when the header says so). Throws ProtocolError naming
+// `sourceRank`.
+std::uint64_t tileImagePixelBytes(const v1::TileImageHeader& header, std::size_t payloadBytes,
+                                  int sourceRank);
+
 class FrameAssembly {
  public:
   // `start` is the time the run's statistics count from.
@@ -63,7 +70,7 @@ class FrameAssembly {
   void appendCamera(const Camera& camera, const v1::FrameSettings& settings = {},
                     TilePriority priority = {});
   // Frames admitted and not yet finished.
-  std::size_t framesInFlight() const { return framesAdded_ - stats_.frames.size(); }
+  std::size_t framesInFlight() const { return framesAdded_ - stats_.frameCount(); }
 
   // A traverse process asked for work.
   void workRequested(int traverseRank);

@@ -46,14 +46,32 @@ std::string jsonEscaped(const std::string& text) {
   return escaped;
 }
 
-void writeFile(const std::filesystem::path& file, const std::string& text, const char* what) {
-  const auto temporary = std::filesystem::path(file.string() + ".tmp");
-  {
-    std::ofstream out(temporary);
-    out << text;
-    if (!out) throw Error(file.string() + ": cannot write " + what);
+// Written straight to the file, not built in memory first: a long run's
+// statistics are megabytes, and a checkpoint must not cost that much again.
+class AtomicFile {
+ public:
+  AtomicFile(std::filesystem::path file, const char* what)
+      : file_(std::move(file)), temporary_(file_.string() + ".tmp"), out_(temporary_), what_(what) {
+    if (!out_) throw Error(file_.string() + ": cannot write " + what_);
   }
-  std::filesystem::rename(temporary, file);
+  std::ostream& stream() { return out_; }
+  void commit() {
+    out_.close();
+    if (!out_) throw Error(file_.string() + ": cannot write " + what_);
+    std::filesystem::rename(temporary_, file_);
+  }
+
+ private:
+  std::filesystem::path file_;
+  std::filesystem::path temporary_;
+  std::ofstream out_;
+  const char* what_;
+};
+
+void writeFile(const std::filesystem::path& file, const std::string& text, const char* what) {
+  AtomicFile out(file, what);
+  out.stream() << text;
+  out.commit();
 }
 
 // The key figures by name, in the order of figures.csv and "key_figures" in
@@ -104,20 +122,101 @@ std::vector<std::pair<std::string, std::string>> keyFigureFields(const KeyFigure
 
 }  // namespace
 
+void FrameSums::add(const FrameRecord& frame, const FrameBalance& balance) {
+  ++frames;
+  splats += frame.splats;
+  bytesOrdered += frame.bytesOrdered;
+  reissuedTiles += frame.reissuedTiles;
+  failedTiles += frame.failedTiles;
+  for (const auto& [rank, s] : frame.splatsPerRender) splatsPerRender[rank] += s;
+  for (const auto& [rank, b] : frame.busySecondsPerRender) {
+    busySecondsPerRender[rank] += b;
+    busySeconds += b;
+  }
+  if (balance.busy) {
+    imbalanceBusy += *balance.busy;
+    ++busyFrames;
+  }
+  if (balance.splats) {
+    imbalanceSplats += *balance.splats;
+    ++splatFrames;
+  }
+}
+
+void FrameSums::add(const FrameSums& other) {
+  frames += other.frames;
+  splats += other.splats;
+  bytesOrdered += other.bytesOrdered;
+  reissuedTiles += other.reissuedTiles;
+  failedTiles += other.failedTiles;
+  busySeconds += other.busySeconds;
+  for (const auto& [rank, s] : other.splatsPerRender) splatsPerRender[rank] += s;
+  for (const auto& [rank, b] : other.busySecondsPerRender) busySecondsPerRender[rank] += b;
+  imbalanceBusy += other.imbalanceBusy;
+  busyFrames += other.busyFrames;
+  imbalanceSplats += other.imbalanceSplats;
+  splatFrames += other.splatFrames;
+}
+
+void RunStats::addFrame(const FrameRecord& record) {
+  // A frame's imbalance is judged now: renders lost later had their share in it.
+  totals.mostRendersInFrame =
+      std::max(totals.mostRendersInFrame, record.busySecondsPerRender.size());
+  totals.lastEndSeconds = record.endSeconds;
+  if (totals.first.size() < FrameTotals::kSteadyFromAtMost) {
+    totals.first.push_back(record);
+    totals.all.add(record, {});
+  } else {
+    const FrameBalance b = balance(record);
+    totals.all.add(record, b);
+    totals.afterFirst.add(record, b);
+  }
+  if (frameLimit == 0) {
+    frames.push_back(record);
+  } else {
+    frameThinning.append(frames, record, frameLimit);
+  }
+}
+
+void RunStats::recountFrames() {
+  if (frameThinning.thinned() || frames.size() != frameCount()) {
+    throw UsageError("the frames of a run were thinned; their totals cannot be counted again");
+  }
+  const std::vector<FrameRecord> records = std::move(frames);
+  frames.clear();
+  totals = FrameTotals{};
+  frameThinning = DetailThinning{};
+  for (const FrameRecord& record : records) addFrame(record);
+}
+
+void RunStats::reserveDetail(std::span<const int> renderRanks) {
+  const auto touch = [](auto& records, std::size_t limit) {
+    if (limit == 0 || !records.empty()) return;
+    records.resize(std::max<std::size_t>(limit, 4) + 1);
+    records.clear();
+  };
+  touch(frames, frameLimit);
+  touch(tiles, tileLimit);
+  for (int rank : renderRanks) touch(renders[rank], sampleLimit);
+}
+
 double RunStats::framesPerSecond(std::size_t first) const {
-  if (frames.size() <= first) return 0.0;
-  const double start = first == 0 ? 0.0 : frames[first - 1].endSeconds;
-  const double span = frames.back().endSeconds - start;
-  return span > 0.0 ? static_cast<double>(frames.size() - first) / span : 0.0;
+  const std::uint64_t count = frameCount();
+  if (count <= first || first > totals.first.size()) return 0.0;
+  const double start = first == 0 ? 0.0 : totals.first[first - 1].endSeconds;
+  const double span = totals.lastEndSeconds - start;
+  return span > 0.0 ? static_cast<double>(count - first) / span : 0.0;
 }
 
 std::size_t RunStats::steadyStart() const {
-  return frames.size() > 4 ? std::min<std::size_t>(3, frames.size() / 4) : 0;
+  const std::uint64_t count = frameCount();
+  return count > 4 ? static_cast<std::size_t>(
+                         std::min<std::uint64_t>(FrameTotals::kSteadyFromAtMost, count / 4))
+                   : 0;
 }
 
 std::size_t RunStats::renderProcessCount() const {
-  std::size_t count = renders.size();
-  for (const FrameRecord& f : frames) count = std::max(count, f.busySecondsPerRender.size());
+  std::size_t count = std::max(renders.size(), totals.mostRendersInFrame);
   try {
     if (!layout.empty()) count = std::max<std::size_t>(count, JobLayout::parse(layout).render);
   } catch (const Error&) {
@@ -153,15 +252,16 @@ FrameBalance RunStats::balance(const FrameRecord& frame) const {
 
 KeyFigures RunStats::keyFigures() const {
   KeyFigures k;
-  k.frames = frames.size();
+  k.frames = frameCount();
   k.steadyFrom = steadyStart();
   k.renderProcesses = renderProcessCount();
   k.totalSeconds = totalSeconds;
   k.framesPerSecond = framesPerSecond(0);
   k.framesPerSecondSteady = framesPerSecond(k.steadyFrom);
   k.lateTiles = lateTiles;
-  if (!frames.empty()) {
-    const auto frameCount = static_cast<double>(frames.size());
+  const FrameSums& all = totals.all;
+  if (k.frames > 0) {
+    const auto frameCount = static_cast<double>(k.frames);
     for (const ProcessCpu& process : processes) {
       k.cpuPerFrame[process.role] += process.cpuSeconds / frameCount;
       k.cpuPerFrameTotal += process.cpuSeconds / frameCount;
@@ -175,68 +275,49 @@ KeyFigures RunStats::keyFigures() const {
         byActivity["other threads"] += std::max(0.0, process.cpuSeconds - covered) / frameCount;
       }
     }
-    double busy = 0.0;
-    for (const FrameRecord& f : frames) {
-      for (const auto& [rank, seconds] : f.busySecondsPerRender) busy += seconds;
-    }
-    k.drawPerFrame = busy / frameCount;
+    k.drawPerFrame = all.busySeconds / frameCount;
   }
 
-  const double steadyBegins = k.steadyFrom == 0 ? 0.0 : frames[k.steadyFrom - 1].endSeconds;
-  const double steadySpan = frames.empty() ? 0.0 : frames.back().endSeconds - steadyBegins;
-  std::uint64_t splats = 0, steadyBytes = 0;
-  std::map<int, std::uint64_t> steadySplats;
-  std::map<int, double> steadyBusy;
-  double imbalanceBusy = 0.0, imbalanceSplats = 0.0;
-  std::size_t busyFrames = 0, splatFrames = 0;
-  for (std::size_t i = 0; i < frames.size(); ++i) {
-    const FrameRecord& f = frames[i];
-    const bool steady = i >= k.steadyFrom;
-    splats += f.splats;
-    k.bytesTotal += f.bytesOrdered;
-    k.reissuedTiles += f.reissuedTiles;
-    k.failedTiles += f.failedTiles;
-    for (const auto& [rank, s] : f.splatsPerRender) {
-      k.renders[rank].splats += s;
-      if (steady) steadySplats[rank] += s;
-    }
-    for (const auto& [rank, b] : f.busySecondsPerRender) k.renders[rank].busySeconds += b;
-    if (!steady) continue;
-    for (const auto& [rank, b] : f.busySecondsPerRender) steadyBusy[rank] += b;
-    steadyBytes += f.bytesOrdered;
-    const FrameBalance b = balance(f);
-    if (b.busy) {
-      imbalanceBusy += *b.busy;
-      ++busyFrames;
-    }
-    if (b.splats) {
-      imbalanceSplats += *b.splats;
-      ++splatFrames;
-    }
+  // The steady frames: those past the first three, and of those the ones
+  // from steadyFrom on (a short run's steady state begins earlier).
+  FrameSums steady = totals.afterFirst;
+  for (std::size_t i = k.steadyFrom; i < totals.first.size(); ++i) {
+    steady.add(totals.first[i], balance(totals.first[i]));
   }
-  const std::size_t steadyFrames = k.frames - std::min(k.frames, k.steadyFrom);
-  k.splatsPerFrame = ratio(static_cast<double>(splats), static_cast<double>(k.frames));
-  k.splatsPerSecond = ratio(static_cast<double>(splats), totalSeconds);
-  k.imbalanceFrames = std::max(busyFrames, splatFrames);
-  k.imbalanceBusy = ratio(imbalanceBusy, static_cast<double>(busyFrames));
-  k.imbalanceSplats = ratio(imbalanceSplats, static_cast<double>(splatFrames));
+  const double steadyBegins = k.steadyFrom == 0 ? 0.0 : totals.first[k.steadyFrom - 1].endSeconds;
+  const double steadySpan = k.frames == 0 ? 0.0 : totals.lastEndSeconds - steadyBegins;
+  k.bytesTotal = all.bytesOrdered;
+  k.reissuedTiles = all.reissuedTiles;
+  k.failedTiles = all.failedTiles;
+  for (const auto& [rank, s] : all.splatsPerRender) k.renders[rank].splats = s;
+  for (const auto& [rank, b] : all.busySecondsPerRender) k.renders[rank].busySeconds = b;
+  k.splatsPerFrame = ratio(static_cast<double>(all.splats), static_cast<double>(k.frames));
+  k.splatsPerSecond = ratio(static_cast<double>(all.splats), totalSeconds);
+  k.imbalanceFrames = std::max(steady.busyFrames, steady.splatFrames);
+  k.imbalanceBusy = ratio(steady.imbalanceBusy, static_cast<double>(steady.busyFrames));
+  k.imbalanceSplats = ratio(steady.imbalanceSplats, static_cast<double>(steady.splatFrames));
   {
     double most = 0.0, total = 0.0;
-    for (const auto& [rank, busy] : steadyBusy) {
+    for (const auto& [rank, busy] : steady.busySecondsPerRender) {
       most = std::max(most, busy);
       total += busy;
     }
-    const double renderCount = static_cast<double>(std::max(k.renderProcesses, steadyBusy.size()));
+    const double renderCount =
+        static_cast<double>(std::max(k.renderProcesses, steady.busySecondsPerRender.size()));
     k.imbalanceBusyRun = total > 0.0 ? most * renderCount / total : 0.0;
   }
-  if (!frames.empty()) k.bytesFirstFrame = frames.front().bytesOrdered;
-  k.bytesPerFrameSteady = ratio(steadyBytes, steadyFrames);
+  if (!totals.first.empty()) k.bytesFirstFrame = totals.first.front().bytesOrdered;
+  k.bytesPerFrameSteady = ratio(steady.bytesOrdered, steady.frames);
 
   double sumRate = 0.0;
   double minRate = std::numeric_limits<double>::infinity();
   for (auto& [rank, r] : k.renders) {
+    const auto steadySplats = steady.splatsPerRender.find(rank);
     r.splatsPerSecond = ratio(static_cast<double>(r.splats), totalSeconds);
-    r.splatsPerSecondSteady = ratio(static_cast<double>(steadySplats[rank]), steadySpan);
+    r.splatsPerSecondSteady = ratio(steadySplats == steady.splatsPerRender.end()
+                                        ? 0.0
+                                        : static_cast<double>(steadySplats->second),
+                                    steadySpan);
     r.splatsPerBusySecond = ratio(static_cast<double>(r.splats), r.busySeconds);
     r.busyFraction = ratio(r.busySeconds, totalSeconds);
     sumRate += r.splatsPerSecondSteady;
@@ -271,11 +352,17 @@ KeyFigures RunStats::keyFigures() const {
 
 std::string RunStats::toJson() const {
   std::ostringstream out;
+  writeJsonTo(out);
+  return out.str();
+}
+
+void RunStats::writeJsonTo(std::ostream& out) const {
   out << "{\n  \"layout\": \"" << layout << "\",\n  \"dataset\": \"" << dataset
       << "\",\n  \"camera_path\": \"" << cameraPath << "\",\n  \"width\": " << width
       << ",\n  \"height\": " << height << ",\n  \"mode\": \"" << mode
       << "\",\n  \"total_seconds\": " << number(totalSeconds)
-      << ",\n  \"late_tiles\": " << lateTiles << ",\n  \"key_figures\": {";
+      << ",\n  \"late_tiles\": " << lateTiles
+      << ",\n  \"frames_kept_every\": " << frameThinning.stride << ",\n  \"key_figures\": {";
   bool firstField = true;
   for (const auto& [name, value] : keyFigureFields(keyFigures())) {
     out << (firstField ? "" : ", ") << '"' << name << "\": " << value;
@@ -338,11 +425,12 @@ std::string RunStats::toJson() const {
         << "\", \"job_went_on\": " << (p.jobWentOn ? "true" : "false") << "}";
   }
   out << "]\n}\n";
-  return out.str();
 }
 
 void RunStats::writeJson(const std::filesystem::path& file) const {
-  writeFile(file, toJson(), "statistics");
+  AtomicFile out(file, "statistics");
+  writeJsonTo(out.stream());
+  out.commit();
 }
 
 // Four CSV files with a header line each; times in seconds since the run
@@ -357,7 +445,14 @@ void RunStats::writeJson(const std::filesystem::path& file) const {
 //   per_frame_render.csv: frame,render_rank,splats,busy_seconds
 //   figures.csv: one line of keyFigures(), the columns of keyFigureFields()
 void RunStats::writeCsv(const std::filesystem::path& dir) const {
-  std::ostringstream framesCsv, rendersCsv, perFrameCsv;
+  AtomicFile framesFile(dir / "frames.csv", "frame statistics");
+  AtomicFile rendersFile(dir / "renders.csv", "render statistics");
+  AtomicFile perFrameFile(dir / "per_frame_render.csv", "per-frame render statistics");
+  AtomicFile tilesFile(dir / "tiles.csv", "tile statistics");
+  std::ostream& framesCsv = framesFile.stream();
+  std::ostream& rendersCsv = rendersFile.stream();
+  std::ostream& perFrameCsv = perFrameFile.stream();
+  std::ostream& tilesCsv = tilesFile.stream();
   framesCsv << "frame,start,end,seconds,splats,tiles,reissued,failed,bytes_sent,max_render_busy,"
                "mean_render_busy,imbalance_busy,imbalance_splats,bytes_prefetched\n";
   perFrameCsv << "frame,render_rank,splats,busy_seconds\n";
@@ -385,7 +480,6 @@ void RunStats::writeCsv(const std::filesystem::path& dir) const {
                  << s.evictions << ',' << s.dataBytesReceived << '\n';
     }
   }
-  std::ostringstream tilesCsv;
   tilesCsv << "frame,tile,attempt,render_rank,traverse_rank,dispatched,arrived,queued_seconds,"
               "data_wait_seconds,render_seconds,splats,pixels,ordered_bytes,prefetch_bytes\n";
   for (const TileRecord& t : tiles) {
@@ -395,15 +489,15 @@ void RunStats::writeCsv(const std::filesystem::path& dir) const {
              << number(t.dataWaitSeconds) << ',' << number(t.renderSeconds) << ',' << t.splats
              << ',' << t.pixels << ',' << t.orderedBytes << ',' << t.prefetchBytes << '\n';
   }
-  writeFile(dir / "tiles.csv", tilesCsv.str(), "tile statistics");
   std::string header, row;
   for (const auto& [name, value] : keyFigureFields(keyFigures())) {
     header += (header.empty() ? "" : ",") + name;
     row += (row.empty() ? "" : ",") + value;
   }
-  writeFile(dir / "frames.csv", framesCsv.str(), "frame statistics");
-  writeFile(dir / "renders.csv", rendersCsv.str(), "render statistics");
-  writeFile(dir / "per_frame_render.csv", perFrameCsv.str(), "per-frame render statistics");
+  framesFile.commit();
+  rendersFile.commit();
+  perFrameFile.commit();
+  tilesFile.commit();
   writeFile(dir / "figures.csv", header + "\n" + row + "\n", "key figures");
 }
 

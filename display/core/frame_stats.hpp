@@ -1,12 +1,17 @@
 #pragma once
 // Per-frame and per-render-process statistics of a run, printed and written as
 // JSON and CSV for benchmarks (deploy/bench-*.sh read them).
+#include <algorithm>
 #include <cstdint>
 #include <filesystem>
 #include <map>
 #include <optional>
+#include <ostream>
+#include <span>
 #include <string>
 #include <vector>
+
+#include <boost/container/flat_map.hpp>
 
 namespace pointillist::display {
 
@@ -20,8 +25,10 @@ struct FrameRecord {
   std::uint32_t failedTiles = 0;
   std::uint64_t bytesOrdered = 0;     // top-level cell data sent to render processes
   std::uint64_t bytesPrefetched = 0;  // of that, ordered ahead along the camera path
-  std::map<int, std::uint64_t> splatsPerRender;
-  std::map<int, double> busySecondsPerRender;
+  // By render rank. Flat: a long run keeps every frame's record, and a node
+  // per render process cost three times the memory.
+  boost::container::flat_map<int, std::uint64_t> splatsPerRender;
+  boost::container::flat_map<int, double> busySecondsPerRender;
 };
 
 struct RenderSample {
@@ -142,6 +149,72 @@ struct KeyFigures {
   std::map<std::string, std::map<std::string, double>> cpuPerFrameByActivity;
 };
 
+// Keeps a long run's detail (frames, tiles, render samples) bounded. Past
+// `limit` records every other one goes and from then on only every stride-th
+// is kept, so the detail thins evenly over the whole run; the latest record is
+// always the last one (counters in it are cumulative). The vector never holds
+// more than limit + 1 records, nor has room for more.
+struct DetailThinning {
+  std::uint64_t seen = 0;
+  std::uint64_t stride = 1;
+  bool lastIsExtra = false;  // the last record kept is off the stride
+
+  bool thinned() const { return stride > 1; }
+
+  template <class T>
+  void append(std::vector<T>& kept, const T& value, std::size_t limit) {
+    limit = std::max<std::size_t>(limit, 4);
+    ++seen;
+    if (lastIsExtra) kept.pop_back();
+    if (kept.size() == kept.capacity()) {
+      kept.reserve(std::min(std::max<std::size_t>(2 * kept.capacity(), 16), limit + 1));
+    }
+    kept.push_back(value);
+    lastIsExtra = seen % stride != 0;
+    if (kept.size() <= limit) return;
+    // kept[i] is record (i + 1) * stride, the extra one aside: keep the odd i.
+    const std::size_t onStride = kept.size() - (lastIsExtra ? 1 : 0);
+    std::size_t out = 0;
+    for (std::size_t i = 1; i < onStride; i += 2) kept[out++] = std::move(kept[i]);
+    if (lastIsExtra || onStride % 2 == 1) kept[out++] = std::move(kept.back());
+    kept.resize(out);
+    stride *= 2;
+    lastIsExtra = seen % stride != 0;
+  }
+};
+
+// Sums over a set of frames, for the key figures.
+struct FrameSums {
+  std::uint64_t frames = 0;
+  std::uint64_t splats = 0;
+  std::uint64_t bytesOrdered = 0;
+  std::uint64_t reissuedTiles = 0;
+  std::uint64_t failedTiles = 0;
+  double busySeconds = 0.0;  // all render processes
+  std::map<int, std::uint64_t> splatsPerRender;
+  std::map<int, double> busySecondsPerRender;
+  // Sums of the per-frame imbalances, over the frames where each is defined.
+  double imbalanceBusy = 0.0;
+  std::size_t busyFrames = 0;
+  double imbalanceSplats = 0.0;
+  std::size_t splatFrames = 0;
+
+  void add(const FrameRecord& frame, const FrameBalance& balance);
+  void add(const FrameSums& other);
+};
+
+// Every frame of a run, summed as it is added, so the key figures stay exact
+// however thinly the per-frame detail is kept.
+struct FrameTotals {
+  // Steady state begins at frame min(3, frames / 4) (RunStats::steadyStart).
+  static constexpr std::size_t kSteadyFromAtMost = 3;
+  std::vector<FrameRecord> first;  // the first kSteadyFromAtMost frames, whole
+  FrameSums all;
+  FrameSums afterFirst;  // frames from kSteadyFromAtMost on
+  double lastEndSeconds = 0.0;
+  std::size_t mostRendersInFrame = 0;
+};
+
 struct RunStats {
   std::string layout;
   std::string dataset;
@@ -149,9 +222,35 @@ struct RunStats {
   std::uint32_t width = 0;
   std::uint32_t height = 0;
   std::string mode;
+  // Per-frame detail in completion order: every frame, or past frameLimit an
+  // even thinning of them (FrameTotals keeps the sums exact).
   std::vector<FrameRecord> frames;
+  FrameTotals totals;
   std::map<int, std::vector<RenderSample>> renders;  // by world rank
   std::vector<TileRecord> tiles;                     // in arrival order
+  // Bounds on the detail kept; past them it is thinned evenly
+  // (DetailThinning). frameLimit 0 keeps every frame (the simulator's runs).
+  std::size_t frameLimit = 0;
+  std::size_t sampleLimit = 8192;
+  std::size_t tileLimit = 32768;
+  DetailThinning frameThinning;
+  std::map<int, DetailThinning> sampleThinning;
+  DetailThinning tileThinning;
+  // A finished frame: into the totals, and into the detail.
+  void addFrame(const FrameRecord& record);
+  // The totals again from `frames`, after the caller changed records in
+  // place; UsageError once frames were thinned.
+  void recountFrames();
+  std::uint64_t frameCount() const { return totals.all.frames; }
+  // Room for the detail's bounds at once (frames, tiles, these render
+  // processes' samples), with the pages touched: a long-running display
+  // reaches its footprint at the start, and a run that would not fit fails
+  // there and not hours in.
+  void reserveDetail(std::span<const int> renderRanks);
+  void addRenderSample(int rank, const RenderSample& sample) {
+    sampleThinning[rank].append(renders[rank], sample, sampleLimit);
+  }
+  void addTile(const TileRecord& tile) { tileThinning.append(tiles, tile, tileLimit); }
   std::uint64_t lateTiles = 0;  // arrived after their frame was done or re-issued
   double totalSeconds = 0.0;
   std::vector<ProcessCpu> processes;  // filled once the job has shut down
@@ -167,6 +266,7 @@ struct RunStats {
   KeyFigures keyFigures() const;
 
   std::string toJson() const;
+  void writeJsonTo(std::ostream& out) const;
   void writeJson(const std::filesystem::path& file) const;
   // Writes DIR/frames.csv, DIR/renders.csv, DIR/per_frame_render.csv and
   // DIR/tiles.csv, DIR/figures.csv (keyFigures() as one line); frame_stats.cpp lists the columns.

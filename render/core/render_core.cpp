@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <limits>
 #include <string>
 
 #include "common/splat.hpp"
@@ -394,6 +395,21 @@ std::string RenderCore::summary() const {
                 static_cast<unsigned long long>(extensions_),
                 static_cast<unsigned long long>(droppedPrefetches_));
   return line;
+}
+
+void checkDataPacketHeader(const v1::DataPacketHeader& header, std::size_t payloadBytes,
+                           int sourceRank) {
+  if (header.byte_size() != payloadBytes || header.record_size() != sizeof(Splat) ||
+      header.splat_count() > std::numeric_limits<std::uint32_t>::max() ||
+      header.splat_count() * sizeof(Splat) != header.byte_size() ||
+      header.first_splat() > std::numeric_limits<std::uint32_t>::max()) {
+    throw ProtocolError(
+        "data packet for top-level cell " + std::to_string(header.top_level_cell()) +
+        " from rank " + std::to_string(sourceRank) + " has " + std::to_string(payloadBytes) +
+        " bytes of " + std::to_string(header.record_size()) + "-byte records; its header says " +
+        std::to_string(header.splat_count()) + " splats, " + std::to_string(header.byte_size()) +
+        " bytes of " + std::to_string(sizeof(Splat)));
+  }
 }
 
 }  // namespace pointillist::render

@@ -72,6 +72,12 @@ struct ReadyPacket {
   TimePoint dataComplete;
 };
 
+// A DataPacket's header against its payload (`payloadBytes`): sizes, record
+// size and counts that fit a packet. Throws ProtocolError naming the cell and
+// `sourceRank`. The checksum is the caller's (it reads the bytes).
+void checkDataPacketHeader(const v1::DataPacketHeader& header, std::size_t payloadBytes,
+                           int sourceRank);
+
 class RenderCore {
  public:
   RenderCore(const RenderCoreConfig& config, PeerRanks peers, int selfRank,

@@ -241,6 +241,26 @@ TEST(FrameAssembly, ALostRenderProcessesTilesGoOutAgainAtOnce) {
   EXPECT_THROW(assembly.renderLost(4, kStart + 500ms, "gone"), UsageError);
 }
 
+// A tile image's payload is its RGBA8 pixels, and as many bytes again of
+// depth when its header says so; anything else is refused.
+TEST(FrameAssembly, ATileImagePayloadMustMatchItsRectAndDepth) {
+  v1::TileImageHeader header;
+  header.mutable_rect()->set_width(16);
+  header.mutable_rect()->set_height(8);
+  header.set_format(v1::PIXEL_FORMAT_RGBA8);
+  EXPECT_EQ(tileImagePixelBytes(header, 16 * 8 * 4, 4), 512u);
+  EXPECT_THROW(tileImagePixelBytes(header, 511, 4), ProtocolError);
+  header.set_depth(v1::DEPTH_FORMAT_EYE_FLOAT32);
+  EXPECT_EQ(tileImagePixelBytes(header, 1024, 4), 512u);
+  EXPECT_THROW(tileImagePixelBytes(header, 512, 4), ProtocolError);
+  header.set_depth(static_cast<v1::DepthFormat>(7));
+  EXPECT_THROW(tileImagePixelBytes(header, 1024, 4), ProtocolError);
+  header.set_depth(v1::DEPTH_FORMAT_NONE);
+  header.mutable_rect()->set_width(0xFFFFFFFFu);  // 32-bit sides do not wrap in 64 bits
+  header.mutable_rect()->set_height(0xFFFFFFFFu);
+  EXPECT_THROW(tileImagePixelBytes(header, 0, 4), ProtocolError);
+}
+
 // Serve mode: each client's frame carries its own mode and level of detail to
 // its tiles; a scheduler named by a frame holds from that frame on, and the
 // run's own scheduler needs no override.

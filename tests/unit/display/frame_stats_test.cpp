@@ -3,6 +3,8 @@
 
 #include <gtest/gtest.h>
 
+#include "common/errors.hpp"
+
 namespace pointillist::display {
 namespace {
 
@@ -27,8 +29,7 @@ TEST(FrameStats, PipelinedFramesAreUnevenPerFrameButEvenOverTheRun) {
   // 17 frames: the steady ones (3..16) are an even count, 7 for each.
   for (std::uint64_t i = 0; i < 17; ++i) {
     const int rank = 4 + static_cast<int>(i % 2);
-    stats.frames.push_back(
-        frame(i, 0.1 * static_cast<double>(i + 1), {{rank, 0.05}, {9 - rank, 0.0}}));
+    stats.addFrame(frame(i, 0.1 * static_cast<double>(i + 1), {{rank, 0.05}, {9 - rank, 0.0}}));
   }
   const KeyFigures k = stats.keyFigures();
   EXPECT_EQ(k.renderProcesses, 2u);
@@ -40,8 +41,7 @@ TEST(FrameStats, ARenderThatNeverWorkedCountsAgainstTheRun) {
   RunStats stats;
   stats.layout = "1,1,1,4";  // four render processes, one never drew anything
   for (std::uint64_t i = 0; i < 16; ++i) {
-    stats.frames.push_back(
-        frame(i, 0.1 * static_cast<double>(i + 1), {{4, 0.03}, {5, 0.03}, {6, 0.03}}));
+    stats.addFrame(frame(i, 0.1 * static_cast<double>(i + 1), {{4, 0.03}, {5, 0.03}, {6, 0.03}}));
   }
   const KeyFigures k = stats.keyFigures();
   EXPECT_NEAR(k.imbalanceBusyRun, 4.0 / 3.0, 1e-9);
@@ -51,13 +51,100 @@ TEST(FrameStats, ARenderLostBeforeAFrameBeganHasNoShareInItsBalance) {
   RunStats stats;
   stats.layout = "1,1,1,3";
   // Renders 4-6; render 6 is lost at 1.0 s and the others split the work.
-  stats.frames.push_back(frame(0, 0.5, {{4, 0.1}, {5, 0.1}, {6, 0.1}}));
-  stats.frames.push_back(frame(1, 1.5, {{4, 0.1}, {5, 0.1}, {6, 0.0}}));
+  stats.addFrame(frame(0, 0.5, {{4, 0.1}, {5, 0.1}, {6, 0.1}}));
+  stats.addFrame(frame(1, 1.5, {{4, 0.1}, {5, 0.1}, {6, 0.0}}));
   stats.lost.push_back({"render", 6, 1.0, "no word from it for 5.0 s", true});
   EXPECT_DOUBLE_EQ(*stats.balance(stats.frames[0]).busy, 1.0);
   EXPECT_DOUBLE_EQ(*stats.balance(stats.frames[1]).busy, 1.0);  // two processes left, even
   stats.lost.back().seconds = 1.45;  // lost while frame 1 was being drawn: it counts
   EXPECT_DOUBLE_EQ(*stats.balance(stats.frames[1]).busy, 1.5);
+}
+
+// A long run's per-tile detail stays bounded and thins evenly; the latest
+// record (cumulative counters) is always the last one kept.
+TEST(FrameStats, DetailThinsEvenlyPastItsLimitAndKeepsTheLatest) {
+  DetailThinning thinning;
+  std::vector<int> kept;
+  for (int record = 1; record <= 1000; ++record) {
+    thinning.append(kept, record, 16);
+    ASSERT_LE(kept.size(), 17u);
+    ASSERT_LE(kept.capacity(), 17u);  // never room for more than the bound
+    ASSERT_EQ(kept.back(), record);
+    for (std::size_t i = 0; i + 1 < kept.size(); ++i) {
+      ASSERT_EQ(kept[i], static_cast<int>((i + 1) * thinning.stride)) << "record " << record;
+    }
+  }
+  EXPECT_EQ(thinning.stride, 64u);  // 1000 records in at most 16 + the latest
+  RunStats stats;
+  stats.tileLimit = 4;
+  for (std::uint64_t frame = 0; frame < 100; ++frame) stats.addTile({.frame = frame});
+  EXPECT_LE(stats.tiles.size(), 5u);
+  EXPECT_EQ(stats.tiles.back().frame, 99u);
+}
+
+// Thinning the per-frame detail of a long run leaves its figures exact: the
+// same frames with every record kept and with 16 kept give equal key figures.
+TEST(FrameStats, KeyFiguresStayExactWhenTheFramesThin) {
+  RunStats whole, thin;
+  whole.layout = thin.layout = "1,1,1,3";
+  thin.frameLimit = 16;
+  thin.reserveDetail(std::vector<int>{4, 5, 6});
+  EXPECT_TRUE(thin.frames.empty());
+  for (std::uint64_t i = 0; i < 1000; ++i) {
+    const double t = 0.02 * static_cast<double>(i + 1);
+    FrameRecord record = frame(i, t,
+                               {{4, 0.001 * static_cast<double>(i % 7)},
+                                {5, 0.002},
+                                {6, 0.001 * static_cast<double>(i % 3)}});
+    record.bytesOrdered = i < 3 ? 1'000'000 : 1000 + i;
+    record.reissuedTiles = i % 100 == 0 ? 1 : 0;
+    if (i == 500) whole.lost.push_back({"render", 6, t - 0.2, "no word", true});
+    if (i == 500) thin.lost.push_back(whole.lost.back());
+    whole.addFrame(record);
+    thin.addFrame(record);
+  }
+  whole.totalSeconds = thin.totalSeconds = 20.0;
+  EXPECT_LE(thin.frames.size(), 17u);
+  EXPECT_EQ(thin.frames.back().frame, 999u);
+  EXPECT_EQ(whole.frames.size(), 1000u);
+  const KeyFigures a = whole.keyFigures();
+  const KeyFigures b = thin.keyFigures();
+  EXPECT_EQ(b.frames, 1000u);
+  EXPECT_EQ(b.steadyFrom, 3u);
+  EXPECT_DOUBLE_EQ(b.framesPerSecond, a.framesPerSecond);
+  EXPECT_DOUBLE_EQ(b.framesPerSecondSteady, a.framesPerSecondSteady);
+  EXPECT_DOUBLE_EQ(b.splatsPerFrame, a.splatsPerFrame);
+  EXPECT_DOUBLE_EQ(b.imbalanceBusy, a.imbalanceBusy);
+  EXPECT_DOUBLE_EQ(b.imbalanceSplats, a.imbalanceSplats);
+  EXPECT_DOUBLE_EQ(b.imbalanceBusyRun, a.imbalanceBusyRun);
+  EXPECT_EQ(b.bytesTotal, a.bytesTotal);
+  EXPECT_EQ(b.bytesFirstFrame, 1'000'000u);
+  EXPECT_DOUBLE_EQ(b.bytesPerFrameSteady, a.bytesPerFrameSteady);
+  EXPECT_EQ(b.reissuedTiles, 10u);
+  EXPECT_DOUBLE_EQ(b.drawPerFrame, a.drawPerFrame);
+  EXPECT_DOUBLE_EQ(b.renders.at(5).splatsPerSecondSteady, a.renders.at(5).splatsPerSecondSteady);
+  // Records changed in place count again only while nothing was thinned.
+  whole.frames[0].bytesOrdered = 7;
+  whole.recountFrames();
+  EXPECT_EQ(whole.keyFigures().bytesFirstFrame, 7u);
+  EXPECT_THROW(thin.recountFrames(), UsageError);
+}
+
+// A short run's steady state begins before frame 3: the figures come from
+// the first frames kept whole.
+TEST(FrameStats, ShortRunsBeginTheirSteadyStateEarlier) {
+  RunStats stats;
+  stats.layout = "1,1,1,2";
+  for (std::uint64_t i = 0; i < 8; ++i) {
+    FrameRecord record = frame(i, static_cast<double>(i + 1), {{4, 0.1}, {5, 0.1}});
+    record.bytesOrdered = 100 * (i + 1);
+    stats.addFrame(record);
+  }
+  const KeyFigures k = stats.keyFigures();
+  EXPECT_EQ(k.steadyFrom, 2u);
+  EXPECT_DOUBLE_EQ(k.framesPerSecondSteady, 6.0 / 6.0);  // frames 2..7, ended 2 s .. 8 s
+  EXPECT_DOUBLE_EQ(k.bytesPerFrameSteady, (300.0 + 400 + 500 + 600 + 700 + 800) / 6.0);
+  EXPECT_EQ(k.imbalanceFrames, 6u);
 }
 
 }  // namespace

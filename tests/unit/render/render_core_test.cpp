@@ -406,5 +406,32 @@ TEST(RenderCore, RefusesPacketsWhoseRangesReachBeyondThePrefixTheyWaitFor) {
   EXPECT_EQ(core.queuedPackets(), 0u);
 }
 
+// A data packet's header must describe its payload exactly; counts past 32
+// bits are refused before anything is multiplied.
+TEST(RenderCore, ADataPacketHeaderMustDescribeItsPayload) {
+  v1::DataPacketHeader header;
+  header.set_top_level_cell(3);
+  header.set_splat_count(10);
+  header.set_byte_size(10 * sizeof(Splat));
+  header.set_record_size(sizeof(Splat));
+  EXPECT_NO_THROW(checkDataPacketHeader(header, 10 * sizeof(Splat), 3));
+  EXPECT_THROW(checkDataPacketHeader(header, 9 * sizeof(Splat), 3), ProtocolError);
+  header.set_record_size(16);
+  EXPECT_THROW(checkDataPacketHeader(header, 10 * sizeof(Splat), 3), ProtocolError);
+  header.set_record_size(sizeof(Splat));
+  header.set_splat_count(std::uint64_t{1} << 59);  // times 32 wraps to 0
+  header.set_byte_size(0);
+  EXPECT_THROW(checkDataPacketHeader(header, 0, 3), ProtocolError);
+  header.set_splat_count(10);
+  header.set_byte_size(10 * sizeof(Splat));
+  header.set_first_splat(std::uint64_t{1} << 33);
+  try {
+    checkDataPacketHeader(header, 10 * sizeof(Splat), 3);
+    FAIL() << "a first splat past 32 bits was taken";
+  } catch (const ProtocolError& error) {
+    EXPECT_NE(std::string(error.what()).find("top-level cell 3 from rank 3"), std::string::npos);
+  }
+}
+
 }  // namespace
 }  // namespace pointillist::render
