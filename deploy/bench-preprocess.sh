@@ -1,49 +1,79 @@
 #!/usr/bin/env bash
-# Preprocess throughput benchmark: samples a mesh to POINTS surface points
-# (default 10 million), builds a dataset with pointillist-preprocess from a
-# Release build and prints points/second, wall time and peak memory.
+# Preprocess throughput benchmark. Makes the inputs users bring (once, cached
+# in OUT/inputs) with pointillist-make-points from the Stanford bunny of
+# libcgal-demo, runs pointillist-preprocess from a Release build on each and
+# prints one table: wall time, points/s, points/s per core, CPU, peak memory,
+# and the time of each stage.
 #
-#   deploy/bench-preprocess.sh [MESH] [POINTS] [-- extra pointillist-preprocess options]
+#   deploy/bench-preprocess.sh [--points N] [--inputs ply,xyz,mesh] [--out DIR]
+#                              [-- extra pointillist-preprocess options]
 #
-# MESH defaults to the Stanford bunny from libcgal-demo (unpacked by
-# deploy/fetch-test-data.sh). Environment:
-#   POINTILLIST_BENCH_BUILD  build directory (default: build-release; configured as Release)
-#   POINTILLIST_BENCH_OUT    where the dataset goes (default: out/bench-preprocess)
+# Inputs (N points each, default 10 M):
+#   ply   binary PLY with normals and colours, no radii (a sampled mesh)
+#   xyz   XYZ text "x y z r g b", no normals (what a scanner exports)
+#   mesh  the bunny mesh itself, sampled by the preprocessor (reading is cheap)
+# Environment: POINTILLIST_BENCH_BUILD (default build-release, configured as Release).
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 build="${POINTILLIST_BENCH_BUILD:-$root/build-release}"
-out="${POINTILLIST_BENCH_OUT:-$root/out/bench-preprocess}"
+out="$root/out/bench-preprocess"
+points=10000000
+inputs=ply,xyz,mesh
+extra=()
+while (($#)); do
+  case "$1" in
+    --points) points="$2"; shift 2 ;;
+    --inputs) inputs="$2"; shift 2 ;;
+    --out) out="$2"; shift 2 ;;
+    --) shift; extra=("$@"); break ;;
+    -h|--help) sed -n '2,15p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    *) echo "bench-preprocess: unknown option '$1' (see --help)" >&2; exit 2 ;;
+  esac
+done
 
 mesh="$root/.cache/cgal-data/data/meshes/bunny00.off"
-points=10000000
-if [[ $# -gt 0 && "$1" != "--" ]]; then mesh="$1"; shift; fi
-if [[ $# -gt 0 && "$1" != "--" ]]; then points="$1"; shift; fi
-if [[ $# -gt 0 && "$1" == "--" ]]; then shift; fi
-
-if [[ ! -f "$mesh" && "$mesh" == "$root/.cache/cgal-data/"* ]]; then
-  bash "$root/deploy/fetch-test-data.sh"
-fi
+[[ -f "$mesh" ]] || bash "$root/deploy/fetch-test-data.sh"
 [[ -f "$mesh" ]] || { echo "bench-preprocess: no mesh at $mesh" >&2; exit 1; }
-
 if [[ ! -f "$build/CMakeCache.txt" ]]; then
   echo "bench-preprocess: configuring a Release build in $build" >&2
   cmake -S "$root" -B "$build" -DCMAKE_BUILD_TYPE=Release -DPOINTILLIST_BUILD_TESTS=OFF >/dev/null
 fi
 build_type="$(sed -n 's/^CMAKE_BUILD_TYPE:[A-Z]*=//p' "$build/CMakeCache.txt")"
 [[ "$build_type" == "Release" ]] || echo "bench-preprocess: warning: $build is a '$build_type' build" >&2
-cmake --build "$build" --target pointillist-preprocess -j "$(nproc)" >/dev/null
+cmake --build "$build" --target pointillist-preprocess pointillist-make-points -j "$(nproc)" >/dev/null
 
-mkdir -p "$(dirname "$out")"
-rm -rf "$out"
-log="$(mktemp)"
-trap 'rm -f "$log"' EXIT
-echo "bench-preprocess: $(basename "$mesh") sampled to $points points, $(nproc) cores ($build_type)" >&2
-/usr/bin/time -f '%e %M %U %S' -o "$log.time" \
-  "$build/bin/pointillist-preprocess" "$mesh" --points "$points" -o "$out" "$@" | tee "$log"
-read -r wall rss_kib user sys <"$log.time"
-rm -f "$log.time"
-bytes="$(du -sb "$out" | cut -f1)"
-# CPU time is printed too: on a busy machine it is the steadier figure.
-awk -v p="$points" -v w="$wall" -v r="$rss_kib" -v b="$bytes" -v u="$user" -v s="$sys" 'BEGIN {
-  printf "bench-preprocess: %d points in %.2f s wall = %.0f points/s end to end (CPU %.2f s user + %.2f s sys); peak RSS %.0f MiB; dataset %.0f MiB\n",
-    p, w, p / w, u, s, r / 1024, b / 1048576 }'
+mkdir -p "$out/inputs"
+cores=$(nproc)
+table="$out/table.md"
+{
+  echo "| input | points | wall s | points/s | points/s per core | CPU s | peak MiB | stages (s) |"
+  echo "|---|---:|---:|---:|---:|---:|---:|---|"
+} >"$table"
+IFS=',' read -ra kinds <<<"$inputs"
+for kind in "${kinds[@]}"; do
+  case "$kind" in
+    ply) input="$out/inputs/bunny-$points.ply"; args=(--mesh "$mesh" --points "$points" --format ply) ;;
+    xyz) input="$out/inputs/bunny-$points.xyz"; args=(--mesh "$mesh" --points "$points" --format xyz --no-normals) ;;
+    mesh) input="$mesh"; args=() ;;
+    *) echo "bench-preprocess: unknown input '$kind' (ply, xyz, mesh)" >&2; exit 2 ;;
+  esac
+  if [[ "$kind" != mesh && ! -f "$input" ]]; then
+    "$build/bin/pointillist-make-points" "${args[@]}" -o "$input"
+  fi
+  dataset="$out/dataset-$kind"
+  log="$out/$kind.log"
+  cmd=("$build/bin/pointillist-preprocess" "$input" -o "$dataset" --force)
+  [[ "$kind" == mesh ]] && cmd+=(--points "$points")
+  echo "bench-preprocess: $kind: ${cmd[*]} ${extra[*]}" >&2
+  # Cold page cache would measure the disk, not us: read the input once first.
+  cat "$input" >/dev/null
+  /usr/bin/time -f '%e %M %U %S' -o "$log.time" "${cmd[@]}" "${extra[@]}" 2>"$log" >>"$log"
+  read -r wall rss_kib user sys <"$log.time"
+  stages=$(sed -n 's/^  \(.*\): done in \([0-9.]*\) s$/\1 \2/p' "$log" | awk '{ t = $NF; $NF = ""; sub(/ $/, ""); printf "%s%s %s", sep, $0, t; sep = ", " }')
+  awk -v k="$kind" -v p="$points" -v w="$wall" -v r="$rss_kib" -v u="$user" -v s="$sys" -v c="$cores" -v st="$stages" 'BEGIN {
+    printf "| %s | %.1f M | %.2f | %.2f M | %.2f M | %.2f | %.0f | %s |\n", k, p / 1e6, w, p / w / 1e6, p / w / c / 1e6, u + s, r / 1024, st }' >>"$table"
+  rm -f "$log.time"
+done
+echo
+echo "pointillist-preprocess, $cores cores ($build_type build); logs and datasets in $out"
+cat "$table"

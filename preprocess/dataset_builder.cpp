@@ -1,13 +1,13 @@
 #include "preprocess/dataset_builder.hpp"
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
 #include <limits>
-#include <thread>
 
 #include "common/errors.hpp"
 #include "common/geometry.hpp"
+#include "preprocess/normals.hpp"
+#include "preprocess/parallel.hpp"
 
 namespace pointillist::preprocess {
 
@@ -58,21 +58,6 @@ void merge(Summary& into, const Summary& s) {
 double minDot(const Vec3d& axis, std::span<const Splat> splats, double current) {
   for (const Splat& p : splats) current = std::min(current, dot(axis, unitNormal(p)));
   return current;
-}
-
-template <class Fn>
-void parallelFor(std::size_t n, unsigned threads, Fn fn) {
-  if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
-  std::atomic<std::size_t> next{0};
-  constexpr std::size_t kChunk = 64;
-  auto run = [&] {
-    for (std::size_t b; (b = next.fetch_add(kChunk)) < n;)
-      for (std::size_t i = b; i < std::min(n, b + kChunk); ++i) fn(i);
-  };
-  std::vector<std::thread> pool;
-  for (unsigned t = 1; t < threads; ++t) pool.emplace_back(run);
-  run();
-  for (auto& t : pool) t.join();
 }
 
 }  // namespace
@@ -203,6 +188,8 @@ DatasetContent buildDatasetContent(std::vector<Splat> points, const PreprocessOp
   };
   const std::uint64_t total = points.size();
   Octree tree = buildOctree(std::move(points), options.octree, stage("octree"));
+  if (options.radiiInLeaves)
+    estimateRadiiInLeaves(tree, options.radiusNeighbours, options.threads, stage("radii"));
   const unsigned depth = options.topLevelDepth >= 0
                              ? static_cast<unsigned>(options.topLevelDepth)
                              : chooseTopLevelDepth(tree, options.targetPacketBytes);

@@ -18,11 +18,15 @@ struct PreprocessOptions {
   LevelSplatOptions levelSplats;
   int topLevelDepth = -1;  // -1: chooseTopLevelDepth(targetPacketBytes)
   std::uint64_t targetPacketBytes = kDefaultPacketBytes;
+  // Fill missing radii (<= 0) from neighbours within each octree leaf
+  // (estimateRadiiInLeaves) once the tree is built.
+  bool radiiInLeaves = false;
+  int radiusNeighbours = 12;
   unsigned threads = 0;  // 0: all cores
   std::string source;    // recorded in the manifest
 };
 
-// stage is "octree", "level-splats" or "cells"; (done, total) in points.
+// stage is "octree", "radii", "level-splats" or "cells"; (done, total) in points.
 using StageProgressFn =
     std::function<void(const char* stage, std::uint64_t done, std::uint64_t total)>;
 

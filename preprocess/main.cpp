@@ -164,6 +164,7 @@ struct Options {
   std::uint32_t leafPoints = pp::OctreeOptions{}.leafPoints;
   std::uint64_t packetKiB = pp::kDefaultPacketBytes / 1024;
   int neighbours = 12;
+  bool knnRadii = false;
   bool dropNonFinite = false;
   std::uint64_t seed = 1;
   unsigned threads = 0;
@@ -252,7 +253,10 @@ int run(const Options& o) {
   }
   const std::uint64_t pointCount = cloud.splats.size();
   progress.note(humanCount(static_cast<double>(pointCount)) + " points from " + cloud.source);
-  if (!cloud.hasNormals || !cloud.hasRadii) {
+  // Normals need the neighbour search, and it gives radii for free; radii
+  // alone come from neighbours within the octree leaves unless asked otherwise.
+  const bool leafRadii = cloud.hasNormals && !cloud.hasRadii && !o.knnRadii;
+  if (!cloud.hasNormals || (!cloud.hasRadii && !leafRadii)) {
     pp::NormalOptions no;
     no.neighbours = o.neighbours;
     no.onlyWhereMissing = true;
@@ -266,6 +270,8 @@ int run(const Options& o) {
   po.octree.leafPoints = o.leafPoints;
   po.topLevelDepth = o.topLevelDepth;
   po.targetPacketBytes = o.packetKiB * 1024;
+  po.radiiInLeaves = leafRadii;
+  po.radiusNeighbours = o.neighbours;
   po.threads = o.threads;
   po.source = cloud.source;
   const auto buildStart = Clock::now();
@@ -338,6 +344,9 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--neighbours", o.neighbours, "Neighbours for normal and radius estimation")
       ->capture_default_str();
+  app.add_flag("--knn-radii", o.knnRadii,
+               "Radii missing from an input with normals from the nearest neighbours (slower; "
+               "no seams at octree leaf faces) instead of a search within each octree leaf");
   app.add_flag("--drop-non-finite", o.dropNonFinite,
                "Drop NaN/Inf points with a warning instead of refusing");
   app.add_option("--seed", o.seed, "Seed for mesh sampling and generation")->capture_default_str();

@@ -6,13 +6,16 @@
 #include <cstdint>
 #include <limits>
 #include <nanoflann.hpp>
+#include <numbers>
 #include <numeric>
 #include <queue>
+#include <span>
 #include <thread>
 #include <vector>
 
 #include "common/errors.hpp"
 #include "common/geometry.hpp"
+#include "preprocess/parallel.hpp"
 
 namespace pointillist::preprocess {
 
@@ -332,6 +335,117 @@ void estimateNormalsAndRadii(PointCloud& cloud, const NormalOptions& options) {
   if (anyNormal) orient(splats, needNormal, anchored, !old.empty(), neighbours, k, options, total);
   cloud.hasNormals = cloud.hasRadii = true;
   if (options.progress) options.progress(total, total);
+}
+
+namespace {
+
+// sqrt(3 area / (pi n)) for the points, or 0 when they do not span an area
+// (fewer than three, or collinear). A leaf's points span about
+// 12 sqrt(l1 l2), l1 >= l2 the two largest eigenvalues of their covariance
+// (exact for a uniformly sampled rectangle: l = side^2 / 12).
+float densityRadius(std::span<const Splat> points) {
+  if (points.size() < 3) return 0.0f;
+  CovarianceAccumulator acc;
+  for (const Splat& p : points) acc.add(position(p));
+  const SmallestEigen3 eigen = smallestEigen3(acc.covariance());
+  const double l1 = eigen.values[2], l2 = eigen.values[1];
+  if (!(l2 > 1e-12 * l1) || !(l1 > 0.0)) return 0.0f;
+  const double area = 12.0 * std::sqrt(l1 * l2);
+  return static_cast<float>(
+      std::sqrt(3.0 * area / (std::numbers::pi * static_cast<double>(points.size()))));
+}
+
+// Squared distance to the k-th nearest of `candidates` (the point itself,
+// found at distance 0, counts as the 0-th); 0 when they coincide.
+float kthNearestSquared(const Splat& p, std::span<const Splat> candidates, std::size_t k,
+                        std::vector<float>& scratch) {
+  scratch.resize(candidates.size());
+  for (std::size_t i = 0; i < candidates.size(); ++i) {
+    const Splat& q = candidates[i];
+    const float dx = q.position[0] - p.position[0], dy = q.position[1] - p.position[1],
+                dz = q.position[2] - p.position[2];
+    scratch[i] = dx * dx + dy * dy + dz * dz;
+  }
+  const auto kth = scratch.begin() + static_cast<std::ptrdiff_t>(std::min(k, scratch.size() - 1));
+  std::nth_element(scratch.begin(), kth, scratch.end());
+  return *kth;
+}
+
+}  // namespace
+
+void estimateRadiiInLeaves(Octree& tree, int neighbours, unsigned threads,
+                           const ProgressFn& progress) {
+  if (neighbours < 3) throw UsageError("radius estimation needs at least 3 neighbours");
+  const auto k = static_cast<std::size_t>(neighbours);
+  const float factor = std::sqrt(3.0f / static_cast<float>(k));
+  const std::span<Splat> points(tree.points);
+  const auto& cells = tree.cells;
+  const auto range = [&](const BuildCell& c) {
+    return points.subspan(static_cast<std::size_t>(c.begin),
+                          static_cast<std::size_t>(c.end - c.begin));
+  };
+  // The median of the k-th-neighbour radius at a few points spread through
+  // the leaf (by index), searched among the leaf's own points.
+  const auto sampledRadius = [&](std::span<const Splat> cellPoints) {
+    if (cellPoints.size() <= k) return 0.0f;
+    std::vector<float> scratch, sampled;
+    const std::size_t samples = std::min(cellPoints.size(), kLeafRadiusSamples);
+    for (std::size_t i = 0; i < samples; ++i) {
+      const Splat& p = cellPoints[(2 * i + 1) * cellPoints.size() / (2 * samples)];
+      sampled.push_back(std::sqrt(kthNearestSquared(p, cellPoints, k, scratch)) * factor);
+    }
+    const auto middle = sampled.begin() + static_cast<std::ptrdiff_t>(samples / 2);
+    std::nth_element(sampled.begin(), middle, sampled.end());
+    return *middle;
+  };
+  const std::uint64_t total = points.size();
+  if (progress) progress(0, total);
+  std::vector<float> radius(cells.size(), 0.0f);
+  parallelFor(
+      cells.size(), threads,
+      [&](std::size_t i) {
+        if (cells[i].isLeaf()) radius[i] = sampledRadius(range(cells[i]));
+      },
+      64);
+  // Leaves with at most k points take the mean of their measured sibling
+  // leaves, else their parent's density (a parent holds more than a leaf's worth).
+  std::vector<double> siblingSum(cells.size(), 0.0);
+  std::vector<std::uint32_t> siblingCount(cells.size(), 0);
+  for (std::size_t i = 1; i < cells.size(); ++i) {
+    if (cells[i].isLeaf() && radius[i] > 0.0f) {
+      siblingSum[cells[i].parent] += static_cast<double>(radius[i]);
+      ++siblingCount[cells[i].parent];
+    }
+  }
+  for (std::size_t i = 0; i < cells.size(); ++i)
+    if (siblingCount[i] > 0)
+      radius[i] = static_cast<float>(siblingSum[i] / static_cast<double>(siblingCount[i]));
+  // Leaves still without a figure (small, and no measured sibling): the
+  // nearest ancestor's, measured by density once, up the tree.
+  std::vector<std::uint8_t> measured(cells.size(), 0);
+  for (std::size_t i = 0; i < cells.size(); ++i) {
+    if (!cells[i].isLeaf() || radius[i] > 0.0f) continue;
+    float r = 0.0f;
+    for (std::uint32_t up = cells[i].parent; r == 0.0f && up != kNoIndex; up = cells[up].parent) {
+      if (radius[up] == 0.0f && !measured[up]) {
+        radius[up] = densityRadius(range(cells[up]));
+        measured[up] = 1;
+      }
+      r = radius[up];
+    }
+    // Points that all coincide with their neighbours: the leaf's density.
+    if (r == 0.0f) r = densityRadius(range(cells[i]));
+    radius[i] = r > 0.0f ? r : 1.0f;
+  }
+  parallelFor(
+      cells.size(), threads,
+      [&](std::size_t i) {
+        if (!cells[i].isLeaf()) return;
+        for (Splat& p : range(cells[i]))
+          if (!hasRadius(p)) p.radius = radius[i];
+      },
+      256);
+  if (progress) progress(total, total);
 }
 
 }  // namespace pointillist::preprocess
