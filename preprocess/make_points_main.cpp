@@ -112,6 +112,20 @@ int run(const Options& o) {
   const std::string partial = o.output + ".partial";
   File file(std::fopen(partial.c_str(), "wb"));
   if (!file) throw pointillist::InputError(partial + ": cannot create the file");
+  // A failed run leaves no half-written file behind.
+  class RemoveUnlessDone {
+   public:
+    explicit RemoveUnlessDone(std::string path) : path_(std::move(path)) {}
+    ~RemoveUnlessDone() {
+      std::error_code ignored;
+      if (!done_) std::filesystem::remove(path_, ignored);
+    }
+    void done() { done_ = true; }
+
+   private:
+    std::string path_;
+    bool done_ = false;
+  } cleanup(partial);
   if (o.format == "ply") writePlyHeader(file.get(), o);
   std::uint64_t written = 0;
   for (std::uint64_t block = 0; written < o.points; ++block) {
@@ -131,6 +145,7 @@ int run(const Options& o) {
   }
   if (std::fclose(file.release()) != 0) throw pointillist::InputError(partial + ": write failed");
   std::filesystem::rename(partial, o.output);
+  cleanup.done();
   std::fprintf(stderr, "\n%s: wrote %s (%llu points, %.1f MiB)\n", kTool, o.output.c_str(),
                static_cast<unsigned long long>(o.points),
                static_cast<double>(std::filesystem::file_size(o.output)) / (1024.0 * 1024.0));

@@ -25,8 +25,8 @@ struct FrameRecord {
   std::uint32_t failedTiles = 0;
   std::uint64_t bytesOrdered = 0;     // top-level cell data sent to render processes
   std::uint64_t bytesPrefetched = 0;  // of that, ordered ahead along the camera path
-  // By render rank. Flat: a long run keeps every frame's record, and a node
-  // per render process cost three times the memory.
+  // By render rank. Flat: a run keeps up to --stats-frames of these records,
+  // and a map node per render process cost three times the memory.
   boost::container::flat_map<int, std::uint64_t> splatsPerRender;
   boost::container::flat_map<int, double> busySecondsPerRender;
 };
