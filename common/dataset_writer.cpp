@@ -106,14 +106,25 @@ bool looksLikeDataset(const fs::path& dir) {
 
 void finalizeDatasetContent(DatasetContent& content) {
   DatasetManifest& m = content.manifest;
-  if (content.cells.empty() || content.topLevel.empty() || content.points.empty())
+  std::uint64_t pointCount = 0, levelSplatCount = 0;
+  for (const auto& t : content.topLevel) {
+    pointCount += t.pointCount;
+    levelSplatCount += t.levelSplatCount;
+  }
+  if (content.cells.empty() || content.topLevel.empty() || pointCount == 0)
     throw Error("refusing to write an empty dataset");
+  if ((!content.points.empty() && content.points.size() != pointCount) ||
+      (!content.levelSplats.empty() && content.levelSplats.size() != levelSplatCount))
+    throw Error("internal error: inconsistent dataset: the top-level table counts " +
+                std::to_string(pointCount) + " points and " + std::to_string(levelSplatCount) +
+                " level-splats, the content holds " + std::to_string(content.points.size()) +
+                " and " + std::to_string(content.levelSplats.size()));
   m.formatVersion = kDatasetFormatVersion;
   m.recordSize = sizeof(Splat);
   m.cellSize = sizeof(OctreeCell);
   m.topLevelEntrySize = sizeof(TopLevelCell);
-  m.pointCount = content.points.size();
-  m.levelSplatCount = content.levelSplats.size();
+  m.pointCount = pointCount;
+  m.levelSplatCount = levelSplatCount;
   m.cellCount = content.cells.size();
   m.topLevelCount = content.topLevel.size();
   m.maxLevel = content.cells[0].level;
@@ -142,8 +153,24 @@ void finalizeDatasetContent(DatasetContent& content) {
   }
 }
 
-std::uint64_t writeDataset(const fs::path& dirIn, DatasetContent& content, bool overwrite,
-                           const DatasetProgressFn& progress) {
+struct DatasetWriter::State {
+  fs::path dir;
+  bool exists = false;
+  TempDir tmp;
+  // No whole-file hash for points.bin: the packet checksums cover it.
+  HashingWriter points;
+  std::vector<std::uint64_t> packetSums;
+  std::vector<std::uint64_t> packetSplats;  // level-splats + points per packet
+  std::uint64_t bytes = 0;
+
+  State(fs::path d, bool e, fs::path t)
+      : dir(std::move(d)),
+        exists(e),
+        tmp(std::move(t)),
+        points(tmp.path() / kPointsFile.name, false) {}
+};
+
+DatasetWriter::DatasetWriter(const fs::path& dirIn, bool overwrite) {
   fs::path dir = dirIn.lexically_normal();
   if (dir.filename().empty() && dir.has_parent_path()) dir = dir.parent_path();  // "ds/"
   if (dir.filename().empty() || dir.filename() == "." || dir.filename() == "..")
@@ -153,57 +180,69 @@ std::uint64_t writeDataset(const fs::path& dirIn, DatasetContent& content, bool 
   if (exists && !overwrite) throw UsageError("output " + quoted(dir) + " already exists");
   if (exists && !looksLikeDataset(dir))
     throw UsageError("refusing to replace " + quoted(dir) + ": it is not a Pointillist dataset");
+  if (!dir.parent_path().empty()) fs::create_directories(dir.parent_path(), ec);
+  fs::path tmp = makeUniqueDir(dir, ".tmp-");
+  try {
+    state_ = std::make_unique<State>(dir, exists, tmp);
+  } catch (...) {
+    fs::remove_all(tmp, ec);
+    throw;
+  }
+}
 
+DatasetWriter::~DatasetWriter() = default;
+
+void DatasetWriter::appendPacket(std::span<const Splat> levelSplats,
+                                 std::span<const Splat> points) {
+  State& s = *state_;
+  s.points.write(levelSplats.data(), levelSplats.size_bytes());
+  s.points.write(points.data(), points.size_bytes());
+  ChecksumStream packetSum;
+  packetSum.update(levelSplats.data(), levelSplats.size_bytes());
+  packetSum.update(points.data(), points.size_bytes());
+  s.packetSums.push_back(packetSum.digest());
+  s.packetSplats.push_back(levelSplats.size() + points.size());
+  s.bytes += levelSplats.size_bytes() + points.size_bytes();
+}
+
+std::uint64_t DatasetWriter::packetsAppended() const {
+  return state_->packetSums.size();
+}
+std::uint64_t DatasetWriter::bytesAppended() const {
+  return state_->bytes;
+}
+
+std::uint64_t DatasetWriter::commit(DatasetContent& content) {
+  State& s = *state_;
   finalizeDatasetContent(content);
   DatasetManifest& m = content.manifest;
-  const std::uint64_t pointsBytes = m.file(kPointsFile.key)->size;
-
-  if (!dir.parent_path().empty()) fs::create_directories(dir.parent_path(), ec);
-  TempDir tmp(makeUniqueDir(dir, ".tmp-"));
-  const std::uint64_t total = pointsBytes + m.cellCount * sizeof(OctreeCell);
-  std::uint64_t done = 0;
-  auto report = [&] {
-    if (progress) progress(done, total);
-  };
+  if (s.packetSplats.size() != content.topLevel.size())
+    throw Error("internal error: " + std::to_string(s.packetSplats.size()) +
+                " packets written for " + std::to_string(content.topLevel.size()) +
+                " top-level cells");
+  for (std::size_t k = 0; k < content.topLevel.size(); ++k) {
+    const TopLevelCell& t = content.topLevel[k];
+    if (s.packetSplats[k] != std::uint64_t{t.pointCount} + t.levelSplatCount)
+      throw Error("internal error: packet " + std::to_string(k) + " holds " +
+                  std::to_string(s.packetSplats[k]) + " splats, the table says " +
+                  std::to_string(std::uint64_t{t.pointCount} + t.levelSplatCount));
+  }
 
   std::vector<DatasetFile> files;
   {
-    HashingWriter w(tmp.path() / kCellsFile.name);
+    HashingWriter w(s.tmp.path() / kCellsFile.name);
     w.write(content.cells.data(), content.cells.size() * sizeof(OctreeCell));
     files.push_back(w.finish(kCellsFile.key));
-    done += files.back().size;
-    report();
   }
-  std::vector<std::uint64_t> packetSums(content.topLevel.size());
+  files.push_back(s.points.finish(kPointsFile.key));
   {
-    // No whole-file hash: the packet checksums cover points.bin.
-    HashingWriter w(tmp.path() / kPointsFile.name, false);
-    std::size_t p = 0, s = 0;
-    for (std::size_t k = 0; k < content.topLevel.size(); ++k) {
-      const TopLevelCell& t = content.topLevel[k];
-      const auto* pts = content.points.data() + p;
-      const auto* lvl = content.levelSplats.data() + s;
-      w.write(lvl, t.levelSplatCount * sizeof(Splat));
-      w.write(pts, t.pointCount * sizeof(Splat));
-      ChecksumStream packetSum;
-      packetSum.update(lvl, t.levelSplatCount * sizeof(Splat));
-      packetSum.update(pts, t.pointCount * sizeof(Splat));
-      packetSums[k] = packetSum.digest();
-      p += t.pointCount;
-      s += t.levelSplatCount;
-      done += t.byteSize;
-      if ((k & 63) == 0) report();
-    }
-    files.push_back(w.finish(kPointsFile.key));
-  }
-  {
-    HashingWriter w(tmp.path() / kTopLevelFile.name);
+    HashingWriter w(s.tmp.path() / kTopLevelFile.name);
     w.write(content.topLevel.data(), content.topLevel.size() * sizeof(TopLevelCell));
     files.push_back(w.finish(kTopLevelFile.key));
   }
   {
-    HashingWriter w(tmp.path() / kChecksumsFile.name);
-    w.write(packetSums.data(), packetSums.size() * sizeof(std::uint64_t));
+    HashingWriter w(s.tmp.path() / kChecksumsFile.name);
+    w.write(s.packetSums.data(), s.packetSums.size() * sizeof(std::uint64_t));
     files.push_back(w.finish(kChecksumsFile.key));
   }
   for (const auto& x : content.extraFiles) {
@@ -212,7 +251,7 @@ std::uint64_t writeDataset(const fs::path& dirIn, DatasetContent& content, bool 
       throw Error("bad extra dataset file '" + x.key + "' -> '" + x.name + "'");
     for (const auto& f : files)
       if (f.key == x.key || f.name == x.name) throw Error("duplicate dataset file '" + x.key + "'");
-    HashingWriter w(tmp.path() / x.name);
+    HashingWriter w(s.tmp.path() / x.name);
     w.write(x.bytes.data(), x.bytes.size());
     files.push_back(w.finish(x.key.c_str()));
   }
@@ -222,37 +261,58 @@ std::uint64_t writeDataset(const fs::path& dirIn, DatasetContent& content, bool 
   {
     const std::string text = m.toText();
     bytes += text.size();
-    std::ofstream out(tmp.path() / kManifestName, std::ios::binary | std::ios::trunc);
+    std::ofstream out(s.tmp.path() / kManifestName, std::ios::binary | std::ios::trunc);
     out << text;
     out.close();
-    if (!out) throw Error("cannot write " + (tmp.path() / kManifestName).string());
+    if (!out) throw Error("cannot write " + (s.tmp.path() / kManifestName).string());
   }
-  report();
 
   // Swap into place: the old dataset (if replacing) moves aside first.
-  if (exists) {
+  std::error_code ec;
+  const fs::path& dir = s.dir;
+  if (s.exists) {
     const fs::path old = makeUniqueDir(dir, ".old-");
     fs::rename(dir, old, ec);  // replaces the empty placeholder
     if (ec) {
       fs::remove(old);
       throw Error("cannot move " + quoted(dir) + " aside: " + ec.message());
     }
-    fs::rename(tmp.path(), dir, ec);
+    fs::rename(s.tmp.path(), dir, ec);
     if (ec) {
       std::error_code ec2;
       fs::rename(old, dir, ec2);
-      throw Error("cannot rename " + quoted(tmp.path()) + " to " + quoted(dir) + ": " +
+      throw Error("cannot rename " + quoted(s.tmp.path()) + " to " + quoted(dir) + ": " +
                   ec.message());
     }
     fs::remove_all(old, ec);
   } else {
-    fs::rename(tmp.path(), dir, ec);
+    fs::rename(s.tmp.path(), dir, ec);
     if (ec)
-      throw Error("cannot rename " + quoted(tmp.path()) + " to " + quoted(dir) + ": " +
+      throw Error("cannot rename " + quoted(s.tmp.path()) + " to " + quoted(dir) + ": " +
                   ec.message());
   }
-  tmp.release();
+  s.tmp.release();
   return bytes;
+}
+
+std::uint64_t writeDataset(const fs::path& dir, DatasetContent& content, bool overwrite,
+                           const DatasetProgressFn& progress) {
+  DatasetWriter writer(dir, overwrite);
+  finalizeDatasetContent(content);
+  if (content.points.empty() && content.manifest.pointCount > 0)
+    throw Error("internal error: writeDataset needs the points in memory");
+  const std::uint64_t total = content.manifest.file(kPointsFile.key)->size;
+  std::size_t p = 0, s = 0;
+  for (std::size_t k = 0; k < content.topLevel.size(); ++k) {
+    const TopLevelCell& t = content.topLevel[k];
+    writer.appendPacket(std::span<const Splat>(content.levelSplats).subspan(s, t.levelSplatCount),
+                        std::span<const Splat>(content.points).subspan(p, t.pointCount));
+    p += t.pointCount;
+    s += t.levelSplatCount;
+    if (progress && (k & 63) == 0) progress(writer.bytesAppended(), total);
+  }
+  if (progress) progress(writer.bytesAppended(), total);
+  return writer.commit(content);
 }
 
 }  // namespace pointillist

@@ -5,6 +5,8 @@
 #include <cstdint>
 #include <filesystem>
 #include <functional>
+#include <memory>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -36,8 +38,10 @@ struct DatasetContent {
 
 // Fills the manifest counts, bounds, largest splat radius and file list
 // (sizes; checksums are left to the writer) and the table's byteOffset/byteSize, then validates the
-// structure. Throws Error("internal error: ...") when content is inconsistent.
-// writeDataset calls it; tests and in-memory users may call it directly.
+// structure. Counts come from the top-level table; `points`/`levelSplats`, when
+// not empty, must agree with it. Throws Error("internal error: ...") when
+// content is inconsistent. writeDataset calls it; tests and in-memory users may
+// call it directly.
 void finalizeDatasetContent(DatasetContent& content);
 
 // (bytes done, bytes total)
@@ -50,5 +54,30 @@ using DatasetProgressFn = std::function<void(std::uint64_t, std::uint64_t)>;
 // returns the bytes written.
 std::uint64_t writeDataset(const std::filesystem::path& dir, DatasetContent& content,
                            bool overwrite = false, const DatasetProgressFn& progress = {});
+
+// The same, packet by packet, for content that never sits in memory whole (the
+// out-of-core preprocess): the constructor checks the output and creates the
+// temporary directory, appendPacket streams top-level cell k's packet in table
+// order into points.bin, and commit writes the rest from `content` (whose
+// points/levelSplats stay empty) and renames the directory into place. A writer
+// destroyed without commit removes everything it wrote.
+class DatasetWriter {
+ public:
+  DatasetWriter(const std::filesystem::path& dir, bool overwrite = false);
+  ~DatasetWriter();
+  DatasetWriter(const DatasetWriter&) = delete;
+  DatasetWriter& operator=(const DatasetWriter&) = delete;
+
+  void appendPacket(std::span<const Splat> levelSplats, std::span<const Splat> points);
+  std::uint64_t packetsAppended() const;
+  std::uint64_t bytesAppended() const;
+  // Throws Error("internal error: ...") when the appended packets do not match
+  // content.topLevel. Returns the bytes written.
+  std::uint64_t commit(DatasetContent& content);
+
+ private:
+  struct State;
+  std::unique_ptr<State> state_;
+};
 
 }  // namespace pointillist

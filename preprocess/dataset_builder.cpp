@@ -62,8 +62,34 @@ double minDot(const Vec3d& axis, std::span<const Splat> splats, double current) 
 
 }  // namespace
 
-DatasetContent assembleDatasetContent(Octree tree, LevelSplats ls,
-                                      const PreprocessOptions& options) {
+void mergeChildCones(std::span<OctreeCell> cells, std::size_t index, const CellNormals& normals) {
+  OctreeCell& out = cells[index];
+  const Vec3d axis = normalized(normals.sum);
+  if (normals.unknown || length(axis) == 0.0 || out.childCount == 0) {
+    clearNormalCone(out);
+    return;
+  }
+  const ConeAxisQ q = quantizeConeAxis(axis);
+  const Vec3d decoded = decodeConeAxis(q);
+  const std::size_t end = out.nextSibling == kNoIndex ? cells.size() : out.nextSibling;
+  double minDot = 1.0;
+  for (std::size_t j = index + 1; j < end;
+       j = cells[j].nextSibling == kNoIndex ? end : std::size_t{cells[j].nextSibling}) {
+    const NormalCone child = decodeNormalCone(cells[j]);
+    if (!child.valid) {
+      clearNormalCone(out);
+      return;
+    }
+    // The child's normals lie within its half angle of its axis.
+    const double between = std::acos(std::clamp(dot(decoded, child.axis), -1.0, 1.0));
+    const double half = std::acos(std::clamp(child.cosHalfAngle, -1.0, 1.0));
+    minDot = std::min(minDot, std::cos(std::min(between + half, 3.141592653589793)));
+  }
+  encodeNormalCone(out, q, minDot);
+}
+
+DatasetContent assembleDatasetContent(Octree tree, LevelSplats ls, const PreprocessOptions& options,
+                                      std::vector<CellNormals>* normals) {
   const auto& cells = tree.cells;
   const std::size_t n = cells.size();
   const std::span<const Splat> points(tree.points);
@@ -121,7 +147,9 @@ DatasetContent assembleDatasetContent(Octree tree, LevelSplats ls,
     }
     out.maxSplatRadius = s.maxRadius;
     const Vec3d axis = normalized(s.normalSum);
-    if (s.unknownNormal || length(axis) == 0.0) {
+    if (c.topLevel == kNoIndex) {
+      // Above the top-level depth: from the children's cones, below.
+    } else if (s.unknownNormal || length(axis) == 0.0) {
       clearNormalCone(out);
     } else {
       // The subtree's level-splats are one range: up to the next cell outside it.
@@ -152,6 +180,16 @@ DatasetContent assembleDatasetContent(Octree tree, LevelSplats ls,
     }
   });
 
+  // Children follow their parent, so from the back every child is done first.
+  for (std::size_t i = n; i-- > 0;)
+    if (cells[i].topLevel == kNoIndex)
+      mergeChildCones(content.cells, i, {summary[i].normalSum, summary[i].unknownNormal});
+  if (normals != nullptr) {
+    normals->resize(n);
+    for (std::size_t i = 0; i < n; ++i)
+      (*normals)[i] = {summary[i].normalSum, summary[i].unknownNormal};
+  }
+
   content.topLevel.resize(tree.topLevelCells.size());
   for (std::size_t k = 0; k < tree.topLevelCells.size(); ++k) {
     const BuildCell& top = cells[tree.topLevelCells[k]];
@@ -180,24 +218,26 @@ DatasetContent assembleDatasetContent(Octree tree, LevelSplats ls,
 }
 
 DatasetContent buildDatasetContent(std::vector<Splat> points, const PreprocessOptions& options,
-                                   const StageProgressFn& progress) {
+                                   const StageProgressFn& progress, const OctreeFrame* frame,
+                                   std::vector<CellNormals>* normals) {
   auto stage = [&](const char* name) -> ProgressFn {
     if (!progress) return {};
     return
         [&progress, name](std::uint64_t done, std::uint64_t total) { progress(name, done, total); };
   };
   const std::uint64_t total = points.size();
-  Octree tree = buildOctree(std::move(points), options.octree, stage("octree"));
-  if (options.radiiInLeaves)
-    estimateRadiiInLeaves(tree, options.radiusNeighbours, options.threads, stage("radii"));
+  Octree tree = buildOctree(std::move(points), options.octree, stage("octree"), frame);
   const unsigned depth = options.topLevelDepth >= 0
                              ? static_cast<unsigned>(options.topLevelDepth)
                              : chooseTopLevelDepth(tree, options.targetPacketBytes);
   assignTopLevelCells(tree, depth);
+  // After the top-level cells: a leaf's radius never looks above its own.
+  if (options.radiiInLeaves)
+    estimateRadiiInLeaves(tree, options.radiusNeighbours, options.threads, stage("radii"));
   LevelSplats ls =
       buildLevelSplats(tree, options.levelSplats, stage("level-splats"), options.threads);
   if (progress) progress("cells", 0, total);
-  DatasetContent content = assembleDatasetContent(std::move(tree), std::move(ls), options);
+  DatasetContent content = assembleDatasetContent(std::move(tree), std::move(ls), options, normals);
   if (progress) progress("cells", total, total);
   return content;
 }

@@ -4,10 +4,12 @@
 // and the point-array grouped per top-level cell -- ready for writeDataset.
 #include <cstdint>
 #include <functional>
+#include <span>
 #include <string>
 #include <vector>
 
 #include "common/dataset.hpp"
+#include "common/geometry.hpp"
 #include "preprocess/level_splats.hpp"
 #include "preprocess/octree_builder.hpp"
 
@@ -30,16 +32,35 @@ struct PreprocessOptions {
 using StageProgressFn =
     std::function<void(const char* stage, std::uint64_t done, std::uint64_t total)>;
 
+// A cell's normal sum (unit normals of its subtree's splats) and whether any
+// normal is unknown: what the cone of a cell above it is made from.
+struct CellNormals {
+  Vec3d sum{};
+  bool unknown = false;
+};
+
+// Normal cone of cell `index`, above the top-level depth, from its children's
+// cones in `cells` (their points need not be in memory): the axis is its normal
+// sum, the half angle the widest child cone seen from that axis. No cone when a
+// child has none.
+void mergeChildCones(std::span<OctreeCell> cells, std::size_t index, const CellNormals& normals);
+
 // Builds everything writeDataset needs. Per cell: bounds are the tight bounds
 // of all splat centres of its subtree (points and level-splats);
 // maxSplatRadius the largest radius among them; the normal cone contains every
-// normal among them (no cone when any normal is unknown, i.e. zero).
+// normal among them (no cone when any normal is unknown, i.e. zero); cells
+// above the top-level depth merge their children's cones (mergeChildCones).
+// With a frame the points are one chunk of a larger cloud (buildOctree);
+// `normals`, when given, receives every cell's CellNormals.
 DatasetContent buildDatasetContent(std::vector<Splat> points, const PreprocessOptions& options,
-                                   const StageProgressFn& progress = {});
+                                   const StageProgressFn& progress = {},
+                                   const OctreeFrame* frame = nullptr,
+                                   std::vector<CellNormals>* normals = nullptr);
 
 // The same from an already built octree with top-level cells and level-splats
 // (tests use the pieces).
 DatasetContent assembleDatasetContent(Octree tree, LevelSplats levelSplats,
-                                      const PreprocessOptions& options);
+                                      const PreprocessOptions& options,
+                                      std::vector<CellNormals>* normals = nullptr);
 
 }  // namespace pointillist::preprocess

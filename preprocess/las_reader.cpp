@@ -66,7 +66,10 @@ bool formatInfo(unsigned id, FormatInfo& info) {
 
 PointCloud readLas(const std::filesystem::path& file, const ReadOptions& options) {
   detail::FileReader reader(file);
-  detail::CloudBuilder builder(file, options);
+  // Colours are scaled once the whole file is seen, so no streaming (sink).
+  ReadOptions whole = options;
+  whole.sink = {};
+  detail::CloudBuilder builder(file, whole);
 
   std::array<unsigned char, kHeader14> h{};
   const std::size_t got = reader.read(h.data(), kMinHeader);

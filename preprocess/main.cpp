@@ -5,6 +5,7 @@
 
 #include <CLI/CLI.hpp>
 #include <atomic>
+#include <cctype>
 #include <chrono>
 #include <csignal>
 #include <cstdio>
@@ -20,6 +21,7 @@
 #include "preprocess/dataset_builder.hpp"
 #include "preprocess/generator.hpp"
 #include "preprocess/normals.hpp"
+#include "preprocess/out_of_core.hpp"
 #include "preprocess/readers.hpp"
 
 namespace pp = pointillist::preprocess;
@@ -102,15 +104,31 @@ class Progress {
                 std::chrono::seconds(5)))
       return;
     last_ = now;
+    // Reading stages count bytes of input, the others points.
+    const bool bytes =
+        stage == "reading" || stage == "bounds" || stage == "spilling" || stage == "writing";
+    const auto amount = [bytes](double v) { return bytes ? humanBytes(v) : humanCount(v); };
+    const double elapsed = seconds(stageStart_);
+    const double rate = elapsed > 0.2 ? static_cast<double>(done) / elapsed : 0.0;
     std::string line = "  " + stage + ": ";
     if (total > 0) {
+      const double share = std::min(1.0, static_cast<double>(done) / static_cast<double>(total));
+      constexpr int kBar = 24;
+      const int filled = static_cast<int>(share * kBar);
       char pct[16];
-      std::snprintf(pct, sizeof pct, "%5.1f%%",
-                    100.0 * static_cast<double>(done) / static_cast<double>(total));
-      line += std::string(pct) + " (" + humanCount(static_cast<double>(done)) + " / " +
-              humanCount(static_cast<double>(total)) + ")";
+      std::snprintf(pct, sizeof pct, "%5.1f%%", 100.0 * share);
+      line += "[" + std::string(static_cast<std::size_t>(filled), '#') +
+              std::string(static_cast<std::size_t>(kBar - filled), '.') + "] " + pct + " " +
+              amount(static_cast<double>(done)) + " / " + amount(static_cast<double>(total));
+      if (rate > 0.0) {
+        line += ", " + amount(rate) + (bytes ? "/s" : " points/s");
+        char eta[32];
+        std::snprintf(eta, sizeof eta, ", %.0f s left",
+                      static_cast<double>(total - std::min(done, total)) / rate);
+        line += eta;
+      }
     } else {
-      line += humanCount(static_cast<double>(done));
+      line += amount(static_cast<double>(done));
     }
     if (tty_) {
       std::fprintf(stderr, "\r%s\x1b[K", line.c_str());
@@ -168,6 +186,7 @@ struct Options {
   bool dropNonFinite = false;
   std::uint64_t seed = 1;
   unsigned threads = 0;
+  std::uint64_t memoryMb = 0;  // 0: defaultMemoryMb()
   bool quiet = false;
   bool force = false;
   std::string check;  // verify this dataset instead of building one
@@ -192,6 +211,84 @@ int checkDataset(const std::string& dir) {
       static_cast<unsigned long long>(m.cellCount),
       static_cast<unsigned long long>(m.topLevelCount), static_cast<unsigned long long>(splats),
       seconds(start));
+  return 0;
+}
+
+// The default cap: 60 % of the machine's memory, leaving room for the page
+// cache the spill files and the output go through.
+std::uint64_t defaultMemoryMb() {
+  const long pages = ::sysconf(_SC_PHYS_PAGES);
+  const long pageSize = ::sysconf(_SC_PAGE_SIZE);
+  if (pages <= 0 || pageSize <= 0) return 4096;
+  return static_cast<std::uint64_t>(pages) * static_cast<std::uint64_t>(pageSize) / 100 * 60 >> 20;
+}
+
+// An upper bound of the points the inputs hold without reading them: a point
+// takes at least 12 bytes in any format (binary x, y, z floats); a mesh gives
+// its sample count.
+std::uint64_t estimatePoints(const std::vector<std::string>& inputs, std::uint64_t meshPoints) {
+  std::uint64_t points = 0;
+  for (const auto& in : inputs) {
+    std::error_code ec;
+    const std::uint64_t size = std::filesystem::file_size(in, ec);
+    std::string ext = std::filesystem::path(in).extension().string();
+    for (auto& ch : ext) ch = static_cast<char>(std::tolower(static_cast<unsigned char>(ch)));
+    points += ext == ".off" ? meshPoints : (ec ? 0 : size / 12);
+  }
+  return points;
+}
+
+int runOutOfCore(const Options& o, Progress& progress, Clock::time_point start) {
+  pp::OutOfCoreOptions oc;
+  oc.build.octree.maxDepth = o.maxDepth;
+  oc.build.octree.leafPoints = o.leafPoints;
+  oc.build.topLevelDepth = o.topLevelDepth;
+  oc.build.targetPacketBytes = o.packetKiB * 1024;
+  oc.build.radiusNeighbours = o.neighbours;
+  oc.build.threads = o.threads;
+  oc.read.meshSamplePoints = o.points;
+  oc.read.seed = o.seed;
+  oc.read.dropNonFinite = o.dropNonFinite;
+  oc.memoryBytes = o.memoryMb << 20;
+  oc.neighbours = o.neighbours;
+  oc.knnRadii = o.knnRadii;
+  oc.overwrite = o.force;
+  oc.createdBy = std::string(kTool) + " (max depth " + std::to_string(o.maxDepth) +
+                 ", leaf points " + std::to_string(o.leafPoints) + ")";
+  progress.note("out of core under --memory-mb " + std::to_string(o.memoryMb) +
+                ": spilling to temporary files next to " + o.output);
+  const std::vector<std::filesystem::path> files(o.inputs.begin(), o.inputs.end());
+  const pp::OutOfCoreResult r = pp::preprocessOutOfCore(
+      files, o.output, oc, [&](const char* stage, std::uint64_t done, std::uint64_t total) {
+        progress.update(stage, done, total);
+      });
+  progress.finishStage();
+  if (r.capExceeded)
+    std::fprintf(stderr,
+                 "%s: warning: a top-level cell held %llu points, more than a chunk under "
+                 "--memory-mb %llu may (%llu); memory went above the cap for it\n",
+                 kTool, static_cast<unsigned long long>(r.largestChunkPoints),
+                 static_cast<unsigned long long>(o.memoryMb),
+                 static_cast<unsigned long long>(r.chunkCapacity));
+  const double total = seconds(start);
+  const auto& m = r.manifest;
+  std::printf(
+      "%s: wrote %s: %llu points, %llu cells (depth %u), %llu top-level cells (depth %u, %s per "
+      "packet), %llu level-splats, %s in %.2f s (%s points/s); out of core: %llu chunks of at "
+      "most %s points, %llu spill files, %s spilled\n",
+      kTool, o.output.c_str(), static_cast<unsigned long long>(m.pointCount),
+      static_cast<unsigned long long>(m.cellCount), m.treeDepth,
+      static_cast<unsigned long long>(m.topLevelCount), m.topLevelDepth,
+      humanBytes(static_cast<double>(m.pointCount + m.levelSplatCount) *
+                 sizeof(pointillist::Splat) / static_cast<double>(m.topLevelCount))
+          .c_str(),
+      static_cast<unsigned long long>(m.levelSplatCount),
+      humanBytes(static_cast<double>(r.bytesWritten)).c_str(), total,
+      humanCount(static_cast<double>(r.points) / total).c_str(),
+      static_cast<unsigned long long>(r.chunks),
+      humanCount(static_cast<double>(r.largestChunkPoints)).c_str(),
+      static_cast<unsigned long long>(r.spillFiles),
+      humanBytes(static_cast<double>(r.spillBytes)).c_str());
   return 0;
 }
 
@@ -224,6 +321,7 @@ int run(const Options& o) {
       return names;
     }() + ")");
   if (o.points == 0) throw UsageError("--points must be positive");
+  if (o.memoryMb == 0) throw UsageError("--memory-mb must be positive");
   if (o.neighbours < 3) throw UsageError("--neighbours must be at least 3");
   if (o.packetKiB == 0) throw UsageError("--packet-kib must be positive");
   if (o.maxDepth < 1 || o.maxDepth > 21) throw UsageError("--max-depth must be 1..21");
@@ -235,6 +333,8 @@ int run(const Options& o) {
     throw UsageError("output '" + o.output + "' already exists (use --force to replace it)");
 
   Progress progress(o.quiet);
+  if (o.generate.empty() && !pp::fitsInMemory(o.memoryMb << 20, estimatePoints(o.inputs, o.points)))
+    return runOutOfCore(o, progress, start);
   pp::PointCloud cloud;
   if (!o.inputs.empty()) {
     pp::ReadOptions ro;
@@ -351,6 +451,12 @@ int main(int argc, char** argv) {
                "Drop NaN/Inf points with a warning instead of refusing");
   app.add_option("--seed", o.seed, "Seed for mesh sampling and generation")->capture_default_str();
   app.add_option("--threads", o.threads, "Worker threads (0: all cores)")->capture_default_str();
+  o.memoryMb = defaultMemoryMb();
+  app.add_option("--memory-mb", o.memoryMb,
+                 "Memory cap in MiB: inputs that may not fit are preprocessed out of core, "
+                 "chunk by chunk through temporary files next to the output (default: 60 % of "
+                 "this machine's memory)")
+      ->capture_default_str();
   app.add_flag("-q,--quiet", o.quiet, "No progress output");
   app.add_flag("-f,--force", o.force, "Replace an existing dataset at the output");
   try {

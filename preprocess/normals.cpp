@@ -426,7 +426,11 @@ void estimateRadiiInLeaves(Octree& tree, int neighbours, unsigned threads,
   for (std::size_t i = 0; i < cells.size(); ++i) {
     if (!cells[i].isLeaf() || radius[i] > 0.0f) continue;
     float r = 0.0f;
-    for (std::uint32_t up = cells[i].parent; r == 0.0f && up != kNoIndex; up = cells[up].parent) {
+    // Not above the leaf's top-level cell: its points are all at hand even when
+    // the cloud is built chunk by chunk (out of core).
+    for (std::uint32_t up = cells[i].parent;
+         r == 0.0f && up != kNoIndex && cells[up].topLevel == cells[i].topLevel;
+         up = cells[up].parent) {
       if (radius[up] == 0.0f && !measured[up]) {
         radius[up] = densityRadius(range(cells[up]));
         measured[up] = 1;

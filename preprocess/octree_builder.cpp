@@ -76,8 +76,9 @@ void mortonSort(std::vector<Keyed>& items, unsigned totalBits, std::uint32_t lea
 
 class TreeBuilder {
  public:
-  TreeBuilder(Octree& tree, const std::vector<std::uint64_t>& codes, const OctreeOptions& o)
-      : tree_(tree), codes_(codes), options_(o) {}
+  TreeBuilder(Octree& tree, const std::vector<std::uint64_t>& codes, const OctreeOptions& o,
+              const OctreeFrame* frame)
+      : tree_(tree), codes_(codes), options_(o), frame_(frame) {}
 
   std::uint32_t build(std::uint64_t begin, std::uint64_t end, unsigned depth,
                       std::uint32_t parent) {
@@ -91,7 +92,8 @@ class TreeBuilder {
       tree_.cells.push_back(cell);
     }
     tree_.treeDepth = std::max(tree_.treeDepth, depth);
-    if (end - begin <= options_.leafPoints || depth >= options_.maxDepth) {
+    if ((end - begin <= options_.leafPoints && !forcedSplit(begin, depth)) ||
+        depth >= options_.maxDepth) {
       computeLeafBounds(tree_.cells[index]);
       return index;
     }
@@ -114,6 +116,13 @@ class TreeBuilder {
   }
 
  private:
+  bool forcedSplit(std::uint64_t begin, unsigned depth) const {
+    if (frame_ == nullptr || depth >= frame_->splitCells.size()) return false;
+    const auto& split = frame_->splitCells[depth];
+    const std::uint64_t prefix = codes_[begin] >> (3 * (options_.maxDepth - depth));
+    return std::binary_search(split.begin(), split.end(), prefix);
+  }
+
   void computeLeafBounds(BuildCell& cell) const {
     float lo[3], hi[3];
     for (int a = 0; a < 3; ++a) {
@@ -136,12 +145,34 @@ class TreeBuilder {
   Octree& tree_;
   const std::vector<std::uint64_t>& codes_;
   const OctreeOptions& options_;
+  const OctreeFrame* frame_;
 };
 
 }  // namespace
 
+OctreeCube boundingCube(const double lo[3], const double hi[3]) {
+  OctreeCube cube;
+  double size = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]});
+  // A little slack so the maximum coordinate does not sit on the cube's face.
+  cube.size = size > 0 ? size * (1.0 + 1e-6) : 1.0;
+  for (int a = 0; a < 3; ++a) cube.min[a] = lo[a];
+  return cube;
+}
+
+std::uint64_t mortonCode(const float position[3], const OctreeCube& cube, unsigned maxDepth) {
+  const double cellsPerAxis = std::ldexp(1.0, static_cast<int>(maxDepth));
+  const double maxCoord = cellsPerAxis - 1.0;
+  std::uint64_t code = 0;
+  for (int a = 0; a < 3; ++a) {
+    const double t = (static_cast<double>(position[a]) - cube.min[a]) / cube.size * cellsPerAxis;
+    const auto q = static_cast<std::uint64_t>(std::clamp(std::floor(t), 0.0, maxCoord));
+    code |= spreadBits(q) << (2 - a);
+  }
+  return code;
+}
+
 Octree buildOctree(std::vector<Splat> points, const OctreeOptions& options,
-                   const ProgressFn& progress) {
+                   const ProgressFn& progress, const OctreeFrame* frame) {
   if (options.maxDepth < 1 || options.maxDepth > 21)
     throw UsageError("octree max depth must be 1..21, got " + std::to_string(options.maxDepth));
   if (options.leafPoints < 1) throw UsageError("leaf points must be at least 1");
@@ -152,39 +183,32 @@ Octree buildOctree(std::vector<Splat> points, const OctreeOptions& options,
 
   if (progress) progress(0, points.size());
   Octree tree;
-  double lo[3], hi[3];
-  for (int a = 0; a < 3; ++a) {
-    lo[a] = std::numeric_limits<double>::infinity();
-    hi[a] = -std::numeric_limits<double>::infinity();
-  }
-  for (std::size_t i = 0; i < points.size(); ++i) {
+  OctreeCube cube;
+  if (frame != nullptr) {
+    cube = frame->cube;
+  } else {
+    double lo[3], hi[3];
     for (int a = 0; a < 3; ++a) {
-      const double v = points[i].position[a];
-      if (!std::isfinite(v))
-        throw InputError("point " + std::to_string(i) + " has a non-finite coordinate");
-      lo[a] = std::min(lo[a], v);
-      hi[a] = std::max(hi[a], v);
+      lo[a] = std::numeric_limits<double>::infinity();
+      hi[a] = -std::numeric_limits<double>::infinity();
     }
+    for (std::size_t i = 0; i < points.size(); ++i) {
+      for (int a = 0; a < 3; ++a) {
+        const double v = points[i].position[a];
+        if (!std::isfinite(v))
+          throw InputError("point " + std::to_string(i) + " has a non-finite coordinate");
+        lo[a] = std::min(lo[a], v);
+        hi[a] = std::max(hi[a], v);
+      }
+    }
+    cube = boundingCube(lo, hi);
   }
-  double size = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]});
-  // A little slack so the maximum coordinate does not sit on the cube's face.
-  size = size > 0 ? size * (1.0 + 1e-6) : 1.0;
-  for (int a = 0; a < 3; ++a) tree.cubeMin[a] = lo[a];
-  tree.cubeSize = size;
+  for (int a = 0; a < 3; ++a) tree.cubeMin[a] = cube.min[a];
+  tree.cubeSize = cube.size;
 
-  const double cellsPerAxis = std::ldexp(1.0, static_cast<int>(options.maxDepth));
-  const double maxCoord = cellsPerAxis - 1.0;
   std::vector<Keyed> keyed(points.size());
-  for (std::size_t i = 0; i < points.size(); ++i) {
-    std::uint64_t code = 0;
-    for (int a = 0; a < 3; ++a) {
-      const double t = (static_cast<double>(points[i].position[a]) - lo[a]) / size * cellsPerAxis;
-      const auto q = static_cast<std::uint64_t>(std::clamp(std::floor(t), 0.0, maxCoord));
-      // x is the most significant of each triple so octant = 4x + 2y + z.
-      code |= spreadBits(q) << (2 - a);
-    }
-    keyed[i] = {code, i};
-  }
+  for (std::size_t i = 0; i < points.size(); ++i)
+    keyed[i] = {mortonCode(points[i].position, cube, options.maxDepth), i};
   mortonSort(keyed, 3 * options.maxDepth, options.leafPoints, progress);
 
   tree.points.resize(points.size());
@@ -196,7 +220,7 @@ Octree buildOctree(std::vector<Splat> points, const OctreeOptions& options,
   keyed = {};
   points = {};
 
-  TreeBuilder(tree, codes, options).build(0, tree.points.size(), 0, kNoIndex);
+  TreeBuilder(tree, codes, options, frame).build(0, tree.points.size(), 0, kNoIndex);
   if (tree.cells.size() >= kNoIndex) throw InputError("octree too large for 32-bit cell indices");
 
   // Bottom-up: inner bounds are the union of their children's; levels.
@@ -240,23 +264,30 @@ std::size_t countTopLevelCells(const Octree& tree, unsigned depth) {
 }
 
 unsigned chooseTopLevelDepth(const Octree& tree, std::uint64_t targetPacketBytes) {
-  const unsigned minDepth = std::min(3u, tree.treeDepth);
   // Histogram once: cells at each depth and leaves at each depth.
   std::vector<std::size_t> atDepth(tree.treeDepth + 1, 0), leavesAt(tree.treeDepth + 1, 0);
   for (const BuildCell& c : tree.cells) {
     ++atDepth[c.depth];
     if (c.isLeaf()) ++leavesAt[c.depth];
   }
-  const double packetBytes = static_cast<double>(tree.points.size()) * sizeof(Splat) * (4.0 / 3.0);
+  return chooseTopLevelDepth(atDepth, leavesAt, tree.points.size(), targetPacketBytes);
+}
+
+unsigned chooseTopLevelDepth(const std::vector<std::size_t>& atDepth,
+                             const std::vector<std::size_t>& leavesAt, std::uint64_t pointCount,
+                             std::uint64_t targetPacketBytes) {
+  const auto treeDepth = static_cast<unsigned>(atDepth.size() - 1);
+  const unsigned minDepth = std::min(3u, treeDepth);
+  const double packetBytes = static_cast<double>(pointCount) * sizeof(Splat) * (4.0 / 3.0);
   std::size_t leavesAbove = 0;
-  for (unsigned d = 0; d <= tree.treeDepth; ++d) {
+  for (unsigned d = 0; d <= treeDepth; ++d) {
     const std::size_t count = atDepth[d] + leavesAbove;
     leavesAbove += leavesAt[d];
     if (d < minDepth) continue;
     if (packetBytes / static_cast<double>(count) <= static_cast<double>(targetPacketBytes))
       return d;
   }
-  return tree.treeDepth;
+  return treeDepth;
 }
 
 void assignTopLevelCells(Octree& tree, unsigned depth) {

@@ -50,11 +50,34 @@ struct Octree {
   std::vector<std::uint32_t> topLevelCells;
 };
 
+// The cube the octree subdivides: the bounding box's largest side (with a
+// little slack so the maximum does not sit on a face), from its minimum corner.
+struct OctreeCube {
+  double min[3] = {0, 0, 0};
+  double size = 1;
+};
+// lo/hi: the bounds of the point positions (as doubles of the stored floats).
+OctreeCube boundingCube(const double lo[3], const double hi[3]);
+// Morton code of a position at maxDepth resolution; x is the most significant
+// of each triple, so a cell's octant is 4x + 2y + z. The prefix of a cell at
+// depth d is code >> 3 * (maxDepth - d).
+std::uint64_t mortonCode(const float position[3], const OctreeCube& cube, unsigned maxDepth);
+
+// For building one spatial chunk of a larger cloud (the out-of-core
+// preprocess): the whole cloud's cube, and the cells above the chunk that the
+// whole cloud splits, which must split here too although the chunk alone may
+// hold fewer points in them. splitCells[d]: sorted Morton prefixes at depth d.
+struct OctreeFrame {
+  OctreeCube cube;
+  std::vector<std::vector<std::uint64_t>> splitCells;
+};
+
 // Sorts `points` along a Morton curve at maxDepth resolution and builds the
 // tree. Throws InputError for an empty or non-finite cloud, UsageError for
 // options out of range. Deterministic: equal input gives an equal tree.
+// Without a frame the cube is boundingCube of the points.
 Octree buildOctree(std::vector<Splat> points, const OctreeOptions& options,
-                   const ProgressFn& progress = {});
+                   const ProgressFn& progress = {}, const OctreeFrame* frame = nullptr);
 
 // How many top-level cells a top-level depth gives: the cells at that depth
 // plus the leaves above it (a branch that ends early is its own top-level cell).
@@ -67,6 +90,12 @@ std::size_t countTopLevelCells(const Octree& tree, unsigned depth);
 // the paper's range.
 inline constexpr std::uint64_t kDefaultPacketBytes = 256 * 1024;
 unsigned chooseTopLevelDepth(const Octree& tree,
+                             std::uint64_t targetPacketBytes = kDefaultPacketBytes);
+// The same from the tree's shape: cells and leaves at each depth (index =
+// depth, up to the tree depth) and its point count.
+unsigned chooseTopLevelDepth(const std::vector<std::size_t>& cellsAtDepth,
+                             const std::vector<std::size_t>& leavesAtDepth,
+                             std::uint64_t pointCount,
                              std::uint64_t targetPacketBytes = kDefaultPacketBytes);
 
 // Marks the top-level cells for `depth` (clamped to the tree depth): every

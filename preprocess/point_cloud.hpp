@@ -4,6 +4,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <functional>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -33,6 +34,12 @@ struct ReadOptions {
   // Drop NaN/Inf points with a warning instead of refusing the file.
   bool dropNonFinite = false;
   ProgressFn progress;
+  // Streaming (the out-of-core preprocess): when set, point readers hand the
+  // points over in blocks of about sinkBlock and keep none, so the returned
+  // cloud has no splats, only its flags. Meshes (sampled) and LAS (colours
+  // scaled once the whole file is seen) still return theirs.
+  std::function<void(std::span<const Splat>)> sink;
+  std::size_t sinkBlock = std::size_t{1} << 18;
 };
 
 }  // namespace pointillist::preprocess

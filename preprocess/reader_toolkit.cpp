@@ -132,14 +132,16 @@ CloudBuilder::CloudBuilder(std::filesystem::path file, const ReadOptions& option
 
 void CloudBuilder::reserve(std::uint64_t expected, std::uint64_t limit) {
   // Never trust a header count for allocation: cap it by what the file can hold.
-  cloud_.splats.reserve(static_cast<std::size_t>(std::min(expected, limit)));
+  std::uint64_t n = std::min(expected, limit);
+  if (options_.sink) n = std::min<std::uint64_t>(n, options_.sinkBlock);
+  cloud_.splats.reserve(static_cast<std::size_t>(n));
 }
 
 void CloudBuilder::add(const Splat& splat, std::uint64_t line, std::uint64_t byte) {
   if (!isFinite(splat)) {
     if (!options_.dropNonFinite) {
       const std::string message = "non-finite value (NaN or Inf) in point " +
-                                  std::to_string(cloud_.splats.size() + dropped_) +
+                                  std::to_string(size() + dropped_) +
                                   " (pass --drop-non-finite to drop such points)";
       if (line > 0) failAtLine(file_, line, message);
       failAtByte(file_, byte, message);
@@ -162,6 +164,23 @@ void CloudBuilder::add(const Splat& splat, std::uint64_t line, std::uint64_t byt
   }
   if (!(s.radius > 0.0f)) s.radius = 0.0f;
   cloud_.splats.push_back(s);
+  if (options_.sink && cloud_.splats.size() >= options_.sinkBlock) flush();
+}
+
+namespace {
+bool hasNormal(const Splat& s) {
+  return s.normal[0] != 0.0f || s.normal[1] != 0.0f || s.normal[2] != 0.0f;
+}
+}  // namespace
+
+void CloudBuilder::flush() {
+  const auto& v = cloud_.splats;
+  allNormals_ = allNormals_ && std::all_of(v.begin(), v.end(), hasNormal);
+  allRadii_ =
+      allRadii_ && std::all_of(v.begin(), v.end(), [](const Splat& x) { return x.radius > 0.0f; });
+  if (!v.empty()) options_.sink(v);
+  flushed_ += v.size();
+  cloud_.splats.clear();
 }
 
 void CloudBuilder::progress(std::uint64_t done, std::uint64_t total) {
@@ -181,17 +200,16 @@ PointCloud CloudBuilder::finish(bool hasNormals, bool hasColors, bool hasRadii) 
                                      : "byte " + std::to_string(firstDropByte_))
               << ")\n";
   }
-  if (cloud_.splats.empty()) {
+  if (size() == 0) {
     if (dropped_ > 0) failFile(file_, "every point has NaN/Inf values; nothing left");
     failFile(file_, "contains no points");
   }
-  cloud_.hasNormals =
-      hasNormals && std::all_of(cloud_.splats.begin(), cloud_.splats.end(), [](const Splat& s) {
-        return s.normal[0] != 0.0f || s.normal[1] != 0.0f || s.normal[2] != 0.0f;
-      });
+  if (options_.sink) flush();
+  const auto& v = cloud_.splats;
+  cloud_.hasNormals = hasNormals && allNormals_ && std::all_of(v.begin(), v.end(), hasNormal);
   cloud_.hasColors = hasColors;
-  cloud_.hasRadii = hasRadii && std::all_of(cloud_.splats.begin(), cloud_.splats.end(),
-                                            [](const Splat& s) { return s.radius > 0.0f; });
+  cloud_.hasRadii = hasRadii && allRadii_ &&
+                    std::all_of(v.begin(), v.end(), [](const Splat& x) { return x.radius > 0.0f; });
   return std::move(cloud_);
 }
 

@@ -72,13 +72,19 @@ class CloudBuilder {
   void add(const Splat& splat, std::uint64_t line, std::uint64_t byte);
   // Throttled progress callback.
   void progress(std::uint64_t done, std::uint64_t total);
-  std::size_t size() const { return cloud_.splats.size(); }
+  // Points accepted so far (handed to a sink or held).
+  std::uint64_t size() const { return flushed_ + cloud_.splats.size(); }
   PointCloud finish(bool hasNormals, bool hasColors, bool hasRadii);
 
  private:
   std::filesystem::path file_;
   const ReadOptions& options_;
+  void flush();
+
   PointCloud cloud_;
+  std::uint64_t flushed_ = 0;  // points handed to options_.sink
+  bool allNormals_ = true;     // over the flushed points
+  bool allRadii_ = true;
   std::uint64_t dropped_ = 0;
   std::uint64_t firstDropLine_ = 0;
   std::uint64_t firstDropByte_ = 0;

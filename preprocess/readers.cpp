@@ -81,4 +81,47 @@ PointCloud readPointClouds(const std::vector<std::filesystem::path>& files,
   return merged;
 }
 
+PointCloud streamPointClouds(const std::vector<std::filesystem::path>& files,
+                             const ReadOptions& options,
+                             const std::function<void(std::span<const Splat>)>& sink,
+                             std::uint64_t& count) {
+  if (files.empty()) throw UsageError("no input files given");
+  std::vector<std::uint64_t> sizes;
+  std::uint64_t total = 0;
+  for (const auto& f : files) {
+    std::error_code ec;
+    const std::uint64_t size = std::filesystem::file_size(f, ec);
+    sizes.push_back(ec ? 0 : size);
+    total += sizes.back();
+  }
+  count = 0;
+  PointCloud merged;
+  merged.hasNormals = merged.hasColors = merged.hasRadii = true;
+  std::uint64_t base = 0;
+  for (std::size_t i = 0; i < files.size(); ++i) {
+    ReadOptions one = options;
+    one.sink = [&](std::span<const Splat> block) {
+      count += block.size();
+      sink(block);
+    };
+    if (options.progress) {
+      const std::uint64_t size = sizes[i];
+      one.progress = [&options, base, size, total](std::uint64_t done, std::uint64_t) {
+        options.progress(base + std::min(done, size), total);
+      };
+    }
+    PointCloud cloud = readPointCloud(files[i], one);
+    // Meshes and LAS come back whole.
+    const std::span<const Splat> held(cloud.splats);
+    for (std::size_t at = 0; at < held.size(); at += options.sinkBlock)
+      one.sink(held.subspan(at, std::min(options.sinkBlock, held.size() - at)));
+    base += sizes[i];
+    merged.hasNormals = merged.hasNormals && cloud.hasNormals;
+    merged.hasColors = merged.hasColors && cloud.hasColors;
+    merged.hasRadii = merged.hasRadii && cloud.hasRadii;
+    merged.source += (i == 0 ? "" : ", ") + cloud.source;
+  }
+  return merged;
+}
+
 }  // namespace pointillist::preprocess

@@ -14,6 +14,8 @@
 //  - every InputError message starts with "<file>: line N: " (text) or
 //    "<file>: byte N: " (binary) when the problem has a place.
 #include <filesystem>
+#include <functional>
+#include <span>
 #include <vector>
 
 #include "preprocess/point_cloud.hpp"
@@ -29,5 +31,14 @@ PointCloud readPointCloud(const std::filesystem::path& file, const ReadOptions& 
 // estimateNormalsAndRadii().
 PointCloud readPointClouds(const std::vector<std::filesystem::path>& files,
                            const ReadOptions& options);
+
+// Streams the points of `files`, in order, to `sink` in blocks of about
+// options.sinkBlock, holding one block in memory (a mesh's samples or a LAS
+// file whole). Returns the merged flags and source, no splats; `count` gets
+// the number of points. Progress is in bytes over all files.
+PointCloud streamPointClouds(const std::vector<std::filesystem::path>& files,
+                             const ReadOptions& options,
+                             const std::function<void(std::span<const Splat>)>& sink,
+                             std::uint64_t& count);
 
 }  // namespace pointillist::preprocess

@@ -1,0 +1,654 @@
+#include "preprocess/out_of_core.hpp"
+
+#include <stdlib.h>  // mkdtemp
+
+#include <algorithm>
+#include <cerrno>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <limits>
+#include <map>
+#include <memory>
+#include <span>
+#include <system_error>
+#include <unordered_map>
+#include <utility>
+
+#include "common/dataset_writer.hpp"
+#include "common/errors.hpp"
+#include "common/geometry.hpp"
+#include "preprocess/normals.hpp"
+#include "preprocess/octree_builder.hpp"
+#include "preprocess/readers.hpp"
+
+namespace pointillist::preprocess {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr unsigned kSpillDepth = 3;  // at most 512 files open while spilling
+// Units no deeper than the Morton sort's radix prefix (8 levels): points that
+// share it, sorted together or not at all, stay in one chunk.
+constexpr unsigned kMaxUnitDepth = 8;
+constexpr std::size_t kBucketBufferSplats = 256;               // 8 KiB per open file
+constexpr std::uint64_t kBaseBytes = std::uint64_t{24} << 20;  // the process, read buffers
+constexpr std::uint64_t kCellBytesPerPoint = 4;  // the whole cell array (a cell per ~40 points)
+
+// The spill directory next to the output; removed with everything in it.
+class SpillDir {
+ public:
+  explicit SpillDir(const fs::path& output) {
+    fs::path base = output.lexically_normal();
+    if (base.filename().empty()) base = base.parent_path();
+    std::string templ = base.string() + ".spill-XXXXXX";
+    if (!base.parent_path().empty()) {
+      std::error_code ec;
+      fs::create_directories(base.parent_path(), ec);
+    }
+    if (mkdtemp(templ.data()) == nullptr)
+      throw Error("cannot create a temporary directory next to '" + base.string() +
+                  "': " + std::strerror(errno));
+    path_ = templ;
+  }
+  ~SpillDir() {
+    std::error_code ec;
+    fs::remove_all(path_, ec);
+  }
+  SpillDir(const SpillDir&) = delete;
+  SpillDir& operator=(const SpillDir&) = delete;
+  const fs::path& path() const { return path_; }
+
+ private:
+  fs::path path_;
+};
+
+struct FileCloser {
+  void operator()(std::FILE* f) const { std::fclose(f); }
+};
+using File = std::unique_ptr<std::FILE, FileCloser>;
+
+File openFile(const fs::path& p, const char* mode) {
+  File f(std::fopen(p.c_str(), mode));
+  if (!f) throw Error("cannot open temporary file " + p.string() + ": " + std::strerror(errno));
+  return f;
+}
+
+// One spill file: the points of one octree cell, in input order.
+struct Bucket {
+  unsigned depth = 0;
+  std::uint64_t prefix = 0;
+  std::uint64_t count = 0;
+  fs::path file;
+};
+
+std::uint64_t firstCode(unsigned depth, std::uint64_t prefix, unsigned maxDepth) {
+  return prefix << (3 * (maxDepth - depth));
+}
+
+// Writes points to one file per cell at `depth`, buffered.
+class BucketWriter {
+ public:
+  BucketWriter(const fs::path& dir, unsigned depth, const OctreeCube& cube, unsigned maxDepth,
+               std::uint64_t& bytesWritten)
+      : dir_(dir), depth_(depth), cube_(cube), maxDepth_(maxDepth), bytes_(bytesWritten) {}
+
+  void add(std::span<const Splat> splats) {
+    const unsigned shift = 3 * (maxDepth_ - depth_);
+    for (const Splat& s : splats) {
+      const std::uint64_t prefix = mortonCode(s.position, cube_, maxDepth_) >> shift;
+      auto [at, added] = outs_.try_emplace(prefix);
+      Out& out = at->second;
+      if (added) out.prefix = prefix;
+      out.buffer.push_back(s);
+      if (out.buffer.size() >= kBucketBufferSplats) flush(out);
+    }
+  }
+
+  std::vector<Bucket> finish() {
+    std::vector<Bucket> buckets;
+    for (auto& [prefix, out] : outs_) {
+      flush(out);
+      if (out.file && std::fflush(out.file.get()) != 0)
+        throw Error("cannot write temporary file " + out.path.string() + ": " +
+                    std::strerror(errno));
+      out.file.reset();
+      buckets.push_back({depth_, prefix, out.count, out.path});
+    }
+    outs_.clear();
+    return buckets;
+  }
+
+ private:
+  struct Out {
+    std::uint64_t prefix = 0;
+    std::vector<Splat> buffer;
+    File file;
+    fs::path path;
+    std::uint64_t count = 0;
+  };
+
+  void flush(Out& out) {
+    if (out.buffer.empty()) return;
+    if (!out.file) {
+      out.path =
+          dir_ / ("cell-" + std::to_string(depth_) + "-" + std::to_string(out.prefix) + ".bin");
+      out.file = openFile(out.path, "wb");
+    }
+    const std::size_t n = out.buffer.size();
+    if (std::fwrite(out.buffer.data(), sizeof(Splat), n, out.file.get()) != n)
+      throw Error("cannot write temporary file " + out.path.string() + ": " + std::strerror(errno) +
+                  " (is the output's disk full?)");
+    out.count += n;
+    bytes_ += n * sizeof(Splat);
+    out.buffer.clear();
+  }
+
+  fs::path dir_;
+  unsigned depth_;
+  OctreeCube cube_;
+  unsigned maxDepth_;
+  std::uint64_t& bytes_;
+  std::unordered_map<std::uint64_t, Out> outs_;
+};
+
+// Calls fn(block) over a spill file's points in blocks of at most `block`.
+template <class Fn>
+void readBucket(const Bucket& b, std::size_t block, Fn fn) {
+  File f = openFile(b.file, "rb");
+  std::vector<Splat> buffer(std::min<std::uint64_t>(block, std::max<std::uint64_t>(b.count, 1)));
+  std::uint64_t left = b.count;
+  while (left > 0) {
+    const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(left, buffer.size()));
+    if (std::fread(buffer.data(), sizeof(Splat), n, f.get()) != n)
+      throw Error("cannot read temporary file " + b.file.string() + ": short read");
+    fn(std::span<const Splat>(buffer.data(), n));
+    left -= n;
+  }
+}
+
+void appendBucket(const Bucket& b, std::vector<Splat>& into) {
+  const std::size_t at = into.size();
+  into.resize(at + b.count);
+  File f = openFile(b.file, "rb");
+  if (std::fread(into.data() + at, sizeof(Splat), b.count, f.get()) != b.count)
+    throw Error("cannot read temporary file " + b.file.string() + ": short read");
+}
+
+// A node of the spill files' tree: a file, or a cell above files.
+struct Node {
+  std::uint64_t count = 0;
+  bool isBucket = false;
+};
+using NodeKey = std::pair<unsigned, std::uint64_t>;  // depth, prefix
+
+// The final octree above and at the units, in depth-first order.
+struct Item {
+  bool upper = false;  // an upper cell; else a unit (a whole subtree)
+  unsigned depth = 0;
+  std::uint64_t prefix = 0;
+  std::uint64_t count = 0;
+  std::int64_t parent = -1;     // item index
+  std::size_t bucketBegin = 0;  // units: their spill files
+  std::size_t bucketEnd = 0;
+  std::uint32_t globalIndex = kNoIndex;  // in the final cell array
+};
+
+struct Layout {
+  std::vector<Item> items;
+  std::vector<std::vector<std::uint64_t>> splitCells;  // the upper cells by depth
+};
+
+// Walks the node tree: a node is a unit when it is a spill file, a leaf of the
+// final tree (few points or at max depth), or at the deepest unit depth.
+Layout planUnits(const std::map<NodeKey, Node>& nodes, const std::vector<Bucket>& buckets,
+                 const OctreeOptions& octree, unsigned unitDepthLimit) {
+  Layout layout;
+  layout.splitCells.resize(unitDepthLimit + 1);
+  std::size_t nextBucket = 0;
+  auto walk = [&](auto&& self, unsigned depth, std::uint64_t prefix, std::int64_t parent) -> void {
+    const Node& node = nodes.at({depth, prefix});
+    Item item;
+    item.depth = depth;
+    item.prefix = prefix;
+    item.count = node.count;
+    item.parent = parent;
+    const bool split = node.count > octree.leafPoints && depth < octree.maxDepth;
+    if (node.isBucket || !split || depth >= unitDepthLimit) {
+      // The unit's files: every file under it, consecutive in Morton order.
+      item.bucketBegin = nextBucket;
+      const unsigned maxDepth = octree.maxDepth;
+      const std::uint64_t lo = firstCode(depth, prefix, maxDepth);
+      const std::uint64_t hi = firstCode(depth, prefix + 1, maxDepth);
+      while (nextBucket < buckets.size()) {
+        const std::uint64_t code =
+            firstCode(buckets[nextBucket].depth, buckets[nextBucket].prefix, maxDepth);
+        if (code < lo || code >= hi) break;
+        ++nextBucket;
+      }
+      item.bucketEnd = nextBucket;
+      layout.items.push_back(item);
+      return;
+    }
+    item.upper = true;
+    layout.splitCells[depth].push_back(prefix);
+    const auto self_index = static_cast<std::int64_t>(layout.items.size());
+    layout.items.push_back(item);
+    for (std::uint64_t octant = 0; octant < 8; ++octant) {
+      const std::uint64_t child = prefix * 8 + octant;
+      if (nodes.count({depth + 1, child}) != 0) self(self, depth + 1, child, self_index);
+    }
+  };
+  walk(walk, 0, 0, -1);
+  if (nextBucket != buckets.size())
+    throw Error("internal error: out-of-core plan left spill files out");
+  return layout;
+}
+
+std::map<NodeKey, Node> nodeTree(const std::vector<Bucket>& buckets) {
+  std::map<NodeKey, Node> nodes;
+  for (const Bucket& b : buckets) {
+    for (unsigned d = 0; d <= b.depth; ++d)
+      nodes[{d, b.prefix >> (3 * (b.depth - d))}].count += b.count;
+    nodes[{b.depth, b.prefix}].isBucket = true;
+  }
+  return nodes;
+}
+
+// Consecutive units while their points fit in a chunk.
+std::vector<std::pair<std::size_t, std::size_t>> groupChunks(const Layout& layout,
+                                                             std::uint64_t capacity) {
+  std::vector<std::pair<std::size_t, std::size_t>> chunks;  // item index ranges
+  std::uint64_t points = 0;
+  for (std::size_t i = 0; i < layout.items.size(); ++i) {
+    const Item& it = layout.items[i];
+    if (it.upper) continue;
+    if (chunks.empty() || points + it.count > capacity) {
+      chunks.push_back({i, i + 1});
+      points = 0;
+    }
+    chunks.back().second = i + 1;
+    points += it.count;
+  }
+  return chunks;
+}
+
+std::vector<Splat> loadChunk(const Layout& layout, std::pair<std::size_t, std::size_t> chunk,
+                             const std::vector<Bucket>& buckets) {
+  std::uint64_t count = 0;
+  for (std::size_t i = chunk.first; i < chunk.second; ++i)
+    if (!layout.items[i].upper) count += layout.items[i].count;
+  std::vector<Splat> points;
+  points.reserve(count);
+  for (std::size_t i = chunk.first; i < chunk.second; ++i) {
+    const Item& it = layout.items[i];
+    if (it.upper) continue;
+    for (std::size_t b = it.bucketBegin; b < it.bucketEnd; ++b) appendBucket(buckets[b], points);
+  }
+  return points;
+}
+
+OctreeFrame frameOf(const OctreeCube& cube, const Layout& layout) {
+  OctreeFrame frame;
+  frame.cube = cube;
+  frame.splitCells = layout.splitCells;
+  return frame;
+}
+
+// Per-cell summary of what a parent merges (as assembleDatasetContent does).
+struct Merged {
+  float lo[3] = {std::numeric_limits<float>::infinity(), std::numeric_limits<float>::infinity(),
+                 std::numeric_limits<float>::infinity()};
+  float hi[3] = {-std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity(),
+                 -std::numeric_limits<float>::infinity()};
+  float maxRadius = 0.0f;
+  CellNormals normals;
+  unsigned level = 0;
+  unsigned children = 0;
+};
+
+// Test hook: POINTILLIST_PREPROCESS_FAIL_AFTER_CHUNKS=N fails the run once N
+// chunks are built, so tests can show that a failure midway leaves nothing.
+void failForTestAfter(std::uint64_t builtChunks) {
+  static const char* const text = std::getenv("POINTILLIST_PREPROCESS_FAIL_AFTER_CHUNKS");
+  if (text != nullptr && std::to_string(builtChunks) == text)
+    throw Error("failing on purpose after " + std::to_string(builtChunks) +
+                " chunk(s) (POINTILLIST_PREPROCESS_FAIL_AFTER_CHUNKS)");
+}
+
+}  // namespace
+
+std::uint64_t chunkCapacity(std::uint64_t memoryBytes, std::uint64_t pointCount) {
+  const std::uint64_t spillBuffers =
+      (std::uint64_t{1} << (3 * kSpillDepth)) * kBucketBufferSplats * sizeof(Splat);
+  const std::uint64_t fixed = kBaseBytes + spillBuffers + pointCount * kCellBytesPerPoint;
+  if (memoryBytes <= fixed) return 0;
+  return (memoryBytes - fixed) / kBuildBytesPerPoint;
+}
+
+bool fitsInMemory(std::uint64_t memoryBytes, std::uint64_t pointCount) {
+  return memoryBytes > kBaseBytes &&
+         pointCount <= (memoryBytes - kBaseBytes) / (kBuildBytesPerPoint + kCellBytesPerPoint);
+}
+
+OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const fs::path& output,
+                                    const OutOfCoreOptions& options,
+                                    const StageProgressFn& progress) {
+  const OctreeOptions& octree = options.build.octree;
+  if (octree.maxDepth < 1 || octree.maxDepth > 21)
+    throw UsageError("octree max depth must be 1..21, got " + std::to_string(octree.maxDepth));
+  auto report = [&](const char* stage, std::uint64_t done, std::uint64_t total) {
+    if (progress) progress(stage, done, total);
+  };
+  OutOfCoreResult result;
+  // The dataset writer first: a bad output fails before any reading.
+  DatasetWriter writer(output, options.overwrite);
+  SpillDir spill(output);
+
+  // 1. Bounds.
+  ReadOptions read = options.read;
+  read.progress = [&](std::uint64_t done, std::uint64_t total) { report("bounds", done, total); };
+  double lo[3], hi[3];
+  for (int a = 0; a < 3; ++a) {
+    lo[a] = std::numeric_limits<double>::infinity();
+    hi[a] = -std::numeric_limits<double>::infinity();
+  }
+  std::uint64_t count = 0;
+  const PointCloud flags = streamPointClouds(
+      inputs, read,
+      [&](std::span<const Splat> block) {
+        for (const Splat& s : block)
+          for (int a = 0; a < 3; ++a) {
+            lo[a] = std::min(lo[a], static_cast<double>(s.position[a]));
+            hi[a] = std::max(hi[a], static_cast<double>(s.position[a]));
+          }
+      },
+      count);
+  if (count >= kNoIndex)
+    throw InputError("too many points (" + std::to_string(count) + "); at most " +
+                     std::to_string(kNoIndex - 1));
+  result.points = count;
+  const OctreeCube cube = boundingCube(lo, hi);
+  const std::uint64_t capacity = chunkCapacity(options.memoryBytes, count);
+  if (capacity < std::uint64_t{octree.leafPoints} * 8)
+    throw UsageError("--memory-mb " + std::to_string(options.memoryBytes >> 20) +
+                     " is too small for " + std::to_string(count) +
+                     " points: the run itself needs "
+                     "about " +
+                     std::to_string((options.memoryBytes - capacity * kBuildBytesPerPoint +
+                                     std::uint64_t{octree.leafPoints} * 8 * kBuildBytesPerPoint) >>
+                                    20) +
+                     " MiB");
+  result.chunkCapacity = capacity;
+
+  // 2. Spilling, then splitting files that hold more than a chunk.
+  read.progress = [&](std::uint64_t done, std::uint64_t total) { report("spilling", done, total); };
+  const unsigned spillDepth = std::min(kSpillDepth, octree.maxDepth);
+  std::vector<Bucket> buckets;
+  {
+    BucketWriter writer0(spill.path(), spillDepth, cube, octree.maxDepth, result.spillBytes);
+    std::uint64_t again = 0;
+    streamPointClouds(
+        inputs, read, [&](std::span<const Splat> block) { writer0.add(block); }, again);
+    if (again != count)
+      throw InputError("the input changed while it was read: " + std::to_string(count) +
+                       " points, then " + std::to_string(again));
+    buckets = writer0.finish();
+  }
+  const std::size_t ioBlock = std::max<std::size_t>(
+      4096, static_cast<std::size_t>(std::min<std::uint64_t>(capacity / 16, 1u << 18)));
+  const unsigned deepest = std::min(kMaxUnitDepth, octree.maxDepth);
+  for (bool again = true; again;) {
+    again = false;
+    std::vector<Bucket> next;
+    for (Bucket& b : buckets) {
+      if (b.count <= capacity || b.depth >= deepest) {
+        next.push_back(std::move(b));
+        continue;
+      }
+      BucketWriter split(spill.path(), b.depth + 1, cube, octree.maxDepth, result.spillBytes);
+      std::uint64_t moved = 0;
+      readBucket(b, ioBlock, [&](std::span<const Splat> block) {
+        split.add(block);
+        moved += block.size();
+        report("splitting spill files", moved, b.count);
+      });
+      fs::remove(b.file);
+      for (Bucket& c : split.finish()) next.push_back(std::move(c));
+      again = true;
+    }
+    buckets = std::move(next);
+  }
+  std::sort(buckets.begin(), buckets.end(), [&](const Bucket& a, const Bucket& b) {
+    return firstCode(a.depth, a.prefix, octree.maxDepth) <
+           firstCode(b.depth, b.prefix, octree.maxDepth);
+  });
+  result.spillFiles = buckets.size();
+  const std::map<NodeKey, Node> nodes = nodeTree(buckets);
+
+  // 3-4. Units, and the top-level depth.
+  PreprocessOptions build = options.build;
+  Layout layout = planUnits(nodes, buckets, octree,
+                            build.topLevelDepth >= 0
+                                ? std::min<unsigned>(deepest, unsigned(build.topLevelDepth))
+                                : deepest);
+  if (build.topLevelDepth < 0 && groupChunks(layout, capacity).size() > 1) {
+    std::vector<std::size_t> atDepth(octree.maxDepth + 1, 0), leavesAt(octree.maxDepth + 1, 0);
+    unsigned treeDepth = 0;
+    for (const Item& it : layout.items) {
+      if (!it.upper) continue;
+      ++atDepth[it.depth];
+      treeDepth = std::max(treeDepth, it.depth);
+    }
+    const OctreeFrame frame = frameOf(cube, layout);
+    std::uint64_t done = 0;
+    for (const auto& chunk : groupChunks(layout, capacity)) {
+      report("structure", done, count);
+      std::vector<Splat> points = loadChunk(layout, chunk, buckets);
+      const std::uint64_t n = points.size();
+      const Octree tree = buildOctree(std::move(points), octree, {}, &frame);
+      std::size_t unit = chunk.first;
+      for (std::size_t i = 0; i < tree.cells.size();) {
+        const BuildCell& c = tree.cells[i];
+        while (unit < chunk.second && layout.items[unit].upper) ++unit;
+        const std::uint64_t prefix =
+            mortonCode(tree.points[c.begin].position, cube, octree.maxDepth) >>
+            (3 * (octree.maxDepth - c.depth));
+        if (unit < chunk.second && c.depth == layout.items[unit].depth &&
+            prefix == layout.items[unit].prefix) {
+          const std::size_t end = c.nextSibling == kNoIndex ? tree.cells.size() : c.nextSibling;
+          for (std::size_t j = i; j < end; ++j) {
+            ++atDepth[tree.cells[j].depth];
+            if (tree.cells[j].isLeaf()) ++leavesAt[tree.cells[j].depth];
+            treeDepth = std::max<unsigned>(treeDepth, tree.cells[j].depth);
+          }
+          ++unit;
+          i = end;
+        } else {
+          ++i;  // an upper cell, counted above
+        }
+      }
+      done += n;
+    }
+    report("structure", count, count);
+    atDepth.resize(treeDepth + 1);
+    leavesAt.resize(treeDepth + 1);
+    build.topLevelDepth =
+        static_cast<int>(chooseTopLevelDepth(atDepth, leavesAt, count, build.targetPacketBytes));
+    layout = planUnits(nodes, buckets, octree,
+                       std::min<unsigned>(deepest, unsigned(build.topLevelDepth)));
+  }
+
+  // 5. Building chunk by chunk; the packets go straight to the writer.
+  const OctreeFrame frame = frameOf(cube, layout);
+  const auto chunks = groupChunks(layout, capacity);
+  result.chunks = chunks.size();
+  DatasetContent content;
+  std::vector<Merged> merged(layout.items.size());
+  const bool estimateNormals = !flags.hasNormals || (!flags.hasRadii && options.knnRadii);
+  build.radiiInLeaves = flags.hasNormals && !flags.hasRadii && !options.knnRadii;
+  std::uint64_t done = 0;
+  std::uint64_t builtChunks = 0;
+  std::size_t nextItem = 0;
+  unsigned treeDepth = 0;
+  for (const auto& chunk : chunks) {
+    std::vector<Splat> points = loadChunk(layout, chunk, buckets);
+    const std::uint64_t n = points.size();
+    result.largestChunkPoints = std::max(result.largestChunkPoints, n);
+    if (n > capacity) result.capExceeded = true;
+    auto inner = [&](const char*, std::uint64_t d, std::uint64_t t) {
+      report("building", done + (t > 0 ? n * d / t : 0) / 2, count);
+    };
+    if (estimateNormals) {
+      PointCloud cloud;
+      cloud.splats = std::move(points);
+      NormalOptions no;
+      no.neighbours = options.neighbours;
+      no.onlyWhereMissing = true;
+      no.progress = [&](std::uint64_t d, std::uint64_t t) { inner("normals", d, t); };
+      estimateNormalsAndRadii(cloud, no);
+      points = std::move(cloud.splats);
+    }
+    std::vector<CellNormals> normals;
+    DatasetContent local = buildDatasetContent(std::move(points), build, inner, &frame, &normals);
+    report("building", done + n / 2, count);
+
+    // The chunk's units, in order, each a subtree of the local tree.
+    const auto localCount = static_cast<std::uint32_t>(local.cells.size());
+    std::vector<std::uint32_t> toGlobal(localCount, kNoIndex);
+    std::size_t unit = chunk.first;
+    for (std::uint32_t i = 0; i < localCount;) {
+      const OctreeCell& c = local.cells[i];
+      while (unit < chunk.second && layout.items[unit].upper) ++unit;
+      const std::uint64_t prefix =
+          mortonCode(c.boundsMin, cube, octree.maxDepth) >> (3 * (octree.maxDepth - c.depth));
+      if (unit >= chunk.second || c.depth != layout.items[unit].depth ||
+          prefix != layout.items[unit].prefix) {
+        ++i;  // a cell above the units: merged below
+        continue;
+      }
+      // Upper cells before this unit in depth-first order come first.
+      for (; nextItem < unit; ++nextItem) {
+        Item& up = layout.items[nextItem];
+        if (!up.upper) throw Error("internal error: out-of-core unit out of order");
+        up.globalIndex = static_cast<std::uint32_t>(content.cells.size());
+        OctreeCell cell{};
+        cell.depth = static_cast<std::uint8_t>(up.depth);
+        cell.topLevel = kNoIndex;
+        content.cells.push_back(cell);
+      }
+      Item& it = layout.items[unit];
+      it.globalIndex = static_cast<std::uint32_t>(content.cells.size());
+      const std::uint32_t end = c.nextSibling == kNoIndex ? localCount : c.nextSibling;
+      for (std::uint32_t j = i; j < end; ++j) {
+        toGlobal[j] = static_cast<std::uint32_t>(content.cells.size());
+        content.cells.push_back(local.cells[j]);
+        treeDepth = std::max<unsigned>(treeDepth, local.cells[j].depth);
+      }
+      Merged& m = merged[unit];
+      for (int a = 0; a < 3; ++a) {
+        m.lo[a] = c.boundsMin[a];
+        m.hi[a] = c.boundsMax[a];
+      }
+      m.maxRadius = c.maxSplatRadius;
+      m.normals = normals[i];
+      m.level = c.level;
+      nextItem = unit + 1;
+      ++unit;
+      i = end;
+    }
+    while (unit < chunk.second && layout.items[unit].upper) ++unit;
+    if (unit != chunk.second) throw Error("internal error: out-of-core chunk lost a unit");
+
+    // Its top-level cells and packets, renumbered.
+    const auto topBase = static_cast<std::uint32_t>(content.topLevel.size());
+    std::uint64_t p = 0, s = 0;
+    for (const TopLevelCell& t : local.topLevel) {
+      TopLevelCell g = t;
+      g.cellIndex = toGlobal[t.cellIndex];
+      if (g.cellIndex == kNoIndex)
+        throw Error("internal error: a top-level cell lies above the out-of-core units");
+      content.topLevel.push_back(g);
+      writer.appendPacket(std::span<const Splat>(local.levelSplats).subspan(s, t.levelSplatCount),
+                          std::span<const Splat>(local.points).subspan(p, t.pointCount));
+      p += t.pointCount;
+      s += t.levelSplatCount;
+    }
+    for (std::uint32_t j = 0; j < localCount; ++j) {
+      if (toGlobal[j] == kNoIndex) continue;
+      OctreeCell& g = content.cells[toGlobal[j]];
+      if (g.topLevel != kNoIndex) g.topLevel += topBase;
+    }
+    if (content.manifest.source.empty()) content.manifest = local.manifest;
+    done += n;
+    report("building", done, count);
+    failForTestAfter(++builtChunks);
+  }
+  for (; nextItem < layout.items.size(); ++nextItem)
+    if (!layout.items[nextItem].upper) throw Error("internal error: out-of-core unit not built");
+
+  // 6. The cells above the units. nextSibling: the first later cell that is
+  // not deeper (as buildOctree).
+  auto& cells = content.cells;
+  {
+    std::vector<std::uint32_t> open;
+    for (std::size_t i = 0; i < cells.size(); ++i) {
+      while (!open.empty() && cells[open.back()].depth >= cells[i].depth) {
+        cells[open.back()].nextSibling = static_cast<std::uint32_t>(i);
+        open.pop_back();
+      }
+      open.push_back(static_cast<std::uint32_t>(i));
+    }
+    for (const std::uint32_t i : open) cells[i].nextSibling = kNoIndex;
+  }
+  // Children merge into their parent from the back, as in memory.
+  for (std::size_t k = layout.items.size(); k-- > 0;) {
+    const Item& it = layout.items[k];
+    if (it.parent < 0) continue;
+    const Merged& from = merged[k];
+    Merged& into = merged[static_cast<std::size_t>(it.parent)];
+    for (int a = 0; a < 3; ++a) {
+      into.lo[a] = std::min(into.lo[a], from.lo[a]);
+      into.hi[a] = std::max(into.hi[a], from.hi[a]);
+    }
+    into.maxRadius = std::max(into.maxRadius, from.maxRadius);
+    into.normals.sum = add(into.normals.sum, from.normals.sum);
+    into.normals.unknown = into.normals.unknown || from.normals.unknown;
+    into.level = std::max(into.level, from.level + 1);
+    ++into.children;
+  }
+  for (std::size_t k = layout.items.size(); k-- > 0;) {
+    const Item& it = layout.items[k];
+    if (!it.upper) continue;
+    const Merged& m = merged[k];
+    OctreeCell& c = cells[it.globalIndex];
+    for (int a = 0; a < 3; ++a) {
+      c.boundsMin[a] = m.lo[a];
+      c.boundsMax[a] = m.hi[a];
+    }
+    c.maxSplatRadius = m.maxRadius;
+    c.level = static_cast<std::uint8_t>(m.level);
+    c.childCount = static_cast<std::uint8_t>(m.children);
+    c.flags = 0;
+    mergeChildCones(cells, it.globalIndex, m.normals);
+  }
+
+  DatasetManifest& manifest = content.manifest;
+  manifest.source = flags.source;
+  manifest.createdBy = options.createdBy.empty() ? manifest.createdBy : options.createdBy;
+  // (One chunk with the depth left open: the chunk chose it, as in memory.)
+  if (build.topLevelDepth >= 0)
+    manifest.topLevelDepth =
+        std::min<unsigned>(treeDepth, static_cast<unsigned>(build.topLevelDepth));
+  manifest.maxDepth = octree.maxDepth;
+  manifest.leafPoints = octree.leafPoints;
+  manifest.levelSplatReduction = build.levelSplats.reduction;
+  report("writing", 0, 1);
+  result.bytesWritten = writer.commit(content);
+  report("writing", 1, 1);
+  result.manifest = content.manifest;
+  return result;
+}
+
+}  // namespace pointillist::preprocess

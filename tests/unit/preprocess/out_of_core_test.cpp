@@ -1,0 +1,274 @@
+// The out-of-core preprocess writes, chunk by chunk through temporary files,
+// the same dataset bit for bit as the in-memory build of the same input, in
+// every shape of plan: several chunks, spill files split deeper, units above
+// the spill depth (outlier leaves), units held to a shallow top-level depth,
+// a shallow max depth, stacks of identical points. Streaming readers give the
+// points the whole-file readers give, and nothing temporary is left behind.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "common/dataset.hpp"
+#include "common/errors.hpp"
+#include "preprocess/dataset_builder.hpp"
+#include "preprocess/generator.hpp"
+#include "preprocess/out_of_core.hpp"
+#include "preprocess/readers.hpp"
+
+namespace fs = std::filesystem;
+using pointillist::DatasetContent;
+using pointillist::Splat;
+using namespace pointillist::preprocess;
+
+namespace {
+
+class TempDir {
+ public:
+  TempDir() {
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    path_ = fs::temp_directory_path() /
+            ("pointillist-ooc-" + std::to_string(::getpid()) + "-" + info->name());
+    fs::remove_all(path_);
+    fs::create_directories(path_);
+  }
+  ~TempDir() {
+    std::error_code ec;
+    fs::remove_all(path_, ec);
+  }
+  const fs::path& path() const { return path_; }
+
+ private:
+  fs::path path_;
+};
+
+// Binary little-endian PLY: x y z nx ny nz [radius] red green blue alpha.
+void writePly(const fs::path& file, const std::vector<Splat>& splats, bool radii) {
+  std::ofstream out(file, std::ios::binary);
+  out << "ply\nformat binary_little_endian 1.0\nelement vertex " << splats.size()
+      << "\nproperty float x\nproperty float y\nproperty float z\n"
+         "property float nx\nproperty float ny\nproperty float nz\n"
+      << (radii ? "property float radius\n" : "")
+      << "property uchar red\nproperty uchar green\nproperty uchar blue\n"
+         "property uchar alpha\nend_header\n";
+  for (const Splat& s : splats) {
+    out.write(reinterpret_cast<const char*>(s.position), 12);
+    out.write(reinterpret_cast<const char*>(s.normal), 12);
+    if (radii) out.write(reinterpret_cast<const char*>(&s.radius), 4);
+    out.write(reinterpret_cast<const char*>(s.color), 4);
+  }
+}
+
+std::string fileBytes(const fs::path& file) {
+  std::ifstream in(file, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+// A cap that gives chunks of about `chunkPoints` for a cloud of `points`.
+std::uint64_t capFor(std::uint64_t points, std::uint64_t chunkPoints) {
+  std::uint64_t cap = std::uint64_t{1} << 20;
+  while (chunkCapacity(cap, points) < chunkPoints) cap += std::uint64_t{1} << 16;
+  return cap;
+}
+
+struct Case {
+  std::vector<Splat> splats;
+  bool radii = false;
+  PreprocessOptions build;
+  std::uint64_t chunkPoints = 10000;
+};
+
+// Builds `c` in memory and out of core; expects equal files, returns the
+// out-of-core result.
+OutOfCoreResult expectSameDataset(const Case& c) {
+  TempDir dir;
+  const fs::path input = dir.path() / "in.ply";
+  writePly(input, c.splats, c.radii);
+
+  ReadOptions read;
+  PointCloud cloud = readPointCloud(input, read);
+  PreprocessOptions inMemory = c.build;
+  inMemory.radiiInLeaves = cloud.hasNormals && !cloud.hasRadii;
+  inMemory.source = cloud.source;
+  DatasetContent content = buildDatasetContent(std::move(cloud.splats), inMemory);
+  content.manifest.createdBy = "test";
+  pointillist::writeDataset(dir.path() / "memory", content);
+
+  OutOfCoreOptions oc;
+  oc.build = c.build;
+  oc.memoryBytes = capFor(c.splats.size(), c.chunkPoints);
+  oc.createdBy = "test";
+  const OutOfCoreResult r = preprocessOutOfCore({input}, dir.path() / "chunked", oc, {});
+
+  for (const char* name :
+       {"manifest.txt", "cells.bin", "top-level.bin", "packet-checksums.bin", "points.bin"}) {
+    const std::string a = fileBytes(dir.path() / "memory" / name);
+    const std::string b = fileBytes(dir.path() / "chunked" / name);
+    EXPECT_EQ(a.size(), b.size()) << name;
+    EXPECT_TRUE(a == b) << name << " differs";
+  }
+  // It opens and verifies as any dataset.
+  EXPECT_NO_THROW(pointillist::Dataset::open(dir.path() / "chunked"));
+  // Only the input and the two datasets are left.
+  std::size_t entries = 0;
+  for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir.path())) ++entries;
+  EXPECT_EQ(entries, 3u);
+  EXPECT_EQ(r.points, c.splats.size());
+  return r;
+}
+
+std::vector<Splat> city(std::size_t points, std::uint64_t seed = 3) {
+  return generateScene("city", points, seed).splats;
+}
+
+}  // namespace
+
+TEST(OutOfCore, SeveralChunksGiveTheInMemoryDataset) {
+  Case c;
+  c.splats = city(60000);
+  c.chunkPoints = 9000;
+  const OutOfCoreResult r = expectSameDataset(c);
+  EXPECT_GE(r.chunks, 4u);
+  EXPECT_LE(r.largestChunkPoints, r.chunkCapacity);
+  EXPECT_FALSE(r.capExceeded);
+}
+
+TEST(OutOfCore, SpillFilesSplitDeeperStillGiveTheSameDataset) {
+  // Chunks far below a depth-3 cell's share: files are split to depth 4 and 5.
+  Case c;
+  c.splats = city(60000, 5);
+  c.chunkPoints = 1500;
+  c.build.octree.leafPoints = 32;
+  const OutOfCoreResult r = expectSameDataset(c);
+  EXPECT_GT(r.spillFiles, 64u);
+  EXPECT_GE(r.chunks, 30u);
+}
+
+TEST(OutOfCore, GivenRadiiAndAGivenTopLevelDepth) {
+  Case c;
+  c.splats = city(40000, 7);
+  for (std::size_t i = 0; i < c.splats.size(); ++i)
+    c.splats[i].radius = 0.01f + 0.001f * static_cast<float>(i % 7);
+  c.radii = true;
+  c.build.topLevelDepth = 5;
+  c.chunkPoints = 5000;
+  EXPECT_GE(expectSameDataset(c).chunks, 3u);
+}
+
+TEST(OutOfCore, AShallowTopLevelDepthKeepsPacketsWholeAboveTheCap) {
+  // Depth 2: a top-level cell holds more than a chunk may; it is built whole
+  // (and the result says the cap was exceeded) rather than split.
+  Case c;
+  c.splats = city(40000, 9);
+  c.build.topLevelDepth = 2;
+  c.chunkPoints = 3000;
+  const OutOfCoreResult r = expectSameDataset(c);
+  EXPECT_TRUE(r.capExceeded);
+  EXPECT_EQ(r.manifest.topLevelDepth, 2u);
+}
+
+TEST(OutOfCore, OutlierLeavesAboveTheSpillDepth) {
+  // A sphere and a handful of far points: the far corner is a leaf of the
+  // final tree at depth 1 or 2 whose points fall in several depth-3 files.
+  Case c;
+  c.splats = generateScene("sphere", 30000, 2).splats;
+  std::mt19937 rng(4);
+  std::uniform_real_distribution<float> jitter(0.0f, 40.0f);
+  for (int i = 0; i < 20; ++i) {
+    Splat s = c.splats[static_cast<std::size_t>(i)];
+    s.position[0] = 300.0f + jitter(rng);
+    s.position[1] = 300.0f + jitter(rng);
+    s.position[2] = 300.0f + jitter(rng);
+    c.splats.push_back(s);
+  }
+  c.chunkPoints = 4000;
+  EXPECT_GE(expectSameDataset(c).chunks, 3u);
+}
+
+TEST(OutOfCore, ShallowMaxDepthAndStacksOfEqualPoints) {
+  Case c;
+  c.splats = city(20000, 11);
+  // Many copies of a few points: cells at max depth hold far more than a leaf.
+  for (std::size_t i = 0; i < 3000; ++i) c.splats.push_back(c.splats[i % 5]);
+  c.build.octree.maxDepth = 2;
+  c.chunkPoints = 6000;
+  expectSameDataset(c);
+}
+
+TEST(OutOfCore, TooSmallACapIsAUsageErrorAndLeavesNothing) {
+  TempDir dir;
+  const fs::path input = dir.path() / "in.ply";
+  writePly(input, city(5000), false);
+  OutOfCoreOptions oc;
+  oc.memoryBytes = std::uint64_t{8} << 20;
+  EXPECT_THROW(preprocessOutOfCore({input}, dir.path() / "out", oc, {}), pointillist::UsageError);
+  std::size_t entries = 0;
+  for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir.path())) ++entries;
+  EXPECT_EQ(entries, 1u);
+}
+
+TEST(OutOfCore, AFailureMidwayRemovesTheTemporaryFiles) {
+  TempDir dir;
+  const fs::path input = dir.path() / "in.ply";
+  const auto splats = city(30000);
+  writePly(input, splats, false);
+  OutOfCoreOptions oc;
+  oc.memoryBytes = capFor(splats.size(), 4000);
+  int building = 0;
+  bool sawSpillFiles = false;
+  EXPECT_THROW(
+      preprocessOutOfCore({input}, dir.path() / "out", oc,
+                          [&](const char* stage, std::uint64_t, std::uint64_t) {
+                            if (std::strcmp(stage, "building") != 0) return;
+                            for (const auto& e : fs::directory_iterator(dir.path()))
+                              if (e.path().filename().string().find(".spill-") != std::string::npos)
+                                sawSpillFiles = !fs::is_empty(e.path());
+                            if (++building == 3) throw pointillist::Error("stop");
+                          }),
+      pointillist::Error);
+  EXPECT_TRUE(sawSpillFiles);
+  std::size_t entries = 0;
+  for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir.path())) ++entries;
+  EXPECT_EQ(entries, 1u);  // the input alone
+}
+
+TEST(StreamPointClouds, BlocksHoldWhatTheWholeReaderReads) {
+  TempDir dir;
+  const auto splats = city(7000);
+  writePly(dir.path() / "a.ply", splats, false);
+  {
+    std::ofstream xyz(dir.path() / "b.xyz");
+    for (std::size_t i = 0; i < 3000; ++i)
+      xyz << splats[i].position[0] << ' ' << splats[i].position[1] << ' ' << splats[i].position[2]
+          << '\n';
+  }
+  const std::vector<fs::path> files = {dir.path() / "a.ply", dir.path() / "b.xyz"};
+  ReadOptions read;
+  const PointCloud whole = readPointClouds(files, read);
+  read.sinkBlock = 1000;
+  std::vector<Splat> streamed;
+  std::size_t largestBlock = 0;
+  std::uint64_t count = 0;
+  const PointCloud flags = streamPointClouds(
+      files, read,
+      [&](std::span<const Splat> block) {
+        largestBlock = std::max(largestBlock, block.size());
+        streamed.insert(streamed.end(), block.begin(), block.end());
+      },
+      count);
+  EXPECT_EQ(count, whole.splats.size());
+  EXPECT_LE(largestBlock, 1000u);
+  ASSERT_EQ(streamed.size(), whole.splats.size());
+  EXPECT_EQ(std::memcmp(streamed.data(), whole.splats.data(), streamed.size() * sizeof(Splat)), 0);
+  EXPECT_TRUE(flags.splats.empty());
+  EXPECT_EQ(flags.hasNormals, whole.hasNormals);
+  EXPECT_FALSE(flags.hasNormals);  // the XYZ has none
+  EXPECT_EQ(flags.hasRadii, whole.hasRadii);
+  EXPECT_EQ(flags.source, whole.source);
+}
