@@ -119,15 +119,6 @@ Vec3d majorAxis(const Sym3& m) {
   return length(n) > 0.0 ? n : eigenSymmetric3(m).vectors[2];
 }
 
-void CovarianceAccumulator::add(const Vec3d& p, double weight) {
-  if (count_ == 0) origin_ = p;
-  const Vec3d d = sub(p, origin_);
-  sum_ = pointillist::add(sum_, scale(d, weight));
-  addOuterProduct(sumSq_, d, weight);
-  weight_ += weight;
-  ++count_;
-}
-
 Vec3d CovarianceAccumulator::mean() const {
   if (!(weight_ > 0.0)) return origin_;
   return pointillist::add(origin_, scale(sum_, 1.0 / weight_));

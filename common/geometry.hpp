@@ -45,7 +45,8 @@ Vec3d majorAxis(const Sym3& m);
 // taken relative to the first sample so large coordinates lose no precision.
 class CovarianceAccumulator {
  public:
-  void add(const Vec3d& p, double weight = 1.0);
+  // Inline: the preprocess calls it for every point several times over.
+  inline void add(const Vec3d& p, double weight = 1.0);
   double weight() const { return weight_; }
   std::size_t count() const { return count_; }
   Vec3d mean() const;
@@ -108,5 +109,14 @@ NormalCone decodeNormalCone(const OctreeCell& cell);
 // dot(decodeConeAxis(q), n) over the unit normals n the cone must contain.
 void encodeNormalCone(OctreeCell& cell, const ConeAxisQ& q, double minDot);
 void clearNormalCone(OctreeCell& cell);
+
+inline void CovarianceAccumulator::add(const Vec3d& p, double weight) {
+  if (count_ == 0) origin_ = p;
+  const Vec3d d = sub(p, origin_);
+  sum_ = pointillist::add(sum_, scale(d, weight));
+  addOuterProduct(sumSq_, d, weight);
+  weight_ += weight;
+  ++count_;
+}
 
 }  // namespace pointillist

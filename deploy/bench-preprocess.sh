@@ -5,13 +5,17 @@
 # prints one table: wall time, points/s, points/s per core, CPU, peak memory,
 # and the time of each stage.
 #
-#   deploy/bench-preprocess.sh [--points N] [--inputs ply,xyz,mesh] [--out DIR]
+#   deploy/bench-preprocess.sh [--points N] [--inputs ply,xyz,mesh,big] [--out DIR]
+#                              [--big-points N] [--memory-mb MB]
 #                              [-- extra pointillist-preprocess options]
 #
 # Inputs (N points each, default 10 M):
 #   ply   binary PLY with normals and colours, no radii (a sampled mesh)
 #   xyz   XYZ text "x y z r g b", no normals (what a scanner exports)
 #   mesh  the bunny mesh itself, sampled by the preprocessor (reading is cheap)
+#   big   the ply kind with --big-points points (default 200 M, 5.4 GB), built
+#         out of core under --memory-mb (default 4096); needs about 25 GB of
+#         disk for the input, the spill files and the dataset (not by default)
 # Environment: POINTILLIST_BENCH_BUILD (default build-release, configured as Release).
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -19,14 +23,18 @@ build="${POINTILLIST_BENCH_BUILD:-$root/build-release}"
 out="$root/out/bench-preprocess"
 points=10000000
 inputs=ply,xyz,mesh
+big_points=200000000
+memory_mb=4096
 extra=()
 while (($#)); do
   case "$1" in
     --points) points="$2"; shift 2 ;;
     --inputs) inputs="$2"; shift 2 ;;
     --out) out="$2"; shift 2 ;;
+    --big-points) big_points="$2"; shift 2 ;;
+    --memory-mb) memory_mb="$2"; shift 2 ;;
     --) shift; extra=("$@"); break ;;
-    -h|--help) sed -n '2,15p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,20p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "bench-preprocess: unknown option '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -51,11 +59,13 @@ table="$out/table.md"
 } >"$table"
 IFS=',' read -ra kinds <<<"$inputs"
 for kind in "${kinds[@]}"; do
+  n="$points"
   case "$kind" in
+    big) n="$big_points"; input="$out/inputs/bunny-$n.ply"; args=(--mesh "$mesh" --points "$n" --format ply) ;;
     ply) input="$out/inputs/bunny-$points.ply"; args=(--mesh "$mesh" --points "$points" --format ply) ;;
     xyz) input="$out/inputs/bunny-$points.xyz"; args=(--mesh "$mesh" --points "$points" --format xyz --no-normals) ;;
     mesh) input="$mesh"; args=() ;;
-    *) echo "bench-preprocess: unknown input '$kind' (ply, xyz, mesh)" >&2; exit 2 ;;
+    *) echo "bench-preprocess: unknown input '$kind' (ply, xyz, mesh, big)" >&2; exit 2 ;;
   esac
   if [[ "$kind" != mesh && ! -f "$input" ]]; then
     "$build/bin/pointillist-make-points" "${args[@]}" -o "$input"
@@ -64,13 +74,15 @@ for kind in "${kinds[@]}"; do
   log="$out/$kind.log"
   cmd=("$build/bin/pointillist-preprocess" "$input" -o "$dataset" --force)
   [[ "$kind" == mesh ]] && cmd+=(--points "$points")
+  [[ "$kind" == big ]] && cmd+=(--memory-mb "$memory_mb")
   echo "bench-preprocess: $kind: ${cmd[*]} ${extra[*]}" >&2
   # Cold page cache would measure the disk, not us: read the input once first.
   cat "$input" >/dev/null
   /usr/bin/time -f '%e %M %U %S' -o "$log.time" "${cmd[@]}" "${extra[@]}" 2>"$log" >>"$log"
   read -r wall rss_kib user sys <"$log.time"
   stages=$(sed -n 's/^  \(.*\): done in \([0-9.]*\) s$/\1 \2/p' "$log" | awk '{ t = $NF; $NF = ""; sub(/ $/, ""); printf "%s%s %s", sep, $0, t; sep = ", " }')
-  awk -v k="$kind" -v p="$points" -v w="$wall" -v r="$rss_kib" -v u="$user" -v s="$sys" -v c="$cores" -v st="$stages" 'BEGIN {
+  [[ "$kind" == big ]] && kind="big (--memory-mb $memory_mb)"
+  awk -v k="$kind" -v p="$n" -v w="$wall" -v r="$rss_kib" -v u="$user" -v s="$sys" -v c="$cores" -v st="$stages" 'BEGIN {
     printf "| %s | %.1f M | %.2f | %.2f M | %.2f M | %.2f | %.0f | %s |\n", k, p / 1e6, w, p / w / 1e6, p / w / c / 1e6, u + s, r / 1024, st }' >>"$table"
   rm -f "$log.time"
 done

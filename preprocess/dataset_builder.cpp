@@ -227,6 +227,17 @@ DatasetContent buildDatasetContent(std::vector<Splat> points, const PreprocessOp
   };
   const std::uint64_t total = points.size();
   Octree tree = buildOctree(std::move(points), options.octree, stage("octree"), frame);
+  if (options.estimateNormals) {
+    PointCloud cloud;
+    cloud.splats = std::move(tree.points);
+    cloud.hasColors = true;  // readers gave colourless points their grey already
+    NormalOptions no;
+    no.neighbours = options.radiusNeighbours;
+    no.onlyWhereMissing = true;
+    no.progress = stage("normals and radii");
+    estimateNormalsAndRadii(cloud, no);
+    tree.points = std::move(cloud.splats);
+  }
   const unsigned depth = options.topLevelDepth >= 0
                              ? static_cast<unsigned>(options.topLevelDepth)
                              : chooseTopLevelDepth(tree, options.targetPacketBytes);

@@ -24,11 +24,16 @@ struct PreprocessOptions {
   // (estimateRadiiInLeaves) once the tree is built.
   bool radiiInLeaves = false;
   int radiusNeighbours = 12;
+  // Fill missing normals and radii from the radiusNeighbours nearest
+  // neighbours (estimateNormalsAndRadii) once the points are in Morton order:
+  // neighbours are then near in memory too.
+  bool estimateNormals = false;
   unsigned threads = 0;  // 0: all cores
   std::string source;    // recorded in the manifest
 };
 
-// stage is "octree", "radii", "level-splats" or "cells"; (done, total) in points.
+// stage is "octree", "normals and radii", "radii", "level-splats" or "cells";
+// (done, total) in points.
 using StageProgressFn =
     std::function<void(const char* stage, std::uint64_t done, std::uint64_t total)>;
 

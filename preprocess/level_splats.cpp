@@ -66,6 +66,9 @@ Gaussian makeGaussian(const CovarianceAccumulator& acc, double eps) {
   return g;
 }
 
+// Clusters an input may move to in the refinement besides its own.
+constexpr std::size_t kRefineCandidates = 8;
+
 float roundUp(double v) {
   float f = static_cast<float>(v);
   if (static_cast<double>(f) < v) f = std::nextafter(f, std::numeric_limits<float>::infinity());
@@ -158,13 +161,33 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
     std::vector<Gaussian> g;
     g.reserve(k);
     for (const auto& a : acc) g.push_back(makeGaussian(a, eps));
+    // An input moves only to one of its cluster's nearest clusters (by mean):
+    // the likeliest Gaussian is a near one, and all k would cost m * k.
+    const std::size_t near = std::min<std::size_t>(k - 1, kRefineCandidates);
+    std::vector<std::uint32_t> candidates(k * near);
+    {
+      std::vector<std::pair<double, std::uint32_t>> byDistance;
+      for (std::uint32_t c = 0; c < k; ++c) {
+        byDistance.clear();
+        for (std::uint32_t o = 0; o < k; ++o) {
+          if (o == c) continue;
+          const Vec3d d = sub(g[o].mean, g[c].mean);
+          byDistance.push_back({dot(d, d), o});
+        }
+        std::partial_sort(byDistance.begin(),
+                          byDistance.begin() + static_cast<std::ptrdiff_t>(near), byDistance.end());
+        for (std::size_t j = 0; j < near; ++j) candidates[c * near + j] = byDistance[j].second;
+      }
+    }
     bool changed = false;
     for (std::size_t i = 0; i < m; ++i) {
-      std::uint32_t best = out.assignment[i];
+      const std::uint32_t own = out.assignment[i];
+      std::uint32_t best = own;
       double bestCost = quadratic(g[best].inverse, sub(pos[i], g[best].mean)) + g[best].logDet;
-      for (std::uint32_t c = 0; c < k; ++c) {
+      for (std::size_t j = 0; j < near; ++j) {
+        const std::uint32_t c = candidates[own * near + j];
         const double cost = quadratic(g[c].inverse, sub(pos[i], g[c].mean)) + g[c].logDet;
-        if (cost < bestCost) {
+        if (cost < bestCost || (cost == bestCost && c < best)) {
           bestCost = cost;
           best = c;
         }

@@ -20,7 +20,6 @@
 #include "common/errors.hpp"
 #include "preprocess/dataset_builder.hpp"
 #include "preprocess/generator.hpp"
-#include "preprocess/normals.hpp"
 #include "preprocess/out_of_core.hpp"
 #include "preprocess/readers.hpp"
 
@@ -356,14 +355,6 @@ int run(const Options& o) {
   // Normals need the neighbour search, and it gives radii for free; radii
   // alone come from neighbours within the octree leaves unless asked otherwise.
   const bool leafRadii = cloud.hasNormals && !cloud.hasRadii && !o.knnRadii;
-  if (!cloud.hasNormals || (!cloud.hasRadii && !leafRadii)) {
-    pp::NormalOptions no;
-    no.neighbours = o.neighbours;
-    no.onlyWhereMissing = true;
-    no.progress = progress.stageFn("normals and radii");
-    pp::estimateNormalsAndRadii(cloud, no);
-    progress.finishStage();
-  }
 
   pp::PreprocessOptions po;
   po.octree.maxDepth = o.maxDepth;
@@ -371,6 +362,7 @@ int run(const Options& o) {
   po.topLevelDepth = o.topLevelDepth;
   po.targetPacketBytes = o.packetKiB * 1024;
   po.radiiInLeaves = leafRadii;
+  po.estimateNormals = !cloud.hasNormals || (!cloud.hasRadii && !leafRadii);
   po.radiusNeighbours = o.neighbours;
   po.threads = o.threads;
   po.source = cloud.source;

@@ -12,17 +12,6 @@ namespace pointillist::preprocess {
 
 namespace {
 
-// Spreads the low 21 bits of v so that bit k lands at bit 3k.
-std::uint64_t spreadBits(std::uint64_t v) {
-  v &= 0x1fffff;
-  v = (v | v << 32) & 0x1f00000000ffffull;
-  v = (v | v << 16) & 0x1f0000ff0000ffull;
-  v = (v | v << 8) & 0x100f00f00f00f00full;
-  v = (v | v << 4) & 0x10c30c30c30c30c3ull;
-  v = (v | v << 2) & 0x1249249249249249ull;
-  return v;
-}
-
 struct Keyed {
   std::uint64_t code;
   std::uint64_t index;
@@ -160,15 +149,7 @@ OctreeCube boundingCube(const double lo[3], const double hi[3]) {
 }
 
 std::uint64_t mortonCode(const float position[3], const OctreeCube& cube, unsigned maxDepth) {
-  const double cellsPerAxis = std::ldexp(1.0, static_cast<int>(maxDepth));
-  const double maxCoord = cellsPerAxis - 1.0;
-  std::uint64_t code = 0;
-  for (int a = 0; a < 3; ++a) {
-    const double t = (static_cast<double>(position[a]) - cube.min[a]) / cube.size * cellsPerAxis;
-    const auto q = static_cast<std::uint64_t>(std::clamp(std::floor(t), 0.0, maxCoord));
-    code |= spreadBits(q) << (2 - a);
-  }
-  return code;
+  return MortonCoder(cube, maxDepth)(position);
 }
 
 Octree buildOctree(std::vector<Splat> points, const OctreeOptions& options,
@@ -207,8 +188,8 @@ Octree buildOctree(std::vector<Splat> points, const OctreeOptions& options,
   tree.cubeSize = cube.size;
 
   std::vector<Keyed> keyed(points.size());
-  for (std::size_t i = 0; i < points.size(); ++i)
-    keyed[i] = {mortonCode(points[i].position, cube, options.maxDepth), i};
+  const MortonCoder morton(cube, options.maxDepth);
+  for (std::size_t i = 0; i < points.size(); ++i) keyed[i] = {morton(points[i].position), i};
   mortonSort(keyed, 3 * options.maxDepth, options.leafPoints, progress);
 
   tree.points.resize(points.size());

@@ -63,6 +63,42 @@ OctreeCube boundingCube(const double lo[3], const double hi[3]);
 // depth d is code >> 3 * (maxDepth - d).
 std::uint64_t mortonCode(const float position[3], const OctreeCube& cube, unsigned maxDepth);
 
+// The same for many positions: the scale worked out once, all inline.
+class MortonCoder {
+ public:
+  MortonCoder(const OctreeCube& cube, unsigned maxDepth)
+      : min_{cube.min[0], cube.min[1], cube.min[2]},
+        scale_(static_cast<double>(std::uint64_t{1} << maxDepth) / cube.size),
+        maxCoord_(static_cast<double>((std::uint64_t{1} << maxDepth) - 1)) {}
+
+  std::uint64_t operator()(const float position[3]) const {
+    std::uint64_t code = 0;
+    for (int a = 0; a < 3; ++a) {
+      const double t = (static_cast<double>(position[a]) - min_[a]) * scale_;
+      // Clamped as a double first: a cast of an out-of-range double is undefined.
+      const auto q = static_cast<std::uint64_t>(t < 0.0 ? 0.0 : (t > maxCoord_ ? maxCoord_ : t));
+      code |= spread(q) << (2 - a);
+    }
+    return code;
+  }
+
+ private:
+  // Spreads the low 21 bits of v so that bit k lands at bit 3k.
+  static std::uint64_t spread(std::uint64_t v) {
+    v &= 0x1fffff;
+    v = (v | v << 32) & 0x1f00000000ffffull;
+    v = (v | v << 16) & 0x1f0000ff0000ffull;
+    v = (v | v << 8) & 0x100f00f00f00f00full;
+    v = (v | v << 4) & 0x10c30c30c30c30c3ull;
+    v = (v | v << 2) & 0x1249249249249249ull;
+    return v;
+  }
+
+  double min_[3];
+  double scale_;
+  double maxCoord_;
+};
+
 // For building one spatial chunk of a larger cloud (the out-of-core
 // preprocess): the whole cloud's cube, and the cells above the chunk that the
 // whole cloud splits, which must split here too although the chunk alone may

@@ -18,7 +18,6 @@
 #include "common/dataset_writer.hpp"
 #include "common/errors.hpp"
 #include "common/geometry.hpp"
-#include "preprocess/normals.hpp"
 #include "preprocess/octree_builder.hpp"
 #include "preprocess/readers.hpp"
 
@@ -87,20 +86,124 @@ std::uint64_t firstCode(unsigned depth, std::uint64_t prefix, unsigned maxDepth)
   return prefix << (3 * (maxDepth - depth));
 }
 
-// Writes points to one file per cell at `depth`, buffered.
+// Counts points per octree cell at a fixed depth while they stream past (a
+// hash map; consecutive points mostly share a cell), which gives the final
+// tree's shape down to that depth without building it. Gives up beyond
+// `maxCells` cells (a volume rather than surfaces) to stay within the cap.
+class ShapeCounter {
+ public:
+  ShapeCounter(unsigned depth, unsigned maxDepth, std::size_t maxCells)
+      : depth_(depth), shift_(3 * (maxDepth - depth)), maxCells_(maxCells) {}
+
+  void add(std::uint64_t code) {
+    if (gaveUp_) return;
+    const std::uint64_t key = code >> shift_;
+    if (last_ == nullptr || key != lastKey_) {
+      last_ = &counts_[key];
+      lastKey_ = key;
+      if (counts_.size() > maxCells_) {
+        gaveUp_ = true;
+        counts_ = {};
+        last_ = nullptr;
+        return;
+      }
+    }
+    ++*last_;
+  }
+  bool gaveUp() const { return gaveUp_; }
+  unsigned depth() const { return depth_; }
+  // (cell prefix, points) at the counting depth, sorted by prefix.
+  std::vector<std::pair<std::uint64_t, std::uint64_t>> sorted() const {
+    std::vector<std::pair<std::uint64_t, std::uint64_t>> v(counts_.begin(), counts_.end());
+    std::sort(v.begin(), v.end());
+    return v;
+  }
+
+ private:
+  unsigned depth_;
+  unsigned shift_;
+  std::size_t maxCells_;
+  std::unordered_map<std::uint64_t, std::uint64_t> counts_;
+  std::uint64_t* last_ = nullptr;
+  std::uint64_t lastKey_ = 0;
+  bool gaveUp_ = false;
+};
+
+// The in-memory choice of top-level depth (chooseTopLevelDepth) from the
+// counts: exact when the choice falls at or above the counting depth; -1 when
+// it needs the tree below (then the chunks' trees are built to find out).
+int topLevelDepthFromShape(const ShapeCounter& counter, const OctreeOptions& octree,
+                           std::uint64_t pointCount, std::uint64_t targetPacketBytes) {
+  if (counter.gaveUp()) return -1;
+  const unsigned h = counter.depth();
+  std::vector<std::vector<std::pair<std::uint64_t, std::uint64_t>>> level(h + 1);
+  level[h] = counter.sorted();
+  for (unsigned d = h; d-- > 0;) {
+    for (const auto& [key, n] : level[d + 1]) {
+      if (!level[d].empty() && level[d].back().first == key >> 3)
+        level[d].back().second += n;
+      else
+        level[d].push_back({key >> 3, n});
+    }
+  }
+  std::vector<std::size_t> atDepth(h + 1, 0), leavesAt(h + 1, 0);
+  bool deeper = false;  // a cell at the counting depth splits further
+  unsigned treeDepth = 0;
+  for (unsigned d = 0; d <= h; ++d) {
+    std::size_t parent = 0;
+    for (const auto& [key, n] : level[d]) {
+      if (d > 0) {
+        while (level[d - 1][parent].first != key >> 3) ++parent;
+        if (level[d - 1][parent].second <= octree.leafPoints) continue;  // inside a leaf
+      }
+      ++atDepth[d];
+      treeDepth = d;
+      const bool leaf = n <= octree.leafPoints || d >= octree.maxDepth;
+      if (leaf) ++leavesAt[d];
+      if (!leaf && d == h) deeper = true;
+    }
+  }
+  atDepth.resize(treeDepth + 1);
+  leavesAt.resize(treeDepth + 1);
+  if (deeper) {
+    // A stand-in depth below that always satisfies the target: choosing it
+    // means the answer lies deeper than the counts reach.
+    atDepth.push_back(std::numeric_limits<std::size_t>::max() / 4);
+    leavesAt.push_back(0);
+  }
+  const unsigned chosen = chooseTopLevelDepth(atDepth, leavesAt, pointCount, targetPacketBytes);
+  if (deeper && chosen > h) return -1;
+  return static_cast<int>(chosen);
+}
+
+// Writes the points of one cell (parentDepth, parentPrefix) to one file per
+// cell at `depth` beneath it, buffered.
 class BucketWriter {
  public:
-  BucketWriter(const fs::path& dir, unsigned depth, const OctreeCube& cube, unsigned maxDepth,
-               std::uint64_t& bytesWritten)
-      : dir_(dir), depth_(depth), cube_(cube), maxDepth_(maxDepth), bytes_(bytesWritten) {}
+  BucketWriter(const fs::path& dir, unsigned parentDepth, std::uint64_t parentPrefix,
+               unsigned depth, const OctreeCube& cube, unsigned maxDepth,
+               std::uint64_t& bytesWritten, ShapeCounter* shape = nullptr)
+      : dir_(dir),
+        depth_(depth),
+        base_(parentPrefix << (3 * (depth - parentDepth))),
+        morton_(cube, maxDepth),
+        maxDepth_(maxDepth),
+        bytes_(bytesWritten),
+        shape_(shape),
+        outs_(std::size_t{1} << (3 * (depth - parentDepth))) {}
 
   void add(std::span<const Splat> splats) {
     const unsigned shift = 3 * (maxDepth_ - depth_);
     for (const Splat& s : splats) {
-      const std::uint64_t prefix = mortonCode(s.position, cube_, maxDepth_) >> shift;
-      auto [at, added] = outs_.try_emplace(prefix);
-      Out& out = at->second;
-      if (added) out.prefix = prefix;
+      const std::uint64_t code = morton_(s.position);
+      if (shape_ != nullptr) shape_->add(code);
+      const std::uint64_t prefix = code >> shift;
+      auto& slot = outs_[prefix - base_];
+      if (!slot) {
+        slot = std::make_unique<Out>();
+        slot->prefix = prefix;
+      }
+      Out& out = *slot;
       out.buffer.push_back(s);
       if (out.buffer.size() >= kBucketBufferSplats) flush(out);
     }
@@ -108,15 +211,17 @@ class BucketWriter {
 
   std::vector<Bucket> finish() {
     std::vector<Bucket> buckets;
-    for (auto& [prefix, out] : outs_) {
+    for (auto& slot : outs_) {
+      if (!slot) continue;
+      Out& out = *slot;
       flush(out);
       if (out.file && std::fflush(out.file.get()) != 0)
         throw Error("cannot write temporary file " + out.path.string() + ": " +
                     std::strerror(errno));
       out.file.reset();
-      buckets.push_back({depth_, prefix, out.count, out.path});
+      buckets.push_back({depth_, out.prefix, out.count, out.path});
+      slot.reset();
     }
-    outs_.clear();
     return buckets;
   }
 
@@ -147,10 +252,12 @@ class BucketWriter {
 
   fs::path dir_;
   unsigned depth_;
-  OctreeCube cube_;
+  std::uint64_t base_;
+  MortonCoder morton_;
   unsigned maxDepth_;
   std::uint64_t& bytes_;
-  std::unordered_map<std::uint64_t, Out> outs_;
+  ShapeCounter* shape_;
+  std::vector<std::unique_ptr<Out>> outs_;
 };
 
 // Calls fn(block) over a spill file's points in blocks of at most `block`.
@@ -386,8 +493,14 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
   read.progress = [&](std::uint64_t done, std::uint64_t total) { report("spilling", done, total); };
   const unsigned spillDepth = std::min(kSpillDepth, octree.maxDepth);
   std::vector<Bucket> buckets;
+  ShapeCounter shape(
+      std::min(kMaxUnitDepth, octree.maxDepth), octree.maxDepth,
+      options.shapeCellLimit > 0
+          ? options.shapeCellLimit
+          : std::max<std::size_t>(std::size_t{1} << 16, options.memoryBytes / 16 / 64));
   {
-    BucketWriter writer0(spill.path(), spillDepth, cube, octree.maxDepth, result.spillBytes);
+    BucketWriter writer0(spill.path(), 0, 0, spillDepth, cube, octree.maxDepth, result.spillBytes,
+                         options.build.topLevelDepth < 0 ? &shape : nullptr);
     std::uint64_t again = 0;
     streamPointClouds(
         inputs, read, [&](std::span<const Splat> block) { writer0.add(block); }, again);
@@ -407,7 +520,8 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
         next.push_back(std::move(b));
         continue;
       }
-      BucketWriter split(spill.path(), b.depth + 1, cube, octree.maxDepth, result.spillBytes);
+      BucketWriter split(spill.path(), b.depth, b.prefix, b.depth + 1, cube, octree.maxDepth,
+                         result.spillBytes);
       std::uint64_t moved = 0;
       readBucket(b, ioBlock, [&](std::span<const Splat> block) {
         split.add(block);
@@ -433,6 +547,15 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
                             build.topLevelDepth >= 0
                                 ? std::min<unsigned>(deepest, unsigned(build.topLevelDepth))
                                 : deepest);
+  if (build.topLevelDepth < 0 && groupChunks(layout, capacity).size() > 1) {
+    const int fromShape = topLevelDepthFromShape(shape, octree, count, build.targetPacketBytes);
+    result.shapeCounted = fromShape >= 0;
+    if (fromShape >= 0) {
+      build.topLevelDepth = fromShape;
+      layout = planUnits(nodes, buckets, octree,
+                         std::min<unsigned>(deepest, unsigned(build.topLevelDepth)));
+    }
+  }
   if (build.topLevelDepth < 0 && groupChunks(layout, capacity).size() > 1) {
     std::vector<std::size_t> atDepth(octree.maxDepth + 1, 0), leavesAt(octree.maxDepth + 1, 0);
     unsigned treeDepth = 0;
@@ -488,6 +611,8 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
   std::vector<Merged> merged(layout.items.size());
   const bool estimateNormals = !flags.hasNormals || (!flags.hasRadii && options.knnRadii);
   build.radiiInLeaves = flags.hasNormals && !flags.hasRadii && !options.knnRadii;
+  build.estimateNormals = estimateNormals;
+  build.radiusNeighbours = options.neighbours;
   std::uint64_t done = 0;
   std::uint64_t builtChunks = 0;
   std::size_t nextItem = 0;
@@ -500,16 +625,6 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
     auto inner = [&](const char*, std::uint64_t d, std::uint64_t t) {
       report("building", done + (t > 0 ? n * d / t : 0) / 2, count);
     };
-    if (estimateNormals) {
-      PointCloud cloud;
-      cloud.splats = std::move(points);
-      NormalOptions no;
-      no.neighbours = options.neighbours;
-      no.onlyWhereMissing = true;
-      no.progress = [&](std::uint64_t d, std::uint64_t t) { inner("normals", d, t); };
-      estimateNormalsAndRadii(cloud, no);
-      points = std::move(cloud.splats);
-    }
     std::vector<CellNormals> normals;
     DatasetContent local = buildDatasetContent(std::move(points), build, inner, &frame, &normals);
     report("building", done + n / 2, count);

@@ -11,9 +11,10 @@
 //     upper cells; below them each file (or a leaf above several) is a unit, a
 //     whole subtree of the final octree. Units at most as deep as the top-level
 //     depth, so a top-level cell (a packet) never spans two chunks;
-//  4. structure (only when the top-level depth is chosen automatically and there
-//     is more than one chunk): each chunk's octree is built once to learn the
-//     tree's shape, from which the top-level depth is chosen as in memory;
+//  4. the top-level depth, when chosen automatically and there is more than one
+//     chunk: as in memory, from the tree's shape, known down to depth 8 from
+//     counts taken while spilling; only when the choice lies deeper (or the
+//     counts grew too many) is each chunk's octree built once to find it;
 //  5. building: consecutive units up to the cap form a chunk, built with
 //     buildDatasetContent in the whole cloud's frame (its cube, its upper cells
 //     split); the units' cells and packets go straight into the dataset writer;
@@ -26,6 +27,7 @@
 //
 // Temporary files: `<output>.spill-XXXXXX/`, removed on success, on any
 // failure, and on an interrupt (the caller's progress callback throws).
+#include <cstddef>
 #include <cstdint>
 #include <filesystem>
 #include <string>
@@ -58,6 +60,9 @@ struct OutOfCoreOptions {
   bool knnRadii = false;  // radii by neighbour search even when normals are given
   bool overwrite = false;
   std::string createdBy;
+  // Cells the spill pass counts for the tree's shape before it gives up and
+  // the structure pass builds the chunks' trees instead (0: by the cap).
+  std::size_t shapeCellLimit = 0;
 };
 
 struct OutOfCoreResult {
@@ -70,6 +75,7 @@ struct OutOfCoreResult {
   std::uint64_t spillFiles = 0;
   std::uint64_t spillBytes = 0;  // written to temporary files, re-spills included
   bool capExceeded = false;      // one top-level cell alone held more than a chunk may
+  bool shapeCounted = false;     // the top-level depth came from counts taken while spilling
 };
 
 // stage names: "bounds", "spilling" (bytes of input), "structure", "building"

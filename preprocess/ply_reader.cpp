@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "preprocess/mesh_sampler.hpp"
+#include "preprocess/parallel.hpp"
 #include "preprocess/reader_toolkit.hpp"
 
 namespace pointillist::preprocess {
@@ -389,6 +390,10 @@ class PlyParser {
       reader_.skip(bytes);
       return;
     }
+    if (binary && element.fixedSize && kind == Kind::Vertex && !isMesh_) {
+      readVertexBlocks(element);
+      return;
+    }
     std::vector<unsigned char> record(element.recordSize);
     for (std::uint64_t i = 0; i < element.count; ++i) {
       values_.fill(0.0);
@@ -494,9 +499,14 @@ class PlyParser {
     }
   }
 
+  using Values = std::array<double, kRoles>;
+
   double value(Role role) const { return values_[static_cast<std::size_t>(role)]; }
 
   std::array<std::uint8_t, 4> colorOf(const Element& element) const {
+    return colorOf(element, values_);
+  }
+  static std::array<std::uint8_t, 4> colorOf(const Element& element, const Values& v) {
     std::array<std::uint8_t, 4> c{kDefaultGrey, kDefaultGrey, kDefaultGrey, 255};
     for (const Property& p : element.known) {
       const std::size_t slot = p.role == Role::Red     ? 0
@@ -504,9 +514,121 @@ class PlyParser {
                                : p.role == Role::Blue  ? 2
                                : p.role == Role::Alpha ? 3
                                                        : 4;
-      if (slot < 4) c[slot] = colorChannel(value(p.role), p.type);
+      if (slot < 4) c[slot] = colorChannel(v[static_cast<std::size_t>(p.role)], p.type);
     }
     return c;
+  }
+
+  // A point vertex (not a mesh's) from its property values.
+  Splat vertexSplat(const Element& element, const Values& v) const {
+    const auto at = [&v](Role r) { return v[static_cast<std::size_t>(r)]; };
+    Splat s = detail::greySplat();
+    s.position[0] = static_cast<float>(at(Role::X));
+    s.position[1] = static_cast<float>(at(Role::Y));
+    s.position[2] = static_cast<float>(at(Role::Z));
+    if (hasNormals_) {
+      s.normal[0] = static_cast<float>(at(Role::NX));
+      s.normal[1] = static_cast<float>(at(Role::NY));
+      s.normal[2] = static_cast<float>(at(Role::NZ));
+    }
+    if (hasRadius_) s.radius = static_cast<float>(at(Role::Radius));
+    if (hasColors_) {
+      const auto c = colorOf(element, v);
+      std::copy(c.begin(), c.end(), s.color);
+    }
+    return s;
+  }
+
+  // Fixed-size binary point vertices: a block of records read at once and
+  // decoded on every core; only the checks and the hand-over stay in order.
+  void readVertexBlocks(const Element& element) {
+    constexpr std::size_t kBlock = std::size_t{1} << 16;
+    const std::size_t size = element.recordSize;
+    std::vector<unsigned char> bytes(kBlock * size);
+    std::vector<Splat> splats(kBlock);
+    // Where each known property goes in the splat, decided once.
+    struct Field {
+      std::size_t offset;
+      ScalarType type;
+      int slot;  // 0-2 position, 3-5 normal, 6 radius, 7-10 colour
+    };
+    std::vector<Field> fields;
+    for (const Property& p : element.known) {
+      int slot = -1;
+      switch (p.role) {
+        case Role::X:
+          slot = 0;
+          break;
+        case Role::Y:
+          slot = 1;
+          break;
+        case Role::Z:
+          slot = 2;
+          break;
+        case Role::NX:
+          slot = hasNormals_ ? 3 : -1;
+          break;
+        case Role::NY:
+          slot = hasNormals_ ? 4 : -1;
+          break;
+        case Role::NZ:
+          slot = hasNormals_ ? 5 : -1;
+          break;
+        case Role::Radius:
+          slot = hasRadius_ ? 6 : -1;
+          break;
+        case Role::Red:
+          slot = hasColors_ ? 7 : -1;
+          break;
+        case Role::Green:
+          slot = hasColors_ ? 8 : -1;
+          break;
+        case Role::Blue:
+          slot = hasColors_ ? 9 : -1;
+          break;
+        case Role::Alpha:
+          slot = hasColors_ ? 10 : -1;
+          break;
+        default:
+          break;
+      }
+      if (slot >= 0) fields.push_back({p.offset, p.type, slot});
+    }
+    const auto decodeRecord = [&](const unsigned char* record, Splat& out) {
+      out = detail::greySplat();
+      for (const Field& f : fields) {
+        const unsigned char* at = record + f.offset;
+        if (f.slot >= 7) {
+          // Bytes are colours as they are; other types go through the scaling.
+          out.color[f.slot - 7] =
+              f.type == ScalarType::UInt8 ? *at : colorChannel(decode(at, f.type), f.type);
+          continue;
+        }
+        const auto v = static_cast<float>(decode(at, f.type));
+        if (f.slot < 3)
+          out.position[f.slot] = v;
+        else if (f.slot < 6)
+          out.normal[f.slot - 3] = v;
+        else
+          out.radius = v;
+      }
+    };
+    for (std::uint64_t i = 0; i < element.count;) {
+      const auto n = static_cast<std::size_t>(std::min<std::uint64_t>(kBlock, element.count - i));
+      const std::uint64_t where = reader_.offset();
+      const std::size_t got = reader_.read(bytes.data(), n * size);
+      if (got != n * size) truncated(element, i + got / size, where + got / size * size);
+      parallelFor(
+          n, 0,
+          [&](std::size_t j) {
+            decodeRecord(bytes.data() + j * size, splats[j]);
+            detail::CloudBuilder::prepare(splats[j]);
+          },
+          4096);
+      for (std::size_t j = 0; j < n; ++j) builder_.addPrepared(splats[j], 0, where + j * size);
+      i += n;
+      builder_.progress(reader_.offset(), reader_.size());
+    }
   }
 
   void addVertex(const Element& element, std::uint64_t line, std::uint64_t byte) {
@@ -530,21 +652,7 @@ class PlyParser {
       if (hasColors_) mesh_.vertexColors.push_back(colorOf(element));
       return;
     }
-    Splat s = detail::greySplat();
-    s.position[0] = static_cast<float>(value(Role::X));
-    s.position[1] = static_cast<float>(value(Role::Y));
-    s.position[2] = static_cast<float>(value(Role::Z));
-    if (hasNormals_) {
-      s.normal[0] = static_cast<float>(value(Role::NX));
-      s.normal[1] = static_cast<float>(value(Role::NY));
-      s.normal[2] = static_cast<float>(value(Role::NZ));
-    }
-    if (hasRadius_) s.radius = static_cast<float>(value(Role::Radius));
-    if (hasColors_) {
-      const auto c = colorOf(element);
-      std::copy(c.begin(), c.end(), s.color);
-    }
-    builder_.add(s, line, byte);
+    builder_.add(vertexSplat(element, values_), line, byte);
   }
 
   void addFace(std::uint64_t line, std::uint64_t byte) {

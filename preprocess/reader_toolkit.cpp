@@ -137,8 +137,23 @@ void CloudBuilder::reserve(std::uint64_t expected, std::uint64_t limit) {
   cloud_.splats.reserve(static_cast<std::size_t>(n));
 }
 
-void CloudBuilder::add(const Splat& splat, std::uint64_t line, std::uint64_t byte) {
-  if (!isFinite(splat)) {
+void CloudBuilder::prepare(Splat& s) {
+  const auto nx = static_cast<double>(s.normal[0]), ny = static_cast<double>(s.normal[1]),
+             nz = static_cast<double>(s.normal[2]);
+  const double length = std::sqrt(nx * nx + ny * ny + nz * nz);
+  if (length > 0.0) {
+    s.normal[0] = static_cast<float>(nx / length);
+    s.normal[1] = static_cast<float>(ny / length);
+    s.normal[2] = static_cast<float>(nz / length);
+  }
+  // Non-finite radii stay for addPrepared to refuse.
+  if (std::isfinite(s.radius) && !(s.radius > 0.0f)) s.radius = 0.0f;
+}
+
+void CloudBuilder::addPrepared(const Splat& s, std::uint64_t line, std::uint64_t byte) {
+  // prepare keeps a non-finite splat non-finite (an infinite normal component
+  // turns into NaN), so the verdict is the input's.
+  if (!isFinite(s)) {
     if (!options_.dropNonFinite) {
       const std::string message = "non-finite value (NaN or Inf) in point " +
                                   std::to_string(size() + dropped_) +
@@ -153,16 +168,6 @@ void CloudBuilder::add(const Splat& splat, std::uint64_t line, std::uint64_t byt
     ++dropped_;
     return;
   }
-  Splat s = splat;
-  const auto nx = static_cast<double>(s.normal[0]), ny = static_cast<double>(s.normal[1]),
-             nz = static_cast<double>(s.normal[2]);
-  const double length = std::sqrt(nx * nx + ny * ny + nz * nz);
-  if (length > 0.0) {
-    s.normal[0] = static_cast<float>(nx / length);
-    s.normal[1] = static_cast<float>(ny / length);
-    s.normal[2] = static_cast<float>(nz / length);
-  }
-  if (!(s.radius > 0.0f)) s.radius = 0.0f;
   cloud_.splats.push_back(s);
   if (options_.sink && cloud_.splats.size() >= options_.sinkBlock) flush();
 }

@@ -69,7 +69,16 @@ class CloudBuilder {
 
   void reserve(std::uint64_t expected, std::uint64_t limit);
   // `line` or `byte` (one is 0) locates the point for messages.
-  void add(const Splat& splat, std::uint64_t line, std::uint64_t byte);
+  void add(const Splat& splat, std::uint64_t line, std::uint64_t byte) {
+    Splat s = splat;
+    prepare(s);
+    addPrepared(s, line, byte);
+  }
+  // add in two halves, so readers can run the first on many threads: unit
+  // normals and no negative radius (harmless on a non-finite splat), then the
+  // finiteness check and the hand-over, in input order.
+  static void prepare(Splat& splat);
+  void addPrepared(const Splat& splat, std::uint64_t line, std::uint64_t byte);
   // Throttled progress callback.
   void progress(std::uint64_t done, std::uint64_t total);
   // Points accepted so far (handed to a sink or held).

@@ -82,6 +82,7 @@ struct Case {
   bool radii = false;
   PreprocessOptions build;
   std::uint64_t chunkPoints = 10000;
+  std::size_t shapeCellLimit = 0;
 };
 
 // Builds `c` in memory and out of core; expects equal files, returns the
@@ -104,6 +105,7 @@ OutOfCoreResult expectSameDataset(const Case& c) {
   oc.build = c.build;
   oc.memoryBytes = capFor(c.splats.size(), c.chunkPoints);
   oc.createdBy = "test";
+  oc.shapeCellLimit = c.shapeCellLimit;
   const OutOfCoreResult r = preprocessOutOfCore({input}, dir.path() / "chunked", oc, {});
 
   for (const char* name :
@@ -137,6 +139,21 @@ TEST(OutOfCore, SeveralChunksGiveTheInMemoryDataset) {
   EXPECT_GE(r.chunks, 4u);
   EXPECT_LE(r.largestChunkPoints, r.chunkCapacity);
   EXPECT_FALSE(r.capExceeded);
+}
+
+TEST(OutOfCore, TheTopLevelDepthFromSpillCountsOrFromTheChunksTrees) {
+  // Counted while spilling (the usual way), and with counting given up, from
+  // the chunks' trees built once: the same depth, the same dataset.
+  for (const std::size_t limit : {std::size_t{0}, std::size_t{1}}) {
+    Case c;
+    c.splats = city(80000, 13);
+    c.chunkPoints = 12000;
+    c.shapeCellLimit = limit;
+    c.build.targetPacketBytes = 16 * 1024;  // small packets: a deeper choice
+    const OutOfCoreResult r = expectSameDataset(c);
+    EXPECT_EQ(r.shapeCounted, limit == 0);
+    EXPECT_GE(r.manifest.topLevelDepth, 4u) << "deep enough to test the choice";
+  }
 }
 
 TEST(OutOfCore, SpillFilesSplitDeeperStillGiveTheSameDataset) {
