@@ -233,6 +233,7 @@ DatasetContent buildDatasetContent(std::vector<Splat> points, const PreprocessOp
     cloud.hasColors = true;  // readers gave colourless points their grey already
     NormalOptions no;
     no.neighbours = options.radiusNeighbours;
+    no.search = options.neighbourSearch;
     no.onlyWhereMissing = true;
     no.progress = stage("normals and radii");
     estimateNormalsAndRadii(cloud, no);

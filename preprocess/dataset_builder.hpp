@@ -11,6 +11,7 @@
 #include "common/dataset.hpp"
 #include "common/geometry.hpp"
 #include "preprocess/level_splats.hpp"
+#include "preprocess/normals.hpp"
 #include "preprocess/octree_builder.hpp"
 
 namespace pointillist::preprocess {
@@ -28,6 +29,7 @@ struct PreprocessOptions {
   // neighbours (estimateNormalsAndRadii) once the points are in Morton order:
   // neighbours are then near in memory too.
   bool estimateNormals = false;
+  NeighbourSearch neighbourSearch = NeighbourSearch::Grid;
   unsigned threads = 0;  // 0: all cores
   std::string source;    // recorded in the manifest
 };

@@ -182,6 +182,7 @@ struct Options {
   std::uint64_t packetKiB = pp::kDefaultPacketBytes / 1024;
   int neighbours = 12;
   bool knnRadii = false;
+  std::string neighbourSearch = "grid";
   bool dropNonFinite = false;
   std::uint64_t seed = 1;
   unsigned threads = 0;
@@ -237,6 +238,12 @@ std::uint64_t estimatePoints(const std::vector<std::string>& inputs, std::uint64
   return points;
 }
 
+pp::NeighbourSearch neighbourSearchOf(const Options& o) {
+  if (o.neighbourSearch == "grid") return pp::NeighbourSearch::Grid;
+  if (o.neighbourSearch == "kdtree") return pp::NeighbourSearch::KdTree;
+  throw UsageError("--neighbour-search must be grid or kdtree, not '" + o.neighbourSearch + "'");
+}
+
 int runOutOfCore(const Options& o, Progress& progress, Clock::time_point start) {
   pp::OutOfCoreOptions oc;
   oc.build.octree.maxDepth = o.maxDepth;
@@ -245,6 +252,7 @@ int runOutOfCore(const Options& o, Progress& progress, Clock::time_point start) 
   oc.build.targetPacketBytes = o.packetKiB * 1024;
   oc.build.radiusNeighbours = o.neighbours;
   oc.build.threads = o.threads;
+  oc.build.neighbourSearch = neighbourSearchOf(o);
   oc.read.meshSamplePoints = o.points;
   oc.read.seed = o.seed;
   oc.read.dropNonFinite = o.dropNonFinite;
@@ -322,6 +330,7 @@ int run(const Options& o) {
   if (o.points == 0) throw UsageError("--points must be positive");
   if (o.memoryMb == 0) throw UsageError("--memory-mb must be positive");
   if (o.neighbours < 3) throw UsageError("--neighbours must be at least 3");
+  neighbourSearchOf(o);  // refuses a bad name before any reading
   if (o.packetKiB == 0) throw UsageError("--packet-kib must be positive");
   if (o.maxDepth < 1 || o.maxDepth > 21) throw UsageError("--max-depth must be 1..21");
   if (o.leafPoints < 1) throw UsageError("--leaf-points must be positive");
@@ -363,6 +372,7 @@ int run(const Options& o) {
   po.targetPacketBytes = o.packetKiB * 1024;
   po.radiiInLeaves = leafRadii;
   po.estimateNormals = !cloud.hasNormals || (!cloud.hasRadii && !leafRadii);
+  po.neighbourSearch = neighbourSearchOf(o);
   po.radiusNeighbours = o.neighbours;
   po.threads = o.threads;
   po.source = cloud.source;
@@ -439,6 +449,10 @@ int main(int argc, char** argv) {
   app.add_flag("--knn-radii", o.knnRadii,
                "Radii missing from an input with normals from the nearest neighbours (slower; "
                "no seams at octree leaf faces) instead of a search within each octree leaf");
+  app.add_option("--neighbour-search", o.neighbourSearch,
+                 "How normals and radii find their nearest neighbours: grid (a uniform grid) or "
+                 "kdtree (nanoflann); both exact, the grid is faster on scans")
+      ->capture_default_str();
   app.add_flag("--drop-non-finite", o.dropNonFinite,
                "Drop NaN/Inf points with a warning instead of refusing");
   app.add_option("--seed", o.seed, "Seed for mesh sampling and generation")->capture_default_str();

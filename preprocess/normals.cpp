@@ -8,12 +8,14 @@
 #include <nanoflann.hpp>
 #include <numbers>
 #include <numeric>
+#include <optional>
 #include <span>
 #include <thread>
 #include <vector>
 
 #include "common/errors.hpp"
 #include "common/geometry.hpp"
+#include "preprocess/neighbour_grid.hpp"
 #include "preprocess/parallel.hpp"
 
 namespace pointillist::preprocess {
@@ -264,7 +266,12 @@ void estimateNormalsAndRadii(PointCloud& cloud, const NormalOptions& options) {
   if (options.progress) options.progress(0, total);  // the search tree's build is ours
   const std::size_t k = std::min(static_cast<std::size_t>(options.neighbours), n - 1);
   CloudAdaptor adaptor{splats};
-  KdTree tree(3, adaptor, nanoflann::KDTreeSingleIndexAdaptorParams(16));
+  std::optional<KdTree> tree;
+  std::optional<NeighbourGrid> grid;
+  if (options.search == NeighbourSearch::KdTree)
+    tree.emplace(3, adaptor, nanoflann::KDTreeSingleIndexAdaptorParams(16));
+  else
+    grid.emplace(splats);
 
   // Neighbour lists (without the point itself) are kept for the orientation pass.
   std::vector<std::uint32_t> neighbours(anyNormal ? n * k : 0);
@@ -272,57 +279,73 @@ void estimateNormalsAndRadii(PointCloud& cloud, const NormalOptions& options) {
   const float radiusFactor = std::sqrt(3.0f / static_cast<float>(k));
   std::atomic<std::uint64_t> done{0};
 
+  // One point with its m nearest (index, squared distance), nearest first.
+  const auto handle = [&](std::size_t i, const std::uint32_t* index, const float* distance,
+                          std::size_t m) {
+    if (needRadius[i]) splats[i].radius = std::sqrt(distance[m - 1]) * radiusFactor;
+    if (!needNormal[i]) return;
+    // Two passes (mean, then centred products) rather than
+    // CovarianceAccumulator: its one-pass sums would change the normals' bits.
+    Vec3d mean = position(splats[i]);
+    for (std::size_t j = 0; j < m; ++j) mean = add(mean, position(splats[index[j]]));
+    for (double& c : mean) c /= static_cast<double>(m + 1);
+    Sym3 cov{};
+    addOuterProduct(cov, sub(position(splats[i]), mean));
+    for (std::size_t j = 0; j < m; ++j) addOuterProduct(cov, sub(position(splats[index[j]]), mean));
+    // Closed form (Jacobi only for near-equal eigenvalues): a third of the cost.
+    const SmallestEigen3 eigen = smallestEigen3(cov);
+    const Vec3d normal = eigen.values[2] > 0 ? eigen.vector : Vec3d{0, 0, 1};
+    // Divided, not multiplied by a reciprocal as normalized() does: the
+    // stored normals keep their exact bits.
+    const double len = length(normal);
+    for (std::size_t d = 0; d < 3; ++d) splats[i].normal[d] = static_cast<float>(normal[d] / len);
+    std::copy(index, index + m, neighbours.begin() + static_cast<std::ptrdiff_t>(i * k));
+    if (m < k) {  // fewer neighbours than asked (tiny clouds): repeat the last
+      std::fill(neighbours.begin() + static_cast<std::ptrdiff_t>(i * k + m),
+                neighbours.begin() + static_cast<std::ptrdiff_t>((i + 1) * k), index[m - 1]);
+    }
+    // A recomputed normal keeps the side of the one it replaces.
+    if (!old.empty() && hasNormal(old[i]) && dotNormals(splats[i], old[i]) < 0) flip(splats[i]);
+  };
+
+  // Work items: cubes of the grid (their points share one gathering of
+  // candidates), or points for the kd-tree.
+  const std::size_t items = grid ? grid->occupiedCubes() : n;
   const auto work = [&](std::size_t begin, std::size_t end, bool reports) {
     std::vector<std::uint32_t> index(k + 1);
     std::vector<float> distance(k + 1);
-    for (std::size_t i = begin; i < end; ++i) {
-      if (!needNormal[i] && !needRadius[i]) continue;
-      const std::size_t found =
-          tree.knnSearch(splats[i].position, k + 1, index.data(), distance.data());
-      // Drop the point itself (with duplicates it need not come first).
-      std::size_t self = found;
-      for (std::size_t j = 0; j < found; ++j) {
-        if (index[j] == i) self = j;
-      }
-      if (self == found) self = found - 1;
-      std::size_t m = 0;
-      for (std::size_t j = 0; j < found; ++j) {
-        if (j == self) continue;
-        index[m] = index[j];
-        distance[m] = distance[j];
-        ++m;
-      }
-      if (needRadius[i]) splats[i].radius = std::sqrt(distance[m - 1]) * radiusFactor;
-      if (needNormal[i]) {
-        // Two passes (mean, then centred products) rather than
-        // CovarianceAccumulator: its one-pass sums would change the normals' bits.
-        Vec3d mean = position(splats[i]);
-        for (std::size_t j = 0; j < m; ++j) mean = add(mean, position(splats[index[j]]));
-        for (double& c : mean) c /= static_cast<double>(m + 1);
-        Sym3 cov{};
-        addOuterProduct(cov, sub(position(splats[i]), mean));
-        for (std::size_t j = 0; j < m; ++j)
-          addOuterProduct(cov, sub(position(splats[index[j]]), mean));
-        // Closed form (Jacobi only for near-equal eigenvalues): a third of the cost.
-        const SmallestEigen3 eigen = smallestEigen3(cov);
-        const Vec3d normal = eigen.values[2] > 0 ? eigen.vector : Vec3d{0, 0, 1};
-        // Divided, not multiplied by a reciprocal as normalized() does: the
-        // stored normals keep their exact bits.
-        const double len = length(normal);
-        for (std::size_t d = 0; d < 3; ++d) {
-          splats[i].normal[d] = static_cast<float>(normal[d] / len);
+    std::uint64_t unreported = 0;
+    for (std::size_t item = begin; item < end; ++item) {
+      if (grid) {
+        grid->nearestInCube(
+            item, k, [&](std::size_t i, const std::uint32_t* idx, const float* d2, std::size_t m) {
+              ++unreported;
+              if (needNormal[i] || needRadius[i]) handle(i, idx, d2, m);
+            });
+      } else {
+        const std::size_t i = item;
+        ++unreported;
+        if (!needNormal[i] && !needRadius[i]) continue;
+        const std::size_t found =
+            tree->knnSearch(splats[i].position, k + 1, index.data(), distance.data());
+        // Drop the point itself (with duplicates it need not come first).
+        std::size_t self = found;
+        for (std::size_t j = 0; j < found; ++j) {
+          if (index[j] == i) self = j;
         }
-        std::copy(index.begin(), index.begin() + static_cast<std::ptrdiff_t>(k),
-                  neighbours.begin() + static_cast<std::ptrdiff_t>(i * k));
-        if (m < k) {  // fewer neighbours than asked (tiny clouds): repeat the last
-          std::fill(neighbours.begin() + static_cast<std::ptrdiff_t>(i * k + m),
-                    neighbours.begin() + static_cast<std::ptrdiff_t>((i + 1) * k), index[m - 1]);
+        if (self == found) self = found - 1;
+        std::size_t m = 0;
+        for (std::size_t j = 0; j < found; ++j) {
+          if (j == self) continue;
+          index[m] = index[j];
+          distance[m] = distance[j];
+          ++m;
         }
-        // A recomputed normal keeps the side of the one it replaces.
-        if (!old.empty() && hasNormal(old[i]) && dotNormals(splats[i], old[i]) < 0) flip(splats[i]);
+        handle(i, index.data(), distance.data(), m);
       }
-      if (((i - begin) & 1023) == 1023) {
-        const std::uint64_t now = done.fetch_add(1024) + 1024;
+      if (unreported >= 1024) {
+        const std::uint64_t now = done.fetch_add(unreported) + unreported;
+        unreported = 0;
         if (reports && options.progress) options.progress(now, total);
       }
     }
@@ -334,11 +357,11 @@ void estimateNormalsAndRadii(PointCloud& cloud, const NormalOptions& options) {
           : std::max<std::size_t>(1, std::min<std::size_t>(8, std::thread::hardware_concurrency()));
   {
     std::vector<std::jthread> pool;
-    const std::size_t chunk = (n + threads - 1) / threads;
+    const std::size_t chunk = (items + threads - 1) / threads;
     for (std::size_t t = 1; t < threads; ++t) {
-      pool.emplace_back(work, std::min(n, t * chunk), std::min(n, (t + 1) * chunk), false);
+      pool.emplace_back(work, std::min(items, t * chunk), std::min(items, (t + 1) * chunk), false);
     }
-    work(0, std::min(n, chunk), true);
+    work(0, std::min(items, chunk), true);
   }
   if (options.progress) options.progress(n, total);
 

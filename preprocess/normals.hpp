@@ -2,9 +2,10 @@
 // Normals and splat radii from k nearest neighbours (003 §4.1: "derived from
 // sample neighborhoods").
 //
-// Per point, over its k nearest neighbours (a nanoflann kd-tree):
+// Per point, over its k nearest neighbours (a uniform grid, or a nanoflann
+// kd-tree; NormalOptions::search):
 //  - normal: the eigenvector of the smallest eigenvalue of the neighbourhood
-//    covariance (eigenSymmetric3 of common/geometry.hpp, no Eigen);
+//    covariance (smallestEigen3 of common/geometry.hpp, no Eigen);
 //  - orientation: propagated along a minimum spanning tree of the neighbour
 //    graph, most parallel normals first (weight 1 - |n_i . n_j|, Hoppe et al.
 //    1992), but only across edges within 60 degrees: at creases and where
@@ -30,8 +31,13 @@
 
 namespace pointillist::preprocess {
 
+// How the k nearest neighbours are found: a uniform grid (neighbour_grid.hpp)
+// or a nanoflann kd-tree; both exact.
+enum class NeighbourSearch { Grid, KdTree };
+
 struct NormalOptions {
   int neighbours = 12;
+  NeighbourSearch search = NeighbourSearch::Grid;
   // Only fill in what is missing: zero normals, non-positive radii. When false,
   // every normal and radius is recomputed (new normals keep the side of old ones).
   bool onlyWhereMissing = true;

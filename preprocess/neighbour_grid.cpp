@@ -1,0 +1,330 @@
+#include "preprocess/neighbour_grid.hpp"
+
+#include <algorithm>
+#include <array>
+#include <atomic>
+#include <bit>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <limits>
+#include <utility>
+
+#include "preprocess/octree_builder.hpp"
+
+namespace pointillist::preprocess {
+
+namespace {
+
+constexpr unsigned kCodeLevels = 16;
+constexpr std::size_t kNotFound = std::numeric_limits<std::size_t>::max();
+
+std::uint64_t spread(std::uint64_t v) {
+  v &= 0x1fffff;
+  v = (v | v << 32) & 0x1f00000000ffffull;
+  v = (v | v << 16) & 0x1f0000ff0000ffull;
+  v = (v | v << 8) & 0x100f00f00f00f00full;
+  v = (v | v << 4) & 0x10c30c30c30c30c3ull;
+  v = (v | v << 2) & 0x1249249249249249ull;
+  return v;
+}
+
+std::uint64_t compact(std::uint64_t v) {
+  v &= 0x1249249249249249ull;
+  v = (v | v >> 2) & 0x10c30c30c30c30c3ull;
+  v = (v | v >> 4) & 0x100f00f00f00f00full;
+  v = (v | v >> 8) & 0x1f0000ff0000ffull;
+  v = (v | v >> 16) & 0x1f00000000ffffull;
+  v = (v | v >> 32) & 0x1fffff;
+  return v;
+}
+
+std::uint64_t interleave(const std::int64_t q[3]) {
+  std::uint64_t code = 0;
+  for (int a = 0; a < 3; ++a) code |= spread(static_cast<std::uint64_t>(q[a])) << (2 - a);
+  return code;
+}
+
+std::uint64_t hashKey(std::uint64_t key) {
+  return key * 0x9E3779B97F4A7C15ull;
+}
+
+}  // namespace
+
+NeighbourGrid::NeighbourGrid(std::span<const Splat> points, double pointsPerCube)
+    : n_(points.size()) {
+  if (n_ == 0) return;
+  double lo[3], hi[3];
+  for (int a = 0; a < 3; ++a) {
+    lo[a] = std::numeric_limits<double>::infinity();
+    hi[a] = -std::numeric_limits<double>::infinity();
+  }
+  for (const Splat& s : points)
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], static_cast<double>(s.position[a]));
+      hi[a] = std::max(hi[a], static_cast<double>(s.position[a]));
+    }
+  const OctreeCube cube = boundingCube(lo, hi);
+  const MortonCoder morton(cube, kCodeLevels);
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed(n_);
+  bool sorted = true;
+  for (std::size_t i = 0; i < n_; ++i) {
+    keyed[i] = {morton(points[i].position), static_cast<std::uint32_t>(i)};
+    sorted = sorted && (i == 0 || keyed[i - 1].first <= keyed[i].first);
+  }
+  if (!sorted) std::sort(keyed.begin(), keyed.end());
+
+  // Occupied cubes at every level from where neighbours in that order part.
+  std::vector<std::size_t> parts(kCodeLevels + 1, 0);
+  for (std::size_t i = 1; i < n_; ++i) {
+    const std::uint64_t x = keyed[i - 1].first ^ keyed[i].first;
+    if (x == 0) continue;
+    const unsigned highBit = 63u - static_cast<unsigned>(std::countl_zero(x));
+    ++parts[kCodeLevels - highBit / 3];
+  }
+  std::size_t occupied = 1;
+  for (unsigned d = 0; d <= kCodeLevels; ++d) {
+    occupied += parts[d];
+    if (static_cast<double>(n_) / static_cast<double>(occupied) < pointsPerCube) break;
+    level_ = d;
+  }
+
+  for (int a = 0; a < 3; ++a) min_[a] = cube.min[a];
+  scale_ = std::ldexp(1.0, static_cast<int>(level_)) / cube.size;
+  const unsigned shift = 3 * (kCodeLevels - level_);
+  xyz_.resize(3 * n_);
+  original_.resize(n_);
+  slot_.resize(n_);
+  for (std::size_t j = 0; j < n_; ++j) {
+    const std::uint32_t i = keyed[j].second;
+    for (int a = 0; a < 3; ++a) xyz_[3 * j + static_cast<std::size_t>(a)] = points[i].position[a];
+    original_[j] = i;
+    slot_[i] = static_cast<std::uint32_t>(j);
+    const std::uint64_t key = keyed[j].first >> shift;
+    if (cubeKey_.empty() || cubeKey_.back() != key) {
+      cubeKey_.push_back(key);
+      cubeStart_.push_back(static_cast<std::uint32_t>(j));
+    }
+  }
+  cubeStart_.push_back(static_cast<std::uint32_t>(n_));
+  const std::size_t tableSize = std::bit_ceil(2 * cubeKey_.size() + 1);
+  table_.assign(tableSize, 0);
+  tableMask_ = tableSize - 1;
+  for (std::size_t c = 0; c < cubeKey_.size(); ++c) {
+    std::uint64_t at = hashKey(cubeKey_[c]) >> 32 & tableMask_;
+    while (table_[at] != 0) at = (at + 1) & tableMask_;
+    table_[at] = static_cast<std::uint32_t>(c + 1);
+  }
+}
+
+std::size_t NeighbourGrid::findCube(std::uint64_t key) const {
+  for (std::uint64_t at = hashKey(key) >> 32 & tableMask_;; at = (at + 1) & tableMask_) {
+    const std::uint32_t c = table_[at];
+    if (c == 0) return kNotFound;
+    if (cubeKey_[c - 1] == key) return c - 1;
+  }
+}
+
+void NeighbourGrid::nearestInCube(std::size_t cube, std::size_t k, const NeighboursFn& fn) const {
+  const std::size_t want = std::min(k, n_ == 0 ? 0 : n_ - 1);
+  const std::int64_t cubes = std::int64_t{1} << level_;
+  std::int64_t c[3];
+  for (int a = 0; a < 3; ++a) c[a] = static_cast<std::int64_t>(compact(cubeKey_[cube] >> (2 - a)));
+  // The block of 3x3x3 cubes around, in slot order.
+  struct Candidate {
+    float x, y, z;
+    std::uint32_t id;  // index in the caller's points
+  };
+  struct Group {  // one cube's candidates and its box
+    float lo[3], hi[3];
+    std::uint32_t begin, end;
+  };
+  thread_local std::vector<Candidate> candidates;
+  thread_local std::vector<Group> groups;
+  groups.clear();
+  thread_local std::vector<std::uint32_t> index;
+  thread_local std::vector<float> distance2;
+  candidates.clear();
+  index.resize(want + 1);
+  distance2.resize(want + 1);
+  // Own cube first, then faces, edges and corners: the near candidates fill
+  // the list early and most far ones fail at the first comparison.
+  static constexpr auto kBlockOrder = [] {
+    std::array<std::array<std::int8_t, 3>, 27> order{};
+    std::size_t at = 0;
+    for (int ring = 0; ring <= 3; ++ring)
+      for (int dx = -1; dx <= 1; ++dx)
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dz = -1; dz <= 1; ++dz)
+            if ((dx != 0) + (dy != 0) + (dz != 0) == ring)
+              order[at++] = {static_cast<std::int8_t>(dx), static_cast<std::int8_t>(dy),
+                             static_cast<std::int8_t>(dz)};
+    return order;
+  }();
+  std::int64_t q[3];
+  for (const auto& offset : kBlockOrder) {
+    q[0] = c[0] + offset[0];
+    q[1] = c[1] + offset[1];
+    q[2] = c[2] + offset[2];
+    if (q[0] < 0 || q[1] < 0 || q[2] < 0 || q[0] >= cubes || q[1] >= cubes || q[2] >= cubes)
+      continue;
+    const std::size_t other = findCube(interleave(q));
+    if (other == kNotFound) continue;
+    Group g;
+    for (int a = 0; a < 3; ++a) {
+      g.lo[a] = static_cast<float>(min_[a] + static_cast<double>(q[a]) / scale_);
+      g.hi[a] = static_cast<float>(min_[a] + static_cast<double>(q[a] + 1) / scale_);
+    }
+    g.begin = static_cast<std::uint32_t>(candidates.size());
+    for (std::uint32_t j = cubeStart_[other]; j < cubeStart_[other + 1]; ++j)
+      candidates.push_back({xyz_[3 * j], xyz_[3 * j + 1], xyz_[3 * j + 2], original_[j]});
+    g.end = static_cast<std::uint32_t>(candidates.size());
+    groups.push_back(g);
+  }
+  for (std::uint32_t self = cubeStart_[cube]; self < cubeStart_[cube + 1]; ++self) {
+    const float p[3] = {xyz_[3 * self], xyz_[3 * self + 1], xyz_[3 * self + 2]};
+    const std::uint32_t selfId = original_[self];
+    std::size_t found = 0;
+    for (const Group& g : groups) {
+      if (found == want) {
+        // A cube wholly beyond the k-th so far is skipped (a margin for rounding).
+        float gap2 = 0.0f;
+        for (int a = 0; a < 3; ++a) {
+          const float gap = std::max({0.0f, g.lo[a] - p[a], p[a] - g.hi[a]});
+          gap2 += gap * gap;
+        }
+        if (gap2 * (1.0f - 1e-4f) > distance2[want - 1]) continue;
+      }
+      for (std::uint32_t ci = g.begin; ci < g.end; ++ci) {
+        const Candidate& cand = candidates[ci];
+        const float dx = cand.x - p[0], dy = cand.y - p[1], dz = cand.z - p[2];
+        const float d = dx * dx + dy * dy + dz * dz;
+        const std::uint32_t id = cand.id;
+        if (id == selfId) continue;
+        if (found == want &&
+            (d > distance2[want - 1] || (d == distance2[want - 1] && id > index[want - 1])))
+          continue;
+        std::size_t at = found < want ? found++ : want - 1;
+        while (at > 0 &&
+               (distance2[at - 1] > d || (distance2[at - 1] == d && index[at - 1] > id))) {
+          distance2[at] = distance2[at - 1];
+          index[at] = index[at - 1];
+          --at;
+        }
+        distance2[at] = d;
+        index[at] = id;
+      }
+    }
+    // Exact when the k-th is nearer than anything outside the block.
+    double bound = std::numeric_limits<double>::infinity();
+    for (int a = 0; a < 3; ++a) {
+      const double x = (static_cast<double>(p[a]) - min_[a]) * scale_;
+      if (c[a] - 1 > 0) bound = std::min(bound, x - static_cast<double>(c[a] - 1));
+      if (c[a] + 1 < cubes - 1) bound = std::min(bound, static_cast<double>(c[a] + 2) - x);
+    }
+    bound /= scale_;
+    const bool exact =
+        bound == std::numeric_limits<double>::infinity() ||
+        (found == want && static_cast<double>(distance2[want - 1]) * (1.0 + 1e-5) < bound * bound);
+    if (want == 0 || exact) {
+      fn(original_[self], index.data(), distance2.data(), found);
+    } else {
+      found = nearest(original_[self], k, index.data(), distance2.data());
+      fn(original_[self], index.data(), distance2.data(), found);
+    }
+  }
+}
+
+std::size_t NeighbourGrid::nearest(std::size_t i, std::size_t k, std::uint32_t* index,
+                                   float* distance2) const {
+  const std::size_t want = std::min(k, n_ == 0 ? 0 : n_ - 1);
+  if (want == 0) return 0;
+  const std::size_t self = slot_[i];
+  const float p[3] = {xyz_[3 * self], xyz_[3 * self + 1], xyz_[3 * self + 2]};
+  const std::int64_t cubes = std::int64_t{1} << level_;
+  std::int64_t c[3];
+  for (int a = 0; a < 3; ++a) {
+    const double t = (static_cast<double>(p[a]) - min_[a]) * scale_;
+    c[a] = std::clamp<std::int64_t>(static_cast<std::int64_t>(t < 0.0 ? 0.0 : t), 0, cubes - 1);
+  }
+  std::size_t found = 0;
+  const auto consider = [&](std::size_t cube) {
+    for (std::size_t j = cubeStart_[cube]; j < cubeStart_[cube + 1]; ++j) {
+      if (j == self) continue;
+      const float dx = xyz_[3 * j] - p[0], dy = xyz_[3 * j + 1] - p[1], dz = xyz_[3 * j + 2] - p[2];
+      const float d = dx * dx + dy * dy + dz * dz;
+      const std::uint32_t id = original_[j];
+      if (found == want &&
+          (d > distance2[want - 1] || (d == distance2[want - 1] && id > index[want - 1])))
+        continue;
+      // Insertion into the sorted list (distance, then index).
+      std::size_t at = found < want ? found++ : want - 1;
+      while (at > 0 && (distance2[at - 1] > d || (distance2[at - 1] == d && index[at - 1] > id))) {
+        distance2[at] = distance2[at - 1];
+        index[at] = index[at - 1];
+        --at;
+      }
+      distance2[at] = d;
+      index[at] = id;
+    }
+  };
+  for (std::int64_t r = 0;; ++r) {
+    std::int64_t q[3];
+    for (std::int64_t dx = -r; dx <= r; ++dx) {
+      q[0] = c[0] + dx;
+      if (q[0] < 0 || q[0] >= cubes) continue;
+      for (std::int64_t dy = -r; dy <= r; ++dy) {
+        q[1] = c[1] + dy;
+        if (q[1] < 0 || q[1] >= cubes) continue;
+        const bool innerXY = std::abs(dx) < r && std::abs(dy) < r;
+        for (std::int64_t dz = -r; dz <= r; dz += (innerXY ? 2 * r : 1)) {
+          q[2] = c[2] + dz;
+          if (q[2] >= 0 && q[2] < cubes) {
+            const std::size_t cube = findCube(interleave(q));
+            if (cube != kNotFound) consider(cube);
+          }
+          if (r == 0) break;
+        }
+      }
+    }
+    // Anything not yet seen lies outside the block of cubes [c - r, c + r]:
+    // at least this far away (sides at the grid's edge hold nothing beyond).
+    double bound = std::numeric_limits<double>::infinity();
+    for (int a = 0; a < 3; ++a) {
+      const double x = (static_cast<double>(p[a]) - min_[a]) * scale_;
+      if (c[a] - r > 0) bound = std::min(bound, x - static_cast<double>(c[a] - r));
+      if (c[a] + r < cubes - 1) bound = std::min(bound, static_cast<double>(c[a] + r + 1) - x);
+    }
+    if (bound == std::numeric_limits<double>::infinity()) break;  // every cube seen
+    bound /= scale_;
+    // A little margin for float rounding of the distances.
+    if (found == want && static_cast<double>(distance2[want - 1]) * (1.0 + 1e-5) < bound * bound)
+      break;
+    // Far from everything (an outlier): shells would grow as r^3; go through
+    // the occupied cubes beyond this block instead, nearest box first not needed.
+    const double nextShell = static_cast<double>(2 * r + 3);
+    if (nextShell * nextShell * nextShell > 8.0 * static_cast<double>(cubeKey_.size()) + 64.0) {
+      for (std::size_t cube = 0; cube < cubeKey_.size(); ++cube) {
+        double gap2 = 0.0;
+        bool inside = true;
+        for (int a = 0; a < 3; ++a) {
+          const auto at = static_cast<std::int64_t>(compact(cubeKey_[cube] >> (2 - a)));
+          inside = inside && std::abs(at - c[a]) <= r;
+          const double x = (static_cast<double>(p[a]) - min_[a]) * scale_;
+          const double gap =
+              std::max({0.0, static_cast<double>(at) - x, x - static_cast<double>(at + 1)});
+          gap2 += gap * gap;
+        }
+        if (inside) continue;  // seen in the shells
+        if (found == want &&
+            gap2 / (scale_ * scale_) > static_cast<double>(distance2[want - 1]) * (1.0 + 1e-5))
+          continue;
+        consider(cube);
+      }
+      break;
+    }
+  }
+  return found;
+}
+
+}  // namespace pointillist::preprocess

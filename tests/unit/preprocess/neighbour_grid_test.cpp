@@ -1,0 +1,103 @@
+// The grid's k nearest neighbours are exactly the brute-force ones (distance,
+// then index) on surfaces, volumes, stacks of equal points, far outliers and
+// clouds smaller than k; and normals from the grid equal those from the
+// kd-tree.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <random>
+#include <vector>
+
+#include "preprocess/generator.hpp"
+#include "preprocess/neighbour_grid.hpp"
+#include "preprocess/normals.hpp"
+
+using pointillist::Splat;
+using namespace pointillist::preprocess;
+
+namespace {
+
+std::vector<std::pair<float, std::uint32_t>> bruteForce(const std::vector<Splat>& pts,
+                                                        std::size_t i, std::size_t k) {
+  std::vector<std::pair<float, std::uint32_t>> all;
+  for (std::size_t j = 0; j < pts.size(); ++j) {
+    if (j == i) continue;
+    const float dx = pts[j].position[0] - pts[i].position[0];
+    const float dy = pts[j].position[1] - pts[i].position[1];
+    const float dz = pts[j].position[2] - pts[i].position[2];
+    all.push_back({dx * dx + dy * dy + dz * dz, static_cast<std::uint32_t>(j)});
+  }
+  std::sort(all.begin(), all.end());
+  all.resize(std::min(k, all.size()));
+  return all;
+}
+
+void expectExact(const std::vector<Splat>& pts, std::size_t k, std::size_t every = 1) {
+  const NeighbourGrid grid(pts);
+  std::vector<std::uint32_t> index(k);
+  std::vector<float> d2(k);
+  for (std::size_t i = 0; i < pts.size(); i += every) {
+    const std::size_t m = grid.nearest(i, k, index.data(), d2.data());
+    const auto want = bruteForce(pts, i, k);
+    ASSERT_EQ(m, want.size()) << "point " << i;
+    for (std::size_t j = 0; j < m; ++j) {
+      ASSERT_EQ(index[j], want[j].second) << "point " << i << " neighbour " << j;
+      ASSERT_EQ(d2[j], want[j].first);
+    }
+  }
+}
+
+Splat at(float x, float y, float z) {
+  Splat s{};
+  s.position[0] = x;
+  s.position[1] = y;
+  s.position[2] = z;
+  return s;
+}
+
+}  // namespace
+
+TEST(NeighbourGrid, SurfacePointsMatchBruteForce) {
+  auto pts = generateScene("city", 6000, 4).splats;
+  expectExact(pts, 12, 3);
+  // Shuffled: the grid sorts what is not in Morton order.
+  std::shuffle(pts.begin(), pts.end(), std::mt19937(2));
+  expectExact(pts, 12, 7);
+}
+
+TEST(NeighbourGrid, VolumeStacksOutliersAndTinyClouds) {
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  std::vector<Splat> volume;
+  for (int i = 0; i < 3000; ++i) volume.push_back(at(u(rng), u(rng), u(rng)));
+  // Stacks of equal points: ties broken by index.
+  for (int i = 0; i < 60; ++i) volume.push_back(at(0.25f, 0.25f, 0.25f));
+  // Far outliers, alone in their corner of the grid.
+  volume.push_back(at(500.0f, 500.0f, 500.0f));
+  volume.push_back(at(-300.0f, 480.0f, 2.0f));
+  expectExact(volume, 12);
+  expectExact(volume, 40, 5);
+
+  expectExact({at(0, 0, 0)}, 12);
+  expectExact({at(0, 0, 0), at(1, 0, 0), at(0, 2, 0)}, 12);
+  expectExact(std::vector<Splat>(20, at(3, 3, 3)), 8);
+}
+
+TEST(NeighbourGrid, NormalsEqualTheKdTrees) {
+  PointCloud a;
+  a.splats = generateScene("sphere", 8000, 3).splats;
+  for (Splat& s : a.splats) s.normal[0] = s.normal[1] = s.normal[2] = 0.0f;
+  for (Splat& s : a.splats) s.radius = 0.0f;
+  PointCloud b = a;
+  NormalOptions grid, kd;
+  kd.search = NeighbourSearch::KdTree;
+  estimateNormalsAndRadii(a, grid);
+  estimateNormalsAndRadii(b, kd);
+  std::size_t differ = 0;
+  for (std::size_t i = 0; i < a.splats.size(); ++i)
+    differ += std::memcmp(&a.splats[i], &b.splats[i], sizeof(Splat)) != 0;
+  // Equal but for points whose k-th neighbour ties another one.
+  EXPECT_LE(differ, a.splats.size() / 1000) << differ << " of " << a.splats.size();
+}
