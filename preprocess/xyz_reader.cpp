@@ -2,9 +2,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <mutex>
 #include <string>
 #include <vector>
 
+#include "preprocess/parallel.hpp"
 #include "preprocess/reader_toolkit.hpp"
 
 namespace pointillist::preprocess {
@@ -61,7 +63,7 @@ class XyzParser {
     }
     decideLayout(sniffed);
     for (const Row& r : sniffed) addRow(r);
-    while (nextRow(row)) addRow(row);
+    readRestInBlocks();
     if (countLine_ > 0 && rows_ != expectedCount_) {
       failAtLine(file_, reader_.lineNumber(),
                  "PTS header (line " + std::to_string(countLine_) + ") announces " +
@@ -175,22 +177,97 @@ class XyzParser {
     }
   }
 
-  void addRow(const Row& r) {
+  Splat splatOf(const double* values) const {
     Splat s = detail::greySplat();
-    for (std::size_t k = 0; k < 3; ++k) s.position[k] = static_cast<float>(r.values[k]);
+    for (std::size_t k = 0; k < 3; ++k) s.position[k] = static_cast<float>(values[k]);
     if (layout_.normalAt >= 0) {
       const auto at = static_cast<std::size_t>(layout_.normalAt);
-      for (std::size_t k = 0; k < 3; ++k) s.normal[k] = static_cast<float>(r.values[at + k]);
+      for (std::size_t k = 0; k < 3; ++k) s.normal[k] = static_cast<float>(values[at + k]);
     }
     if (layout_.colorAt >= 0) {
       const auto at = static_cast<std::size_t>(layout_.colorAt);
       for (std::size_t k = 0; k < 3; ++k) {
-        const double c = r.values[at + k];
+        const double c = values[at + k];
         s.color[k] = layout_.unitColors ? detail::colorFromUnit(c) : detail::colorFromByte(c);
       }
     }
-    builder_.add(s, r.line, 0);
+    return s;
+  }
+
+  void addRow(const Row& r) {
+    builder_.add(splatOf(r.values.data()), r.line, 0);
     if ((++rows_ & 4095) == 0) builder_.progress(reader_.offset(), reader_.size());
+  }
+
+  // After the sniffed lines: blocks of lines are cut here and parsed on every
+  // core; the checks and the hand-over stay in line order, and the first bad
+  // line of a block is reported as reading line by line would.
+  void readRestInBlocks() {
+    constexpr std::size_t kBlockLines = std::size_t{1} << 15;
+    std::string text;
+    std::vector<std::size_t> begin;  // line j is text[begin[j], begin[j + 1])
+    std::vector<std::uint64_t> lineNumber;
+    std::vector<Splat> splats;
+    std::vector<std::uint8_t> isData;
+    for (;;) {
+      text.clear();
+      begin.assign(1, 0);
+      lineNumber.clear();
+      std::string_view line;
+      while (lineNumber.size() < kBlockLines && reader_.readLine(line)) {
+        text.append(line);
+        begin.push_back(text.size());
+        lineNumber.push_back(reader_.lineNumber());
+      }
+      const std::size_t n = lineNumber.size();
+      if (n == 0) return;
+      splats.resize(n);
+      isData.assign(n, 0);
+      std::mutex mutex;
+      std::size_t bad = n;  // the first line that does not parse
+      std::string badMessage;
+      parallelFor(
+          n, 0,
+          [&](std::size_t j) {
+            thread_local std::vector<std::string_view> fields;
+            thread_local std::vector<double> values;
+            std::string_view l(text.data() + begin[j], begin[j + 1] - begin[j]);
+            const std::size_t hash = l.find('#');
+            if (hash != std::string_view::npos) l = l.substr(0, hash);
+            detail::splitFields(l, fields);
+            if (fields.empty()) return;
+            std::string message;
+            if (fields.size() != columns_) {
+              message = std::to_string(fields.size()) + " values, but line " +
+                        std::to_string(firstLine_) + " has " + std::to_string(columns_) +
+                        " (the layout is fixed by the first line)";
+            } else {
+              values.resize(columns_);
+              for (std::size_t i = 0; i < columns_ && message.empty(); ++i)
+                if (!detail::parseDouble(fields[i], values[i]))
+                  message = "not a number: '" + std::string(fields[i]) + "'";
+            }
+            if (!message.empty()) {
+              std::lock_guard lock(mutex);
+              if (j < bad) {
+                bad = j;
+                badMessage = std::move(message);
+              }
+              return;
+            }
+            splats[j] = splatOf(values.data());
+            detail::CloudBuilder::prepare(splats[j]);
+            isData[j] = 1;
+          },
+          1024);
+      for (std::size_t j = 0; j < std::min(n, bad); ++j) {
+        if (!isData[j]) continue;
+        builder_.addPrepared(splats[j], lineNumber[j], 0);
+        ++rows_;
+      }
+      if (bad < n) failAtLine(file_, lineNumber[bad], badMessage);
+      builder_.progress(reader_.offset(), reader_.size());
+    }
   }
 
   const std::filesystem::path& file_;

@@ -1172,6 +1172,43 @@ TEST(BadInput, XyzLayouts) {
                    {"amb.xyz", "line 1", "normals from colours"});
 }
 
+// Past the sniffed lines XYZ is parsed in parallel blocks: the same points in
+// the same order, and the first bad line reported as line-by-line reading
+// would (a NaN before a word is the NaN's error).
+TEST(XyzReader, LongFilesReadInBlocksAsLineByLine) {
+  TempDir dir;
+  std::string text = "# a scan\n";
+  for (int i = 0; i < 70000; ++i) {
+    text += std::to_string(i % 97) + " " + std::to_string(i % 89) + ".5 " + std::to_string(i) +
+            " 10 20 30\n";
+    if (i % 5000 == 0) text += "\n# comment\n";
+  }
+  const auto cloud = readPointCloud(dir.write("long.xyz", text), defaults());
+  ASSERT_EQ(cloud.splats.size(), 70000u);
+  EXPECT_TRUE(cloud.hasColors);
+  for (int i = 0; i < 70000; i += 6999) {
+    EXPECT_EQ(cloud.splats[static_cast<std::size_t>(i)].position[2], static_cast<float>(i));
+    EXPECT_EQ(cloud.splats[static_cast<std::size_t>(i)].color[1], 20);
+  }
+  std::string bad;
+  for (int i = 1; i <= 50000; ++i) {
+    if (i == 41000)
+      bad += "1 two 3\n";
+    else if (i == 40000)
+      bad += "1 nan 3\n";
+    else if (i == 45000)
+      bad += "1 2\n";
+    else
+      bad += "1 2 3\n";
+  }
+  expectInputError([&] { readPointCloud(dir.write("nan.xyz", bad), defaults()); },
+                   {"nan.xyz", "line 40000", "non-finite"});
+  ReadOptions drop = defaults();
+  drop.dropNonFinite = true;
+  expectInputError([&] { readPointCloud(dir.write("word.xyz", bad), drop); },
+                   {"word.xyz", "line 41000", "not a number: 'two'"});
+}
+
 TEST(BadInput, Meshes) {
   TempDir dir;
   const auto bad = [&](const std::string& name, const std::string& text,
