@@ -66,10 +66,7 @@ bool formatInfo(unsigned id, FormatInfo& info) {
 
 PointCloud readLas(const std::filesystem::path& file, const ReadOptions& options) {
   detail::FileReader reader(file);
-  // Colours are scaled once the whole file is seen, so no streaming (sink).
-  ReadOptions whole = options;
-  whole.sink = {};
-  detail::CloudBuilder builder(file, whole);
+  detail::CloudBuilder builder(file, options);
 
   std::array<unsigned char, kHeader14> h{};
   const std::size_t got = reader.read(h.data(), kMinHeader);
@@ -141,9 +138,28 @@ PointCloud readLas(const std::filesystem::path& file, const ReadOptions& options
       (reader.size() - std::min(reader.size(), pointOffset)) / recordLength;
   builder.reserve(count, available);
   const bool hasRgb = format.rgbAt >= 0;
+  const auto channel = [&](const unsigned char* record, std::size_t k) {
+    return static_cast<std::uint16_t>(
+        le(record + static_cast<std::size_t>(format.rgbAt) + 2 * k, 2));
+  };
+  // The standard says 16-bit colour, but many writers store 0..255: colours
+  // are scaled down only when some channel uses the high byte. In memory that
+  // is decided at the end; streaming (a sink) points leave as they are read,
+  // so a first pass over the records finds the largest channel.
+  int shift = -1;  // unknown yet
+  if (hasRgb && options.sink) {
+    detail::FileReader scan(file);
+    scan.skip(pointOffset);
+    std::uint16_t largest = 0;
+    std::vector<unsigned char> record(recordLength);
+    for (std::uint64_t i = 0; i < count && scan.read(record.data(), recordLength) == recordLength;
+         ++i)
+      for (std::size_t k = 0; k < 3; ++k) largest = std::max(largest, channel(record.data(), k));
+    shift = largest > 255 ? 8 : 0;
+  }
   std::vector<std::array<std::uint16_t, 3>> rgb;
   std::uint16_t maxChannel = 0;
-  if (hasRgb) rgb.reserve(static_cast<std::size_t>(std::min(count, available)));
+  if (hasRgb && shift < 0) rgb.reserve(static_cast<std::size_t>(std::min(count, available)));
 
   std::vector<unsigned char> record(recordLength);
   for (std::uint64_t i = 0; i < count; ++i) {
@@ -158,13 +174,16 @@ PointCloud readLas(const std::filesystem::path& file, const ReadOptions& options
       const double v = static_cast<double>(leI32(&record[4 * k])) * scale[k] + offset[k];
       s.position[k] = static_cast<float>(v);
     }
-    const std::size_t before = builder.size();
+    if (hasRgb && shift >= 0) {
+      for (std::size_t k = 0; k < 3; ++k)
+        s.color[k] = static_cast<std::uint8_t>(channel(record.data(), k) >> shift);
+    }
+    const std::uint64_t before = builder.size();
     builder.add(s, 0, at);
-    if (hasRgb && builder.size() > before) {
+    if (hasRgb && shift < 0 && builder.size() > before) {
       std::array<std::uint16_t, 3> c{};
       for (std::size_t k = 0; k < 3; ++k) {
-        c[k] = static_cast<std::uint16_t>(
-            le(&record[static_cast<std::size_t>(format.rgbAt) + 2 * k], 2));
+        c[k] = channel(record.data(), k);
         maxChannel = std::max(maxChannel, c[k]);
       }
       rgb.push_back(c);
@@ -173,13 +192,11 @@ PointCloud readLas(const std::filesystem::path& file, const ReadOptions& options
   }
   builder.progress(reader.size(), reader.size());
   PointCloud cloud = builder.finish(false, hasRgb, false);
-  if (hasRgb) {
-    // The standard says 16-bit colour, but many writers store 0..255: only
-    // scale down when some channel uses the high byte.
-    const unsigned shift = maxChannel > 255 ? 8U : 0U;
+  if (hasRgb && shift < 0) {
+    const unsigned down = maxChannel > 255 ? 8U : 0U;
     for (std::size_t i = 0; i < cloud.splats.size(); ++i) {
       for (std::size_t k = 0; k < 3; ++k) {
-        cloud.splats[i].color[k] = static_cast<std::uint8_t>(rgb[i][k] >> shift);
+        cloud.splats[i].color[k] = static_cast<std::uint8_t>(rgb[i][k] >> down);
       }
     }
   }

@@ -622,12 +622,39 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
     const std::uint64_t n = points.size();
     result.largestChunkPoints = std::max(result.largestChunkPoints, n);
     if (n > capacity) result.capExceeded = true;
-    auto inner = [&](const char*, std::uint64_t d, std::uint64_t t) {
-      report("building", done + (t > 0 ? n * d / t : 0) / 2, count);
+    // The chunk's stages in order, weighted by their usual share of its time,
+    // so the bar only moves forward.
+    auto inner = [&](const char* stage, std::uint64_t d, std::uint64_t t) {
+      struct Share {
+        const char* stage;
+        double weight;
+      };
+      const Share shares[] = {{"octree", 0.15},
+                              {"normals and radii", build.estimateNormals ? 1.0 : 0.0},
+                              {"radii", 0.05},
+                              {"level-splats", 0.65},
+                              {"cells", 0.15}};
+      double before = 0.0, total = 0.0, weight = 0.0;
+      bool seen = false;
+      for (const Share& sh : shares) {
+        if (std::strcmp(sh.stage, stage) == 0) {
+          seen = true;
+          weight = sh.weight;
+        } else if (!seen) {
+          before += sh.weight;
+        }
+        total += sh.weight;
+      }
+      if (!seen) return;
+      const double within =
+          t > 0 ? static_cast<double>(std::min(d, t)) / static_cast<double>(t) : 0;
+      report("building",
+             done + static_cast<std::uint64_t>(static_cast<double>(n) * (before + weight * within) /
+                                               total),
+             count);
     };
     std::vector<CellNormals> normals;
     DatasetContent local = buildDatasetContent(std::move(points), build, inner, &frame, &normals);
-    report("building", done + n / 2, count);
 
     // The chunk's units, in order, each a subtree of the local tree.
     const auto localCount = static_cast<std::uint32_t>(local.cells.size());

@@ -36,8 +36,7 @@ struct ReadOptions {
   ProgressFn progress;
   // Streaming (the out-of-core preprocess): when set, point readers hand the
   // points over in blocks of about sinkBlock and keep none, so the returned
-  // cloud has no splats, only its flags. Meshes (sampled) and LAS (colours
-  // scaled once the whole file is seen) still return theirs.
+  // cloud has no splats, only its flags. Meshes (sampled) still return theirs.
   std::function<void(std::span<const Splat>)> sink;
   std::size_t sinkBlock = std::size_t{1} << 18;
 };

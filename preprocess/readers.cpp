@@ -111,7 +111,7 @@ PointCloud streamPointClouds(const std::vector<std::filesystem::path>& files,
       };
     }
     PointCloud cloud = readPointCloud(files[i], one);
-    // Meshes and LAS come back whole.
+    // Meshes come back whole (their samples).
     const std::span<const Splat> held(cloud.splats);
     for (std::size_t at = 0; at < held.size(); at += options.sinkBlock)
       one.sink(held.subspan(at, std::min(options.sinkBlock, held.size() - at)));

@@ -33,9 +33,9 @@ PointCloud readPointClouds(const std::vector<std::filesystem::path>& files,
                            const ReadOptions& options);
 
 // Streams the points of `files`, in order, to `sink` in blocks of about
-// options.sinkBlock, holding one block in memory (a mesh's samples or a LAS
-// file whole). Returns the merged flags and source, no splats; `count` gets
-// the number of points. Progress is in bytes over all files.
+// options.sinkBlock, holding one block in memory (a mesh's samples whole;
+// a LAS file with colours is read twice). Returns the merged flags and source, no splats; `count`
+// gets the number of points. Progress is in bytes over all files.
 PointCloud streamPointClouds(const std::vector<std::filesystem::path>& files,
                              const ReadOptions& options,
                              const std::function<void(std::span<const Splat>)>& sink,

@@ -817,6 +817,34 @@ TEST(LasReader, FormatsAndVersionsWithScaleAndOffset) {
   }
 }
 
+// Streamed in blocks (the out-of-core preprocess) LAS gives the same points,
+// colours scaled as a whole read scales them: 16-bit colours are found by a
+// first pass, 8-bit ones stay.
+TEST(LasReader, StreamedAsReadWhole) {
+  TempDir dir;
+  for (const bool sixteen : {true, false}) {
+    const auto file =
+        dir.write(sixteen ? "16.las" : "8.las", makeLas(2, 3, lasPoints(3000, sixteen)));
+    const PointCloud whole = readPointCloud(file, defaults());
+    ReadOptions streaming = defaults();
+    streaming.sinkBlock = 500;
+    std::vector<Splat> streamed;
+    std::uint64_t count = 0;
+    const PointCloud flags = streamPointClouds(
+        {file}, streaming,
+        [&](std::span<const Splat> block) {
+          EXPECT_LE(block.size(), 500u);
+          streamed.insert(streamed.end(), block.begin(), block.end());
+        },
+        count);
+    ASSERT_EQ(streamed.size(), whole.splats.size());
+    EXPECT_EQ(count, whole.splats.size());
+    EXPECT_EQ(std::memcmp(streamed.data(), whole.splats.data(), streamed.size() * sizeof(Splat)),
+              0);
+    EXPECT_TRUE(flags.hasColors);
+  }
+}
+
 TEST(LasReader, RefusesLazAndBadHeaders) {
   TempDir dir;
   const auto points = lasPoints(10, true);
