@@ -4,7 +4,10 @@
 # Every frame must complete (no tile failed), and the scheduler must move work
 # away from the slow process and back: its share of the splats in frames
 # [A + 20, B) below 0.6 of its share in [20, A), and in [B + 20, end) back
-# above 0.75 of it. The run's arguments carry --slow-index 0 and the window.
+# above 0.75 of it -- or of its fair share (1 / render processes) when that is
+# smaller: on a loaded machine the start can hand it more than its share
+# (0.361 of four seen in CI), and coming back means back to its share. The
+# run's arguments carry --slow-index 0 and the window.
 set -uo pipefail
 from="$1" to="$2"
 shift 2
@@ -24,7 +27,8 @@ import csv, json, pathlib, sys
 out, start, end = pathlib.Path(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3])
 stats = json.loads((out / "stats.json").read_text())
 frames = stats["frames"]
-slow = min(int(r["render_rank"]) for r in csv.DictReader(open(out / "per_frame_render.csv")))
+ranks = {int(r["render_rank"]) for r in csv.DictReader(open(out / "per_frame_render.csv"))}
+slow = min(ranks)
 total, mine = {}, {}
 for row in csv.DictReader(open(out / "per_frame_render.csv")):
     f = int(row["frame"])
@@ -41,6 +45,6 @@ print(f"render rank {slow} share of splats: before {before:.3f}, while slow {dur
 assert failed == 0, "tiles failed"
 assert len(frames) == last, "frames missing"
 assert during < 0.6 * before, "the work did not move away from the slow render process"
-assert after > 0.75 * before, "the work did not come back to the render process"
+assert after > 0.75 * min(before, 1.0 / len(ranks)), "the work did not come back to the render process"
 print("PASS")
 PY
