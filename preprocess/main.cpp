@@ -238,6 +238,24 @@ std::uint64_t estimatePoints(const std::vector<std::string>& inputs, std::uint64
   return points;
 }
 
+// The closing line of a run: what was written, how big, how fast; `tail`
+// adds what the path (in memory or out of core) has to say.
+void printSummary(const Options& o, const pointillist::DatasetManifest& m, std::uint64_t bytes,
+                  std::uint64_t points, double seconds, const char* tail) {
+  std::printf(
+      "%s: wrote %s: %llu points, %llu cells (depth %u), %llu top-level cells (depth %u, %s per "
+      "packet), %llu level-splats, %s in %.2f s (%s points/s%s)\n",
+      kTool, o.output.c_str(), static_cast<unsigned long long>(m.pointCount),
+      static_cast<unsigned long long>(m.cellCount), m.treeDepth,
+      static_cast<unsigned long long>(m.topLevelCount), m.topLevelDepth,
+      humanBytes(static_cast<double>(m.pointCount + m.levelSplatCount) *
+                 sizeof(pointillist::Splat) / static_cast<double>(m.topLevelCount))
+          .c_str(),
+      static_cast<unsigned long long>(m.levelSplatCount),
+      humanBytes(static_cast<double>(bytes)).c_str(), seconds,
+      humanCount(static_cast<double>(points) / seconds).c_str(), tail);
+}
+
 pp::NeighbourSearch neighbourSearchOf(const Options& o) {
   if (o.neighbourSearch == "grid") return pp::NeighbourSearch::Grid;
   if (o.neighbourSearch == "kdtree") return pp::NeighbourSearch::KdTree;
@@ -277,25 +295,15 @@ int runOutOfCore(const Options& o, Progress& progress, Clock::time_point start) 
                  kTool, static_cast<unsigned long long>(r.largestChunkPoints),
                  static_cast<unsigned long long>(o.memoryMb),
                  static_cast<unsigned long long>(r.chunkCapacity));
-  const double total = seconds(start);
-  const auto& m = r.manifest;
-  std::printf(
-      "%s: wrote %s: %llu points, %llu cells (depth %u), %llu top-level cells (depth %u, %s per "
-      "packet), %llu level-splats, %s in %.2f s (%s points/s); out of core: %llu chunks of at "
-      "most %s points, %llu spill files, %s spilled\n",
-      kTool, o.output.c_str(), static_cast<unsigned long long>(m.pointCount),
-      static_cast<unsigned long long>(m.cellCount), m.treeDepth,
-      static_cast<unsigned long long>(m.topLevelCount), m.topLevelDepth,
-      humanBytes(static_cast<double>(m.pointCount + m.levelSplatCount) *
-                 sizeof(pointillist::Splat) / static_cast<double>(m.topLevelCount))
-          .c_str(),
-      static_cast<unsigned long long>(m.levelSplatCount),
-      humanBytes(static_cast<double>(r.bytesWritten)).c_str(), total,
-      humanCount(static_cast<double>(r.points) / total).c_str(),
-      static_cast<unsigned long long>(r.chunks),
-      humanCount(static_cast<double>(r.largestChunkPoints)).c_str(),
-      static_cast<unsigned long long>(r.spillFiles),
-      humanBytes(static_cast<double>(r.spillBytes)).c_str());
+  char tail[160];
+  std::snprintf(tail, sizeof tail,
+                "; out of core: %llu chunks of at most %s points, %llu spill "
+                "files, %s spilled",
+                static_cast<unsigned long long>(r.chunks),
+                humanCount(static_cast<double>(r.largestChunkPoints)).c_str(),
+                static_cast<unsigned long long>(r.spillFiles),
+                humanBytes(static_cast<double>(r.spillBytes)).c_str());
+  printSummary(o, r.manifest, r.bytesWritten, r.points, seconds(start), tail);
   return 0;
 }
 
@@ -391,22 +399,10 @@ int run(const Options& o) {
   const double buildSeconds = seconds(buildStart);
   const double total = seconds(start);
 
-  const auto& m = content.manifest;
-  std::printf(
-      "%s: wrote %s: %llu points, %llu cells (depth %u), %llu top-level cells (depth %u, %s per "
-      "packet), "
-      "%llu level-splats, %s in %.2f s (%s points/s; octree, level-splats and writing %.2f s, %s "
-      "points/s)\n",
-      kTool, o.output.c_str(), static_cast<unsigned long long>(m.pointCount),
-      static_cast<unsigned long long>(m.cellCount), m.treeDepth,
-      static_cast<unsigned long long>(m.topLevelCount), m.topLevelDepth,
-      humanBytes(static_cast<double>(m.pointCount + m.levelSplatCount) *
-                 sizeof(pointillist::Splat) / static_cast<double>(m.topLevelCount))
-          .c_str(),
-      static_cast<unsigned long long>(m.levelSplatCount),
-      humanBytes(static_cast<double>(bytes)).c_str(), total,
-      humanCount(static_cast<double>(pointCount) / total).c_str(), buildSeconds,
-      humanCount(static_cast<double>(pointCount) / buildSeconds).c_str());
+  char tail[96];
+  std::snprintf(tail, sizeof tail, "; octree, level-splats and writing %.2f s, %s points/s",
+                buildSeconds, humanCount(static_cast<double>(pointCount) / buildSeconds).c_str());
+  printSummary(o, content.manifest, bytes, pointCount, total, tail);
   return 0;
 }
 

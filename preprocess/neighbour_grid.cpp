@@ -19,29 +19,9 @@ namespace {
 constexpr unsigned kCodeLevels = 16;
 constexpr std::size_t kNotFound = std::numeric_limits<std::size_t>::max();
 
-std::uint64_t spread(std::uint64_t v) {
-  v &= 0x1fffff;
-  v = (v | v << 32) & 0x1f00000000ffffull;
-  v = (v | v << 16) & 0x1f0000ff0000ffull;
-  v = (v | v << 8) & 0x100f00f00f00f00full;
-  v = (v | v << 4) & 0x10c30c30c30c30c3ull;
-  v = (v | v << 2) & 0x1249249249249249ull;
-  return v;
-}
-
-std::uint64_t compact(std::uint64_t v) {
-  v &= 0x1249249249249249ull;
-  v = (v | v >> 2) & 0x10c30c30c30c30c3ull;
-  v = (v | v >> 4) & 0x100f00f00f00f00full;
-  v = (v | v >> 8) & 0x1f0000ff0000ffull;
-  v = (v | v >> 16) & 0x1f00000000ffffull;
-  v = (v | v >> 32) & 0x1fffff;
-  return v;
-}
-
 std::uint64_t interleave(const std::int64_t q[3]) {
   std::uint64_t code = 0;
-  for (int a = 0; a < 3; ++a) code |= spread(static_cast<std::uint64_t>(q[a])) << (2 - a);
+  for (int a = 0; a < 3; ++a) code |= spreadBits(static_cast<std::uint64_t>(q[a])) << (2 - a);
   return code;
 }
 
@@ -129,7 +109,8 @@ void NeighbourGrid::nearestInCube(std::size_t cube, std::size_t k, const Neighbo
   const std::size_t want = std::min(k, n_ == 0 ? 0 : n_ - 1);
   const std::int64_t cubes = std::int64_t{1} << level_;
   std::int64_t c[3];
-  for (int a = 0; a < 3; ++a) c[a] = static_cast<std::int64_t>(compact(cubeKey_[cube] >> (2 - a)));
+  for (int a = 0; a < 3; ++a)
+    c[a] = static_cast<std::int64_t>(compactBits(cubeKey_[cube] >> (2 - a)));
   // The block of 3x3x3 cubes around, in slot order.
   struct Candidate {
     float x, y, z;
@@ -308,7 +289,7 @@ std::size_t NeighbourGrid::nearest(std::size_t i, std::size_t k, std::uint32_t* 
         double gap2 = 0.0;
         bool inside = true;
         for (int a = 0; a < 3; ++a) {
-          const auto at = static_cast<std::int64_t>(compact(cubeKey_[cube] >> (2 - a)));
+          const auto at = static_cast<std::int64_t>(compactBits(cubeKey_[cube] >> (2 - a)));
           inside = inside && std::abs(at - c[a]) <= r;
           const double x = (static_cast<double>(p[a]) - min_[a]) * scale_;
           const double gap =

@@ -225,15 +225,7 @@ Octree buildOctree(std::vector<Splat> points, const OctreeOptions& options,
   }
   if (cells[0].isLeaf()) cells[0].level = 1;
 
-  // nextSibling: the first later cell that is not deeper (ends the subtree).
-  std::vector<std::uint32_t> open;
-  for (std::size_t i = 0; i < cells.size(); ++i) {
-    while (!open.empty() && cells[open.back()].depth >= cells[i].depth) {
-      cells[open.back()].nextSibling = static_cast<std::uint32_t>(i);
-      open.pop_back();
-    }
-    open.push_back(static_cast<std::uint32_t>(i));
-  }
+  linkNextSiblings(std::span<BuildCell>(cells));
   return tree;
 }
 

@@ -4,6 +4,7 @@
 // owns one contiguous range of it, and the cells listed depth-first.
 #include <cstddef>
 #include <cstdint>
+#include <span>
 #include <vector>
 
 #include "common/octree_cell.hpp"
@@ -63,6 +64,27 @@ OctreeCube boundingCube(const double lo[3], const double hi[3]);
 // depth d is code >> 3 * (maxDepth - d).
 std::uint64_t mortonCode(const float position[3], const OctreeCube& cube, unsigned maxDepth);
 
+// Morton bit spreading: the low 21 bits of v with bit k moved to bit 3k, and
+// back (compactBits takes every third bit from bit 0).
+inline std::uint64_t spreadBits(std::uint64_t v) {
+  v &= 0x1fffff;
+  v = (v | v << 32) & 0x1f00000000ffffull;
+  v = (v | v << 16) & 0x1f0000ff0000ffull;
+  v = (v | v << 8) & 0x100f00f00f00f00full;
+  v = (v | v << 4) & 0x10c30c30c30c30c3ull;
+  v = (v | v << 2) & 0x1249249249249249ull;
+  return v;
+}
+inline std::uint64_t compactBits(std::uint64_t v) {
+  v &= 0x1249249249249249ull;
+  v = (v | v >> 2) & 0x10c30c30c30c30c3ull;
+  v = (v | v >> 4) & 0x100f00f00f00f00full;
+  v = (v | v >> 8) & 0x1f0000ff0000ffull;
+  v = (v | v >> 16) & 0x1f00000000ffffull;
+  v = (v | v >> 32) & 0x1fffff;
+  return v;
+}
+
 // The same for many positions: the scale worked out once, all inline.
 class MortonCoder {
  public:
@@ -77,23 +99,12 @@ class MortonCoder {
       const double t = (static_cast<double>(position[a]) - min_[a]) * scale_;
       // Clamped as a double first: a cast of an out-of-range double is undefined.
       const auto q = static_cast<std::uint64_t>(t < 0.0 ? 0.0 : (t > maxCoord_ ? maxCoord_ : t));
-      code |= spread(q) << (2 - a);
+      code |= spreadBits(q) << (2 - a);
     }
     return code;
   }
 
  private:
-  // Spreads the low 21 bits of v so that bit k lands at bit 3k.
-  static std::uint64_t spread(std::uint64_t v) {
-    v &= 0x1fffff;
-    v = (v | v << 32) & 0x1f00000000ffffull;
-    v = (v | v << 16) & 0x1f0000ff0000ffull;
-    v = (v | v << 8) & 0x100f00f00f00f00full;
-    v = (v | v << 4) & 0x10c30c30c30c30c3ull;
-    v = (v | v << 2) & 0x1249249249249249ull;
-    return v;
-  }
-
   double min_[3];
   double scale_;
   double maxCoord_;
@@ -114,6 +125,22 @@ struct OctreeFrame {
 // Without a frame the cube is boundingCube of the points.
 Octree buildOctree(std::vector<Splat> points, const OctreeOptions& options,
                    const ProgressFn& progress = {}, const OctreeFrame* frame = nullptr);
+
+// Sets every cell's nextSibling in a depth-first cell array from the depths
+// alone: the first later cell that is not deeper (ends the subtree), else
+// kNoIndex. For BuildCell and OctreeCell.
+template <class Cell>
+void linkNextSiblings(std::span<Cell> cells) {
+  std::vector<std::uint32_t> open;
+  for (std::size_t i = 0; i < cells.size(); ++i) {
+    while (!open.empty() && cells[open.back()].depth >= cells[i].depth) {
+      cells[open.back()].nextSibling = static_cast<std::uint32_t>(i);
+      open.pop_back();
+    }
+    open.push_back(static_cast<std::uint32_t>(i));
+  }
+  for (const std::uint32_t i : open) cells[i].nextSibling = kNoIndex;
+}
 
 // How many top-level cells a top-level depth gives: the cells at that depth
 // plus the leaves above it (a branch that ends early is its own top-level cell).

@@ -733,17 +733,7 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
   // 6. The cells above the units. nextSibling: the first later cell that is
   // not deeper (as buildOctree).
   auto& cells = content.cells;
-  {
-    std::vector<std::uint32_t> open;
-    for (std::size_t i = 0; i < cells.size(); ++i) {
-      while (!open.empty() && cells[open.back()].depth >= cells[i].depth) {
-        cells[open.back()].nextSibling = static_cast<std::uint32_t>(i);
-        open.pop_back();
-      }
-      open.push_back(static_cast<std::uint32_t>(i));
-    }
-    for (const std::uint32_t i : open) cells[i].nextSibling = kNoIndex;
-  }
+  linkNextSiblings(std::span<OctreeCell>(cells));
   // Children merge into their parent from the back, as in memory.
   for (std::size_t k = layout.items.size(); k-- > 0;) {
     const Item& it = layout.items[k];

@@ -23,6 +23,21 @@ std::string lowerExtension(const std::filesystem::path& file) {
   return ext;
 }
 
+// Each file's size (0 when unknown) and their sum: progress over several
+// files is counted in bytes.
+std::vector<std::uint64_t> fileSizes(const std::vector<std::filesystem::path>& files,
+                                     std::uint64_t& total) {
+  std::vector<std::uint64_t> sizes;
+  total = 0;
+  for (const auto& f : files) {
+    std::error_code ec;
+    const std::uint64_t size = std::filesystem::file_size(f, ec);
+    sizes.push_back(ec ? 0 : size);
+    total += sizes.back();
+  }
+  return sizes;
+}
+
 }  // namespace
 
 PointCloud readPointCloud(const std::filesystem::path& file, const ReadOptions& options) {
@@ -45,15 +60,8 @@ PointCloud readPointClouds(const std::vector<std::filesystem::path>& files,
   if (files.empty()) throw UsageError("no input files given");
   if (files.size() == 1) return readPointCloud(files.front(), options);
 
-  // Progress over all files, in bytes.
-  std::vector<std::uint64_t> sizes;
   std::uint64_t total = 0;
-  for (const auto& f : files) {
-    std::error_code ec;
-    const std::uint64_t size = std::filesystem::file_size(f, ec);
-    sizes.push_back(ec ? 0 : size);
-    total += sizes.back();
-  }
+  const std::vector<std::uint64_t> sizes = fileSizes(files, total);
 
   PointCloud merged;
   merged.hasNormals = merged.hasColors = merged.hasRadii = true;
@@ -86,14 +94,8 @@ PointCloud streamPointClouds(const std::vector<std::filesystem::path>& files,
                              const std::function<void(std::span<const Splat>)>& sink,
                              std::uint64_t& count) {
   if (files.empty()) throw UsageError("no input files given");
-  std::vector<std::uint64_t> sizes;
   std::uint64_t total = 0;
-  for (const auto& f : files) {
-    std::error_code ec;
-    const std::uint64_t size = std::filesystem::file_size(f, ec);
-    sizes.push_back(ec ? 0 : size);
-    total += sizes.back();
-  }
+  const std::vector<std::uint64_t> sizes = fileSizes(files, total);
   count = 0;
   PointCloud merged;
   merged.hasNormals = merged.hasColors = merged.hasRadii = true;
