@@ -1,6 +1,7 @@
 #include "preprocess/level_splats.hpp"
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -16,13 +17,55 @@ namespace pointillist::preprocess {
 
 namespace {
 
+// Raw first and second moments: a split sums one side and takes the other
+// as the parent's minus it. Positions are relative to the cell's first input,
+// so the sums stay small and the subtraction loses nothing that matters.
+struct Moments {
+  double count = 0.0;
+  Vec3d sum{};
+  Sym3 square{};
+
+  void add(const Vec3d& p) {
+    count += 1.0;
+    sum = pointillist::add(sum, p);
+    addOuterProduct(square, p);
+  }
+  Vec3d mean() const { return scale(sum, 1.0 / count); }
+  // Population covariance; cancellation can leave tiny negative variances,
+  // and a covariance is PSD.
+  Sym3 covariance() const {
+    const double w = 1.0 / count;
+    const Vec3d m = scale(sum, w);
+    Sym3 c = {square[0] * w - m[0] * m[0], square[1] * w - m[0] * m[1],
+              square[2] * w - m[0] * m[2], square[3] * w - m[1] * m[1],
+              square[4] * w - m[1] * m[2], square[5] * w - m[2] * m[2]};
+    c[0] = std::max(c[0], 0.0);
+    c[3] = std::max(c[3], 0.0);
+    c[5] = std::max(c[5], 0.0);
+    return c;
+  }
+  Moments minus(const Moments& o) const {
+    Moments r;
+    r.count = count - o.count;
+    r.sum = sub(sum, o.sum);
+    for (std::size_t j = 0; j < 6; ++j) r.square[j] = square[j] - o.square[j];
+    return r;
+  }
+};
+
 struct Range {
   std::uint32_t begin;
   std::uint32_t end;
   double spread;  // total variance (covariance trace): the split priority
   Vec3d mean;
   Sym3 covariance;
+  Moments moments;
 };
+
+Range makeRange(std::uint32_t begin, std::uint32_t end, const Moments& m) {
+  const Sym3 c = m.covariance();
+  return {begin, end, end - begin >= 2 ? c[0] + c[3] + c[5] : 0.0, m.mean(), c, m};
+}
 
 // Max-heap on spread; ties by position so the result does not depend on the
 // heap implementation.
@@ -44,7 +87,7 @@ double quadratic(const Sym3& m, const Vec3d& d) {
 
 // Inverse and log-determinant of (covariance + eps I) by the adjugate: no
 // eigen-decomposition needed for the Mahalanobis distance.
-Gaussian makeGaussian(const CovarianceAccumulator& acc, double eps) {
+Gaussian makeGaussian(const Moments& acc, double eps) {
   Sym3 c = acc.covariance();
   c[0] += eps;
   c[3] += eps;
@@ -104,29 +147,46 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
   // 1. Hierarchical covariance split.
   std::vector<std::uint32_t> order(m);
   std::iota(order.begin(), order.end(), 0u);
-  auto analyse = [&](std::uint32_t b, std::uint32_t e) {
-    CovarianceAccumulator acc;
-    for (std::uint32_t i = b; i < e; ++i) acc.add(pos[order[i]]);
-    const Sym3 c = acc.covariance();
-    return Range{b, e, e - b >= 2 ? c[0] + c[3] + c[5] : 0.0, acc.mean(), c};
+  auto sum = [&](std::uint32_t b, std::uint32_t e) {
+    Moments moments;
+    for (std::uint32_t i = b; i < e; ++i) moments.add(pos[order[i]]);
+    return moments;
   };
-  std::vector<Range> heap{analyse(0, static_cast<std::uint32_t>(m))};
-  std::vector<Range> done;
-  const double rootSpread = heap[0].spread;
+  const auto all = static_cast<std::uint32_t>(m);
+  // The heap holds indices: a Range is too big to move around in sift-downs.
+  std::vector<Range> ranges{makeRange(0, all, sum(0, all))};
+  std::vector<std::uint32_t> heap{0};
+  std::vector<std::uint32_t> done;
+  const auto lessIndex = [&](std::uint32_t a, std::uint32_t b) {
+    return lessSpread(ranges[a], ranges[b]);
+  };
+  std::vector<std::uint32_t> scratch(m);
+  const double rootSpread = ranges[0].spread;
   while (!heap.empty() && heap.size() + done.size() < target) {
-    std::pop_heap(heap.begin(), heap.end(), lessSpread);
-    const Range r = heap.back();
-    heap.pop_back();
+    std::pop_heap(heap.begin(), heap.end(), lessIndex);
+    const Range r = ranges[heap.back()];
     if (!(r.spread > 0.0)) {
-      done.push_back(r);
+      done.push_back(heap.back());
+      heap.pop_back();
       continue;
     }
     // Cut through the centroid, normal to the direction of largest variance.
     const Vec3d axis = majorAxis(r.covariance);
     auto proj = [&](std::uint32_t i) { return dot(sub(pos[i], r.mean), axis); };
+    // Partition without branches (the side is a coin toss to the predictor):
+    // the low side fills scratch from the front, the high side from the back.
+    std::size_t low = 0, high = r.end - r.begin;
+    for (std::uint32_t j = r.begin; j < r.end; ++j) {
+      const std::uint32_t i = order[j];
+      const bool isLow = proj(i) < 0.0;
+      scratch[isLow ? low : high - 1] = i;
+      low += isLow;
+      high -= !isLow;
+    }
+    std::copy(scratch.begin(), scratch.begin() + (r.end - r.begin), order.begin() + r.begin);
     auto* first = order.data() + r.begin;
     auto* last = order.data() + r.end;
-    auto* mid = std::partition(first, last, [&](std::uint32_t i) { return proj(i) < 0.0; });
+    auto* mid = first + low;
     if (mid == first || mid == last) {  // numerically one-sided: cut at the median
       mid = first + (last - first) / 2;
       std::nth_element(first, mid, last, [&](std::uint32_t a, std::uint32_t b) {
@@ -134,19 +194,24 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
       });
     }
     const auto cut = static_cast<std::uint32_t>(mid - order.data());
-    heap.push_back(analyse(r.begin, cut));
-    std::push_heap(heap.begin(), heap.end(), lessSpread);
-    heap.push_back(analyse(cut, r.end));
-    std::push_heap(heap.begin(), heap.end(), lessSpread);
+    const bool lowSmaller = cut - r.begin <= r.end - cut;
+    const Moments small = lowSmaller ? sum(r.begin, cut) : sum(cut, r.end);
+    const Moments large = r.moments.minus(small);
+    // The popped range's slot takes the low half; the high half is appended.
+    ranges[heap.back()] = makeRange(r.begin, cut, lowSmaller ? small : large);
+    std::push_heap(heap.begin(), heap.end(), lessIndex);
+    heap.push_back(static_cast<std::uint32_t>(ranges.size()));
+    ranges.push_back(makeRange(cut, r.end, lowSmaller ? large : small));
+    std::push_heap(heap.begin(), heap.end(), lessIndex);
   }
   done.insert(done.end(), heap.begin(), heap.end());
   std::sort(done.begin(), done.end(),
-            [](const Range& a, const Range& b) { return a.begin < b.begin; });
+            [&](std::uint32_t a, std::uint32_t b) { return ranges[a].begin < ranges[b].begin; });
 
   std::size_t k = done.size();
   out.assignment.assign(m, 0);
   for (std::size_t c = 0; c < k; ++c)
-    for (std::uint32_t i = done[c].begin; i < done[c].end; ++i)
+    for (std::uint32_t i = ranges[done[c]].begin; i < ranges[done[c]].end; ++i)
       out.assignment[order[i]] = static_cast<std::uint32_t>(c);
 
   // 2. Mahalanobis refinement: reassign to the most likely cluster Gaussian.
@@ -156,7 +221,7 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
   if (!(eps > 0.0)) eps = 1e-12;
   for (int it = 0; it < options.refineIterations && k > 1 && m * k <= (std::size_t{1} << 22);
        ++it) {
-    std::vector<CovarianceAccumulator> acc(k);
+    std::vector<Moments> acc(k);
     for (std::size_t i = 0; i < m; ++i) acc[out.assignment[i]].add(pos[i]);
     std::vector<Gaussian> g;
     g.reserve(k);
@@ -164,19 +229,28 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
     // An input moves only to one of its cluster's nearest clusters (by mean):
     // the likeliest Gaussian is a near one, and all k would cost m * k.
     const std::size_t near = std::min<std::size_t>(k - 1, kRefineCandidates);
+    // The `near` closest by (distance, index), kept sorted by insertion: k is
+    // small, and sorting all k - 1 pairs per cluster cost more than the refinement.
     std::vector<std::uint32_t> candidates(k * near);
     {
-      std::vector<std::pair<double, std::uint32_t>> byDistance;
+      std::array<double, kRefineCandidates> bestDistance{};
       for (std::uint32_t c = 0; c < k; ++c) {
-        byDistance.clear();
+        std::uint32_t* best = candidates.data() + std::size_t{c} * near;
+        std::size_t filled = 0;
         for (std::uint32_t o = 0; o < k; ++o) {
           if (o == c) continue;
           const Vec3d d = sub(g[o].mean, g[c].mean);
-          byDistance.push_back({dot(d, d), o});
+          const double distance = dot(d, d);
+          // Equal distances keep the smaller index first: o only grows.
+          if (filled == near && !(distance < bestDistance[near - 1])) continue;
+          std::size_t j = filled < near ? filled++ : near - 1;
+          for (; j > 0 && distance < bestDistance[j - 1]; --j) {
+            bestDistance[j] = bestDistance[j - 1];
+            best[j] = best[j - 1];
+          }
+          bestDistance[j] = distance;
+          best[j] = o;
         }
-        std::partial_sort(byDistance.begin(),
-                          byDistance.begin() + static_cast<std::ptrdiff_t>(near), byDistance.end());
-        for (std::size_t j = 0; j < near; ++j) candidates[c * near + j] = byDistance[j].second;
       }
     }
     bool changed = false;
@@ -208,17 +282,17 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
   }
 
   // 3. One splat per cluster.
-  std::vector<CovarianceAccumulator> acc(k);
+  std::vector<Moments> acc(k);
   std::vector<Vec3d> normalSum(k, Vec3d{});
   std::vector<std::array<double, 4>> colorSum(k, std::array<double, 4>{});
-  std::vector<bool> anyNormal(k, false);
+  std::vector<std::uint8_t> anyNormal(k, 0);
   for (std::size_t i = 0; i < m; ++i) {
     const std::uint32_t c = out.assignment[i];
     acc[c].add(pos[i]);
     const Vec3d n = {input[i].normal[0], input[i].normal[1], input[i].normal[2]};
     if (dot(n, n) > 0.25) {
       normalSum[c] = add(normalSum[c], normalized(n));
-      anyNormal[c] = true;
+      anyNormal[c] = 1;
     }
     for (std::size_t ch = 0; ch < 4; ++ch) colorSum[c][ch] += input[i].color[ch];
   }
@@ -230,7 +304,7 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
     Vec3d normal{};
     if (anyNormal[c]) {
       normal = normalized(normalSum[c]);
-      if (acc[c].count() >= 3) {
+      if (acc[c].count >= 3.0) {
         const SmallestEigen3 e = smallestEigen3(acc[c].covariance());
         // A plane fit needs a cluster that is flat but not a line: otherwise
         // the plane can spin about the line and the mean normal is better.
@@ -240,7 +314,7 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
       }
     }
     for (std::size_t a = 0; a < 3; ++a) s.normal[a] = static_cast<float>(normal[a]);
-    const double n = static_cast<double>(acc[c].count());
+    const double n = acc[c].count;
     for (std::size_t ch = 0; ch < 4; ++ch)
       s.color[ch] =
           static_cast<std::uint8_t>(std::lround(std::clamp(colorSum[c][ch] / n, 0.0, 255.0)));

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <bit>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -172,14 +173,20 @@ void orient(std::vector<Splat>& splats, const std::vector<std::uint8_t>& needNor
 
   // The rest: components over reliable edges, each grown from its highest point
   // with arbitrary sign, then turned as a whole.
-  std::vector<std::uint32_t> order(n);
-  std::iota(order.begin(), order.end(), 0U);
-  std::sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
-    return splats[a].position[2] > splats[b].position[2] ||
-           (splats[a].position[2] == splats[b].position[2] && a < b);
-  });
+  // Seeds highest first, equal heights by index: a stable radix sort of
+  // (z as an order-preserving integer, index) packed in 64 bits (a comparison
+  // sort was a fifth of the stage).
+  std::vector<std::uint64_t> order(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const float z = splats[i].position[2] == 0.0f ? 0.0f : splats[i].position[2];  // no -0
+    const auto bits = std::bit_cast<std::uint32_t>(z);
+    const std::uint32_t ascending = (bits & 0x80000000u) != 0 ? ~bits : bits | 0x80000000u;
+    order[i] = std::uint64_t{~ascending} << 32 | i;
+  }
+  radixSort(order, 32, 64, [](std::uint64_t item) { return item; });
   std::uint32_t mark = 1;
-  for (const std::uint32_t seed : order) {
+  for (const std::uint64_t item : order) {
+    const auto seed = static_cast<std::uint32_t>(item);
     if (owner[seed] != 0) continue;
     ++mark;
     members.assign(1, seed);

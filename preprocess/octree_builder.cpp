@@ -17,29 +17,6 @@ struct Keyed {
   std::uint64_t index;
 };
 
-// Stable LSD radix sort on the low `bits` bits of the codes, 8 bits a pass.
-// Stable LSD radix sort on code bits [lowBit, highBit), 8 bits a pass.
-// Reports progress as a share of the points.
-void radixSort(std::vector<Keyed>& items, unsigned lowBit, unsigned highBit,
-               const ProgressFn& progress) {
-  std::vector<Keyed> tmp(items.size());
-  const unsigned passes = (highBit - lowBit + 7) / 8;
-  for (unsigned pass = 0; pass < passes; ++pass) {
-    const unsigned shift = lowBit + pass * 8;
-    const std::uint64_t mask =
-        shift + 8 <= highBit ? 0xffu : (std::uint64_t{1} << (highBit - shift)) - 1;
-    std::array<std::size_t, 257> count{};
-    for (const Keyed& k : items) ++count[((k.code >> shift) & mask) + 1];
-    if (std::any_of(count.begin() + 1, count.end(),
-                    [&](std::size_t c) { return c == items.size(); }))
-      continue;  // every key shares this digit
-    for (std::size_t d = 1; d < count.size(); ++d) count[d] += count[d - 1];
-    for (const Keyed& k : items) tmp[count[(k.code >> shift) & mask]++] = k;
-    items.swap(tmp);
-    if (progress) progress(items.size() * (pass + 1) / (passes + 1), items.size());
-  }
-}
-
 // Orders points by Morton code. Only the top 8 levels are radix sorted; a run
 // sharing that prefix is sorted further only if it holds more than a leaf's
 // worth of points (otherwise it is one leaf and its inner order is free).
@@ -47,7 +24,8 @@ void radixSort(std::vector<Keyed>& items, unsigned lowBit, unsigned highBit,
 void mortonSort(std::vector<Keyed>& items, unsigned totalBits, std::uint32_t leafPoints,
                 const ProgressFn& progress) {
   const unsigned lowBit = totalBits > 24 ? totalBits - 24 : 0;
-  radixSort(items, lowBit, totalBits, progress);
+  radixSort(
+      items, lowBit, totalBits, [](const Keyed& k) { return k.code; }, progress);
   if (lowBit == 0) return;
   auto less = [](const Keyed& a, const Keyed& b) {
     return a.code < b.code || (a.code == b.code && a.index < b.index);

@@ -2,6 +2,8 @@
 // Seed 003 §4.1.1, step one: an axis-aligned octree over the points'
 // bounding cube, with the point-array sorted so that every cell (leaf or not)
 // owns one contiguous range of it, and the cells listed depth-first.
+#include <algorithm>
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <span>
@@ -118,6 +120,29 @@ struct OctreeFrame {
   OctreeCube cube;
   std::vector<std::vector<std::uint64_t>> splitCells;
 };
+
+// Stable LSD radix sort on bits [lowBit, highBit) of key(item), 8 bits a
+// pass: equal keys keep their order. Reports progress as a share of the items.
+template <class Item, class KeyFn>
+void radixSort(std::vector<Item>& items, unsigned lowBit, unsigned highBit, KeyFn key,
+               const ProgressFn& progress = {}) {
+  std::vector<Item> tmp(items.size());
+  const unsigned passes = (highBit - lowBit + 7) / 8;
+  for (unsigned pass = 0; pass < passes; ++pass) {
+    const unsigned shift = lowBit + pass * 8;
+    const std::uint64_t mask =
+        shift + 8 <= highBit ? 0xffu : (std::uint64_t{1} << (highBit - shift)) - 1;
+    std::array<std::size_t, 257> count{};
+    for (const Item& item : items) ++count[((key(item) >> shift) & mask) + 1];
+    if (std::any_of(count.begin() + 1, count.end(),
+                    [&](std::size_t c) { return c == items.size(); }))
+      continue;  // every key shares this digit
+    for (std::size_t d = 1; d < count.size(); ++d) count[d] += count[d - 1];
+    for (const Item& item : items) tmp[count[(key(item) >> shift) & mask]++] = item;
+    items.swap(tmp);
+    if (progress) progress(items.size() * (pass + 1) / (passes + 1), items.size());
+  }
+}
 
 // Sorts `points` along a Morton curve at maxDepth resolution and builds the
 // tree. Throws InputError for an empty or non-finite cloud, UsageError for

@@ -445,5 +445,20 @@ TEST(Octree, SinglePointDatasetIsValid) {
   EXPECT_EQ(c.levelSplats.size(), 1u);
 }
 
+// The octree's Morton sort and the orientation's seed order rely on it: only
+// the chosen bits order the items, and equal keys keep their input order.
+TEST(RadixSort, OrdersByTheChosenBitsAndIsStable) {
+  std::mt19937_64 random(7);
+  std::vector<std::uint64_t> items(5000);
+  for (std::size_t i = 0; i < items.size(); ++i)
+    items[i] = (random() & 0x3f00ull) | (i & 0xff);  // 64 keys: many ties
+  std::vector<std::uint64_t> expected = items;
+  const auto keyBits = [](std::uint64_t v) { return (v >> 8) & 0xfff; };
+  std::stable_sort(expected.begin(), expected.end(),
+                   [&](std::uint64_t a, std::uint64_t b) { return keyBits(a) < keyBits(b); });
+  radixSort(items, 8, 20, [](std::uint64_t v) { return v; });
+  EXPECT_EQ(items, expected);
+}
+
 }  // namespace
 }  // namespace pointillist::preprocess
