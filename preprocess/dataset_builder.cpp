@@ -235,6 +235,7 @@ DatasetContent buildDatasetContent(std::vector<Splat> points, const PreprocessOp
     no.neighbours = options.radiusNeighbours;
     no.search = options.neighbourSearch;
     no.onlyWhereMissing = true;
+    no.threads = options.threads;
     no.progress = stage("normals and radii");
     estimateNormalsAndRadii(cloud, no);
     tree.points = std::move(cloud.splats);

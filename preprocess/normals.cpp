@@ -358,10 +358,11 @@ void estimateNormalsAndRadii(PointCloud& cloud, const NormalOptions& options) {
     }
   };
 
-  const std::size_t threads =
-      n < 20000
-          ? 1
+  std::size_t threads =
+      options.threads > 0
+          ? options.threads
           : std::max<std::size_t>(1, std::min<std::size_t>(8, std::thread::hardware_concurrency()));
+  if (n < 20000) threads = 1;
   {
     std::vector<std::jthread> pool;
     const std::size_t chunk = (items + threads - 1) / threads;

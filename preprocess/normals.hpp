@@ -41,7 +41,8 @@ struct NormalOptions {
   // Only fill in what is missing: zero normals, non-positive radii. When false,
   // every normal and radius is recomputed (new normals keep the side of old ones).
   bool onlyWhereMissing = true;
-  ProgressFn progress;  // (points done, 2 * points): neighbour search, then orientation
+  unsigned threads = 0;  // for the neighbour search; 0: all cores (at most 8)
+  ProgressFn progress;   // (points done, 2 * points): neighbour search, then orientation
 };
 
 // Afterwards hasNormals and hasRadii are true.

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <numbers>
 #include <vector>
@@ -75,6 +76,22 @@ TEST(Normals, SphereNormalsPointOutward) {
   for (const Splat& s : cloud.splats) mean += static_cast<double>(s.radius);
   mean /= 20000;
   EXPECT_NEAR(mean, expected, 0.2 * expected);
+}
+
+// --threads must not change the dataset: every point's search is its own.
+TEST(Normals, ThreadCountDoesNotChangeTheResult) {
+  const PointCloud input = stripped(generateScene("city", 60000, 5));
+  std::vector<std::vector<Splat>> results;
+  for (const unsigned threads : {1u, 3u}) {
+    PointCloud cloud = input;
+    NormalOptions options;
+    options.threads = threads;
+    estimateNormalsAndRadii(cloud, options);
+    results.push_back(cloud.splats);
+  }
+  ASSERT_EQ(results[0].size(), results[1].size());
+  EXPECT_EQ(0,
+            std::memcmp(results[0].data(), results[1].data(), results[0].size() * sizeof(Splat)));
 }
 
 TEST(Normals, TwoSeparateClosedShapesBothOutward) {
