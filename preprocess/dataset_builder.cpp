@@ -226,7 +226,9 @@ DatasetContent buildDatasetContent(std::vector<Splat> points, const PreprocessOp
         [&progress, name](std::uint64_t done, std::uint64_t total) { progress(name, done, total); };
   };
   const std::uint64_t total = points.size();
-  Octree tree = buildOctree(std::move(points), options.octree, stage("octree"), frame);
+  OctreeOptions octree = options.octree;
+  octree.threads = options.threads;
+  Octree tree = buildOctree(std::move(points), octree, stage("octree"), frame);
   if (options.estimateNormals) {
     PointCloud cloud;
     cloud.splats = std::move(tree.points);

@@ -183,7 +183,8 @@ void orient(std::vector<Splat>& splats, const std::vector<std::uint8_t>& needNor
     const std::uint32_t ascending = (bits & 0x80000000u) != 0 ? ~bits : bits | 0x80000000u;
     order[i] = std::uint64_t{~ascending} << 32 | i;
   }
-  radixSort(order, 32, 64, [](std::uint64_t item) { return item; });
+  radixSort(
+      order, 32, 64, [](std::uint64_t item) { return item; }, {}, options.threads);
   std::uint32_t mark = 1;
   for (const std::uint64_t item : order) {
     const auto seed = static_cast<std::uint32_t>(item);

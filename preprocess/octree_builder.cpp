@@ -7,6 +7,7 @@
 #include <string>
 
 #include "common/errors.hpp"
+#include "preprocess/parallel.hpp"
 
 namespace pointillist::preprocess {
 
@@ -22,10 +23,10 @@ struct Keyed {
 // worth of points (otherwise it is one leaf and its inner order is free).
 // Ties keep input order, so the result is deterministic.
 void mortonSort(std::vector<Keyed>& items, unsigned totalBits, std::uint32_t leafPoints,
-                const ProgressFn& progress) {
+                const ProgressFn& progress, unsigned threads) {
   const unsigned lowBit = totalBits > 24 ? totalBits - 24 : 0;
   radixSort(
-      items, lowBit, totalBits, [](const Keyed& k) { return k.code; }, progress);
+      items, lowBit, totalBits, [](const Keyed& k) { return k.code; }, progress, threads);
   if (lowBit == 0) return;
   auto less = [](const Keyed& a, const Keyed& b) {
     return a.code < b.code || (a.code == b.code && a.index < b.index);
@@ -165,17 +166,28 @@ Octree buildOctree(std::vector<Splat> points, const OctreeOptions& options,
   for (int a = 0; a < 3; ++a) tree.cubeMin[a] = cube.min[a];
   tree.cubeSize = cube.size;
 
+  // Codes and the gather on all threads: the gather's reads are scattered,
+  // so it waits on memory, and two cores wait in parallel.
+  constexpr std::size_t kChunk = std::size_t{1} << 16;
   std::vector<Keyed> keyed(points.size());
   const MortonCoder morton(cube, options.maxDepth);
-  for (std::size_t i = 0; i < points.size(); ++i) keyed[i] = {morton(points[i].position), i};
-  mortonSort(keyed, 3 * options.maxDepth, options.leafPoints, progress);
+  parallelFor(
+      points.size(), options.threads,
+      [&](std::size_t i) {
+        keyed[i] = {morton(points[i].position), i};
+      },
+      kChunk);
+  mortonSort(keyed, 3 * options.maxDepth, options.leafPoints, progress, options.threads);
 
   tree.points.resize(points.size());
   std::vector<std::uint64_t> codes(points.size());
-  for (std::size_t i = 0; i < keyed.size(); ++i) {
-    tree.points[i] = points[keyed[i].index];
-    codes[i] = keyed[i].code;
-  }
+  parallelFor(
+      keyed.size(), options.threads,
+      [&](std::size_t i) {
+        tree.points[i] = points[keyed[i].index];
+        codes[i] = keyed[i].code;
+      },
+      kChunk);
   keyed = {};
   points = {};
 

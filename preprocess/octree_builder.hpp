@@ -7,10 +7,12 @@
 #include <cstddef>
 #include <cstdint>
 #include <span>
+#include <thread>
 #include <vector>
 
 #include "common/octree_cell.hpp"
 #include "common/splat.hpp"
+#include "preprocess/parallel.hpp"
 #include "preprocess/point_cloud.hpp"
 
 namespace pointillist::preprocess {
@@ -24,6 +26,7 @@ struct OctreeOptions {
   // the cell array at roughly 1/40 of the points (traverse memory) while leaves
   // stay small enough for fine culling and level of detail.
   std::uint32_t leafPoints = 128;
+  unsigned threads = 0;  // for the Morton codes and the gather; 0: all cores
 };
 
 // One cell while preprocessing, in depth-first (pre-order) position.
@@ -122,25 +125,59 @@ struct OctreeFrame {
 };
 
 // Stable LSD radix sort on bits [lowBit, highBit) of key(item), 8 bits a
-// pass: equal keys keep their order. Reports progress as a share of the items.
+// pass: equal keys keep their order. Each of `threads` threads (0: all cores)
+// counts and scatters its own contiguous share, in share order, so the sort
+// stays stable. Reports progress as a share of the items.
 template <class Item, class KeyFn>
 void radixSort(std::vector<Item>& items, unsigned lowBit, unsigned highBit, KeyFn key,
-               const ProgressFn& progress = {}) {
-  std::vector<Item> tmp(items.size());
+               const ProgressFn& progress = {}, unsigned threads = 1) {
+  if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
+  const std::size_t n = items.size();
+  // Below a few blocks a thread costs more than it saves.
+  const std::size_t shares = std::clamp<std::size_t>(n >> 18, 1, threads);
+  std::vector<Item> tmp(n);
+  std::vector<std::array<std::size_t, 256>> count(shares);
+  const auto shareBegin = [&](std::size_t s) { return n * s / shares; };
   const unsigned passes = (highBit - lowBit + 7) / 8;
   for (unsigned pass = 0; pass < passes; ++pass) {
     const unsigned shift = lowBit + pass * 8;
     const std::uint64_t mask =
         shift + 8 <= highBit ? 0xffu : (std::uint64_t{1} << (highBit - shift)) - 1;
-    std::array<std::size_t, 257> count{};
-    for (const Item& item : items) ++count[((key(item) >> shift) & mask) + 1];
-    if (std::any_of(count.begin() + 1, count.end(),
-                    [&](std::size_t c) { return c == items.size(); }))
-      continue;  // every key shares this digit
-    for (std::size_t d = 1; d < count.size(); ++d) count[d] += count[d - 1];
-    for (const Item& item : items) tmp[count[(key(item) >> shift) & mask]++] = item;
+    const auto digit = [&](const Item& item) {
+      return static_cast<std::size_t>((key(item) >> shift) & mask);
+    };
+    parallelFor(
+        shares, threads,
+        [&](std::size_t s) {
+          count[s].fill(0);
+          for (std::size_t i = shareBegin(s); i < shareBegin(s + 1); ++i)
+            ++count[s][digit(items[i])];
+        },
+        1);
+    // Where each share's run of each digit starts: digit-major, share-minor.
+    std::size_t at = 0;
+    bool oneDigit = false;
+    for (std::size_t d = 0; d < 256; ++d) {
+      std::size_t total = 0;
+      for (std::size_t s = 0; s < shares; ++s) {
+        const std::size_t c = count[s][d];
+        count[s][d] = at;
+        at += c;
+        total += c;
+      }
+      oneDigit = oneDigit || total == n;
+    }
+    if (oneDigit) continue;  // every key shares this digit
+    parallelFor(
+        shares, threads,
+        [&](std::size_t s) {
+          auto& next = count[s];
+          for (std::size_t i = shareBegin(s); i < shareBegin(s + 1); ++i)
+            tmp[next[digit(items[i])]++] = items[i];
+        },
+        1);
     items.swap(tmp);
-    if (progress) progress(items.size() * (pass + 1) / (passes + 1), items.size());
+    if (progress) progress(n * (pass + 1) / (passes + 1), n);
   }
 }
 

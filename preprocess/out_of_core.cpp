@@ -442,7 +442,8 @@ bool fitsInMemory(std::uint64_t memoryBytes, std::uint64_t pointCount) {
 OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const fs::path& output,
                                     const OutOfCoreOptions& options,
                                     const StageProgressFn& progress) {
-  const OctreeOptions& octree = options.build.octree;
+  OctreeOptions octree = options.build.octree;
+  octree.threads = options.build.threads;
   if (octree.maxDepth < 1 || octree.maxDepth > 21)
     throw UsageError("octree max depth must be 1..21, got " + std::to_string(octree.maxDepth));
   auto report = [&](const char* stage, std::uint64_t done, std::uint64_t total) {

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <bit>
 #include <cmath>
 #include <cstdio>
@@ -604,7 +605,11 @@ class PlyParser {
               f.type == ScalarType::UInt8 ? *at : colorChannel(decode(at, f.type), f.type);
           continue;
         }
-        const auto v = static_cast<float>(decode(at, f.type));
+        float v;
+        if (f.type == ScalarType::Float32 && !swap_)
+          std::memcpy(&v, at, sizeof v);  // the common case, without the round trip
+        else
+          v = static_cast<float>(decode(at, f.type));
         if (f.slot < 3)
           out.position[f.slot] = v;
         else if (f.slot < 6)
@@ -618,14 +623,22 @@ class PlyParser {
       const std::uint64_t where = reader_.offset();
       const std::size_t got = reader_.read(bytes.data(), n * size);
       if (got != n * size) truncated(element, i + got / size, where + got / size * size);
+      // Decoded, prepared and checked on all threads; runs of finite splats
+      // (normally the whole block) are then handed over in one copy.
+      std::atomic<bool> anyNonFinite{false};
       parallelFor(
           n, 0,
           [&](std::size_t j) {
             decodeRecord(bytes.data() + j * size, splats[j]);
             detail::CloudBuilder::prepare(splats[j]);
+            if (!detail::isFinite(splats[j])) anyNonFinite.store(true, std::memory_order_relaxed);
           },
           4096);
-      for (std::size_t j = 0; j < n; ++j) builder_.addPrepared(splats[j], 0, where + j * size);
+      if (!anyNonFinite.load()) {
+        builder_.addPreparedFinite(std::span<const Splat>(splats).first(n));
+      } else {
+        for (std::size_t j = 0; j < n; ++j) builder_.addPrepared(splats[j], 0, where + j * size);
+      }
       i += n;
       builder_.progress(reader_.offset(), reader_.size());
     }

@@ -172,6 +172,20 @@ void CloudBuilder::addPrepared(const Splat& s, std::uint64_t line, std::uint64_t
   if (options_.sink && cloud_.splats.size() >= options_.sinkBlock) flush();
 }
 
+void CloudBuilder::addPreparedFinite(std::span<const Splat> splats) {
+  while (!splats.empty()) {
+    std::size_t take = splats.size();
+    if (options_.sink)
+      take =
+          std::min(take, options_.sinkBlock - std::min(options_.sinkBlock, cloud_.splats.size()));
+    take = std::max<std::size_t>(take, 1);
+    cloud_.splats.insert(cloud_.splats.end(), splats.begin(),
+                         splats.begin() + static_cast<std::ptrdiff_t>(take));
+    splats = splats.subspan(take);
+    if (options_.sink && cloud_.splats.size() >= options_.sinkBlock) flush();
+  }
+}
+
 namespace {
 bool hasNormal(const Splat& s) {
   return s.normal[0] != 0.0f || s.normal[1] != 0.0f || s.normal[2] != 0.0f;

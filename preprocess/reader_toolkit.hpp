@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <cstdio>
 #include <filesystem>
+#include <span>
 #include <string_view>
 #include <vector>
 
@@ -79,6 +80,9 @@ class CloudBuilder {
   // finiteness check and the hand-over, in input order.
   static void prepare(Splat& splat);
   void addPrepared(const Splat& splat, std::uint64_t line, std::uint64_t byte);
+  // addPrepared for a run of prepared splats already known to be finite: one
+  // copy, handed to the sink at the same points as one by one.
+  void addPreparedFinite(std::span<const Splat> splats);
   // Throttled progress callback.
   void progress(std::uint64_t done, std::uint64_t total);
   // Points accepted so far (handed to a sink or held).

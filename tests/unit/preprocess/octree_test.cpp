@@ -446,18 +446,22 @@ TEST(Octree, SinglePointDatasetIsValid) {
 }
 
 // The octree's Morton sort and the orientation's seed order rely on it: only
-// the chosen bits order the items, and equal keys keep their input order.
+// the chosen bits order the items, and equal keys keep their input order, on
+// one thread and when each thread sorts its share (enough items for three).
 TEST(RadixSort, OrdersByTheChosenBitsAndIsStable) {
-  std::mt19937_64 random(7);
-  std::vector<std::uint64_t> items(5000);
-  for (std::size_t i = 0; i < items.size(); ++i)
-    items[i] = (random() & 0x3f00ull) | (i & 0xff);  // 64 keys: many ties
-  std::vector<std::uint64_t> expected = items;
-  const auto keyBits = [](std::uint64_t v) { return (v >> 8) & 0xfff; };
-  std::stable_sort(expected.begin(), expected.end(),
-                   [&](std::uint64_t a, std::uint64_t b) { return keyBits(a) < keyBits(b); });
-  radixSort(items, 8, 20, [](std::uint64_t v) { return v; });
-  EXPECT_EQ(items, expected);
+  for (const unsigned threads : {1u, 3u}) {
+    std::mt19937_64 random(7);
+    std::vector<std::uint64_t> items(800000);
+    for (std::size_t i = 0; i < items.size(); ++i)
+      items[i] = (random() & 0x3ff00ull) | (i & 0xff);  // 1024 keys: many ties
+    std::vector<std::uint64_t> expected = items;
+    const auto keyBits = [](std::uint64_t v) { return (v >> 8) & 0xfff; };
+    std::stable_sort(expected.begin(), expected.end(),
+                     [&](std::uint64_t a, std::uint64_t b) { return keyBits(a) < keyBits(b); });
+    radixSort(
+        items, 8, 20, [](std::uint64_t v) { return v; }, {}, threads);
+    EXPECT_EQ(items, expected) << threads << " threads";
+  }
 }
 
 }  // namespace
