@@ -209,13 +209,14 @@ void Channel::send(int dest, MessageKind kind, const google::protobuf::MessageLi
   handle.wait();
 }
 
-Envelope Channel::receiveMatched(MPI_Message& message, MPI_Status& status) {
+Channel::Incoming Channel::startReceive(MPI_Message& message, MPI_Status& status) {
   int count = 0;
   checkMpi(MPI_Get_count(&status, MPI_BYTE, &count), "MPI_Get_count");
   std::string frame(static_cast<std::size_t>(count), '\0');
   checkMpi(MPI_Mrecv(frame.data(), count, MPI_BYTE, &message, MPI_STATUS_IGNORE), "MPI_Mrecv");
 
-  Envelope envelope;
+  Incoming incoming;
+  Envelope& envelope = incoming.envelope;
   envelope.source = status.MPI_SOURCE;
   envelope.kind = static_cast<MessageKind>(status.MPI_TAG);
   if (frame.size() < kPrefixBytes || getLE(frame.data(), 4) != kFrameMagic) {
@@ -226,52 +227,97 @@ Envelope Channel::receiveMatched(MPI_Message& message, MPI_Status& status) {
   const std::uint64_t payloadBytes = getLE(frame.data() + 8, 8);
   envelope.header = frame.substr(kPrefixBytes);
 
-  const auto payloadStart = std::chrono::steady_clock::now();
+  incoming.started = std::chrono::steady_clock::now();
   envelope.payload.resize(payloadBytes);
-  std::vector<MPI_Request> requests;
   for (std::size_t offset = 0; offset < payloadBytes; offset += maxChunkBytes_) {
     const std::size_t chunk = std::min<std::size_t>(maxChunkBytes_, payloadBytes - offset);
     MPI_Request request = MPI_REQUEST_NULL;
     checkMpi(MPI_Irecv(envelope.payload.data() + offset, static_cast<int>(chunk), MPI_BYTE,
                        envelope.source, payloadTag(envelope.kind), comm_, &request),
              "MPI_Irecv(payload)");
-    requests.push_back(request);
+    incoming.requests.push_back(request);
   }
   // The sender posted every chunk with the header, so these complete promptly
-  // unless the sender died mid-message.
-  const auto allowed =
+  // unless the sender died or its link is down mid-message.
+  incoming.allowed =
       payloadTimeout_ + std::chrono::milliseconds(static_cast<long long>(payloadBytes / 10'000));
-  const auto deadline = std::chrono::steady_clock::now() + allowed;
-  Backoff backoff;
-  for (MPI_Request& request : requests) {
-    while (true) {
-      int done = 0;
-      checkMpi(MPI_Test(&request, &done, MPI_STATUS_IGNORE), "MPI_Test");
-      if (done != 0) break;
-      if (std::chrono::steady_clock::now() >= deadline) {
-        for (MPI_Request& pending : requests) {
-          if (pending == MPI_REQUEST_NULL) continue;
-          MPI_Cancel(&pending);
-          MPI_Request_free(&pending);
-        }
-        // The buffer may still be named by a cancelled receive: keep it.
-        static std::vector<PayloadBytes> orphans;
-        orphans.push_back(std::move(envelope.payload));
-        throw PeerSilentError(envelope.source,
-                              "rank " + std::to_string(envelope.source) + " sent the header of a " +
-                                  messageKindName(envelope.kind) + " message but not its " +
-                                  std::to_string(payloadBytes) + "-byte payload within " +
-                                  std::to_string(allowed.count()) + " ms");
+  return incoming;
+}
+
+bool Channel::progress(Incoming& incoming) {
+  if (incoming.complete) return true;
+  if (!incoming.requests.empty()) {
+    int done = 0;
+    checkMpi(MPI_Testall(static_cast<int>(incoming.requests.size()), incoming.requests.data(),
+                         &done, MPI_STATUSES_IGNORE),
+             "MPI_Testall");
+    if (done == 0) {
+      if (std::chrono::steady_clock::now() - incoming.started < incoming.allowed) return false;
+      for (MPI_Request& pending : incoming.requests) {
+        if (pending == MPI_REQUEST_NULL) continue;
+        MPI_Cancel(&pending);
+        MPI_Request_free(&pending);
       }
-      backoff.wait(kTransferPoll);
+      const Envelope& envelope = incoming.envelope;
+      const std::string message =
+          "rank " + std::to_string(envelope.source) + " sent the header of a " +
+          messageKindName(envelope.kind) + " message but not its " +
+          std::to_string(envelope.payload.size()) + "-byte payload within " +
+          std::to_string(incoming.allowed.count()) + " ms";
+      // The buffer may still be named by a cancelled receive: keep it.
+      static std::vector<PayloadBytes> orphans;
+      orphans.push_back(std::move(incoming.envelope.payload));
+      throw PeerSilentError(incoming.envelope.source, message);
     }
   }
-  envelope.payloadSeconds =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - payloadStart).count();
-  return envelope;
+  incoming.complete = true;
+  incoming.envelope.payloadSeconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - incoming.started).count();
+  return true;
+}
+
+std::optional<Envelope> Channel::takeArrived(int source, std::optional<MessageKind> kind) {
+  // A sender taken for lost since: its unfinished payloads are not waited for.
+  std::erase_if(incoming_, [&](Incoming& incoming) {
+    if (!ignored_.contains(incoming.envelope.source)) return false;
+    for (MPI_Request& pending : incoming.requests) {
+      if (pending == MPI_REQUEST_NULL) continue;
+      MPI_Cancel(&pending);
+      MPI_Request_free(&pending);
+    }
+    static std::vector<PayloadBytes> orphans;
+    orphans.push_back(std::move(incoming.envelope.payload));
+    return true;
+  });
+  std::set<int> waiting;  // senders with an unfinished message the caller would take
+  for (auto it = incoming_.begin(); it != incoming_.end(); ++it) {
+    const int from = it->envelope.source;
+    if ((source != MPI_ANY_SOURCE && from != source) || (kind && it->envelope.kind != *kind) ||
+        waiting.contains(from)) {
+      continue;
+    }
+    bool arrived = false;
+    try {
+      arrived = progress(*it);
+    } catch (...) {
+      incoming_.erase(it);
+      throw;
+    }
+    if (!arrived) {
+      waiting.insert(from);
+      continue;
+    }
+    Envelope taken = std::move(it->envelope);
+    incoming_.erase(it);
+    return taken;
+  }
+  return std::nullopt;
 }
 
 std::optional<Envelope> Channel::tryReceive(int source, std::optional<MessageKind> kind) {
+  if (!incoming_.empty()) {
+    if (auto envelope = takeArrived(source, kind)) return envelope;
+  }
   int flag = 0;
   MPI_Message message = MPI_MESSAGE_NULL;
   MPI_Status status;
@@ -300,7 +346,19 @@ std::optional<Envelope> Channel::tryReceive(int source, std::optional<MessageKin
     throw ProtocolError("payload chunk from rank " + std::to_string(status.MPI_SOURCE) +
                         " arrived without its header");
   }
-  return receiveMatched(message, status);
+  incoming_.push_back(startReceive(message, status));
+  // Payloads normally follow their header at once: wait a moment, as the
+  // caller would, before leaving it to arrive while the caller goes on.
+  const auto patience = std::chrono::steady_clock::now() + kPayloadPatience;
+  Backoff backoff;
+  while (true) {
+    if (auto envelope = takeArrived(source, kind)) return envelope;
+    if (incoming_.empty() || incoming_.back().complete ||
+        std::chrono::steady_clock::now() >= patience) {
+      return std::nullopt;
+    }
+    backoff.wait(kTransferPoll);
+  }
 }
 
 std::optional<Envelope> Channel::receive(int source, std::optional<MessageKind> kind,

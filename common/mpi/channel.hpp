@@ -14,6 +14,7 @@
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
+#include <deque>
 #include <memory>
 #include <optional>
 #include <set>
@@ -36,6 +37,9 @@ void checkMpi(int code, const char* call);
 // Sleeps between polls, growing from minSleep to maxSleep while nothing happens.
 // Longest sleep between polls while a bulk transfer of ours is in flight.
 inline constexpr std::chrono::microseconds kTransferPoll{50};
+// How long tryReceive waits for a payload after its header before it returns
+// and lets the payload arrive while the caller goes on.
+inline constexpr std::chrono::milliseconds kPayloadPatience{50};
 
 class Backoff {
  public:
@@ -117,6 +121,9 @@ class Channel {
 
   // Does not take ownership of the communicator.
   explicit Channel(MPI_Comm comm, std::size_t maxChunkBytes = kDefaultMaxChunkBytes);
+  // Receives in flight name this channel's buffers.
+  Channel(const Channel&) = delete;
+  Channel& operator=(const Channel&) = delete;
 
   int rank() const { return rank_; }
   int size() const { return size_; }
@@ -143,7 +150,10 @@ class Channel {
   void send(int dest, MessageKind kind, const google::protobuf::MessageLite& header,
             std::span<const std::byte> payload = {});
 
-  // Receives one message if a header is waiting (any kind when kind is empty).
+  // Receives one message if a whole one is waiting (any kind when kind is
+  // empty). A payload that does not follow its header within a moment (a
+  // link cut mid-message) is left to arrive while the caller goes on; later
+  // calls deliver it, in order among the messages of its sender.
   std::optional<Envelope> tryReceive(int source = MPI_ANY_SOURCE,
                                      std::optional<MessageKind> kind = std::nullopt);
   // Waits (polling, not spinning) until a message arrives or the timeout passes.
@@ -160,8 +170,22 @@ class Channel {
   static void waitFor(MPI_Request& request, std::chrono::milliseconds timeout, const char* what);
 
  private:
+  // A message whose header is in and whose payload receives are posted.
+  struct Incoming {
+    Envelope envelope;
+    std::vector<MPI_Request> requests;
+    std::chrono::steady_clock::time_point started;
+    std::chrono::milliseconds allowed{};
+    bool complete = false;
+  };
+
   static int payloadTag(MessageKind kind);
-  Envelope receiveMatched(MPI_Message& message, MPI_Status& status);
+  Incoming startReceive(MPI_Message& message, MPI_Status& status);
+  // Tests the payload; past its allowance the sender is taken as lost.
+  bool progress(Incoming& incoming);
+  // The oldest whole message matching the filter that no unfinished earlier
+  // one of its sender (also matching) must precede.
+  std::optional<Envelope> takeArrived(int source, std::optional<MessageKind> kind);
 
   MPI_Comm comm_;
   int rank_ = 0;
@@ -169,6 +193,7 @@ class Channel {
   std::size_t maxChunkBytes_;
   std::chrono::milliseconds payloadTimeout_{std::chrono::minutes(5)};
   std::set<int> ignored_;
+  std::deque<Incoming> incoming_;  // arrival order
 };
 
 }  // namespace pointillist

@@ -10,6 +10,7 @@
 #include <cstring>
 #include <numeric>
 #include <random>
+#include <thread>
 
 #include "common/mpi/channel.hpp"
 #include "common/mpi/send_queue.hpp"
@@ -221,6 +222,55 @@ TEST_F(ChannelTest, MessageWithoutFramePrefixIsAProtocolError) {
     if (flag == 0) backoff.wait();
   }
   EXPECT_THROW((void)channel.tryReceive(1, MessageKind::Ready), ProtocolError);
+}
+
+// A payload held up after its header (a link cut mid-message) must not hold
+// up the receiver: tryReceive returns after a moment, later messages of the
+// same sender wait behind it, and it is delivered whole once it arrives.
+TEST_F(ChannelTest, DelayedPayloadDoesNotBlockAndKeepsItsSendersOrder) {
+  Channel channel(MPI_COMM_WORLD);
+  const auto tileImage = static_cast<int>(MessageKind::TileImage);
+  const std::vector<std::byte> payload = patternBytes(1000, 5);
+  if (channel.rank() == 1) {
+    // The header alone, forged as Channel frames it: magic, reserved, payload bytes.
+    std::string frame(16, '\0');
+    const std::uint32_t magic = 0x504E5431;
+    const std::uint64_t bytes = payload.size();
+    std::memcpy(frame.data(), &magic, sizeof magic);
+    std::memcpy(frame.data() + 8, &bytes, sizeof bytes);
+    frame += sampleHeader(1).SerializeAsString();
+    ASSERT_EQ(MPI_Send(frame.data(), static_cast<int>(frame.size()), MPI_BYTE, 0, tileImage,
+                       MPI_COMM_WORLD),
+              MPI_SUCCESS);
+    channel.send(0, MessageKind::TileImage, sampleHeader(2));
+    (void)channel.receiveOrThrow(0, MessageKind::Test, milliseconds(30'000));
+    // Payload chunks travel on the kind's tag plus 1000.
+    ASSERT_EQ(MPI_Send(payload.data(), static_cast<int>(payload.size()), MPI_BYTE, 0,
+                       tileImage + 1000, MPI_COMM_WORLD),
+              MPI_SUCCESS);
+    return;
+  }
+  Backoff backoff;
+  for (int flag = 0; flag == 0;) {
+    MPI_Iprobe(1, tileImage, MPI_COMM_WORLD, &flag, MPI_STATUS_IGNORE);
+    if (flag == 0) backoff.wait();
+  }
+  const auto start = std::chrono::steady_clock::now();
+  EXPECT_FALSE(channel.tryReceive().has_value());
+  EXPECT_LT(std::chrono::steady_clock::now() - start, milliseconds(1000));
+  // The second message is whole, but its sender's first goes first.
+  for (int i = 0; i < 20; ++i) {
+    EXPECT_FALSE(channel.tryReceive().has_value());
+    std::this_thread::sleep_for(milliseconds(5));
+  }
+  channel.send(1, MessageKind::Test, sampleHeader(0));
+  const Envelope first = channel.receiveOrThrow(1, std::nullopt, milliseconds(30'000));
+  EXPECT_EQ(first.as<v1::TileImageHeader>().frame_id(), 1u);
+  ASSERT_EQ(first.payload.size(), payload.size());
+  EXPECT_EQ(std::memcmp(first.payload.data(), payload.data(), payload.size()), 0);
+  const Envelope second = channel.receiveOrThrow(1, std::nullopt, milliseconds(30'000));
+  EXPECT_EQ(second.as<v1::TileImageHeader>().frame_id(), 2u);
+  EXPECT_TRUE(second.payload.empty());
 }
 
 TEST_F(ChannelTest, ReceiveTimesOutWithoutSpinningForever) {
