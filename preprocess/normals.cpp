@@ -141,8 +141,10 @@ void orient(std::vector<Splat>& splats, const std::vector<std::uint8_t>& needNor
   };
 
   // Anchors first: they reach out through their own lists and through the
-  // lists of points that name them (kNN lists are not symmetric).
-  for (std::size_t i = 0; i < n; ++i) {
+  // lists of points that name them (kNN lists are not symmetric). A cloud
+  // without any (a plain scan) skips the pass over every list.
+  const bool anyAnchor = std::find(owner.begin(), owner.end(), 1u) != owner.end();
+  for (std::size_t i = 0; anyAnchor && i < n; ++i) {
     const auto u = static_cast<std::uint32_t>(i);
     if (owner[i] == 1) {
       pushEdges(u);
@@ -195,12 +197,14 @@ void orient(std::vector<Splat>& splats, const std::vector<std::uint8_t>& needNor
     pushEdges(seed);
     grow(mark);
 
-    // 1. Reliable edges to points oriented earlier decide, if there are any.
+    // 1. Reliable edges to points oriented earlier decide, if there are any
+    // (the first component of a cloud without anchors has none to ask).
     float vote = 0.0f;
     double up = 0, flatness = 0;
     double centre[3] = {0, 0, 0};
+    const bool anyEarlier = anyAnchor || mark > 2;
     for (const std::uint32_t i : members) {
-      for (std::size_t j = 0; j < k; ++j) {
+      for (std::size_t j = 0; anyEarlier && j < k; ++j) {
         const std::uint32_t other = neighbours[i * k + j];
         if (owner[other] == 0 || owner[other] == mark) continue;
         const float d = dotNormals(splats[i], splats[other]);
