@@ -244,6 +244,19 @@ Channel::Incoming Channel::startReceive(MPI_Message& message, MPI_Status& status
   return incoming;
 }
 
+void Channel::abandon(Incoming& incoming) {
+  bool named = false;
+  for (MPI_Request& pending : incoming.requests) {
+    if (pending == MPI_REQUEST_NULL) continue;
+    MPI_Cancel(&pending);
+    MPI_Request_free(&pending);
+    named = true;
+  }
+  // The buffer may still be named by a cancelled receive: keep it.
+  static std::vector<PayloadBytes> orphans;
+  if (named) orphans.push_back(std::move(incoming.envelope.payload));
+}
+
 bool Channel::progress(Incoming& incoming) {
   if (incoming.complete) return true;
   if (!incoming.requests.empty()) {
@@ -253,20 +266,13 @@ bool Channel::progress(Incoming& incoming) {
              "MPI_Testall");
     if (done == 0) {
       if (std::chrono::steady_clock::now() - incoming.started < incoming.allowed) return false;
-      for (MPI_Request& pending : incoming.requests) {
-        if (pending == MPI_REQUEST_NULL) continue;
-        MPI_Cancel(&pending);
-        MPI_Request_free(&pending);
-      }
       const Envelope& envelope = incoming.envelope;
       const std::string message =
           "rank " + std::to_string(envelope.source) + " sent the header of a " +
           messageKindName(envelope.kind) + " message but not its " +
           std::to_string(envelope.payload.size()) + "-byte payload within " +
           std::to_string(incoming.allowed.count()) + " ms";
-      // The buffer may still be named by a cancelled receive: keep it.
-      static std::vector<PayloadBytes> orphans;
-      orphans.push_back(std::move(incoming.envelope.payload));
+      abandon(incoming);
       throw PeerSilentError(incoming.envelope.source, message);
     }
   }
@@ -280,13 +286,7 @@ std::optional<Envelope> Channel::takeArrived(int source, std::optional<MessageKi
   // A sender taken for lost since: its unfinished payloads are not waited for.
   std::erase_if(incoming_, [&](Incoming& incoming) {
     if (!ignored_.contains(incoming.envelope.source)) return false;
-    for (MPI_Request& pending : incoming.requests) {
-      if (pending == MPI_REQUEST_NULL) continue;
-      MPI_Cancel(&pending);
-      MPI_Request_free(&pending);
-    }
-    static std::vector<PayloadBytes> orphans;
-    orphans.push_back(std::move(incoming.envelope.payload));
+    abandon(incoming);
     return true;
   });
   std::set<int> waiting;  // senders with an unfinished message the caller would take

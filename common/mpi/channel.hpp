@@ -183,6 +183,8 @@ class Channel {
   Incoming startReceive(MPI_Message& message, MPI_Status& status);
   // Tests the payload; past its allowance the sender is taken as lost.
   bool progress(Incoming& incoming);
+  // Cancels what is still posted for it (a lost or silent sender).
+  static void abandon(Incoming& incoming);
   // The oldest whole message matching the filter that no unfinished earlier
   // one of its sender (also matching) must precede.
   std::optional<Envelope> takeArrived(int source, std::optional<MessageKind> kind);
