@@ -124,17 +124,21 @@ Vec3d CovarianceAccumulator::mean() const {
   return pointillist::add(origin_, scale(sum_, 1.0 / weight_));
 }
 
-Sym3 CovarianceAccumulator::covariance() const {
-  if (!(weight_ > 0.0)) return {};
-  const Vec3d m = scale(sum_, 1.0 / weight_);
-  const double w = 1.0 / weight_;
-  Sym3 c = {sumSq_[0] * w - m[0] * m[0], sumSq_[1] * w - m[0] * m[1], sumSq_[2] * w - m[0] * m[2],
-            sumSq_[3] * w - m[1] * m[1], sumSq_[4] * w - m[1] * m[2], sumSq_[5] * w - m[2] * m[2]};
-  // Cancellation can leave tiny negative variances; covariance is PSD.
+Sym3 covarianceFromSums(double weight, const Vec3d& sum, const Sym3& sumSquares) {
+  if (!(weight > 0.0)) return {};
+  const Vec3d m = scale(sum, 1.0 / weight);
+  const double w = 1.0 / weight;
+  Sym3 c = {sumSquares[0] * w - m[0] * m[0], sumSquares[1] * w - m[0] * m[1],
+            sumSquares[2] * w - m[0] * m[2], sumSquares[3] * w - m[1] * m[1],
+            sumSquares[4] * w - m[1] * m[2], sumSquares[5] * w - m[2] * m[2]};
   c[0] = std::max(c[0], 0.0);
   c[3] = std::max(c[3], 0.0);
   c[5] = std::max(c[5], 0.0);
   return c;
+}
+
+Sym3 CovarianceAccumulator::covariance() const {
+  return covarianceFromSums(weight_, sum_, sumSq_);
 }
 
 }  // namespace pointillist

@@ -41,6 +41,12 @@ SmallestEigen3 smallestEigen3(const Sym3& m);
 // when the iteration collapses). Not accurate when the two largest are close.
 Vec3d majorAxis(const Sym3& m);
 
+// Population covariance from a total weight, the weighted sum of samples and
+// the weighted sum of their outer products (about any origin). Cancellation
+// can leave tiny negative variances; they are clamped, a covariance is PSD.
+// Zero when the weight is not positive.
+Sym3 covarianceFromSums(double weight, const Vec3d& sum, const Sym3& sumSquares);
+
 // Accumulates mean and covariance of weighted 3D samples in one pass. Sums are
 // taken relative to the first sample so large coordinates lose no precision.
 class CovarianceAccumulator {

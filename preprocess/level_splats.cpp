@@ -31,19 +31,7 @@ struct Moments {
     addOuterProduct(square, p);
   }
   Vec3d mean() const { return scale(sum, 1.0 / count); }
-  // Population covariance; cancellation can leave tiny negative variances,
-  // and a covariance is PSD.
-  Sym3 covariance() const {
-    const double w = 1.0 / count;
-    const Vec3d m = scale(sum, w);
-    Sym3 c = {square[0] * w - m[0] * m[0], square[1] * w - m[0] * m[1],
-              square[2] * w - m[0] * m[2], square[3] * w - m[1] * m[1],
-              square[4] * w - m[1] * m[2], square[5] * w - m[2] * m[2]};
-    c[0] = std::max(c[0], 0.0);
-    c[3] = std::max(c[3], 0.0);
-    c[5] = std::max(c[5], 0.0);
-    return c;
-  }
+  Sym3 covariance() const { return covarianceFromSums(count, sum, square); }
   Moments minus(const Moments& o) const {
     Moments r;
     r.count = count - o.count;

@@ -26,7 +26,7 @@ struct OctreeOptions {
   // the cell array at roughly 1/40 of the points (traverse memory) while leaves
   // stay small enough for fine culling and level of detail.
   std::uint32_t leafPoints = 128;
-  unsigned threads = 0;  // for the Morton codes and the gather; 0: all cores
+  unsigned threads = 0;  // for the Morton codes, their sort and the gather; 0: all cores
 };
 
 // One cell while preprocessing, in depth-first (pre-order) position.
