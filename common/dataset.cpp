@@ -67,7 +67,7 @@ void validateDatasetStructure(const DatasetManifest& m, std::span<const OctreeCe
   if (m.pointCount == 0 || m.topLevelCount == 0 || m.cellCount == 0)
     throw InputError(where + "/" + kManifestName +
                      ": empty dataset (no points, cells or top-level cells)");
-  std::uint64_t offset = 0, points = 0, splats = 0;
+  std::uint64_t offset = 0, points = 0, splats = 0, instanced = 0;
   for (std::size_t k = 0; k < topLevel.size(); ++k) {
     const TopLevelCell& t = topLevel[k];
     const std::string at = tlWhere + ": entry " + std::to_string(k) + ": ";
@@ -75,11 +75,12 @@ void validateDatasetStructure(const DatasetManifest& m, std::span<const OctreeCe
     if (t.byteOffset != offset)
       throw InputError(at + "byte offset " + std::to_string(t.byteOffset) + ", expected " +
                        std::to_string(offset) + " (packets must be contiguous)");
-    const std::uint64_t size = (std::uint64_t{t.pointCount} + t.levelSplatCount) * sizeof(Splat);
+    const std::uint64_t size = packetRecords(t) * sizeof(Splat);
     if (t.byteSize != size)
       throw InputError(at + "byte size " + std::to_string(t.byteSize) + " does not match its " +
-                       std::to_string(t.pointCount) + " points and " +
-                       std::to_string(t.levelSplatCount) + " level-splats");
+                       std::to_string(t.pointCount) + " points, " +
+                       std::to_string(t.levelSplatCount) + " level-splats and " +
+                       std::to_string(t.instancedRecordCount) + " instanced records");
     if (k > 0 && t.cellIndex <= topLevel[k - 1].cellIndex)
       throw InputError(at + "cell index not increasing");
     if (t.cellIndex >= m.cellCount)
@@ -87,7 +88,11 @@ void validateDatasetStructure(const DatasetManifest& m, std::span<const OctreeCe
     offset += size;
     points += t.pointCount;
     splats += t.levelSplatCount;
+    instanced += t.instancedRecordCount;
   }
+  if (instanced != m.instancedRecordCount)
+    throw InputError(tlWhere + ": packets hold " + std::to_string(instanced) +
+                     " instanced records, manifest says " + std::to_string(m.instancedRecordCount));
   if (points != m.pointCount || splats != m.levelSplatCount)
     throw InputError(tlWhere + ": packets hold " + std::to_string(points) + " points and " +
                      std::to_string(splats) + " level-splats, manifest says " +
@@ -196,20 +201,21 @@ void validateDatasetStructure(const DatasetManifest& m, std::span<const OctreeCe
       if (!(c.depth == m.topLevelDepth || (children[i] == 0 && c.depth < m.topLevelDepth)))
         fail(i, "top-level cell at depth " + std::to_string(c.depth) + " (top-level depth " +
                     std::to_string(m.topLevelDepth) + ")");
-      if (c.pointsOffset != t.levelSplatCount || c.pointsCount != t.pointCount)
+      if (c.pointsOffset != pointsStart(t) || c.pointsCount != t.pointCount)
         fail(i, "top-level cell's points range is not its whole point part");
     } else if (p == kNoIndex || cells[p].topLevel != c.topLevel) {
       fail(i, "topLevel differs from its parent's");
     }
-    const std::uint64_t P = t.pointCount, L = t.levelSplatCount;
+    // Points start after the level-splats and the instanced section.
+    const std::uint64_t P = t.pointCount, L = t.levelSplatCount, S = pointsStart(t);
     if (c.pointsCount == 0) fail(i, "empty cell");
-    if (c.pointsOffset < L || std::uint64_t{c.pointsOffset} + c.pointsCount > L + P)
+    if (c.pointsOffset < S || std::uint64_t{c.pointsOffset} + c.pointsCount > S + P)
       fail(i, "points range outside its packet's points");
     if (c.splatsCount != 0 && std::uint64_t{c.splatsOffset} + c.splatsCount > L)
       fail(i, "level-splat range outside its packet's level-splats");
     if (c.splatsCount != 0) layers[c.topLevel].push_back({c.splatsOffset, c.splatsCount, c.level});
     if (children[i] == 0) {
-      if (c.pointsOffset != L + leafRun[c.topLevel])
+      if (c.pointsOffset != S + leafRun[c.topLevel])
         fail(i, "leaf points are not contiguous in depth-first order");
       leafRun[c.topLevel] += c.pointsCount;
     } else if (cells[i + 1].pointsOffset != c.pointsOffset) {
@@ -295,13 +301,18 @@ Dataset Dataset::open(const fs::path& dir, DatasetParts parts) {
     }
     return count * record;
   };
-  if (m.pointCount > std::numeric_limits<std::uint64_t>::max() - m.levelSplatCount) {
-    throw InputError(manifestPath.string() + ": point_count and level_splat_count overflow");
+  if (m.pointCount > std::numeric_limits<std::uint64_t>::max() / 4 ||
+      m.levelSplatCount > std::numeric_limits<std::uint64_t>::max() / 4 ||
+      m.instancedRecordCount > std::numeric_limits<std::uint64_t>::max() / 4) {
+    throw InputError(manifestPath.string() +
+                     ": point_count, level_splat_count or instanced_record_count overflow");
   }
   expectSize(kCellsFile, bytesFor("cell_count", m.cellCount, sizeof(OctreeCell)));
   expectSize(kTopLevelFile, bytesFor("top_level_count", m.topLevelCount, sizeof(TopLevelCell)));
   expectSize(kChecksumsFile, bytesFor("top_level_count", m.topLevelCount, sizeof(std::uint64_t)));
-  expectSize(kPointsFile, bytesFor("point_count", m.pointCount + m.levelSplatCount, sizeof(Splat)));
+  expectSize(kPointsFile,
+             bytesFor("point_count", m.pointCount + m.levelSplatCount + m.instancedRecordCount,
+                      sizeof(Splat)));
 
   auto loadChecked = [&](const FileSpec& spec) {
     const DatasetFile* f = m.file(spec.key);

@@ -13,7 +13,9 @@
 //                         level-splats of every cell beneath the top-level cell by
 //                         level from the highest down (one layer per level; cells
 //                         of a layer in depth-first order, each cell's own splats
-//                         contiguous), then the original points (depth-first leaf
+//                         contiguous), then (datasets built with --instanced) the
+//                         cell's instanced section (common/instanced_section.hpp),
+//                         then the original points (depth-first leaf
 //                         order). A prefix that ends on a layer boundary holds
 //                         every cell of those levels, so a render process that
 //                         draws a cell coarsely holds and receives only a prefix.

@@ -126,6 +126,7 @@ std::string DatasetManifest::toText() const {
   o << "max_splat_radius = " << floatText(maxSplatRadius) << "\n";
   o << "point_count = " << pointCount << "\n";
   o << "level_splat_count = " << levelSplatCount << "\n";
+  if (instancedRecordCount > 0) o << "instanced_record_count = " << instancedRecordCount << "\n";
   o << "cell_count = " << cellCount << "\n";
   o << "top_level_count = " << topLevelCount << "\n";
   o << "top_level_depth = " << topLevelDepth << "\n";
@@ -257,6 +258,8 @@ DatasetManifest DatasetManifest::parse(std::string_view text, const std::string&
   }
   m.pointCount = takeU64("point_count");
   m.levelSplatCount = takeU64("level_splat_count");
+  if (values.count("instanced_record_count") != 0)
+    m.instancedRecordCount = takeU64("instanced_record_count");
   m.cellCount = takeU64("cell_count");
   m.topLevelCount = takeU64("top_level_count");
   m.topLevelDepth = takeU32("top_level_depth");

@@ -39,6 +39,7 @@ struct DatasetManifest {
   float maxSplatRadius = 0;  // largest splat radius of the dataset: the root cell's
   std::uint64_t pointCount = 0;
   std::uint64_t levelSplatCount = 0;
+  std::uint64_t instancedRecordCount = 0;  // --instanced: the packets' instanced sections
   std::uint64_t cellCount = 0;
   std::uint64_t topLevelCount = 0;
   std::uint32_t topLevelDepth = 0;

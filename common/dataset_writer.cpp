@@ -106,14 +106,16 @@ bool looksLikeDataset(const fs::path& dir) {
 
 void finalizeDatasetContent(DatasetContent& content) {
   DatasetManifest& m = content.manifest;
-  std::uint64_t pointCount = 0, levelSplatCount = 0;
+  std::uint64_t pointCount = 0, levelSplatCount = 0, instancedRecordCount = 0;
   for (const auto& t : content.topLevel) {
     pointCount += t.pointCount;
     levelSplatCount += t.levelSplatCount;
+    instancedRecordCount += t.instancedRecordCount;
   }
   if (content.cells.empty() || content.topLevel.empty() || pointCount == 0)
     throw Error("refusing to write an empty dataset");
   if ((!content.points.empty() && content.points.size() != pointCount) ||
+      (!content.points.empty() && content.instancedRecords.size() != instancedRecordCount) ||
       (!content.levelSplats.empty() && content.levelSplats.size() != levelSplatCount))
     throw Error("internal error: inconsistent dataset: the top-level table counts " +
                 std::to_string(pointCount) + " points and " + std::to_string(levelSplatCount) +
@@ -125,6 +127,7 @@ void finalizeDatasetContent(DatasetContent& content) {
   m.topLevelEntrySize = sizeof(TopLevelCell);
   m.pointCount = pointCount;
   m.levelSplatCount = levelSplatCount;
+  m.instancedRecordCount = instancedRecordCount;
   m.cellCount = content.cells.size();
   m.topLevelCount = content.topLevel.size();
   m.maxLevel = content.cells[0].level;
@@ -138,7 +141,7 @@ void finalizeDatasetContent(DatasetContent& content) {
   std::uint64_t offset = 0;
   for (auto& t : content.topLevel) {
     t.byteOffset = offset;
-    t.byteSize = (std::uint64_t{t.pointCount} + t.levelSplatCount) * sizeof(Splat);
+    t.byteSize = packetRecords(t) * sizeof(Splat);
     offset += t.byteSize;
   }
   m.files = {
@@ -193,16 +196,17 @@ DatasetWriter::DatasetWriter(const fs::path& dirIn, bool overwrite) {
 DatasetWriter::~DatasetWriter() = default;
 
 void DatasetWriter::appendPacket(std::span<const Splat> levelSplats,
+                                 std::span<const Splat> instancedRecords,
                                  std::span<const Splat> points) {
   State& s = *state_;
-  s.points.write(levelSplats.data(), levelSplats.size_bytes());
-  s.points.write(points.data(), points.size_bytes());
   ChecksumStream packetSum;
-  packetSum.update(levelSplats.data(), levelSplats.size_bytes());
-  packetSum.update(points.data(), points.size_bytes());
+  for (const auto part : {levelSplats, instancedRecords, points}) {
+    s.points.write(part.data(), part.size_bytes());
+    packetSum.update(part.data(), part.size_bytes());
+    s.bytes += part.size_bytes();
+  }
   s.packetSums.push_back(packetSum.digest());
-  s.packetSplats.push_back(levelSplats.size() + points.size());
-  s.bytes += levelSplats.size_bytes() + points.size_bytes();
+  s.packetSplats.push_back(levelSplats.size() + instancedRecords.size() + points.size());
 }
 
 std::uint64_t DatasetWriter::packetsAppended() const {
@@ -222,10 +226,10 @@ std::uint64_t DatasetWriter::commit(DatasetContent& content) {
                 " top-level cells");
   for (std::size_t k = 0; k < content.topLevel.size(); ++k) {
     const TopLevelCell& t = content.topLevel[k];
-    if (s.packetSplats[k] != std::uint64_t{t.pointCount} + t.levelSplatCount)
+    if (s.packetSplats[k] != packetRecords(t))
       throw Error("internal error: packet " + std::to_string(k) + " holds " +
-                  std::to_string(s.packetSplats[k]) + " splats, the table says " +
-                  std::to_string(std::uint64_t{t.pointCount} + t.levelSplatCount));
+                  std::to_string(s.packetSplats[k]) + " records, the table says " +
+                  std::to_string(packetRecords(t)));
   }
 
   std::vector<DatasetFile> files;
@@ -302,13 +306,16 @@ std::uint64_t writeDataset(const fs::path& dir, DatasetContent& content, bool ov
   if (content.points.empty() && content.manifest.pointCount > 0)
     throw Error("internal error: writeDataset needs the points in memory");
   const std::uint64_t total = content.manifest.file(kPointsFile.key)->size;
-  std::size_t p = 0, s = 0;
+  std::size_t p = 0, s = 0, r = 0;
   for (std::size_t k = 0; k < content.topLevel.size(); ++k) {
     const TopLevelCell& t = content.topLevel[k];
-    writer.appendPacket(std::span<const Splat>(content.levelSplats).subspan(s, t.levelSplatCount),
-                        std::span<const Splat>(content.points).subspan(p, t.pointCount));
+    writer.appendPacket(
+        std::span<const Splat>(content.levelSplats).subspan(s, t.levelSplatCount),
+        std::span<const Splat>(content.instancedRecords).subspan(r, t.instancedRecordCount),
+        std::span<const Splat>(content.points).subspan(p, t.pointCount));
     p += t.pointCount;
     s += t.levelSplatCount;
+    r += t.instancedRecordCount;
     if (progress && (k & 63) == 0) progress(writer.bytesAppended(), total);
   }
   if (progress) progress(writer.bytesAppended(), total);

@@ -26,6 +26,9 @@ struct DatasetContent {
   std::vector<TopLevelCell> topLevel;  // byteOffset/byteSize are filled in
   std::vector<Splat> points;
   std::vector<Splat> levelSplats;
+  // --instanced: the packets' instanced sections (32-byte records, table order;
+  // TopLevelCell::instancedRecordCount each). Empty otherwise.
+  std::vector<Splat> instancedRecords;
   // Files of later stages (statistical hierarchy, transformation streams),
   // written verbatim with a checksum and listed as file.<key>.
   struct ExtraFile {
@@ -68,7 +71,8 @@ class DatasetWriter {
   DatasetWriter(const DatasetWriter&) = delete;
   DatasetWriter& operator=(const DatasetWriter&) = delete;
 
-  void appendPacket(std::span<const Splat> levelSplats, std::span<const Splat> points);
+  void appendPacket(std::span<const Splat> levelSplats, std::span<const Splat> instancedRecords,
+                    std::span<const Splat> points);
   std::uint64_t packetsAppended() const;
   std::uint64_t bytesAppended() const;
   // Throws Error("internal error: ...") when the appended packets do not match

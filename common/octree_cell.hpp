@@ -65,17 +65,30 @@ namespace pointillist {
 // order), then the cell's original points (pointCount splats, depth-first leaf
 // order). A prefix of the packet is therefore a level of detail: the traversal
 // of a distant cell draws from its first layers only, and only those travel.
+// A dataset built with --instanced may hold, between the level-splats and the
+// points, the cell's points as vertex and transformation streams
+// (instancedRecordCount 32-byte records, common/instanced_section.hpp): the
+// instanced mode draws full detail from that shorter prefix.
 // Its checksum (common/checksum.hpp) is in the dataset (Dataset::packetChecksum).
 struct TopLevelCell {
   std::uint32_t cellIndex;  // index in the octree-cell-array
   std::uint32_t pointCount;
   std::uint32_t levelSplatCount;
-  std::uint32_t reserved;
-  std::uint64_t byteOffset;  // in the point-array file
-  std::uint64_t byteSize;    // (pointCount + levelSplatCount) * sizeof(Splat)
+  std::uint32_t instancedRecordCount;  // 0: none
+  std::uint64_t byteOffset;            // in the point-array file
+  std::uint64_t byteSize;              // (pointCount + levelSplatCount + instancedRecordCount) * 32
 };
 
 static_assert(sizeof(TopLevelCell) == 32);
+
+// Records of a packet: level-splats, instanced section, points.
+inline std::uint64_t packetRecords(const TopLevelCell& t) {
+  return std::uint64_t{t.levelSplatCount} + t.instancedRecordCount + t.pointCount;
+}
+// Where the packet's original points start.
+inline std::uint64_t pointsStart(const TopLevelCell& t) {
+  return std::uint64_t{t.levelSplatCount} + t.instancedRecordCount;
+}
 static_assert(std::is_trivially_copyable_v<TopLevelCell>);
 
 }  // namespace pointillist

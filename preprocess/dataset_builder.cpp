@@ -254,6 +254,11 @@ DatasetContent buildDatasetContent(std::vector<Splat> points, const PreprocessOp
   if (progress) progress("cells", 0, total);
   DatasetContent content = assembleDatasetContent(std::move(tree), std::move(ls), options, normals);
   if (progress) progress("cells", total, total);
+  if (options.instancing) {
+    const InstancingStats stats =
+        addInstancedSections(content, *options.instancing, options.threads, stage("instancing"));
+    if (options.instancingStats != nullptr) options.instancingStats->merge(stats);
+  }
   return content;
 }
 

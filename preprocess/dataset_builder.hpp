@@ -4,12 +4,14 @@
 // and the point-array grouped per top-level cell -- ready for writeDataset.
 #include <cstdint>
 #include <functional>
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
 
 #include "common/dataset.hpp"
 #include "common/geometry.hpp"
+#include "preprocess/instancing.hpp"
 #include "preprocess/level_splats.hpp"
 #include "preprocess/normals.hpp"
 #include "preprocess/octree_builder.hpp"
@@ -32,6 +34,11 @@ struct PreprocessOptions {
   NeighbourSearch neighbourSearch = NeighbourSearch::Grid;
   unsigned threads = 0;  // 0: all cores
   std::string source;    // recorded in the manifest
+  // --instanced: every top-level cell's points also as vertex and
+  // transformation streams (preprocess/instancing.hpp); statistics add up in
+  // *instancingStats when it is set.
+  std::optional<InstancingOptions> instancing;
+  InstancingStats* instancingStats = nullptr;
 };
 
 // stage is "octree", "normals and radii", "radii", "level-splats" or "cells";

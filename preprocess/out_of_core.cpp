@@ -630,11 +630,10 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
         const char* stage;
         double weight;
       };
-      const Share shares[] = {{"octree", 0.15},
-                              {"normals and radii", build.estimateNormals ? 1.0 : 0.0},
-                              {"radii", 0.05},
-                              {"level-splats", 0.65},
-                              {"cells", 0.15}};
+      const Share shares[] = {
+          {"octree", 0.15}, {"normals and radii", build.estimateNormals ? 1.0 : 0.0},
+          {"radii", 0.05},  {"level-splats", 0.65},
+          {"cells", 0.15},  {"instancing", build.instancing ? 0.5 : 0.0}};
       double before = 0.0, total = 0.0, weight = 0.0;
       bool seen = false;
       for (const Share& sh : shares) {
@@ -706,17 +705,20 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
 
     // Its top-level cells and packets, renumbered.
     const auto topBase = static_cast<std::uint32_t>(content.topLevel.size());
-    std::uint64_t p = 0, s = 0;
+    std::uint64_t p = 0, s = 0, r = 0;
     for (const TopLevelCell& t : local.topLevel) {
       TopLevelCell g = t;
       g.cellIndex = toGlobal[t.cellIndex];
       if (g.cellIndex == kNoIndex)
         throw Error("internal error: a top-level cell lies above the out-of-core units");
       content.topLevel.push_back(g);
-      writer.appendPacket(std::span<const Splat>(local.levelSplats).subspan(s, t.levelSplatCount),
-                          std::span<const Splat>(local.points).subspan(p, t.pointCount));
+      writer.appendPacket(
+          std::span<const Splat>(local.levelSplats).subspan(s, t.levelSplatCount),
+          std::span<const Splat>(local.instancedRecords).subspan(r, t.instancedRecordCount),
+          std::span<const Splat>(local.points).subspan(p, t.pointCount));
       p += t.pointCount;
       s += t.levelSplatCount;
+      r += t.instancedRecordCount;
     }
     for (std::uint32_t j = 0; j < localCount; ++j) {
       if (toGlobal[j] == kNoIndex) continue;

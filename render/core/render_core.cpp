@@ -19,7 +19,7 @@ RenderCore::RenderCore(const RenderCoreConfig& config, PeerRanks peers, int self
       lastPacketFrom_(peers_.traverses.size(), 0) {
   cellSplats_.reserve(topLevel.size());
   for (const TopLevelCell& cell : topLevel) {
-    cellSplats_.push_back(cell.pointCount + cell.levelSplatCount);
+    cellSplats_.push_back(static_cast<std::uint32_t>(packetRecords(cell)));
   }
   if (owners_.size() != cellSplats_.size()) {
     throw UsageError("render core: " + std::to_string(owners_.size()) + " owners for " +

@@ -11,7 +11,8 @@ namespace pointillist::traverse {
 PacketLayers::PacketLayers(std::span<const OctreeCell> cells,
                            std::span<const TopLevelCell> topLevel) {
   totals_.reserve(topLevel.size());
-  for (const TopLevelCell& t : topLevel) totals_.push_back(t.pointCount + t.levelSplatCount);
+  for (const TopLevelCell& t : topLevel)
+    totals_.push_back(static_cast<std::uint32_t>(packetRecords(t)));
   // level -> (end, radius) per top-level cell, filled in one pass over the cells.
   std::vector<std::map<std::uint8_t, PacketLayer, std::greater<>>> perCell(topLevel.size());
   for (const OctreeCell& cell : cells) {

@@ -1,0 +1,721 @@
+#include "preprocess/instancing.hpp"
+
+#include <fftw3.h>
+
+#include <algorithm>
+#include <bit>
+#include <chrono>
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+#include <exception>
+#include <filesystem>
+#include <map>
+#include <mutex>
+#include <thread>
+
+#include "common/errors.hpp"
+#include "preprocess/parallel.hpp"
+
+namespace pointillist::preprocess {
+
+namespace {
+
+// Row-major voxel grids: x slowest, z fastest.
+std::size_t volume(const std::array<std::int32_t, 3>& d) {
+  return static_cast<std::size_t>(std::int64_t{d[0]} * d[1] * d[2]);
+}
+std::size_t flatIndex(const std::array<std::int32_t, 3>& d, std::int32_t x, std::int32_t y,
+                      std::int32_t z) {
+  return static_cast<std::size_t>((std::int64_t{x} * d[1] + y) * d[2] + z);
+}
+
+// ---- FFT plans and buffers ----------------------------------------------
+
+// Padded lengths come from a short list (2^k, 3 * 2^k, 5 * 2^k): lengths FFTW
+// transforms fast, and few shapes to plan in a run.
+std::int32_t paddedLength(std::int32_t atLeast) {
+  std::int32_t best = std::numeric_limits<std::int32_t>::max();
+  for (const std::int32_t base : {8, 12, 20})
+    for (std::int32_t length = base; length < best; length *= 2)
+      if (length >= atLeast) {
+        best = length;
+        break;
+      }
+  return best;
+}
+
+struct FftPlan {
+  fftwf_plan forward = nullptr;
+  fftwf_plan backward = nullptr;
+  bool measured = false;
+};
+
+struct FftBuffers {
+  float* real = nullptr;
+  fftwf_complex* spectrum = nullptr;
+  std::size_t realCapacity = 0;
+  std::size_t spectrumCapacity = 0;
+  double seconds = 0.0;
+  ~FftBuffers() {
+    fftwf_free(real);
+    fftwf_free(spectrum);
+  }
+  void reserve(std::size_t realCount, std::size_t spectrumCount) {
+    if (realCount > realCapacity) {
+      fftwf_free(real);
+      real = fftwf_alloc_real(realCount);
+      realCapacity = realCount;
+    }
+    if (spectrumCount > spectrumCapacity) {
+      fftwf_free(spectrum);
+      spectrum = fftwf_alloc_complex(spectrumCount);
+      spectrumCapacity = spectrumCount;
+    }
+    if (real == nullptr || spectrum == nullptr) throw std::bad_alloc();
+  }
+};
+
+thread_local FftBuffers tBuffers;
+
+// FFTW's planner is not thread-safe; executing a plan on other arrays is.
+std::mutex gPlanMutex;
+std::map<std::array<std::int32_t, 3>, FftPlan> gPlans;
+bool gWisdomLoaded = false;
+
+std::filesystem::path wisdomPath() {
+  const char* cache = std::getenv("XDG_CACHE_HOME");
+  const char* home = std::getenv("HOME");
+  std::filesystem::path base;
+  if (cache != nullptr && *cache != '\0')
+    base = cache;
+  else if (home != nullptr && *home != '\0')
+    base = std::filesystem::path(home) / ".cache";
+  else
+    return {};
+  return base / "pointillist" / "fftw3f.wisdom";
+}
+
+// Plans are made once per shape and reused for every cell. A shape the saved
+// wisdom knows gets its measured plan at once; a new one is estimated (no
+// planning time in this run) and measured by saveFftWisdom for the next runs.
+FftPlan planFor(const std::array<std::int32_t, 3>& n) {
+  std::lock_guard lock(gPlanMutex);
+  if (const auto it = gPlans.find(n); it != gPlans.end()) return it->second;
+  if (!gWisdomLoaded) {
+    gWisdomLoaded = true;
+    if (const auto path = wisdomPath(); !path.empty() && std::filesystem::exists(path))
+      fftwf_import_wisdom_from_filename(path.c_str());  // stale or foreign wisdom is ignored
+  }
+  FftBuffers& b = tBuffers;
+  b.reserve(volume(n), volume({n[0], n[1], n[2] / 2 + 1}));
+  FftPlan plan;
+  const unsigned known = FFTW_MEASURE | FFTW_WISDOM_ONLY;
+  plan.forward = fftwf_plan_dft_r2c_3d(n[0], n[1], n[2], b.real, b.spectrum, known);
+  plan.backward = fftwf_plan_dft_c2r_3d(n[0], n[1], n[2], b.spectrum, b.real, known);
+  plan.measured = plan.forward != nullptr && plan.backward != nullptr;
+  if (!plan.measured) {
+    if (plan.forward != nullptr) fftwf_destroy_plan(plan.forward);
+    if (plan.backward != nullptr) fftwf_destroy_plan(plan.backward);
+    plan.forward = fftwf_plan_dft_r2c_3d(n[0], n[1], n[2], b.real, b.spectrum, FFTW_ESTIMATE);
+    plan.backward = fftwf_plan_dft_c2r_3d(n[0], n[1], n[2], b.spectrum, b.real, FFTW_ESTIMATE);
+  }
+  if (plan.forward == nullptr || plan.backward == nullptr)
+    throw Error("internal error: FFTW could not plan a " + std::to_string(n[0]) + "x" +
+                std::to_string(n[1]) + "x" + std::to_string(n[2]) + " transform");
+  gPlans.emplace(n, plan);
+  return plan;
+}
+
+bool better(const TranslationCount& a, const TranslationCount& b) {
+  if (a.count != b.count) return a.count > b.count;
+  return a.t < b.t;
+}
+
+// ---- the vertex-transformation table ------------------------------------
+
+constexpr std::size_t kWords = 4;  // 256 palette entries
+using Column = std::array<std::uint64_t, kWords>;
+
+int popcount(const Column& c) {
+  int n = 0;
+  for (const std::uint64_t w : c) n += std::popcount(w);
+  return n;
+}
+
+struct Occupancy {
+  std::array<std::int32_t, 3> dims{};
+  std::vector<std::int32_t> index;  // voxel -> distinct voxel number, or -1
+
+  void reset(const std::array<std::int32_t, 3>& d) {
+    dims = d;
+    index.assign(volume(d), -1);
+  }
+  std::int32_t at(std::int32_t x, std::int32_t y, std::int32_t z) const {
+    if (x < 0 || y < 0 || z < 0 || x >= dims[0] || y >= dims[1] || z >= dims[2]) return -1;
+    return index[flatIndex(dims, x, y, z)];
+  }
+  std::int32_t& slot(const Voxel& v) { return index[flatIndex(dims, v.q[0], v.q[1], v.q[2])]; }
+};
+
+bool knownNormal(const Splat& s) {
+  return s.normal[0] * s.normal[0] + s.normal[1] * s.normal[1] + s.normal[2] * s.normal[2] > 0.25f;
+}
+
+int colorDifference(const Splat& a, const Splat& b) {
+  int d = 0;
+  for (int c = 0; c < 4; ++c) d = std::max(d, std::abs(int{a.color[c]} - int{b.color[c]}));
+  return d;
+}
+
+template <typename T>
+void appendBytes(std::vector<std::byte>& out, const T& value) {
+  const auto* p = reinterpret_cast<const std::byte*>(&value);
+  out.insert(out.end(), p, p + sizeof(T));
+}
+
+void padTo(std::vector<std::byte>& out, std::size_t multiple) {
+  out.resize((out.size() + multiple - 1) / multiple * multiple, std::byte{0});
+}
+
+}  // namespace
+
+// ---- quantization ---------------------------------------------------------
+
+QuantizedCell quantizeCell(std::span<const Splat> points, const InstancingOptions& options) {
+  QuantizedCell out;
+  if (points.empty()) return out;
+  const unsigned maxBits = std::clamp(options.maxBits, 1u, 15u);
+  double lo[3], hi[3];
+  for (int a = 0; a < 3; ++a) lo[a] = hi[a] = points[0].position[a];
+  std::vector<float> radii(points.size());
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], double{points[i].position[a]});
+      hi[a] = std::max(hi[a], double{points[i].position[a]});
+    }
+    radii[i] = points[i].radius;
+  }
+  const double extent = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]});
+  const auto middle = radii.begin() + static_cast<std::ptrdiff_t>(radii.size() / 2);
+  std::nth_element(radii.begin(), middle, radii.end());
+  const double medianRadius = *middle;
+  const double finest = extent / double((1u << maxBits) - 1);
+  double step = options.stepShare * medianRadius;
+  if (!(step > finest)) step = finest;  // also when the radius is unknown
+  if (!(step > 0.0)) step = 1.0;        // a single voxel
+  out.step = static_cast<float>(step);
+  const auto steps = static_cast<std::uint64_t>(std::llround(extent / double{out.step}));
+  out.bits = std::clamp(static_cast<unsigned>(std::bit_width(steps)), 1u, maxBits);
+  const std::int32_t last = static_cast<std::int32_t>((1u << out.bits) - 1);
+  for (int a = 0; a < 3; ++a) out.origin[static_cast<std::size_t>(a)] = static_cast<float>(lo[a]);
+  out.dims = {1, 1, 1};
+  out.voxels.resize(points.size());
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    for (std::size_t a = 0; a < 3; ++a) {
+      const double d = (double{points[i].position[a]} - double{out.origin[a]}) / double{out.step};
+      const auto q = std::clamp(static_cast<std::int32_t>(std::lround(d)), 0, last);
+      out.voxels[i].q[a] = q;
+      out.dims[a] = std::max(out.dims[a], q + 1);
+    }
+  }
+  return out;
+}
+
+// ---- the palette ----------------------------------------------------------
+
+std::vector<TranslationCount> translationPalette(std::span<const Voxel> occupied,
+                                                 const std::array<std::int32_t, 3>& dims,
+                                                 std::size_t limit, std::int32_t window) {
+  if (occupied.size() < 2 || limit == 0) return {};
+  const auto start = std::chrono::steady_clock::now();
+  // Zero padding to 2N - 1 per axis: the circular correlation is then the
+  // linear one, every translation in (-N, N) on its own frequency bin.
+  // Translations within the window: padding each axis to N + w keeps every
+  // lag up to w on its own bin (no wrap-around) at a fraction of 2N - 1.
+  std::array<std::int32_t, 3> reach{};
+  std::array<std::int32_t, 3> padded{};
+  for (std::size_t a = 0; a < 3; ++a) {
+    reach[a] = std::min(window, dims[a] - 1);
+    padded[a] = paddedLength(dims[a] + reach[a]);
+  }
+  // Axes in descending padded length: permutations of one shape share a plan.
+  std::array<std::size_t, 3> axis{0, 1, 2};
+  std::stable_sort(axis.begin(), axis.end(),
+                   [&](std::size_t a, std::size_t b) { return padded[a] > padded[b]; });
+  const std::array<std::int32_t, 3> n{padded[axis[0]], padded[axis[1]], padded[axis[2]]};
+  const std::array<std::int32_t, 3> lag{reach[axis[0]], reach[axis[1]], reach[axis[2]]};
+  const FftPlan plan = planFor(n);
+  const std::size_t realCount = volume(n);
+  const std::size_t spectrumCount = volume({n[0], n[1], n[2] / 2 + 1});
+  FftBuffers& b = tBuffers;
+  b.reserve(realCount, spectrumCount);
+  std::fill_n(b.real, realCount, 0.0f);
+  for (const Voxel& v : occupied)
+    b.real[flatIndex(n, v.q[axis[0]], v.q[axis[1]], v.q[axis[2]])] = 1.0f;
+  fftwf_execute_dft_r2c(plan.forward, b.real, b.spectrum);
+  // A(f) times its conjugate: the power spectrum, the transform of the autocorrelation.
+  for (std::size_t i = 0; i < spectrumCount; ++i) {
+    const float re = b.spectrum[i][0], im = b.spectrum[i][1];
+    b.spectrum[i][0] = re * re + im * im;
+    b.spectrum[i][1] = 0.0f;
+  }
+  fftwf_execute_dft_c2r(plan.backward, b.spectrum, b.real);
+
+  const double scale = 1.0 / static_cast<double>(realCount);  // FFTW does not normalize
+  auto translationOf = [&](std::int32_t i, std::size_t a) -> std::int32_t {
+    if (i <= lag[a]) return i;
+    if (i >= n[a] - lag[a]) return i - n[a];
+    return std::numeric_limits<std::int32_t>::min();  // beyond any pair of voxels
+  };
+  // Worst on top: a heap ordered by `better`.
+  std::vector<TranslationCount> heap;
+  heap.reserve(limit + 1);
+  for (std::int32_t x = 0; x < n[0]; ++x) {
+    const std::int32_t tx = translationOf(x, 0);
+    if (tx == std::numeric_limits<std::int32_t>::min()) continue;
+    for (std::int32_t y = 0; y < n[1]; ++y) {
+      const std::int32_t ty = translationOf(y, 1);
+      if (ty == std::numeric_limits<std::int32_t>::min()) continue;
+      const float* row = b.real + flatIndex(n, x, y, 0);
+      for (std::int32_t z = 0; z < n[2]; ++z) {
+        // Counts below 1.5 are never kept: skip the rounding for them.
+        const double value = double{row[z]} * scale;
+        if (value < 1.5) continue;
+        const std::int32_t tz = translationOf(z, 2);
+        if (tz == std::numeric_limits<std::int32_t>::min() || (tx == 0 && ty == 0 && tz == 0))
+          continue;
+        TranslationCount c{{}, static_cast<std::uint32_t>(std::llround(value))};
+        c.t[axis[0]] = tx;
+        c.t[axis[1]] = ty;
+        c.t[axis[2]] = tz;
+        if (heap.size() < limit) {
+          heap.push_back(c);
+          std::push_heap(heap.begin(), heap.end(), better);
+        } else if (better(c, heap.front())) {
+          std::pop_heap(heap.begin(), heap.end(), better);
+          heap.back() = c;
+          std::push_heap(heap.begin(), heap.end(), better);
+        }
+      }
+    }
+  }
+  std::sort(heap.begin(), heap.end(), better);
+  b.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return heap;
+}
+
+std::vector<TranslationCount> bruteForceTranslationCounts(std::span<const Voxel> occupied) {
+  std::map<std::array<std::int32_t, 3>, std::uint32_t> counts;
+  for (const Voxel& a : occupied)
+    for (const Voxel& b : occupied)
+      if (a != b) ++counts[{b.q[0] - a.q[0], b.q[1] - a.q[1], b.q[2] - a.q[2]}];
+  std::vector<TranslationCount> out;
+  for (const auto& [t, c] : counts) out.push_back({t, c});
+  return out;
+}
+
+double fftSecondsThisThread() {
+  return tBuffers.seconds;
+}
+
+std::size_t fftPlansMade() {
+  std::lock_guard lock(gPlanMutex);
+  return gPlans.size();
+}
+
+std::size_t saveFftWisdom(double budgetSeconds) {
+  std::lock_guard lock(gPlanMutex);
+  const auto path = wisdomPath();
+  if (path.empty()) return 0;
+  const auto start = std::chrono::steady_clock::now();
+  std::size_t measured = 0;
+  std::vector<std::pair<std::size_t, std::array<std::int32_t, 3>>> pending;
+  for (const auto& [n, plan] : gPlans)
+    if (!plan.measured) pending.emplace_back(volume(n), n);
+  std::sort(pending.begin(), pending.end());  // small shapes first: most within the budget
+  for (const auto& [size, n] : pending) {
+    const double left =
+        budgetSeconds -
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    if (left <= 0.0) break;
+    float* real = fftwf_alloc_real(size);
+    fftwf_complex* spectrum = fftwf_alloc_complex(volume({n[0], n[1], n[2] / 2 + 1}));
+    if (real == nullptr || spectrum == nullptr) {
+      fftwf_free(real);
+      fftwf_free(spectrum);
+      break;
+    }
+    fftwf_set_timelimit(left / 2.0);
+    const fftwf_plan forward =
+        fftwf_plan_dft_r2c_3d(n[0], n[1], n[2], real, spectrum, FFTW_MEASURE);
+    const fftwf_plan backward =
+        fftwf_plan_dft_c2r_3d(n[0], n[1], n[2], spectrum, real, FFTW_MEASURE);
+    if (forward != nullptr) fftwf_destroy_plan(forward);
+    if (backward != nullptr) fftwf_destroy_plan(backward);
+    fftwf_free(real);
+    fftwf_free(spectrum);
+    gPlans[n].measured = true;  // the wisdom knows it now; this run keeps its plan
+    ++measured;
+  }
+  fftwf_set_timelimit(FFTW_NO_TIMELIMIT);
+  if (measured == 0) return 0;
+  std::error_code ec;
+  std::filesystem::create_directories(path.parent_path(), ec);
+  // Wisdom only saves planning time: a cache that cannot be written is no error.
+  if (!ec) fftwf_export_wisdom_to_filename(path.c_str());
+  return measured;
+}
+
+void InstancingStats::merge(const InstancingStats& o) {
+  points += o.points;
+  covered += o.covered;
+  pools += o.pools;
+  vertices += o.vertices;
+  translations += o.translations;
+  vertexBytes += o.vertexBytes;
+  translationBytes += o.translationBytes;
+  tagBytes += o.tagBytes;
+  sectionBytes += o.sectionBytes;
+  plainBytes += o.plainBytes;
+  instancedPlainBytes += o.instancedPlainBytes;
+  cells += o.cells;
+  cellsInstanced += o.cellsInstanced;
+  colorErrorSum += o.colorErrorSum;
+  colorErrorMax = std::max(colorErrorMax, o.colorErrorMax);
+  positionErrorMax = std::max(positionErrorMax, o.positionErrorMax);
+  fftSeconds += o.fftSeconds;
+}
+
+// ---- pools ----------------------------------------------------------------
+
+std::vector<std::byte> encodeInstancedCell(std::span<const Splat> points, const QuantizedCell& grid,
+                                           std::span<const TranslationCount> palette,
+                                           const InstancingOptions& options,
+                                           InstancingStats& stats) {
+  stats.cells += 1;
+  stats.points += points.size();
+  stats.plainBytes += points.size() * sizeof(Splat);
+  if (palette.size() > kWords * 64)
+    throw Error("internal error: a palette of " + std::to_string(palette.size()) +
+                " translations, at most 256");
+  if (points.empty() || palette.empty()) return {};
+
+  // Distinct voxels; the first point of a voxel stands for it, the others stay plain.
+  thread_local Occupancy occupancy;
+  occupancy.reset(grid.dims);
+  std::vector<std::uint32_t> rep;  // distinct voxel -> point
+  for (std::uint32_t i = 0; i < points.size(); ++i) {
+    std::int32_t& slot = occupancy.slot(grid.voxels[i]);
+    if (slot < 0) {
+      slot = static_cast<std::int32_t>(rep.size());
+      rep.push_back(i);
+    }
+  }
+  const std::size_t n = rep.size();
+  auto voxelOf = [&](std::size_t u) -> const Voxel& { return grid.voxels[rep[u]]; };
+  auto target = [&](std::size_t u, const std::array<std::int32_t, 3>& t) {
+    const Voxel& v = voxelOf(u);
+    return occupancy.at(v.q[0] + t[0], v.q[1] + t[1], v.q[2] + t[2]);
+  };
+
+  const double cosNormal = std::cos(options.normalToleranceDegrees * 3.141592653589793 / 180.0);
+  auto mayStandFor = [&](const Splat& source, const Splat& other) {
+    if (colorDifference(source, other) > options.colorTolerance) return false;
+    const bool a = knownNormal(source), b = knownNormal(other);
+    if (a != b) return false;
+    if (a) {
+      auto dot = [](const float* x, const float* y) {
+        return double{x[0]} * double{y[0]} + double{x[1]} * double{y[1]} +
+               double{x[2]} * double{y[2]};
+      };
+      const double lengths =
+          std::sqrt(dot(source.normal, source.normal) * dot(other.normal, other.normal));
+      if (dot(source.normal, other.normal) < cosNormal * lengths) return false;
+    }
+    return std::abs(double{source.radius} - double{other.radius}) <=
+           options.radiusTolerance * std::max(double{source.radius}, double{other.radius});
+  };
+
+  // Column j, bit i: translation i takes voxel j to a point j may stand for.
+  std::vector<Column> column(n, Column{});
+  for (std::size_t u = 0; u < n; ++u)
+    for (std::size_t i = 0; i < palette.size(); ++i) {
+      const std::int32_t k = target(u, palette[i].t);
+      if (k >= 0 && mayStandFor(points[rep[u]], points[rep[std::size_t(k)]]))
+        column[u][i / 64] |= std::uint64_t{1} << (i % 64);
+    }
+
+  struct BuiltPool {
+    std::vector<std::uint32_t> rows;  // palette indices, after the null translation
+    std::vector<InstancedVertex> vertices;
+    std::uint64_t generated = 0;
+  };
+  std::vector<BuiltPool> pools;
+  std::vector<std::uint8_t> covered(n, 0);
+  std::vector<std::uint32_t> sourceOf(n, 0);  // distinct voxel -> the voxel generating it
+  std::vector<std::uint32_t> order;
+  std::vector<int> rowSum(palette.size());
+  float maxRadius = 0.0f;
+  for (const Splat& p : points) maxRadius = std::max(maxRadius, p.radius);
+  const float radiusUnit = maxRadius / 65535.0f;
+
+  while (pools.size() < options.maxPools) {
+    // §4.1: the vertex with the most ones in its column, and its rows.
+    std::size_t best = 0;
+    int bestOnes = 0;
+    for (std::size_t u = 0; u < n; ++u)
+      if (const int ones = popcount(column[u]); ones > bestOnes) {
+        bestOnes = ones;
+        best = u;
+      }
+    if (bestOnes == 0) break;
+    BuiltPool pool;
+    for (std::uint32_t i = 0; i < palette.size(); ++i)
+      if ((column[best][i / 64] >> (i % 64)) & 1u) pool.rows.push_back(i);
+    const std::size_t rowLimit =
+        std::clamp<std::size_t>(options.poolTranslations, 2, kPoolTranslations) - 1;
+    if (pool.rows.size() > rowLimit) {
+      // More than a tag holds: keep the rows with most ones overall.
+      std::fill(rowSum.begin(), rowSum.end(), 0);
+      for (std::size_t u = 0; u < n; ++u)
+        for (const std::uint32_t i : pool.rows)
+          rowSum[i] += int((column[u][i / 64] >> (i % 64)) & 1u);
+      std::stable_sort(pool.rows.begin(), pool.rows.end(),
+                       [&](std::uint32_t a, std::uint32_t b) { return rowSum[a] > rowSum[b]; });
+      pool.rows.resize(rowLimit);
+      std::sort(pool.rows.begin(), pool.rows.end());
+    }
+    Column mask{};
+    for (const std::uint32_t i : pool.rows) mask[i / 64] |= std::uint64_t{1} << (i % 64);
+    std::vector<int> score(n, 0);
+    order.clear();
+    for (std::uint32_t u = 0; u < n; ++u) {
+      for (std::size_t w = 0; w < kWords; ++w) score[u] += std::popcount(column[u][w] & mask[w]);
+      if (score[u] > 0) order.push_back(u);
+    }
+    std::stable_sort(order.begin(), order.end(),
+                     [&](std::uint32_t a, std::uint32_t b) { return score[a] > score[b]; });
+    const double threshold = options.acceptShare * static_cast<double>(pool.rows.size());
+    std::vector<std::uint32_t> newlyCovered;
+    std::vector<std::pair<std::uint32_t, std::uint32_t>> reach;  // (row slot, target)
+    for (const std::uint32_t u : order) {
+      reach.clear();
+      for (std::uint32_t r = 0; r < pool.rows.size(); ++r) {
+        const std::uint32_t i = pool.rows[r];
+        if (!((column[u][i / 64] >> (i % 64)) & 1u)) continue;
+        const std::int32_t k = target(u, palette[i].t);
+        if (k >= 0 && !covered[std::size_t(k)]) reach.emplace_back(r + 1, std::uint32_t(k));
+      }
+      if (static_cast<double>(reach.size()) <= threshold) continue;
+      const Splat& s = points[rep[u]];
+      InstancedVertex v{};
+      for (std::size_t a = 0; a < 3; ++a) v.q[a] = static_cast<std::uint16_t>(voxelOf(u).q[a]);
+      v.radius = radiusUnit > 0.0f
+                     ? static_cast<std::uint16_t>(
+                           std::min(65535.0f, std::max(1.0f, std::ceil(s.radius / radiusUnit))))
+                     : 0;
+      std::memcpy(v.color, s.color, 4);
+      for (int a = 0; a < 3; ++a)
+        v.normal[a] =
+            static_cast<std::int8_t>(std::lround(std::clamp(s.normal[a], -1.0f, 1.0f) * 127.0f));
+      if (!covered[u]) {  // the vertex's own point, through the null translation
+        tagSet(v, 0);
+        covered[u] = 1;
+        sourceOf[u] = u;
+        newlyCovered.push_back(u);
+      }
+      for (const auto& [slot, k] : reach) {
+        tagSet(v, slot);
+        covered[k] = 1;
+        sourceOf[k] = u;
+        newlyCovered.push_back(k);
+      }
+      pool.vertices.push_back(v);
+    }
+    pool.generated = newlyCovered.size();
+    if (pool.generated < options.minPoolPoints) {
+      for (const std::uint32_t k : newlyCovered) covered[k] = 0;
+      break;
+    }
+    // §4.2: whatever could have generated a covered point no longer counts it.
+    for (const std::uint32_t k : newlyCovered) {
+      const Voxel& v = voxelOf(k);
+      for (std::size_t i = 0; i < palette.size(); ++i) {
+        const auto& t = palette[i].t;
+        const std::int32_t j = occupancy.at(v.q[0] - t[0], v.q[1] - t[1], v.q[2] - t[2]);
+        if (j >= 0) column[std::size_t(j)][i / 64] &= ~(std::uint64_t{1} << (i % 64));
+      }
+    }
+    pools.push_back(std::move(pool));
+  }
+  if (pools.empty()) return {};
+
+  // Encode: header, pool table, translations and vertices per pool, remainder.
+  std::vector<std::byte> out;
+  InstancedHeader h{};
+  h.magic = kInstancedMagic;
+  h.version = kInstancedVersion;
+  h.bits = static_cast<std::uint8_t>(grid.bits);
+  h.poolCount = static_cast<std::uint8_t>(pools.size());
+  for (std::size_t a = 0; a < 3; ++a) h.origin[a] = grid.origin[a];
+  h.step = grid.step;
+  h.radiusUnit = radiusUnit;
+  std::size_t offset = sizeof(InstancedHeader) + pools.size() * sizeof(InstancedPool);
+  std::vector<InstancedPool> table;
+  for (const BuiltPool& p : pools) {
+    InstancedPool entry{};
+    entry.translationCount = static_cast<std::uint32_t>(p.rows.size() + 1);
+    entry.vertexCount = static_cast<std::uint32_t>(p.vertices.size());
+    entry.translationOffset = static_cast<std::uint32_t>(offset);
+    offset += entry.translationCount * sizeof(InstancedTranslation);
+    entry.vertexOffset = static_cast<std::uint32_t>(offset);
+    offset += entry.vertexCount * sizeof(InstancedVertex);
+    table.push_back(entry);
+    h.generatedCount += static_cast<std::uint32_t>(p.generated);
+  }
+  std::vector<std::uint32_t> remainder;
+  for (std::uint32_t i = 0; i < points.size(); ++i) {
+    const std::int32_t u = occupancy.slot(grid.voxels[i]);
+    if (rep[std::size_t(u)] != i || !covered[std::size_t(u)]) remainder.push_back(i);
+  }
+  h.remainderOffset =
+      static_cast<std::uint32_t>((offset + sizeof(Splat) - 1) / sizeof(Splat) * sizeof(Splat));
+  h.remainderCount = static_cast<std::uint32_t>(remainder.size());
+  h.sectionBytes = static_cast<std::uint32_t>(h.remainderOffset + remainder.size() * sizeof(Splat));
+  const std::size_t padded = (h.sectionBytes + sizeof(Splat) - 1) / sizeof(Splat) * sizeof(Splat);
+  if (static_cast<double>(padded) > options.keepShare * double(points.size() * sizeof(Splat)))
+    return {};
+
+  out.reserve(padded);
+  appendBytes(out, h);
+  for (const InstancedPool& entry : table) appendBytes(out, entry);
+  for (const BuiltPool& p : pools) {
+    appendBytes(out, InstancedTranslation{});
+    for (const std::uint32_t i : p.rows) {
+      InstancedTranslation t{};
+      for (std::size_t a = 0; a < 3; ++a) t.t[a] = static_cast<std::int16_t>(palette[i].t[a]);
+      appendBytes(out, t);
+    }
+    for (const InstancedVertex& v : p.vertices) appendBytes(out, v);
+  }
+  padTo(out, sizeof(Splat));
+  for (const std::uint32_t i : remainder) appendBytes(out, points[i]);
+  padTo(out, sizeof(Splat));
+
+  stats.cellsInstanced += 1;
+  stats.instancedPlainBytes += points.size() * sizeof(Splat);
+  stats.covered += h.generatedCount;
+  stats.pools += pools.size();
+  for (const BuiltPool& p : pools) {
+    stats.vertices += p.vertices.size();
+    stats.translations += p.rows.size() + 1;
+    stats.vertexBytes += p.vertices.size() * (sizeof(InstancedVertex) - sizeof(std::uint32_t) * 2);
+    stats.tagBytes += p.vertices.size() * sizeof(std::uint32_t) * 2;
+    stats.translationBytes += (p.rows.size() + 1) * sizeof(InstancedTranslation);
+  }
+  stats.sectionBytes += out.size();
+  for (std::size_t k = 0; k < n; ++k) {
+    if (!covered[k]) continue;
+    const Splat& original = points[rep[k]];
+    const int error = colorDifference(points[rep[sourceOf[k]]], original);
+    stats.colorErrorSum += error;
+    stats.colorErrorMax = std::max(stats.colorErrorMax, error);
+    float decoded[3];
+    instancedPosition(h, voxelOf(k).q, decoded);
+    double d2 = 0.0;
+    for (int a = 0; a < 3; ++a) {
+      const double d = double{decoded[a]} - double{original.position[a]};
+      d2 += d * d;
+    }
+    stats.positionErrorMax = std::max(stats.positionErrorMax, std::sqrt(d2));
+  }
+  return out;
+}
+
+std::vector<std::byte> instanceCell(std::span<const Splat> points, const InstancingOptions& options,
+                                    InstancingStats& stats) {
+  if (points.size() < options.minCellPoints) {
+    stats.cells += 1;
+    stats.points += points.size();
+    stats.plainBytes += points.size() * sizeof(Splat);
+    return {};
+  }
+  const QuantizedCell grid = quantizeCell(points, options);
+  // The palette counts distinct voxels: a second point in a voxel is no translation.
+  std::vector<Voxel> distinct(grid.voxels);
+  std::sort(distinct.begin(), distinct.end());
+  distinct.erase(std::unique(distinct.begin(), distinct.end()), distinct.end());
+  const double before = fftSecondsThisThread();
+  const auto palette =
+      translationPalette(distinct, grid.dims, options.paletteSize, options.paletteWindow);
+  stats.fftSeconds += fftSecondsThisThread() - before;
+  return encodeInstancedCell(points, grid, palette, options, stats);
+}
+
+InstancingStats addInstancedSections(
+    DatasetContent& content, const InstancingOptions& options, unsigned threads,
+    const std::function<void(std::uint64_t, std::uint64_t)>& progress) {
+  auto& table = content.topLevel;
+  const std::size_t count = table.size();
+  std::vector<std::uint64_t> begin(count + 1, 0);
+  for (std::size_t k = 0; k < count; ++k) begin[k + 1] = begin[k] + table[k].pointCount;
+  if (begin[count] != content.points.size())
+    throw Error("internal error: instancing needs every point of the dataset in memory");
+  std::vector<std::vector<std::byte>> sections(count);
+  InstancingStats total;
+  std::mutex mutex;
+  std::atomic<std::uint64_t> done{0};
+  std::atomic<bool> stop{false};
+  std::exception_ptr error;
+  const auto caller = std::this_thread::get_id();
+  if (progress) progress(0, begin[count]);
+  parallelFor(
+      count, threads,
+      [&](std::size_t k) {
+        if (stop) return;
+        try {
+          InstancingStats stats;
+          sections[k] = instanceCell(
+              std::span<const Splat>(content.points).subspan(begin[k], table[k].pointCount),
+              options, stats);
+          {
+            std::lock_guard lock(mutex);
+            total.merge(stats);
+          }
+          done += table[k].pointCount;
+          if (progress && std::this_thread::get_id() == caller) progress(done, begin[count]);
+        } catch (...) {
+          std::lock_guard lock(mutex);
+          if (!error) error = std::current_exception();
+          stop = true;
+        }
+      },
+      1);
+  if (error) std::rethrow_exception(error);
+
+  std::vector<std::uint32_t> records(count);
+  std::size_t all = 0;
+  for (std::size_t k = 0; k < count; ++k) {
+    records[k] = static_cast<std::uint32_t>(sections[k].size() / sizeof(Splat));
+    all += records[k];
+  }
+  content.instancedRecords.assign(all, Splat{});
+  auto* out = reinterpret_cast<std::byte*>(content.instancedRecords.data());
+  for (std::size_t k = 0; k < count; ++k) {
+    if (std::uint64_t{table[k].levelSplatCount} + records[k] + table[k].pointCount >
+        std::numeric_limits<std::uint32_t>::max())
+      throw UsageError("top-level cell " + std::to_string(k) +
+                       " with its instanced section holds more than 32-bit offsets address; use "
+                       "a deeper --top-level-depth");
+    std::memcpy(out, sections[k].data(), sections[k].size());
+    out += sections[k].size();
+    table[k].instancedRecordCount = records[k];
+  }
+  for (OctreeCell& c : content.cells)
+    if (c.topLevel != kNoIndex) c.pointsOffset += records[c.topLevel];
+  if (progress) progress(begin[count], begin[count]);
+  return total;
+}
+
+}  // namespace pointillist::preprocess
