@@ -1,5 +1,6 @@
 #include "common/instanced_section.hpp"
 
+#include <algorithm>
 #include <bit>
 #include <cmath>
 #include <cstring>
@@ -41,8 +42,10 @@ InstancedSectionView parseInstancedSection(std::span<const std::byte> bytes, con
     throw InputError(at + "grid of " + std::to_string(h.bits) + " bits");
   if (!(std::isfinite(h.step) && h.step > 0.0f) || !std::isfinite(h.radiusUnit) ||
       h.radiusUnit < 0.0f || !std::isfinite(h.origin[0]) || !std::isfinite(h.origin[1]) ||
-      !std::isfinite(h.origin[2]))
-    throw InputError(at + "origin, step or radius unit is not finite and positive");
+      !std::isfinite(h.origin[2]) || !(h.high[0] >= h.origin[0]) || !(h.high[1] >= h.origin[1]) ||
+      !(h.high[2] >= h.origin[2]) || !std::isfinite(h.high[0]) || !std::isfinite(h.high[1]) ||
+      !std::isfinite(h.high[2]))
+    throw InputError(at + "origin, bounds, step or radius unit is not finite and positive");
   if (h.sectionBytes > bytes.size())
     throw InputError(at + "says " + std::to_string(h.sectionBytes) + " bytes, has " +
                      std::to_string(bytes.size()));
@@ -98,7 +101,9 @@ InstancedSectionView parseInstancedSection(std::span<const Splat> records, const
 }
 
 void instancedPosition(const InstancedHeader& h, const std::int32_t voxel[3], float out[3]) {
-  for (int a = 0; a < 3; ++a) out[a] = h.origin[a] + static_cast<float>(voxel[a]) * h.step;
+  for (int a = 0; a < 3; ++a)
+    out[a] =
+        std::clamp(h.origin[a] + static_cast<float>(voxel[a]) * h.step, h.origin[a], h.high[a]);
 }
 
 std::vector<Splat> expandInstancedSection(const InstancedSectionView& view) {

@@ -17,10 +17,11 @@
 //   zero padding to a multiple of 32
 //
 // Positions are quantized on the cell's grid: voxel q decodes to
-// origin + q * step. Pool p generates, for every translation i (instance) and
-// every vertex v whose tag has bit i set, the point at voxel v.q + t_i with v's
-// radius, colour and normal (seed 000 §3: the tag bit masks; translation 0 is
-// the null translation, so a vertex's own voxel is drawn through bit 0).
+// clamp(origin + q * step, origin, high), inside the cell's points' bounds (so
+// the cell's culling bounds still hold every generated point). Pool p generates, for every
+// translation i (instance) and every vertex v whose tag has bit i set, the point at voxel v.q + t_i
+// with v's radius, colour and normal (seed 000 §3: the tag bit masks; translation 0 is the null
+// translation, so a vertex's own voxel is drawn through bit 0).
 #include <cstddef>
 #include <cstdint>
 #include <span>
@@ -49,7 +50,8 @@ struct InstancedHeader {
   float origin[3];
   float step;
   float radiusUnit;  // InstancedVertex::radius * radiusUnit is the world radius
-  std::uint32_t reserved[5];
+  float high[3];     // the cell's points' largest coordinates: decoded voxels are clamped to it
+  std::uint32_t reserved[2];
 };
 
 struct InstancedPool {
@@ -85,6 +87,19 @@ inline void tagSet(InstancedVertex& v, std::uint32_t i) {
   v.tag[i >> 5] |= 1u << (i & 31u);
 }
 
+// The extra dataset file instanced-sections.bin: one entry per octree cell,
+// in cell order. A cell with records > 0 is an instancing unit with a section:
+// records [offset, offset + records) of its top-level cell's packet stand for
+// all the points of its subtree. Sections of one packet lie back to back
+// between its level-splats and its points.
+struct InstancedCellSection {
+  std::uint32_t offset = 0;
+  std::uint32_t records = 0;
+};
+static_assert(sizeof(InstancedCellSection) == 8);
+inline constexpr const char* kInstancedSectionsKey = "instanced_sections";
+inline constexpr const char* kInstancedSectionsName = "instanced-sections.bin";
+
 // A checked view of one section; spans point into the bytes given to parse.
 struct InstancedSectionView {
   InstancedHeader header{};
@@ -103,7 +118,8 @@ InstancedSectionView parseInstancedSection(std::span<const std::byte> bytes, con
 // The same over a packet's records.
 InstancedSectionView parseInstancedSection(std::span<const Splat> records, const char* where);
 
-// The world position of voxel q + t: origin + (q + t) * step, in float.
+// The world position of voxel q + t: clamp(origin + (q + t) * step, origin,
+// high), in float, as the instanced vertex shader computes it.
 void instancedPosition(const InstancedHeader& h, const std::int32_t voxel[3], float out[3]);
 
 // Every point the section stands for, as splats: the pools' generated points

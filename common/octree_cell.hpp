@@ -89,6 +89,11 @@ inline std::uint64_t packetRecords(const TopLevelCell& t) {
 inline std::uint64_t pointsStart(const TopLevelCell& t) {
   return std::uint64_t{t.levelSplatCount} + t.instancedRecordCount;
 }
+// A drawn range starting at `offset` is the instanced section (no range of
+// level-splats or points starts inside it).
+inline bool inInstancedSection(const TopLevelCell& t, std::uint64_t offset) {
+  return offset >= t.levelSplatCount && offset < pointsStart(t);
+}
 static_assert(std::is_trivially_copyable_v<TopLevelCell>);
 
 }  // namespace pointillist

@@ -10,8 +10,10 @@ void addViewOptions(CLI::App& app, ViewOptions& options) {
   app.add_option("--frames", options.frames, "Frames for a built-in camera path");
   app.add_option("--size", options.size, "Frame size WxH");
   app.add_option("--mode", options.mode,
-                 "Render mode: points (fast), splats (oriented disks from a geometry shader) or "
-                 "blended (the disks blended EWA-style: smooth, about 2.5 times splats' cost)");
+                 "Render mode: points (fast), splats (oriented disks from a geometry shader), "
+                 "blended (the disks blended EWA-style: smooth, about 2.5 times splats' cost) or "
+                 "instanced (points; full-detail cells drawn from the vertex and transformation "
+                 "streams of a dataset built with --instanced)");
   app.add_option("--up", options.up, "Up axis of the data for built-in paths: auto, x, y, z");
   app.add_option("--lod-pixels", options.lodPixels,
                  "Use a cell's level-splats once its splats project to this radius in pixels");
@@ -38,7 +40,8 @@ v1::RenderMode parseRenderMode(const std::string& name) {
   if (name == "points") return v1::RENDER_MODE_POINTS;
   if (name == "splats") return v1::RENDER_MODE_SPLATS;
   if (name == "blended") return v1::RENDER_MODE_BLENDED;
-  throw UsageError("render mode '" + name + "' is not one of: points, splats, blended");
+  if (name == "instanced") return v1::RENDER_MODE_INSTANCED;
+  throw UsageError("render mode '" + name + "' is not one of: points, splats, blended, instanced");
 }
 
 const char* renderModeName(v1::RenderMode mode) {

@@ -208,7 +208,10 @@ QuantizedCell quantizeCell(std::span<const Splat> points, const InstancingOption
   const auto steps = static_cast<std::uint64_t>(std::llround(extent / double{out.step}));
   out.bits = std::clamp(static_cast<unsigned>(std::bit_width(steps)), 1u, maxBits);
   const std::int32_t last = static_cast<std::int32_t>((1u << out.bits) - 1);
-  for (int a = 0; a < 3; ++a) out.origin[static_cast<std::size_t>(a)] = static_cast<float>(lo[a]);
+  for (int a = 0; a < 3; ++a) {
+    out.origin[static_cast<std::size_t>(a)] = static_cast<float>(lo[a]);
+    out.high[static_cast<std::size_t>(a)] = static_cast<float>(hi[a]);
+  }
   out.dims = {1, 1, 1};
   out.voxels.resize(points.size());
   for (std::size_t i = 0; i < points.size(); ++i) {
@@ -378,7 +381,6 @@ void InstancingStats::merge(const InstancingStats& o) {
   tagBytes += o.tagBytes;
   sectionBytes += o.sectionBytes;
   plainBytes += o.plainBytes;
-  instancedPlainBytes += o.instancedPlainBytes;
   cells += o.cells;
   cellsInstanced += o.cellsInstanced;
   colorErrorSum += o.colorErrorSum;
@@ -388,6 +390,32 @@ void InstancingStats::merge(const InstancingStats& o) {
 }
 
 // ---- pools ----------------------------------------------------------------
+
+namespace {
+
+// A section without pools: every point plain (a unit whose pools would not pay).
+std::vector<std::byte> plainSection(std::span<const Splat> points, const QuantizedCell& grid,
+                                    InstancingStats& stats) {
+  InstancedHeader h{};
+  h.magic = kInstancedMagic;
+  h.version = kInstancedVersion;
+  h.bits = static_cast<std::uint8_t>(grid.bits);
+  for (std::size_t a = 0; a < 3; ++a) {
+    h.origin[a] = grid.origin[a];
+    h.high[a] = grid.high[a];
+  }
+  h.step = grid.step;
+  h.remainderOffset = sizeof(InstancedHeader);
+  h.remainderCount = static_cast<std::uint32_t>(points.size());
+  h.sectionBytes = static_cast<std::uint32_t>(h.remainderOffset + points.size_bytes());
+  std::vector<std::byte> out(h.sectionBytes);
+  std::memcpy(out.data(), &h, sizeof h);
+  std::memcpy(out.data() + sizeof h, points.data(), points.size_bytes());
+  stats.sectionBytes += out.size();
+  return out;
+}
+
+}  // namespace
 
 std::vector<std::byte> encodeInstancedCell(std::span<const Splat> points, const QuantizedCell& grid,
                                            std::span<const TranslationCount> palette,
@@ -399,7 +427,8 @@ std::vector<std::byte> encodeInstancedCell(std::span<const Splat> points, const 
   if (palette.size() > kWords * 64)
     throw Error("internal error: a palette of " + std::to_string(palette.size()) +
                 " translations, at most 256");
-  if (points.empty() || palette.empty()) return {};
+  if (points.empty()) return {};
+  if (palette.empty()) return plainSection(points, grid, stats);
 
   // Distinct voxels; the first point of a voxel stands for it, the others stay plain.
   thread_local Occupancy occupancy;
@@ -549,7 +578,7 @@ std::vector<std::byte> encodeInstancedCell(std::span<const Splat> points, const 
     }
     pools.push_back(std::move(pool));
   }
-  if (pools.empty()) return {};
+  if (pools.empty()) return plainSection(points, grid, stats);
 
   // Encode: header, pool table, translations and vertices per pool, remainder.
   std::vector<std::byte> out;
@@ -558,7 +587,10 @@ std::vector<std::byte> encodeInstancedCell(std::span<const Splat> points, const 
   h.version = kInstancedVersion;
   h.bits = static_cast<std::uint8_t>(grid.bits);
   h.poolCount = static_cast<std::uint8_t>(pools.size());
-  for (std::size_t a = 0; a < 3; ++a) h.origin[a] = grid.origin[a];
+  for (std::size_t a = 0; a < 3; ++a) {
+    h.origin[a] = grid.origin[a];
+    h.high[a] = grid.high[a];
+  }
   h.step = grid.step;
   h.radiusUnit = radiusUnit;
   std::size_t offset = sizeof(InstancedHeader) + pools.size() * sizeof(InstancedPool);
@@ -585,7 +617,7 @@ std::vector<std::byte> encodeInstancedCell(std::span<const Splat> points, const 
   h.sectionBytes = static_cast<std::uint32_t>(h.remainderOffset + remainder.size() * sizeof(Splat));
   const std::size_t padded = (h.sectionBytes + sizeof(Splat) - 1) / sizeof(Splat) * sizeof(Splat);
   if (static_cast<double>(padded) > options.keepShare * double(points.size() * sizeof(Splat)))
-    return {};
+    return plainSection(points, grid, stats);
 
   out.reserve(padded);
   appendBytes(out, h);
@@ -604,7 +636,6 @@ std::vector<std::byte> encodeInstancedCell(std::span<const Splat> points, const 
   padTo(out, sizeof(Splat));
 
   stats.cellsInstanced += 1;
-  stats.instancedPlainBytes += points.size() * sizeof(Splat);
   stats.covered += h.generatedCount;
   stats.pools += pools.size();
   for (const BuiltPool& p : pools) {
@@ -635,13 +666,13 @@ std::vector<std::byte> encodeInstancedCell(std::span<const Splat> points, const 
 
 std::vector<std::byte> instanceCell(std::span<const Splat> points, const InstancingOptions& options,
                                     InstancingStats& stats) {
+  const QuantizedCell grid = quantizeCell(points, options);
   if (points.size() < options.minCellPoints) {
     stats.cells += 1;
     stats.points += points.size();
     stats.plainBytes += points.size() * sizeof(Splat);
-    return {};
+    return points.empty() ? std::vector<std::byte>{} : plainSection(points, grid, stats);
   }
-  const QuantizedCell grid = quantizeCell(points, options);
   // The palette counts distinct voxels: a second point in a voxel is no translation.
   std::vector<Voxel> distinct(grid.voxels);
   std::sort(distinct.begin(), distinct.end());
@@ -653,6 +684,24 @@ std::vector<std::byte> instanceCell(std::span<const Splat> points, const Instanc
   return encodeInstancedCell(points, grid, palette, options, stats);
 }
 
+std::vector<std::uint32_t> instancingUnits(std::span<const OctreeCell> cells, std::uint32_t root,
+                                           std::uint32_t unitPoints) {
+  std::vector<std::uint32_t> units;
+  const std::uint32_t end = cells[root].nextSibling == kNoIndex
+                                ? static_cast<std::uint32_t>(cells.size())
+                                : cells[root].nextSibling;
+  for (std::uint32_t i = root; i < end;) {
+    const OctreeCell& c = cells[i];
+    if (c.pointsCount <= unitPoints || c.isLeaf()) {
+      units.push_back(i);
+      i = c.nextSibling == kNoIndex ? end : c.nextSibling;
+    } else {
+      ++i;
+    }
+  }
+  return units;
+}
+
 InstancingStats addInstancedSections(
     DatasetContent& content, const InstancingOptions& options, unsigned threads,
     const std::function<void(std::uint64_t, std::uint64_t)>& progress) {
@@ -662,7 +711,16 @@ InstancingStats addInstancedSections(
   for (std::size_t k = 0; k < count; ++k) begin[k + 1] = begin[k] + table[k].pointCount;
   if (begin[count] != content.points.size())
     throw Error("internal error: instancing needs every point of the dataset in memory");
-  std::vector<std::vector<std::byte>> sections(count);
+  struct UnitSection {
+    std::uint32_t cell;
+    std::uint32_t offset;  // records from the start of its top-level cell's sections
+    std::uint32_t records;
+  };
+  struct TopSections {
+    std::vector<std::byte> bytes;
+    std::vector<UnitSection> units;
+  };
+  std::vector<TopSections> sections(count);
   InstancingStats total;
   std::mutex mutex;
   std::atomic<std::uint64_t> done{0};
@@ -676,9 +734,20 @@ InstancingStats addInstancedSections(
         if (stop) return;
         try {
           InstancingStats stats;
-          sections[k] = instanceCell(
-              std::span<const Splat>(content.points).subspan(begin[k], table[k].pointCount),
-              options, stats);
+          const std::span<const Splat> packetPoints =
+              std::span<const Splat>(content.points).subspan(begin[k], table[k].pointCount);
+          const std::uint32_t base = content.cells[table[k].cellIndex].pointsOffset;
+          TopSections& out = sections[k];
+          for (const std::uint32_t unit :
+               instancingUnits(content.cells, table[k].cellIndex, options.unitPoints)) {
+            const OctreeCell& c = content.cells[unit];
+            const auto bytes = instanceCell(
+                packetPoints.subspan(c.pointsOffset - base, c.pointsCount), options, stats);
+            if (bytes.empty()) continue;
+            out.units.push_back({unit, static_cast<std::uint32_t>(out.bytes.size() / sizeof(Splat)),
+                                 static_cast<std::uint32_t>(bytes.size() / sizeof(Splat))});
+            out.bytes.insert(out.bytes.end(), bytes.begin(), bytes.end());
+          }
           {
             std::lock_guard lock(mutex);
             total.merge(stats);
@@ -694,26 +763,32 @@ InstancingStats addInstancedSections(
       1);
   if (error) std::rethrow_exception(error);
 
-  std::vector<std::uint32_t> records(count);
   std::size_t all = 0;
-  for (std::size_t k = 0; k < count; ++k) {
-    records[k] = static_cast<std::uint32_t>(sections[k].size() / sizeof(Splat));
-    all += records[k];
-  }
+  for (const TopSections& t : sections) all += t.bytes.size() / sizeof(Splat);
   content.instancedRecords.assign(all, Splat{});
   auto* out = reinterpret_cast<std::byte*>(content.instancedRecords.data());
+  std::vector<InstancedCellSection> perCell(content.cells.size());
   for (std::size_t k = 0; k < count; ++k) {
-    if (std::uint64_t{table[k].levelSplatCount} + records[k] + table[k].pointCount >
+    const auto records = static_cast<std::uint32_t>(sections[k].bytes.size() / sizeof(Splat));
+    if (std::uint64_t{table[k].levelSplatCount} + records + table[k].pointCount >
         std::numeric_limits<std::uint32_t>::max())
       throw UsageError("top-level cell " + std::to_string(k) +
-                       " with its instanced section holds more than 32-bit offsets address; use "
-                       "a deeper --top-level-depth");
-    std::memcpy(out, sections[k].data(), sections[k].size());
-    out += sections[k].size();
-    table[k].instancedRecordCount = records[k];
+                       " with its instanced sections holds more than 32-bit offsets address; "
+                       "use a deeper --top-level-depth");
+    std::memcpy(out, sections[k].bytes.data(), sections[k].bytes.size());
+    out += sections[k].bytes.size();
+    table[k].instancedRecordCount = records;
+    for (const UnitSection& u : sections[k].units)
+      perCell[u.cell] = {table[k].levelSplatCount + u.offset, u.records};
   }
   for (OctreeCell& c : content.cells)
-    if (c.topLevel != kNoIndex) c.pointsOffset += records[c.topLevel];
+    if (c.topLevel != kNoIndex) c.pointsOffset += table[c.topLevel].instancedRecordCount;
+  DatasetContent::ExtraFile file{
+      std::string(kInstancedSectionsKey), std::string(kInstancedSectionsName), {}};
+  file.bytes.resize(perCell.size() * sizeof(InstancedCellSection));
+  if (!perCell.empty()) std::memcpy(file.bytes.data(), perCell.data(), file.bytes.size());
+  std::erase_if(content.extraFiles, [](const auto& f) { return f.key == kInstancedSectionsKey; });
+  content.extraFiles.push_back(std::move(file));
   if (progress) progress(begin[count], begin[count]);
   return total;
 }

@@ -51,10 +51,15 @@ struct InstancingOptions {
   double normalToleranceDegrees = 25.0;
   double radiusTolerance = 0.25;  // relative
   double keepShare = 0.9;         // keep a section only below this share of the plain bytes
+  // Sections cover subtrees of at most this many points (instancingUnits): a
+  // level of detail draws a unit whole, so units much larger than a leaf
+  // draw points the walk would have left coarse.
+  std::uint32_t unitPoints = 1024;
 };
 
 struct QuantizedCell {
   std::array<float, 3> origin{};
+  std::array<float, 3> high{};  // the points' largest coordinates
   float step = 1.0f;
   unsigned bits = 1;
   std::array<std::int32_t, 3> dims{1, 1, 1};  // voxels per axis, each at most 2^bits
@@ -96,12 +101,11 @@ struct InstancingStats {
   std::uint64_t vertexBytes = 0;  // the paper's accounting: vertex, transformation, tag
   std::uint64_t translationBytes = 0;
   std::uint64_t tagBytes = 0;
-  std::uint64_t sectionBytes = 0;         // with headers, remainder and padding
-  std::uint64_t plainBytes = 0;           // the same points as 32-byte splats
-  std::uint64_t instancedPlainBytes = 0;  // plainBytes of the cells that have a section
-  std::uint64_t cells = 0;
-  std::uint64_t cellsInstanced = 0;
-  double colorErrorSum = 0.0;  // over covered points, largest channel difference
+  std::uint64_t sectionBytes = 0;    // every section: headers, remainder, padding
+  std::uint64_t plainBytes = 0;      // the same points as 32-byte splats
+  std::uint64_t cells = 0;           // instancing units
+  std::uint64_t cellsInstanced = 0;  // units whose section has pools
+  double colorErrorSum = 0.0;        // over covered points, largest channel difference
   int colorErrorMax = 0;
   double positionErrorMax = 0.0;  // world units, quantization
   double fftSeconds = 0.0;
@@ -109,8 +113,9 @@ struct InstancingStats {
 };
 
 // A cell's pools over its quantized voxels, with an explicit palette (tests
-// pass the paper's figure 3 translations). Returns the section bytes (empty
-// when no pool forms or it does not pay) and adds to `stats`.
+// pass the paper's figure 3 translations). Returns the section bytes (without
+// pools, every point plain, when no pool forms or pools do not pay; empty for
+// no points) and adds to `stats`.
 std::vector<std::byte> encodeInstancedCell(std::span<const Splat> points, const QuantizedCell& grid,
                                            std::span<const TranslationCount> palette,
                                            const InstancingOptions& options,
@@ -120,8 +125,16 @@ std::vector<std::byte> encodeInstancedCell(std::span<const Splat> points, const 
 std::vector<std::byte> instanceCell(std::span<const Splat> points, const InstancingOptions& options,
                                     InstancingStats& stats);
 
-// Adds every top-level cell's section to `content` (instancedRecords, the
-// table's instancedRecordCount, the cells' pointsOffset) on `threads` threads.
+// The instancing units of the top-level cell at `root`: the largest subtrees
+// of at most unitPoints points (or leaves), in depth-first order. Their points
+// partition the cell's.
+std::vector<std::uint32_t> instancingUnits(std::span<const OctreeCell> cells, std::uint32_t root,
+                                           std::uint32_t unitPoints);
+
+// Adds the sections of every instancing unit to `content`: instancedRecords
+// (per top-level cell its units' sections in depth-first order), the table's
+// instancedRecordCount, the cells' pointsOffset, and the extra file
+// instanced-sections.bin (common/instanced_section.hpp). On `threads` threads.
 // progress(done, total) in points, from the calling thread only; an exception
 // it throws stops the workers and propagates.
 InstancingStats addInstancedSections(

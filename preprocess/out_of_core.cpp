@@ -18,6 +18,7 @@
 #include "common/dataset_writer.hpp"
 #include "common/errors.hpp"
 #include "common/geometry.hpp"
+#include "common/instanced_section.hpp"
 #include "preprocess/octree_builder.hpp"
 #include "preprocess/readers.hpp"
 
@@ -609,6 +610,7 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
   const auto chunks = groupChunks(layout, capacity);
   result.chunks = chunks.size();
   DatasetContent content;
+  std::vector<InstancedCellSection> sectionsPerCell;  // --instanced, by global cell
   std::vector<Merged> merged(layout.items.size());
   const bool estimateNormals = !flags.hasNormals || (!flags.hasRadii && options.knnRadii);
   build.radiiInLeaves = flags.hasNormals && !flags.hasRadii && !options.knnRadii;
@@ -725,6 +727,18 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
       OctreeCell& g = content.cells[toGlobal[j]];
       if (g.topLevel != kNoIndex) g.topLevel += topBase;
     }
+    // --instanced: the units' sections, renumbered (offsets are within packets).
+    for (const auto& file : local.extraFiles) {
+      if (file.key != kInstancedSectionsKey) continue;
+      if (file.bytes.size() != std::size_t{localCount} * sizeof(InstancedCellSection))
+        throw Error("internal error: an out-of-core chunk's instanced sections table");
+      sectionsPerCell.resize(content.cells.size());
+      for (std::uint32_t j = 0; j < localCount; ++j)
+        if (toGlobal[j] != kNoIndex)
+          std::memcpy(&sectionsPerCell[toGlobal[j]],
+                      file.bytes.data() + j * sizeof(InstancedCellSection),
+                      sizeof(InstancedCellSection));
+    }
     if (content.manifest.source.empty()) content.manifest = local.manifest;
     done += n;
     report("building", done, count);
@@ -779,6 +793,13 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
   manifest.maxDepth = octree.maxDepth;
   manifest.leafPoints = octree.leafPoints;
   manifest.levelSplatReduction = build.levelSplats.reduction;
+  if (build.instancing) {
+    sectionsPerCell.resize(cells.size());
+    DatasetContent::ExtraFile file{kInstancedSectionsKey, kInstancedSectionsName, {}};
+    file.bytes.resize(sectionsPerCell.size() * sizeof(InstancedCellSection));
+    std::memcpy(file.bytes.data(), sectionsPerCell.data(), file.bytes.size());
+    content.extraFiles.push_back(std::move(file));
+  }
   report("writing", 0, 1);
   result.bytesWritten = writer.commit(content);
   report("writing", 1, 1);

@@ -136,8 +136,12 @@ class RenderProcess final : public WorkerProcess {
     const v1::RenderPacket& packet = ready.packet;
     std::vector<DrawRange> ranges;
     ranges.reserve(static_cast<std::size_t>(packet.range_count_size()));
+    const auto table = dataset_.topLevelCells();
     for (int i = 0; i < packet.range_count_size(); ++i) {
-      ranges.push_back({packet.range_top_level(i), packet.range_offset(i), packet.range_count(i)});
+      const std::uint32_t cell = packet.range_top_level(i);
+      const bool section =
+          cell < table.size() && inInstancedSection(table[cell], packet.range_offset(i));
+      ranges.push_back({cell, packet.range_offset(i), packet.range_count(i), section});
     }
     if (options_.slowMillisecondsPerPacket > 0.0) {
       std::this_thread::sleep_for(

@@ -29,9 +29,13 @@ class TraverseProcess final : public WorkerProcess {
 
   void begin(const v1::RunSettings& settings) override {
     const PeerRanks peers = job_.peers();
+    if (settings.mode() == v1::RENDER_MODE_INSTANCED)
+      layers_ =
+          std::make_shared<const PacketLayers>(dataset_.cells(), dataset_.topLevelCells(), true);
     planner_.emplace(peers, job_.worldRank(), settings, layers_,
                      assignOwners(dataset_.topLevelCells(), job_.layout().datasend));
     culling_.emplace(dataset_.cells(), planner_->traversal().sizeScale);
+    if (settings.mode() == v1::RENDER_MODE_INSTANCED) instanced_ = InstancedCells::load(dataset_);
     const TimePoint now = Clock::now();
     if (!decisionLogDir_.empty()) {
       std::filesystem::create_directories(decisionLogDir_);
@@ -49,7 +53,8 @@ class TraverseProcess final : public WorkerProcess {
     switch (envelope.kind) {
       case MessageKind::TileTask: {
         const auto task = envelope.as<v1::TileTask>();
-        const TraversalSettings traversal = planner_->traversalFor(task);
+        TraversalSettings traversal = planner_->traversalFor(task);
+        traversal.instanced = instanced_;
         const TraversalResult walk = traverseTile(*culling_, task.camera(), task.rect(), traversal);
         std::vector<CellPrefix> ahead;
         if (const auto camera = planner_->lookaheadCamera(task)) {
@@ -87,7 +92,8 @@ class TraverseProcess final : public WorkerProcess {
   std::shared_ptr<const PacketLayers> layers_;
   std::string decisionLogDir_;
   std::optional<PacketPlanner> planner_;
-  std::optional<CullingTable> culling_;  // for the run's size scale
+  std::optional<CullingTable> culling_;              // for the run's size scale
+  std::shared_ptr<const InstancedCells> instanced_;  // --mode instanced
   std::optional<DecisionLogWriter> log_;
 };
 

@@ -84,6 +84,8 @@ int run(int argc, char** argv) {
   traversal.lodPixels = options.view.lodPixels;
   traversal.sizeScale = options.view.sizeScale;
   traversal.backfaceCull = !options.view.noBackfaceCull;
+  if (parseRenderMode(options.view.mode) == v1::RENDER_MODE_INSTANCED)
+    traversal.instanced = traverse::InstancedCells::load(dataset);
   RenderSettings settings;
   settings.mode = splatModeFromProto(parseRenderMode(options.view.mode));
   settings.lighting = !options.view.unlit;

@@ -11,6 +11,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <exception>
+#include <initializer_list>
 #include <limits>
 #include <string>
 #include <vector>
@@ -63,10 +64,13 @@ GLuint compileShader(GLenum type, const char* source, const char* name) {
   return shader;
 }
 
-GLuint linkProgram(const char* vertex, const char* geometry, const char* fragment,
-                   const char* name) {
+// Several vertex shaders may share a program: point_emit.vert holds the
+// points' vertex work that points.vert and instanced_points.vert call.
+GLuint linkProgram(std::initializer_list<const char*> vertex, const char* geometry,
+                   const char* fragment, const char* name) {
   std::vector<GLuint> shaders;
-  shaders.push_back(compileShader(GL_VERTEX_SHADER, vertex, name));
+  for (const char* source : vertex)
+    shaders.push_back(compileShader(GL_VERTEX_SHADER, source, name));
   if (geometry != nullptr) shaders.push_back(compileShader(GL_GEOMETRY_SHADER, geometry, name));
   shaders.push_back(compileShader(GL_FRAGMENT_SHADER, fragment, name));
   const GLuint program = glCreateProgram();
@@ -100,12 +104,31 @@ GLint uniform(GLuint program, const char* name) {
   return glGetUniformLocation(program, name);
 }
 
+// The bound buffer's splats from byte `base` on, as the points and splats
+// programs read them.
+void splatAttributes(std::size_t base) {
+  constexpr GLsizei stride = sizeof(Splat);
+  glVertexAttribPointer(kPosition, 3, GL_FLOAT, GL_FALSE, stride,
+                        byteOffset(base + offsetof(Splat, position)));
+  glVertexAttribPointer(kColor, 4, GL_UNSIGNED_BYTE, GL_TRUE, stride,
+                        byteOffset(base + offsetof(Splat, color)));
+  glVertexAttribPointer(kRadius, 1, GL_FLOAT, GL_FALSE, stride,
+                        byteOffset(base + offsetof(Splat, radius)));
+  glVertexAttribPointer(kNormal, 3, GL_FLOAT, GL_FALSE, stride,
+                        byteOffset(base + offsetof(Splat, normal)));
+}
+
+// instanced_points.vert's per-instance translation.
+constexpr GLuint kTag = 4;
+constexpr GLuint kTranslation = 5;
+
 }  // namespace
 
 struct SplatRenderer::Programs {
   GLuint points = 0;
-  GLuint splats = 0;   // also the blended mode's two passes
-  GLuint resolve = 0;  // blended mode's normalization
+  GLuint splats = 0;     // also the blended mode's two passes
+  GLuint resolve = 0;    // blended mode's normalization
+  GLuint instanced = 0;  // instanced sections' pools (seed 000)
 };
 
 SplatRenderer::SplatRenderer(OffscreenContext& context)
@@ -133,7 +156,8 @@ SplatRenderer::~SplatRenderer() {
   releaseAll();
   destroy(scratch_);
   destroyAccumulation();
-  for (GLuint prog : {programs_->points, programs_->splats, programs_->resolve}) {
+  for (GLuint prog :
+       {programs_->points, programs_->splats, programs_->resolve, programs_->instanced}) {
     if (prog != 0) glDeleteProgram(prog);
   }
   glDeleteVertexArrays(1, &vertexArray_);
@@ -150,6 +174,7 @@ void SplatRenderer::upload(Cell& cell, std::span<const Splat> splats) {
                splats.empty() ? nullptr : splats.data(), GL_STATIC_DRAW);
   glBindBuffer(GL_ARRAY_BUFFER, 0);
   cell.count = static_cast<std::uint32_t>(splats.size());
+  cell.sections.clear();
   throwOnGlError("uploadCell");
 }
 
@@ -260,15 +285,20 @@ std::uint32_t SplatRenderer::guardPixels(const Camera& camera) const {
 }
 
 unsigned SplatRenderer::program(SplatMode mode) {
-  if (mode == SplatMode::Points) {
+  if (mode == SplatMode::Points || mode == SplatMode::Instanced) {
     if (programs_->points == 0) {
-      programs_->points =
-          linkProgram(shaders::kPointsVertex, nullptr, shaders::kPointsFragment, "points program");
+      programs_->points = linkProgram({shaders::kPointEmitVertex, shaders::kPointsVertex}, nullptr,
+                                      shaders::kPointsFragment, "points program");
+    }
+    if (mode == SplatMode::Instanced && programs_->instanced == 0) {
+      programs_->instanced =
+          linkProgram({shaders::kPointEmitVertex, shaders::kInstancedPointsVertex}, nullptr,
+                      shaders::kPointsFragment, "instanced points program");
     }
     return programs_->points;
   }
   if (programs_->splats == 0) {
-    programs_->splats = linkProgram(shaders::kSplatsVertex, shaders::kSplatsGeometry,
+    programs_->splats = linkProgram({shaders::kSplatsVertex}, shaders::kSplatsGeometry,
                                     shaders::kSplatsFragment, "splats program");
   }
   return programs_->splats;
@@ -285,7 +315,7 @@ void SplatRenderer::setUniforms(unsigned prog, const Camera& camera, const TileR
   const auto frameH = static_cast<float>(camera.image_height());
   glUniform2f(uniform(prog, "frameSize"), frameW, frameH);
   glUniform1f(uniform(prog, "guard"), static_cast<float>(guardPixels(camera)));
-  if (settings.mode == SplatMode::Points) {
+  if (settings.mode == SplatMode::Points || settings.mode == SplatMode::Instanced) {
     glUniformMatrix4fv(uniform(prog, "viewProjection"), 1, GL_FALSE,
                        glm::value_ptr(viewProjection));
     glUniform1f(uniform(prog, "diameterScale"), 2.0f * focal * scale);
@@ -370,7 +400,7 @@ RenderStats SplatRenderer::draw(
     std::span<const std::pair<const Cell*, std::span<const DrawRange>>> groups,
     const RenderSettings& settings) {
   const auto start = std::chrono::steady_clock::now();
-  const bool points = settings.mode == SplatMode::Points;
+  const bool points = settings.mode == SplatMode::Points || settings.mode == SplatMode::Instanced;
   const bool blended = settings.mode == SplatMode::Blended;
   if (settings.keepDepth && blended) {
     throw UsageError("SplatRenderer: the blended mode keeps no depth of the visible surface");
@@ -404,6 +434,10 @@ RenderStats SplatRenderer::draw(
   glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
 
   const GLuint prog = program(settings.mode);
+  if (settings.mode == SplatMode::Instanced) {
+    glUseProgram(programs_->instanced);
+    setUniforms(programs_->instanced, camera, rect, settings);
+  }
   glUseProgram(prog);
   setUniforms(prog, camera, rect, settings);
   if (points) {
@@ -425,28 +459,30 @@ RenderStats SplatRenderer::draw(
       firsts.clear();
       counts.clear();
       for (const DrawRange& range : ranges) {
-        if (range.count == 0) continue;
+        if (range.count == 0 || range.section) continue;
         firsts.push_back(static_cast<GLint>(range.offset));
         counts.push_back(static_cast<GLsizei>(range.count));
       }
-      if (firsts.empty()) continue;
       glBindBuffer(GL_ARRAY_BUFFER, cell->buffer);
-      constexpr GLsizei stride = sizeof(Splat);
-      glVertexAttribPointer(kPosition, 3, GL_FLOAT, GL_FALSE, stride,
-                            byteOffset(offsetof(Splat, position)));
-      glVertexAttribPointer(kColor, 4, GL_UNSIGNED_BYTE, GL_TRUE, stride,
-                            byteOffset(offsetof(Splat, color)));
-      glVertexAttribPointer(kRadius, 1, GL_FLOAT, GL_FALSE, stride,
-                            byteOffset(offsetof(Splat, radius)));
-      glVertexAttribPointer(kNormal, 3, GL_FLOAT, GL_FALSE, stride,
-                            byteOffset(offsetof(Splat, normal)));
-      glMultiDrawArrays(GL_POINTS, firsts.data(), counts.data(),
-                        static_cast<GLsizei>(firsts.size()));
-      ++stats.drawCalls;
+      if (!firsts.empty()) {
+        splatAttributes(0);
+        glMultiDrawArrays(GL_POINTS, firsts.data(), counts.data(),
+                          static_cast<GLsizei>(firsts.size()));
+        ++stats.drawCalls;
+      }
+      for (const DrawRange& range : ranges)
+        if (range.section) drawSection(*cell, range, prog, stats);
     }
   };
   for (const auto& group : groups) {
-    for (const DrawRange& range : group.second) stats.splats += range.count;
+    for (const DrawRange& range : group.second) {
+      if (!range.section) {
+        stats.splats += range.count;
+        continue;
+      }
+      const Section& s = section(*group.first, range);
+      stats.splats += std::uint64_t{s.header.generatedCount} + s.header.remainderCount;
+    }
   }
 
   if (!blended) {
@@ -478,8 +514,8 @@ RenderStats SplatRenderer::draw(
       glDisableVertexAttribArray(attribute);
     }
     if (programs_->resolve == 0) {
-      programs_->resolve = linkProgram(shaders::kResolveVertex, nullptr, shaders::kResolveFragment,
-                                       "blend resolve program");
+      programs_->resolve = linkProgram({shaders::kResolveVertex}, nullptr,
+                                       shaders::kResolveFragment, "blend resolve program");
     }
     glUseProgram(programs_->resolve);
     glActiveTexture(GL_TEXTURE0);
@@ -513,6 +549,75 @@ RenderStats SplatRenderer::draw(
   return stats;
 }
 
+const SplatRenderer::Section& SplatRenderer::section(const Cell& cell,
+                                                     const DrawRange& range) const {
+  if (const auto found = cell.sections.find(range.offset); found != cell.sections.end())
+    return found->second;
+  // Read once from the buffer (llvmpipe: a memcpy), checked whole: the tags
+  // the vertex shader tests and every voxel they generate.
+  std::vector<Splat> records(range.count);
+  glBindBuffer(GL_ARRAY_BUFFER, cell.buffer);
+  glGetBufferSubData(GL_ARRAY_BUFFER,
+                     static_cast<GLintptr>(std::uint64_t{range.offset} * sizeof(Splat)),
+                     static_cast<GLsizeiptr>(records.size() * sizeof(Splat)), records.data());
+  glBindBuffer(GL_ARRAY_BUFFER, 0);
+  throwOnGlError("reading an instanced section");
+  const std::string where =
+      "cell " + std::to_string(range.cell) + " at record " + std::to_string(range.offset);
+  const InstancedSectionView view = parseInstancedSection(records, where.c_str());
+  Section out;
+  out.header = view.header;
+  const auto* table = reinterpret_cast<const InstancedPool*>(
+      reinterpret_cast<const std::byte*>(records.data()) + sizeof(InstancedHeader));
+  out.pools.assign(table, table + view.header.poolCount);
+  return cell.sections.emplace(range.offset, std::move(out)).first->second;
+}
+
+void SplatRenderer::drawSection(const Cell& cell, const DrawRange& range, unsigned pointsProgram,
+                                RenderStats& stats) {
+  const Section& s = section(cell, range);
+  const std::size_t base = std::size_t{range.offset} * sizeof(Splat);
+  const GLuint prog = programs_->instanced;
+  glUseProgram(prog);
+  glUniform3fv(uniform(prog, "origin"), 1, s.header.origin);
+  glUniform3fv(uniform(prog, "high"), 1, s.header.high);
+  glUniform1f(uniform(prog, "step"), s.header.step);
+  glUniform1f(uniform(prog, "radiusUnit"), s.header.radiusUnit);
+  glEnableVertexAttribArray(kTag);
+  glEnableVertexAttribArray(kTranslation);
+  glVertexAttribDivisor(kTranslation, 1);
+  constexpr GLsizei stride = sizeof(InstancedVertex);
+  for (const InstancedPool& pool : s.pools) {
+    if (pool.vertexCount == 0) continue;
+    const std::size_t vertices = base + pool.vertexOffset;
+    glVertexAttribIPointer(kPosition, 3, GL_UNSIGNED_SHORT, stride,
+                           byteOffset(vertices + offsetof(InstancedVertex, q)));
+    glVertexAttribPointer(kColor, 4, GL_UNSIGNED_BYTE, GL_TRUE, stride,
+                          byteOffset(vertices + offsetof(InstancedVertex, color)));
+    glVertexAttribIPointer(kRadius, 1, GL_UNSIGNED_SHORT, stride,
+                           byteOffset(vertices + offsetof(InstancedVertex, radius)));
+    glVertexAttribPointer(kNormal, 3, GL_BYTE, GL_TRUE, stride,
+                          byteOffset(vertices + offsetof(InstancedVertex, normal)));
+    glVertexAttribIPointer(kTag, 2, GL_UNSIGNED_INT, stride,
+                           byteOffset(vertices + offsetof(InstancedVertex, tag)));
+    glVertexAttribIPointer(kTranslation, 3, GL_SHORT, sizeof(InstancedTranslation),
+                           byteOffset(base + pool.translationOffset));
+    glDrawArraysInstanced(GL_POINTS, 0, static_cast<GLsizei>(pool.vertexCount),
+                          static_cast<GLsizei>(pool.translationCount));
+    ++stats.drawCalls;
+  }
+  glVertexAttribDivisor(kTranslation, 0);
+  glDisableVertexAttribArray(kTag);
+  glDisableVertexAttribArray(kTranslation);
+  glUseProgram(pointsProgram);
+  splatAttributes(0);
+  if (s.header.remainderCount > 0) {
+    glDrawArrays(GL_POINTS, static_cast<GLint>((base + s.header.remainderOffset) / sizeof(Splat)),
+                 static_cast<GLsizei>(s.header.remainderCount));
+    ++stats.drawCalls;
+  }
+}
+
 RenderStats SplatRenderer::render(const Camera& camera, const TileRect& rect,
                                   std::span<const DrawRange> ranges,
                                   const RenderSettings& settings) {
@@ -535,6 +640,9 @@ RenderStats SplatRenderer::render(const Camera& camera, const TileRect& rect,
     }
     std::size_t j = i;
     for (; j < sorted.size() && sorted[j].cell == sorted[i].cell; ++j) {
+      if (sorted[j].section && settings.mode != SplatMode::Instanced) {
+        throw UsageError("SplatRenderer::render: an instanced section outside --mode instanced");
+      }
       if (std::uint64_t{sorted[j].offset} + sorted[j].count > it->second.count) {
         throw UsageError("SplatRenderer::render: range [" + std::to_string(sorted[j].offset) +
                          ", +" + std::to_string(sorted[j].count) + ") outside cell " +

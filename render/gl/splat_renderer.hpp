@@ -28,6 +28,11 @@
 //    geometry shader turns it into a screen rectangle bounding the oriented
 //    disk, the fragment shader intersects the pixel's ray with the disk plane,
 //    discards outside the radius and writes that depth; flat headlight shading.
+//  - Instanced: Points, and seed 000's instanced sections where a range is
+//    one (DrawRange::section): per pool one instanced draw straight from the
+//    cell's buffer -- its vertex records per vertex, its translations per
+//    instance, the tag bit masks tested in the vertex shader -- then the
+//    section's remainder as points.
 //  - Blended: the same disks, EWA-style: a depth pass pushed back by
 //    blendDepthRadii radii, an additive pass of Gaussian-weighted colours of the
 //    splats within that offset of the visible surface (float framebuffer), and
@@ -36,11 +41,13 @@
 #include <array>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <span>
 #include <unordered_map>
 #include <vector>
 
 #include "common/camera.hpp"
+#include "common/instanced_section.hpp"
 #include "common/splat.hpp"
 #include "render/gl/offscreen_context.hpp"
 #include "render/raster/tile_renderer.hpp"
@@ -92,9 +99,16 @@ class SplatRenderer final : public TileRenderer {
 
  private:
   struct Programs;
+  // What drawing one of a cell's instanced sections needs, read from its
+  // buffer once.
+  struct Section {
+    InstancedHeader header{};
+    std::vector<InstancedPool> pools;
+  };
   struct Cell {
     unsigned buffer = 0;
     std::uint32_t count = 0;
+    mutable std::unordered_map<std::uint32_t, Section> sections;  // by first record
   };
 
   struct Accumulation {
@@ -103,6 +117,10 @@ class SplatRenderer final : public TileRenderer {
   };
 
   void upload(Cell& cell, std::span<const Splat> splats);
+  // The section `range` is in `cell`, parsed and checked on first use.
+  const Section& section(const Cell& cell, const DrawRange& range) const;
+  void drawSection(const Cell& cell, const DrawRange& range, unsigned pointsProgram,
+                   RenderStats& stats);
   void ensureAccumulation(std::uint32_t width, std::uint32_t height);
   void destroyAccumulation();
   void destroy(Cell& cell);

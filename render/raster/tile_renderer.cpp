@@ -10,6 +10,8 @@ const char* splatModeName(SplatMode mode) {
       return "splats";
     case SplatMode::Blended:
       return "blended";
+    case SplatMode::Instanced:
+      return "instanced";
     case SplatMode::Points:
       break;
   }
@@ -20,7 +22,8 @@ SplatMode parseSplatMode(const std::string& name) {
   if (name == "points") return SplatMode::Points;
   if (name == "splats") return SplatMode::Splats;
   if (name == "blended") return SplatMode::Blended;
-  throw UsageError("unknown render mode '" + name + "' (points, splats or blended)");
+  if (name == "instanced") return SplatMode::Instanced;
+  throw UsageError("unknown render mode '" + name + "' (points, splats, blended or instanced)");
 }
 
 DepthLinearizer::DepthLinearizer(const Camera& camera) {
@@ -39,6 +42,8 @@ SplatMode splatModeFromProto(v1::RenderMode mode) {
       return SplatMode::Splats;
     case v1::RENDER_MODE_BLENDED:
       return SplatMode::Blended;
+    case v1::RENDER_MODE_INSTANCED:
+      return SplatMode::Instanced;
     default:
       throw UsageError("render mode " + v1::RenderMode_Name(mode) +
                        " is not drawn by the splat renderers");
@@ -51,6 +56,8 @@ v1::RenderMode splatModeToProto(SplatMode mode) {
       return v1::RENDER_MODE_SPLATS;
     case SplatMode::Blended:
       return v1::RENDER_MODE_BLENDED;
+    case SplatMode::Instanced:
+      return v1::RENDER_MODE_INSTANCED;
     case SplatMode::Points:
       break;
   }

@@ -18,9 +18,11 @@
 
 namespace pointillist::render {
 
-enum class SplatMode { Points, Splats, Blended };
+// Instanced: the points of Points, and instanced sections (seed 000) drawn
+// with instancing where a range says so (DrawRange::section).
+enum class SplatMode { Points, Splats, Blended, Instanced };
 const char* splatModeName(SplatMode mode);
-// "points" | "splats" | "blended"; UsageError otherwise.
+// "points" | "splats" | "blended" | "instanced"; UsageError otherwise.
 SplatMode parseSplatMode(const std::string& name);
 // RENDER_MODE_POINTS -> Points, _SPLATS -> Splats, _BLENDED -> Blended; UsageError otherwise.
 SplatMode splatModeFromProto(v1::RenderMode mode);
@@ -76,6 +78,9 @@ struct DrawRange {
   std::uint32_t cell = 0;    // id given to uploadCell
   std::uint32_t offset = 0;  // in splats, from the start of the cell
   std::uint32_t count = 0;
+  // The range is a top-level cell's instanced section (its records; count
+  // is the section's record count): SplatMode::Instanced on GL only.
+  bool section = false;
 };
 
 struct RenderStats {

@@ -3,8 +3,11 @@
 #include <algorithm>
 #include <cmath>
 
+#include <cstring>
+
 #include "common/errors.hpp"
 #include "common/geometry.hpp"
+#include "common/instanced_section.hpp"
 
 namespace pointillist::traverse {
 namespace {
@@ -34,14 +37,48 @@ void normalizeRanges(std::vector<PacketRange>& ranges) {
   std::vector<PacketRange> merged;
   merged.reserve(ranges.size());
   for (const PacketRange& range : ranges) {
-    if (!merged.empty() && merged.back().topLevel == range.topLevel &&
-        merged.back().offset + merged.back().count == range.offset) {
+    if (!merged.empty() && merged.back().topLevel == range.topLevel && !range.section &&
+        !merged.back().section && merged.back().offset + merged.back().count == range.offset) {
       merged.back().count += range.count;
     } else {
       merged.push_back(range);
     }
   }
   ranges.swap(merged);
+}
+
+// Level of detail as traverseTile decides it (the focal length taken once).
+bool coarseEnough(const OctreeCell& cell, float distance, double focal,
+                  const TraversalSettings& settings) {
+  return distance > 0.0f &&
+         cell.maxSplatRadius * settings.sizeScale * pixelsPerUnit(focal, distance) <=
+             settings.lodPixels;
+}
+
+// Whether traverseTile, over the whole frame, would draw any point of the
+// subtree at `root`: its walk with back-face culling and level of detail but
+// no frustum (which differs between tiles).
+bool subtreeDrawsPoints(const CullingTable& table, std::uint32_t root, const glm::vec3& eye,
+                        double focal, const TraversalSettings& settings) {
+  const std::span<const OctreeCell> cells = table.cells();
+  const std::uint32_t end = cells[root].nextSibling == kNoIndex
+                                ? static_cast<std::uint32_t>(cells.size())
+                                : cells[root].nextSibling;
+  for (std::uint32_t index = root; index < end;) {
+    const OctreeCell& cell = cells[index];
+    const CellCulling& culling = table[index];
+    if (settings.backfaceCull && cellBackfacing(culling, eye)) {
+      index = cell.nextSibling == kNoIndex ? end : cell.nextSibling;
+      continue;
+    }
+    const bool coarse = coarseEnough(cell, distanceToCell(culling, eye), focal, settings);
+    if (cell.isLeaf() && !(coarse && cell.splatsCount > 0) && cell.pointsCount > 0) return true;
+    if (cell.isLeaf() || (coarse && cell.splatsCount > 0))
+      index = cell.nextSibling == kNoIndex ? end : cell.nextSibling;
+    else
+      ++index;
+  }
+  return false;
 }
 
 // The table's grown bounds must be those the settings ask for.
@@ -53,6 +90,38 @@ void checkScale(const CullingTable& table, const TraversalSettings& settings) {
 }
 
 }  // namespace
+
+InstancedCells::InstancedCells(std::span<const OctreeCell> cells,
+                               std::span<const TopLevelCell> topLevel,
+                               std::span<const std::byte> sectionsFile,
+                               const std::string& datasetName) {
+  const std::string where = datasetName + "/" + kInstancedSectionsName + ": ";
+  if (sectionsFile.size() != cells.size() * sizeof(InstancedCellSection))
+    throw InputError(where + std::to_string(sectionsFile.size()) + " bytes for " +
+                     std::to_string(cells.size()) + " cells");
+  cells_.resize(cells.size());
+  std::memcpy(cells_.data(), sectionsFile.data(), sectionsFile.size());
+  for (std::size_t i = 0; i < cells.size(); ++i) {
+    const Cell& c = cells_[i];
+    if (c.records == 0) continue;
+    const std::uint32_t k = cells[i].topLevel;
+    if (k >= topLevel.size() || !(c.offset >= topLevel[k].levelSplatCount &&
+                                  std::uint64_t{c.offset} + c.records <= pointsStart(topLevel[k])))
+      throw InputError(where + "cell " + std::to_string(i) +
+                       "'s section lies outside its packet's instanced sections");
+  }
+}
+
+std::shared_ptr<const InstancedCells> InstancedCells::load(const Dataset& dataset) {
+  const std::string name = dataset.path().string();
+  if (dataset.manifest().file(kInstancedSectionsKey) == nullptr)
+    throw UsageError("--mode instanced: dataset " + name +
+                     " has no instanced sections; build it with pointillist-preprocess "
+                     "--instanced");
+  const std::vector<std::byte> bytes = dataset.readFile(kInstancedSectionsKey);
+  return std::make_shared<const InstancedCells>(dataset.cells(), dataset.topLevelCells(), bytes,
+                                                name);
+}
 
 float distanceToCell(const OctreeCell& cell, const glm::vec3& eye, float sizeScale) {
   return distanceToCell(cellCulling(cell, sizeScale), eye);
@@ -140,16 +209,23 @@ TraversalResult traverseTile(const CullingTable& table, const Camera& camera, co
       continue;
     }
     const float distance = distanceToCell(culling, eye);
-    // projectedRadiusPixels(camera, r, distance), with the focal length taken once.
-    const bool coarseEnough = distance > 0.0f && cell.maxSplatRadius * settings.sizeScale *
-                                                         pixelsPerUnit(focal, distance) <=
-                                                     settings.lodPixels;
-    if (cell.isLeaf() && !(coarseEnough && cell.splatsCount > 0)) {
+    if (settings.instanced) {
+      const InstancedCells::Cell& section = (*settings.instanced)[index];
+      if (section.records > 0 && subtreeDrawsPoints(table, index, eye, focal, settings)) {
+        result.ranges.push_back({cell.topLevel, section.offset, section.records, true});
+        result.splats += cell.pointsCount;  // what the section generates, with its remainder
+        ++result.sections;
+        index = cell.nextSibling;
+        continue;
+      }
+    }
+    const bool coarse = coarseEnough(cell, distance, focal, settings);
+    if (cell.isLeaf() && !(coarse && cell.splatsCount > 0)) {
       if (cell.pointsCount > 0) {
         result.ranges.push_back({cell.topLevel, cell.pointsOffset, cell.pointsCount});
       }
       index = cell.nextSibling;
-    } else if (coarseEnough && cell.splatsCount > 0) {
+    } else if (coarse && cell.splatsCount > 0) {
       result.ranges.push_back({cell.topLevel, cell.splatsOffset, cell.splatsCount});
       index = cell.nextSibling;
     } else {
@@ -159,7 +235,7 @@ TraversalResult traverseTile(const CullingTable& table, const Camera& camera, co
 
   normalizeRanges(result.ranges);
   for (const PacketRange& range : result.ranges) {
-    result.splats += range.count;
+    if (!range.section) result.splats += range.count;
     if (result.needs.empty() || result.needs.back().cell != range.topLevel) {
       result.needs.push_back({range.topLevel, 0});
     }

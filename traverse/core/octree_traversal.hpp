@@ -7,16 +7,39 @@
 // the tile, so the union of all tiles' packets draws exactly what a full-frame
 // traversal draws: that is what makes composed frames match the reference.
 #include <cstdint>
+#include <memory>
 #include <span>
+#include <string>
 #include <vector>
 
 #include "common/camera.hpp"
 #include "common/cell_prefix.hpp"
+#include "common/dataset.hpp"
 #include "common/octree_cell.hpp"
 #include "traverse/core/culling_table.hpp"
 #include "traverse/core/packet_layers.hpp"
 
 namespace pointillist::traverse {
+
+// --mode instanced: the instancing units' sections (seed 000), per octree
+// cell, from the dataset's instanced-sections.bin.
+class InstancedCells {
+ public:
+  // Throws UsageError for a dataset built without --instanced, InputError
+  // when a section lies outside its packet's sections.
+  InstancedCells(std::span<const OctreeCell> cells, std::span<const TopLevelCell> topLevel,
+                 std::span<const std::byte> sectionsFile, const std::string& datasetName);
+  // Reads the file from the dataset (which must have its cells loaded).
+  static std::shared_ptr<const InstancedCells> load(const Dataset& dataset);
+  struct Cell {
+    std::uint32_t offset = 0;   // the section's first record in the packet
+    std::uint32_t records = 0;  // 0: no section, the cell draws its points
+  };
+  const Cell& operator[](std::uint32_t cell) const { return cells_[cell]; }
+
+ private:
+  std::vector<Cell> cells_;
+};
 
 struct TraversalSettings {
   // Draw a cell's level-splats once its largest splat projects to at most this
@@ -28,6 +51,12 @@ struct TraversalSettings {
   // beyond its projected radius (rounding of point sizes, minimum sizes).
   float marginPixels = 1.0f;
   bool backfaceCull = true;
+  // --mode instanced: an instancing unit of which a whole-frame walk would
+  // draw any point draws its whole section instead. The frustum plays no part
+  // in that choice (a camera-only decision, like level of detail), so tiles
+  // still add up to the full frame; sections lie before the points, so the
+  // prefix a render process needs is shorter.
+  std::shared_ptr<const InstancedCells> instanced;
 };
 
 // One drawn range: splats [offset, offset + count) of a top-level cell's packet.
@@ -35,15 +64,19 @@ struct PacketRange {
   std::uint32_t topLevel = 0;
   std::uint32_t offset = 0;
   std::uint32_t count = 0;
+  bool section = false;  // an instanced section (never merged with a neighbour)
   bool operator==(const PacketRange&) const = default;
 };
 
 struct TraversalResult {
-  std::vector<PacketRange> ranges;  // sorted by (topLevel, offset), merged when adjacent
+  // Sorted by (topLevel, offset), merged when adjacent. An instanced section
+  // is one range of its records (common/octree_cell.hpp, inInstancedSection).
+  std::vector<PacketRange> ranges;
   // The top-level cells drawn from (distinct, ascending), each with the
   // shortest prefix holding its ranges (the largest range end).
   std::vector<CellPrefix> needs;
-  std::uint64_t splats = 0;
+  std::uint64_t splats = 0;  // to draw: an instanced section counts the points it generates
+  std::uint64_t sections = 0;
   std::uint64_t cellsVisited = 0;
   std::uint64_t cellsCulledFrustum = 0;
   std::uint64_t cellsCulledBackface = 0;

@@ -9,7 +9,7 @@
 namespace pointillist::traverse {
 
 PacketLayers::PacketLayers(std::span<const OctreeCell> cells,
-                           std::span<const TopLevelCell> topLevel) {
+                           std::span<const TopLevelCell> topLevel, bool instanced) {
   totals_.reserve(topLevel.size());
   for (const TopLevelCell& t : topLevel)
     totals_.push_back(static_cast<std::uint32_t>(packetRecords(t)));
@@ -30,7 +30,10 @@ PacketLayers::PacketLayers(std::span<const OctreeCell> cells,
   for (std::size_t k = 0; k < topLevel.size(); ++k) {
     first_.push_back(static_cast<std::uint32_t>(layers_.size()));
     for (const auto& [level, layer] : perCell[k]) layers_.push_back(layer);
-    layers_.push_back({totals_[k], 0.0f});  // the points: full detail
+    // The points (or the sections standing for them): full detail.
+    const bool sections = instanced && topLevel[k].instancedRecordCount > 0;
+    layers_.push_back(
+        {sections ? static_cast<std::uint32_t>(pointsStart(topLevel[k])) : totals_[k], 0.0f});
   }
   first_.push_back(static_cast<std::uint32_t>(layers_.size()));
 }

@@ -23,7 +23,10 @@ struct PacketLayer {
 class PacketLayers {
  public:
   // Throws InputError when a cell's data lies outside its packet.
-  PacketLayers(std::span<const OctreeCell> cells, std::span<const TopLevelCell> topLevel);
+  // With `instanced` (--mode instanced), full detail ends after a cell's
+  // instanced sections, which stand for its points, where it has any.
+  PacketLayers(std::span<const OctreeCell> cells, std::span<const TopLevelCell> topLevel,
+               bool instanced = false);
 
   std::size_t cellCount() const { return totals_.size(); }
   std::uint32_t totalSplats(std::uint32_t cell) const { return totals_.at(cell); }

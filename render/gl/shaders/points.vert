@@ -1,38 +1,8 @@
 #version 330 core
+// One splat per vertex (point_emit.vert does the rest).
 layout(location = 0) in vec3 inPosition;
 layout(location = 1) in vec4 inColor;
 layout(location = 2) in float inRadius;
 layout(location = 3) in vec3 inNormal;
-uniform mat4 viewProjection;
-uniform vec2 frameSize;
-uniform float guard;          // pixels of clip volume beyond each frame edge
-uniform float diameterScale;  // 2 * focal length in pixels * sizeScale
-uniform float constantSize;   // > 0: fixed size
-uniform float maxSize;
-uniform int lighting;         // headlight: ambient + (1 - ambient) * |n . toEye|
-uniform float ambient;
-uniform vec3 eye;
-flat out vec4 vColor;
-void main() {
-  vec4 clip = viewProjection * vec4(inPosition, 1.0);
-  float shade = 1.0;
-  if (lighting != 0 && dot(inNormal, inNormal) > 0.25) {  // no normal: unshaded
-    vec3 toEye = eye - inPosition;
-    float distance = length(toEye);
-    if (distance > 0.0) {
-      shade = ambient + (1.0 - ambient) * abs(dot(normalize(inNormal), toEye / distance));
-    }
-  }
-  vColor = vec4(inColor.rgb * shade, inColor.a);
-  float size = constantSize > 0.0 ? constantSize : inRadius * diameterScale / clip.w;
-  size = clamp(floor(size + 0.5), 1.0, maxSize);
-  gl_PointSize = size;
-  if (clip.w <= 0.0) {
-    gl_Position = vec4(0.0, 0.0, 2.0, 1.0);  // behind the eye: clipped
-    return;
-  }
-  vec3 ndc = clip.xyz / clip.w;
-  vec2 window = (ndc.xy * 0.5 + 0.5) * frameSize;
-  vec2 snapped = mod(size, 2.0) == 1.0 ? floor(window) + 0.5 : floor(window + 0.5);
-  gl_Position = vec4((snapped + guard) / (frameSize + 2.0 * guard) * 2.0 - 1.0, ndc.z, 1.0);
-}
+void emitPoint(vec3 position, vec4 color, float radius, vec3 normal);
+void main() { emitPoint(inPosition, inColor, inRadius, inNormal); }

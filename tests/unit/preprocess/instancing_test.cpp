@@ -194,11 +194,7 @@ TEST(Instancing, RealDataDecodesToTheQuantizedInput) {
     InstancingOptions options;
     InstancingStats stats;
     const auto bytes = instanceCell(points, options, stats);
-    if (bytes.empty()) {
-      std::cout << name << ": plain, " << stats.covered << "\n";
-      EXPECT_EQ(stats.cellsInstanced, 0u);
-      continue;
-    }
+    ASSERT_FALSE(bytes.empty());
     std::vector<Splat> storage;
     const InstancedSectionView view = parse(bytes, storage);
     expectSameQuantizedSet(points, view, options);
@@ -256,12 +252,15 @@ TEST(Instancing, DamagedSectionsAreRefused) {
   EXPECT_THROW(parse(damaged, storage), InputError);
 }
 
-// --instanced: every packet carries its section between the level-splats and
-// the points; the dataset opens and validates, the cells still address the
-// original points, and each section decodes to its cell's points.
+// --instanced: every packet carries its units' sections between the
+// level-splats and the points; the dataset opens and validates, the cells
+// still address the original points, the units partition the points and
+// their sections tile the packet's section records, and each section decodes
+// to its unit's points.
 TEST(Instancing, DatasetCarriesSectionsBetweenLevelSplatsAndPoints) {
   PreprocessOptions options;
   options.instancing = InstancingOptions{};
+  options.instancing->unitPoints = 512;
   InstancingStats stats;
   options.instancingStats = &stats;
   options.radiiInLeaves = true;
@@ -276,30 +275,44 @@ TEST(Instancing, DatasetCarriesSectionsBetweenLevelSplatsAndPoints) {
   std::filesystem::remove_all(dir);
   writeDataset(dir, content);
   const Dataset ds = Dataset::open(dir, DatasetParts::All);
+  const std::vector<std::byte> file = ds.readFile(kInstancedSectionsKey);
   std::filesystem::remove_all(dir);
   EXPECT_EQ(ds.manifest().instancedRecordCount, content.instancedRecords.size());
+  const auto cells = ds.cells();
+  ASSERT_EQ(file.size(), cells.size() * sizeof(InstancedCellSection));
+  std::vector<InstancedCellSection> sections(cells.size());
+  std::memcpy(sections.data(), file.data(), file.size());
+
   const auto table = ds.topLevelCells();
-  std::uint64_t generated = 0;
+  std::uint64_t generated = 0, plainBefore = 0;
   for (std::uint32_t k = 0; k < table.size(); ++k) {
     const auto packet = ds.packet(k);
     const TopLevelCell& t = table[k];
-    const OctreeCell& root = ds.cells()[t.cellIndex];
+    const OctreeCell& root = cells[t.cellIndex];
     EXPECT_EQ(root.pointsOffset, pointsStart(t));
     // The same points as the plain dataset's, at the shifted offset.
     const auto points = packet.subspan(root.pointsOffset, t.pointCount);
-    const auto plainPoints =
-        std::span<const Splat>(plain.points)
-            .subspan(std::accumulate(
-                         plain.topLevel.begin(), plain.topLevel.begin() + k, std::size_t{0},
-                         [](std::size_t n, const TopLevelCell& c) { return n + c.pointCount; }),
-                     t.pointCount);
-    ASSERT_EQ(std::memcmp(points.data(), plainPoints.data(), points.size_bytes()), 0);
-    if (t.instancedRecordCount == 0) continue;
-    const auto view =
-        parseInstancedSection(packet.subspan(t.levelSplatCount, t.instancedRecordCount), "test");
-    EXPECT_EQ(view.header.generatedCount + view.remainder.size(), t.pointCount);
-    expectSameQuantizedSet(points, view, *options.instancing);
-    generated += view.header.generatedCount;
+    ASSERT_EQ(std::memcmp(points.data(), plain.points.data() + plainBefore, points.size_bytes()),
+              0);
+    plainBefore += t.pointCount;
+    // Units in depth-first order: sections back to back, points partitioned.
+    std::uint64_t nextRecord = t.levelSplatCount, unitPoints = 0;
+    for (const std::uint32_t unit : instancingUnits(cells, t.cellIndex, 512)) {
+      const InstancedCellSection& section = sections[unit];
+      ASSERT_GT(section.records, 0u) << "every unit has a section";
+      EXPECT_EQ(section.offset, nextRecord);
+      nextRecord += section.records;
+      const OctreeCell& c = cells[unit];
+      unitPoints += c.pointsCount;
+      const auto view =
+          parseInstancedSection(packet.subspan(section.offset, section.records), "test");
+      EXPECT_EQ(view.header.generatedCount + view.remainder.size(), c.pointsCount);
+      expectSameQuantizedSet(packet.subspan(c.pointsOffset, c.pointsCount), view,
+                             *options.instancing);
+      generated += view.header.generatedCount;
+    }
+    EXPECT_EQ(nextRecord, pointsStart(t));
+    EXPECT_EQ(unitPoints, t.pointCount);
   }
   EXPECT_EQ(generated, stats.covered);
 }

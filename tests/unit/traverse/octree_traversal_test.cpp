@@ -341,5 +341,71 @@ TEST(OctreeTraversal, CullingTableMustMatchTheWalksSizeScale) {
             traverseTile(f.content.cells, camera, fullFrameRect(camera), settings).ranges);
 }
 
+// --mode instanced: a unit whose points the plain walk would draw (anywhere in
+// the frame) draws its section instead, counted as the points it generates;
+// units the walk leaves coarse stay coarse; tiles draw only sections and
+// splats the full frame draws, and every section the full frame draws whose
+// unit reaches into a tile is in that tile.
+TEST(OctreeTraversal, InstancedModeDrawsSectionsWherePointsWereDrawn) {
+  auto cloud = preprocess::generateScene("city", 30'000, 7);
+  preprocess::PreprocessOptions options;
+  options.octree.leafPoints = 64;
+  options.topLevelDepth = 2;
+  options.instancing = preprocess::InstancingOptions{};
+  options.instancing->unitPoints = 256;
+  DatasetContent content = preprocess::buildDatasetContent(std::move(cloud.splats), options);
+  finalizeDatasetContent(content);
+  ASSERT_EQ(content.extraFiles.size(), 1u);
+  const auto instanced = std::make_shared<const InstancedCells>(
+      content.cells, content.topLevel, content.extraFiles[0].bytes, "test");
+  const auto& m = content.manifest;
+  const glm::vec3 lo(m.boundsMin[0], m.boundsMin[1], m.boundsMin[2]);
+  const glm::vec3 hi(m.boundsMax[0], m.boundsMax[1], m.boundsMax[2]);
+  std::uint64_t sectionsSeen = 0;
+  for (const Camera& camera : {cameraForBounds(lo, hi, 320, 200, 30.0f, 25.0f, 0.6f),
+                               cameraForBounds(lo, hi, 320, 200, 200.0f, 10.0f, 0.35f)}) {
+    TraversalSettings plain;
+    TraversalSettings settings;
+    settings.instanced = instanced;
+    const auto points = traverseTile(content.cells, camera, fullFrameRect(camera), plain);
+    const auto full = traverseTile(content.cells, camera, fullFrameRect(camera), settings);
+    sectionsSeen += full.sections;
+    // Points drawn by the plain walk lie in units drawn as sections; no point
+    // range remains in instanced mode (every unit has a section).
+    std::uint64_t expectedSplats = 0;
+    for (const PacketRange& r : full.ranges) {
+      const TopLevelCell& t = content.topLevel[r.topLevel];
+      EXPECT_EQ(r.section, inInstancedSection(t, r.offset));
+      EXPECT_LT(r.offset, pointsStart(t)) << "instanced mode drew plain points";
+      if (!r.section) expectedSplats += r.count;
+    }
+    for (std::uint32_t i = 0; i < content.cells.size(); ++i) {
+      const InstancedCells::Cell& unit = (*instanced)[i];
+      if (unit.records == 0) continue;
+      const OctreeCell& c = content.cells[i];
+      const bool drawn = std::any_of(full.ranges.begin(), full.ranges.end(), [&](const auto& r) {
+        return r.section && r.topLevel == c.topLevel && r.offset == unit.offset;
+      });
+      const bool hadPoints =
+          std::any_of(points.ranges.begin(), points.ranges.end(), [&](const auto& r) {
+            return r.topLevel == c.topLevel && r.offset >= c.pointsOffset &&
+                   r.offset < c.pointsOffset + c.pointsCount;
+          });
+      if (hadPoints) {
+        EXPECT_TRUE(drawn) << "unit " << i << " lost its points";
+      }
+      if (drawn) expectedSplats += c.pointsCount;
+    }
+    EXPECT_EQ(full.splats, expectedSplats);
+    // Tiles: a subset of the full frame's ranges.
+    const auto fullSet = splatSet(full.ranges);
+    for (const TileRect& rect : {makeTileRect(0, 0, 160, 100), makeTileRect(160, 100, 160, 100)}) {
+      const auto tile = traverseTile(content.cells, camera, rect, settings);
+      for (const auto& key : splatSet(tile.ranges)) ASSERT_TRUE(fullSet.contains(key));
+    }
+  }
+  EXPECT_GT(sectionsSeen, 0u);
+}
+
 }  // namespace
 }  // namespace pointillist::traverse
