@@ -9,6 +9,7 @@
 #include <chrono>
 #include <csignal>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <iostream>
 #include <new>
@@ -26,6 +27,7 @@
 
 namespace pp = pointillist::preprocess;
 using pointillist::Error;
+using pointillist::InputError;
 using pointillist::UsageError;
 using Clock = std::chrono::steady_clock;
 
@@ -206,7 +208,7 @@ void saveWisdom(const Options& o) {
 }
 
 // --instanced's closing lines: coverage and bytes in the paper's accounting.
-void printInstancingSummary(const pp::InstancingStats& s) {
+void printInstancingSummary(const pp::InstancingStats& s, std::uint64_t topLevelCount) {
   const double points = static_cast<double>(std::max<std::uint64_t>(s.points, 1));
   const double covered = static_cast<double>(std::max<std::uint64_t>(s.covered, 1));
   std::printf(
@@ -229,6 +231,19 @@ void printInstancingSummary(const pp::InstancingStats& s) {
       s.colorErrorMax, s.positionErrorMax, s.fftSeconds,
       1000.0 * s.fftSeconds / static_cast<double>(std::max<std::uint64_t>(s.cellsInstanced, 1)),
       pp::fftPlansMade());
+  const double cells = static_cast<double>(std::max<std::uint64_t>(topLevelCount, 1));
+  std::printf(
+      "%s: instanced: per top-level cell: points as sections %s (vertices %s, translations %s, "
+      "tags %s, plain remainder and headers %s) against %s as plain splats\n",
+      kTool, humanBytes(static_cast<double>(s.sectionBytes) / cells).c_str(),
+      humanBytes(static_cast<double>(s.vertexBytes) / cells).c_str(),
+      humanBytes(static_cast<double>(s.translationBytes) / cells).c_str(),
+      humanBytes(static_cast<double>(s.tagBytes) / cells).c_str(),
+      humanBytes(
+          static_cast<double>(s.sectionBytes - s.vertexBytes - s.translationBytes - s.tagBytes) /
+          cells)
+          .c_str(),
+      humanBytes(static_cast<double>(s.plainBytes) / cells).c_str());
 }
 
 // Opens the dataset as a traverse would (manifest, sizes, cell array), then
@@ -237,28 +252,70 @@ void printInstancingSummary(const pp::InstancingStats& s) {
 int checkDataset(const std::string& dir) {
   const auto start = Clock::now();
   const auto dataset = pointillist::Dataset::open(dir, pointillist::DatasetParts::Cells);
-  std::uint64_t records = 0;
+  // --instanced: every unit's section parses and generates its unit's points,
+  // and the sections of a packet tile its section records.
+  struct Unit {
+    std::uint32_t offset, records, cell;
+    bool operator<(const Unit& o) const { return offset < o.offset; }
+  };
   const auto table = dataset.topLevelCells();
-  for (std::uint32_t cell = 0; cell < table.size(); ++cell) {
-    const auto packet = dataset.readTopLevel(cell);
-    records += packet.size();
-    if (table[cell].instancedRecordCount > 0) {
-      const std::string where = dir + " top-level cell " + std::to_string(cell);
-      pointillist::parseInstancedSection(
-          std::span<const pointillist::Splat>(packet).subspan(table[cell].levelSplatCount,
-                                                              table[cell].instancedRecordCount),
-          where.c_str());
+  const auto cells = dataset.cells();
+  std::vector<std::vector<Unit>> units(table.size());
+  if (dataset.manifest().file(pointillist::kInstancedSectionsKey) != nullptr) {
+    const auto bytes = dataset.readFile(pointillist::kInstancedSectionsKey);
+    const std::string file = dir + "/" + pointillist::kInstancedSectionsName;
+    if (bytes.size() != cells.size() * sizeof(pointillist::InstancedCellSection))
+      throw InputError(file + ": " + std::to_string(bytes.size()) + " bytes for " +
+                       std::to_string(cells.size()) + " cells");
+    for (std::size_t i = 0; i < cells.size(); ++i) {
+      pointillist::InstancedCellSection entry;
+      std::memcpy(&entry, bytes.data() + i * sizeof entry, sizeof entry);
+      if (entry.records == 0) continue;
+      if (cells[i].topLevel >= table.size())
+        throw InputError(file + ": cell " + std::to_string(i) + " has a section but no packet");
+      units[cells[i].topLevel].push_back(
+          {entry.offset, entry.records, static_cast<std::uint32_t>(i)});
     }
+  } else if (dataset.manifest().instancedRecordCount > 0) {
+    throw InputError(dir + ": instanced records but no " + pointillist::kInstancedSectionsName);
+  }
+  std::uint64_t records = 0, sections = 0;
+  for (std::uint32_t k = 0; k < table.size(); ++k) {
+    const std::vector<pointillist::Splat> packet = dataset.readTopLevel(k);
+    records += packet.size();
+    std::sort(units[k].begin(), units[k].end());
+    std::uint64_t next = table[k].levelSplatCount;
+    for (const Unit& u : units[k]) {
+      const std::string where = dir + ": cell " + std::to_string(u.cell) + "'s section";
+      if (u.offset != next || std::uint64_t{u.offset} + u.records > pointsStart(table[k]))
+        throw InputError(where + " at records [" + std::to_string(u.offset) + ", +" +
+                         std::to_string(u.records) + ") does not follow the one before (" +
+                         std::to_string(next) + ") inside the packet's sections");
+      const auto view = pointillist::parseInstancedSection(
+          std::span<const pointillist::Splat>(packet).subspan(u.offset, u.records), where.c_str());
+      if (std::uint64_t{view.header.generatedCount} + view.remainder.size() !=
+          cells[u.cell].pointsCount)
+        throw InputError(where + " stands for " +
+                         std::to_string(view.header.generatedCount + view.remainder.size()) +
+                         " points, the cell holds " + std::to_string(cells[u.cell].pointsCount));
+      next += u.records;
+      ++sections;
+    }
+    if (!units[k].empty() && next != pointsStart(table[k]))
+      throw InputError(dir + ": top-level cell " + std::to_string(k) +
+                       "'s sections end at record " + std::to_string(next) +
+                       ", its points start at " + std::to_string(pointsStart(table[k])));
   }
   const auto& m = dataset.manifest();
   std::printf(
       "%s: %s is a sound dataset (format %u): %llu points, %llu level-splats, %llu instanced "
-      "records, %llu cells, %llu top-level cells; every packet's checksum verified (%llu "
+      "records (%llu sections), %llu cells, %llu top-level cells; every packet's checksum verified "
+      "(%llu "
       "records) in %.2f s\n",
       kTool, dir.c_str(), m.formatVersion, static_cast<unsigned long long>(m.pointCount),
       static_cast<unsigned long long>(m.levelSplatCount),
       static_cast<unsigned long long>(m.instancedRecordCount),
-      static_cast<unsigned long long>(m.cellCount),
+      static_cast<unsigned long long>(sections), static_cast<unsigned long long>(m.cellCount),
       static_cast<unsigned long long>(m.topLevelCount), static_cast<unsigned long long>(records),
       seconds(start));
   return 0;
@@ -360,7 +417,7 @@ int runOutOfCore(const Options& o, Progress& progress, Clock::time_point start) 
                 humanBytes(static_cast<double>(r.spillBytes)).c_str());
   printSummary(o, r.manifest, r.bytesWritten, r.points, seconds(start), tail);
   if (o.instanced) {
-    printInstancingSummary(instancingStats);
+    printInstancingSummary(instancingStats, r.manifest.topLevelCount);
     saveWisdom(o);
   }
   return 0;
@@ -468,7 +525,7 @@ int run(const Options& o) {
                 buildSeconds, humanCount(static_cast<double>(pointCount) / buildSeconds).c_str());
   printSummary(o, content.manifest, bytes, pointCount, total, tail);
   if (o.instanced) {
-    printInstancingSummary(instancingStats);
+    printInstancingSummary(instancingStats, content.manifest.topLevelCount);
     saveWisdom(o);
   }
   return 0;
