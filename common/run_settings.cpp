@@ -93,6 +93,13 @@ void checkEdl(v1::RenderMode mode, float strength, float radius) {
   }
 }
 
+void checkInstancedSections(const v1::RunSettings& run, const std::string& dataset) {
+  if (!run.instanced_sections())
+    throw UsageError("--mode instanced: " + dataset +
+                     " has no instanced sections; build it with pointillist-preprocess "
+                     "--instanced");
+}
+
 v1::RunSettings frameRunSettings(const v1::RunSettings& run, const v1::FrameSettings& frame) {
   v1::RunSettings settings = run;
   if (frame.mode() != v1::RENDER_MODE_UNSPECIFIED) settings.set_mode(frame.mode());
@@ -104,9 +111,11 @@ v1::RunSettings frameRunSettings(const v1::RunSettings& run, const v1::FrameSett
 void checkFrameSettings(const v1::RunSettings& run, const v1::FrameSettings& frame) {
   const v1::RenderMode mode = frame.mode();
   if (mode != v1::RENDER_MODE_UNSPECIFIED && mode != v1::RENDER_MODE_POINTS &&
-      mode != v1::RENDER_MODE_SPLATS && mode != v1::RENDER_MODE_BLENDED) {
+      mode != v1::RENDER_MODE_SPLATS && mode != v1::RENDER_MODE_BLENDED &&
+      mode != v1::RENDER_MODE_INSTANCED) {
     throw UsageError("mode " + v1::RenderMode_Name(mode) + " is not available");
   }
+  if (mode == v1::RENDER_MODE_INSTANCED) checkInstancedSections(run, "this job's dataset");
   if (mode != v1::RENDER_MODE_UNSPECIFIED) {
     resolveRenderer(run.renderer(), mode);
     if (run.edl()) checkEdl(mode, run.edl_strength(), run.edl_radius());

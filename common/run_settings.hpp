@@ -42,9 +42,13 @@ void checkEdl(v1::RenderMode mode, float strength, float radius);
 // The settings one frame is drawn with: the run's, with the fields `frame`
 // sets (a served client's mode, level of detail, scheduler) in their place.
 v1::RunSettings frameRunSettings(const v1::RunSettings& run, const v1::FrameSettings& frame);
+// UsageError when the run's dataset has no instanced sections (--mode
+// instanced needs a dataset built with --instanced); `dataset` names it.
+void checkInstancedSections(const v1::RunSettings& run, const std::string& dataset);
 // UsageError naming what a frame cannot ask of this run: a mode the run's
-// renderer cannot draw or that EDL cannot shade, a mode not built yet, a level
-// of detail that is not a positive finite number of pixels.
+// renderer cannot draw or that EDL cannot shade, a mode not built yet,
+// instanced on a dataset without sections, a level of detail that is not a
+// positive finite number of pixels.
 void checkFrameSettings(const v1::RunSettings& run, const v1::FrameSettings& frame);
 
 }  // namespace pointillist

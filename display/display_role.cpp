@@ -17,6 +17,7 @@
 #include "common/clock.hpp"
 #include "common/dataset.hpp"
 #include "common/image.hpp"
+#include "common/instanced_section.hpp"
 #include "common/mpi/role_program.hpp"
 #include "common/peer_watch.hpp"
 #include "common/run_settings.hpp"
@@ -91,8 +92,11 @@ double since(Clock::time_point start, Clock::time_point now) {
 }
 
 // What every process of the run is told once, in the handshake reply.
-v1::RunSettings runSettings(const DisplayOptions& options) {
+// `manifest`: the dataset's, when the display has one.
+v1::RunSettings runSettings(const DisplayOptions& options, const DatasetManifest* manifest) {
   v1::RunSettings settings;
+  if (manifest != nullptr)
+    settings.set_instanced_sections(manifest->file(kInstancedSectionsKey) != nullptr);
   settings.set_mode(parseRenderMode(options.view.mode));
   settings.set_lod_pixels(options.view.lodPixels);
   settings.set_size_scale(options.view.sizeScale);
@@ -109,6 +113,8 @@ v1::RunSettings runSettings(const DisplayOptions& options) {
     settings.set_edl_radius(options.view.edlRadius);
   }
   setLiveness(settings, options.liveness);
+  if (manifest != nullptr && settings.mode() == v1::RENDER_MODE_INSTANCED)
+    checkInstancedSections(settings, options.datasetPath);
   return settings;
 }
 
@@ -147,13 +153,15 @@ class DisplayProcess {
     config_.prefetchFrames = options.prefetchFrames;
   }
 
+  const DatasetManifest& manifest() const { return dataset_.manifest(); }
+
   // What a client sees of the dataset and the job (no paths on this machine).
   service::ServedDataset servedDataset() const {
     const DatasetManifest& manifest = dataset_.manifest();
     service::ServedDataset served;
     served.bounds = config_.bounds;
     served.up = parseUpAxis(options_.view.up, config_.bounds);
-    served.run = runSettings(options_);
+    served.run = runSettings(options_, &dataset_.manifest());
     service::v1::DatasetInfo& info = served.info;
     info.set_name(
         std::filesystem::path(options_.datasetPath).lexically_normal().filename().string());
@@ -171,8 +179,8 @@ class DisplayProcess {
     info.set_top_level_cells(static_cast<std::uint32_t>(manifest.topLevelCount));
     // The modes a client may switch to (set_options): those this job's
     // renderer draws and, with EDL, shades.
-    for (const v1::RenderMode mode :
-         {v1::RENDER_MODE_POINTS, v1::RENDER_MODE_SPLATS, v1::RENDER_MODE_BLENDED}) {
+    for (const v1::RenderMode mode : {v1::RENDER_MODE_POINTS, v1::RENDER_MODE_SPLATS,
+                                      v1::RENDER_MODE_BLENDED, v1::RENDER_MODE_INSTANCED}) {
       v1::FrameSettings frame;
       frame.set_mode(mode);
       try {
@@ -724,7 +732,7 @@ int runDisplayMain(int argc, char** argv) {
     }
     if (!options.datasetPath.empty()) process = std::make_unique<DisplayProcess>(job, options);
     HandshakeOptions handshake = handshakeOptions(options.common);
-    handshake.settings = runSettings(options);
+    handshake.settings = runSettings(options, process ? &process->manifest() : nullptr);
     job.handshake(handshake);
     const auto ready = job.awaitReady(std::chrono::milliseconds(
         static_cast<long>(options.common.handshakeTimeoutSeconds * 1000.0)));

@@ -604,6 +604,11 @@ int main(int argc, char** argv) {
                  "section whole")
       ->capture_default_str()
       ->check(CLI::Range(64u, 1u << 24));
+  app.add_option("--instanced-accept", o.instancing.acceptShare,
+                 "A vertex joins a pool when it newly covers more than this share of the pool's "
+                 "translations (seed 000: 0.25)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 1.0));
   app.add_option("--instanced-pools", o.instancing.maxPools, "Pools per top-level cell (1..255)")
       ->capture_default_str()
       ->check(CLI::Range(1u, 255u));

@@ -35,7 +35,10 @@ class TraverseProcess final : public WorkerProcess {
     planner_.emplace(peers, job_.worldRank(), settings, layers_,
                      assignOwners(dataset_.topLevelCells(), job_.layout().datasend));
     culling_.emplace(dataset_.cells(), planner_->traversal().sizeScale);
-    if (settings.mode() == v1::RENDER_MODE_INSTANCED) instanced_ = InstancedCells::load(dataset_);
+    // Frames may ask for the instanced mode whenever the dataset has sections.
+    runMode_ = settings.mode();
+    if (runMode_ == v1::RENDER_MODE_INSTANCED || settings.instanced_sections())
+      instanced_ = InstancedCells::load(dataset_);
     const TimePoint now = Clock::now();
     if (!decisionLogDir_.empty()) {
       std::filesystem::create_directories(decisionLogDir_);
@@ -54,7 +57,15 @@ class TraverseProcess final : public WorkerProcess {
       case MessageKind::TileTask: {
         const auto task = envelope.as<v1::TileTask>();
         TraversalSettings traversal = planner_->traversalFor(task);
-        traversal.instanced = instanced_;
+        const v1::RenderMode frameMode =
+            task.has_frame_settings() ? task.frame_settings().mode() : v1::RENDER_MODE_UNSPECIFIED;
+        if ((frameMode != v1::RENDER_MODE_UNSPECIFIED ? frameMode : runMode_) ==
+            v1::RENDER_MODE_INSTANCED) {
+          if (!instanced_)
+            throw ProtocolError(
+                "a frame asks for the instanced mode of a dataset without sections");
+          traversal.instanced = instanced_;
+        }
         const TraversalResult walk = traverseTile(*culling_, task.camera(), task.rect(), traversal);
         std::vector<CellPrefix> ahead;
         if (const auto camera = planner_->lookaheadCamera(task)) {
@@ -93,7 +104,8 @@ class TraverseProcess final : public WorkerProcess {
   std::string decisionLogDir_;
   std::optional<PacketPlanner> planner_;
   std::optional<CullingTable> culling_;              // for the run's size scale
-  std::shared_ptr<const InstancedCells> instanced_;  // --mode instanced
+  std::shared_ptr<const InstancedCells> instanced_;  // the dataset's sections, if it has them
+  v1::RenderMode runMode_ = v1::RENDER_MODE_POINTS;
   std::optional<DecisionLogWriter> log_;
 };
 

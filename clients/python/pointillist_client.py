@@ -228,7 +228,7 @@ def main():
     render.add_argument("--camera", required=True)
     render.add_argument("--size", default="")
     render.add_argument("-o", "--output", required=True, help=".png file, or .npy for the array")
-    render.add_argument("--mode", default="", help="points, splats or blended")
+    render.add_argument("--mode", default="", help="points, splats, blended or instanced")
     render.add_argument("--lod-pixels", type=float, default=0.0)
     args = parser.parse_args()
     client = PointillistClient(args.connect, timeout=args.timeout,

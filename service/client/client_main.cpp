@@ -511,7 +511,9 @@ int run(int argc, char** argv) {
   app.add_option("--encoding", options.encoding, "Frames as raw, png or jpeg");
   app.add_option("--size", options.size, "Frame size WxH");
   app.add_option("--jpeg-quality", options.jpegQuality, "1-100")->check(CLI::Range(1, 100));
-  app.add_option("--mode", options.mode, "This client's frames: points, splats or blended");
+  app.add_option("--mode", options.mode,
+                 "This client's frames: points, splats, blended or instanced (a dataset built with "
+                 "--instanced)");
   app.add_option("--lod-pixels", options.lodPixels,
                  "This client's frames: target splat size on screen in pixels")
       ->check(CLI::PositiveNumber);

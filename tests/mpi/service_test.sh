@@ -23,6 +23,9 @@
 #             the interim frame goes again as tiles arrive, each time with
 #             more tiles and never fewer pixels equal to the final frame's;
 #             with --interim-ms -1 no interim frame comes
+#   instanced a dataset built with --instanced: a client switches to the
+#             instanced mode while another keeps points; info offers it;
+#             both clients' frames equal the reference renderer's
 #   curve     CURVE with keys from files: an authorized client renders, a client
 #             with another key or without CURVE gets nothing
 #   sigint    SIGINT to the display: clean shutdown of every process
@@ -193,6 +196,31 @@ case "$scenario" in
     "$BIN/pointillist-reference" --dataset "$DATASET" --camera-path flythrough --frames 3 \
       --size 480x270 --mode blended --compare "$WORK/blended" "${floors[@]}" ||
       fail "blended client's frames"
+    "${client[@]}" shutdown || fail "shutdown request"
+    wait_job_exit 60
+    ((JOB_CODE == 0)) || fail "the job exited with $JOB_CODE"
+    assert_nothing_left
+    ;;
+  instanced)
+    # A dataset built with --instanced, a points job: one client switches to
+    # the instanced mode, another keeps points; both get the reference's frames.
+    start_service_job
+    "${client[@]}" --name instanced --mode instanced path --camera-path orbit --frames 3 \
+      -o "$WORK/instanced" >"$WORK/instanced.log" 2>&1 ||
+      fail "instanced frames: $(cat "$WORK/instanced.log")"
+    cat "$WORK/instanced.log"
+    grep -q "drawn as instanced, lod 1 px" "$WORK/instanced.log" ||
+      fail "the instanced frames were not drawn as asked"
+    "${client[@]}" --name points path --camera-path orbit --frames 3 -o "$WORK/points" \
+      >"$WORK/points.log" 2>&1 || fail "points frames: $(cat "$WORK/points.log")"
+    "${client[@]}" info >"$WORK/info.log" 2>&1 || fail "info"
+    grep -q "available: points, splats, blended, instanced" "$WORK/info.log" ||
+      fail "info does not offer the instanced mode: $(cat "$WORK/info.log")"
+    "$BIN/pointillist-reference" --dataset "$DATASET" --camera-path orbit --frames 3 \
+      --size 480x270 --mode instanced --compare "$WORK/instanced" "${floors[@]}" ||
+      fail "instanced client's frames"
+    "$BIN/pointillist-reference" --dataset "$DATASET" --camera-path orbit --frames 3 \
+      --size 480x270 --compare "$WORK/points" "${floors[@]}" || fail "points client's frames"
     "${client[@]}" shutdown || fail "shutdown request"
     wait_job_exit 60
     ((JOB_CODE == 0)) || fail "the job exited with $JOB_CODE"

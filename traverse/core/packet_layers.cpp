@@ -11,6 +11,10 @@ namespace pointillist::traverse {
 PacketLayers::PacketLayers(std::span<const OctreeCell> cells,
                            std::span<const TopLevelCell> topLevel, bool instanced) {
   totals_.reserve(topLevel.size());
+  for (const TopLevelCell& t : topLevel) {
+    sectionsBegin_.push_back(t.levelSplatCount);
+    sectionsEnd_.push_back(static_cast<std::uint32_t>(pointsStart(t)));
+  }
   for (const TopLevelCell& t : topLevel)
     totals_.push_back(static_cast<std::uint32_t>(packetRecords(t)));
   // level -> (end, radius) per top-level cell, filled in one pass over the cells.
@@ -45,6 +49,9 @@ std::span<const PacketLayer> PacketLayers::layers(std::uint32_t cell) const {
 
 std::uint32_t PacketLayers::roundUp(std::uint32_t cell, std::uint32_t splats) const {
   if (splats == 0) return 0;
+  // A need that ends in the instanced sections (an instanced frame): their end.
+  if (splats > sectionsBegin_.at(cell) && splats <= sectionsEnd_.at(cell))
+    return sectionsEnd_[cell];
   for (const PacketLayer& layer : layers(cell)) {
     if (layer.end >= splats) return layer.end;
   }

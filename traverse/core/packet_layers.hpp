@@ -32,7 +32,8 @@ class PacketLayers {
   std::uint32_t totalSplats(std::uint32_t cell) const { return totals_.at(cell); }
   // Coarse first; the last layer (the points) ends at totalSplats(cell).
   std::span<const PacketLayer> layers(std::uint32_t cell) const;
-  // The shortest layer-aligned prefix of `cell` holding its first `splats`.
+  // The shortest layer-aligned prefix of `cell` holding its first `splats`
+  // (a need that ends in the instanced sections: through the sections).
   std::uint32_t roundUp(std::uint32_t cell, std::uint32_t splats) const;
   // The prefix a view probably needs from `cell` when its nearest point is
   // `distance` from the eye: through the first layer whose splats project to
@@ -43,7 +44,9 @@ class PacketLayers {
 
  private:
   std::vector<std::uint32_t> totals_;
-  std::vector<std::uint32_t> first_;  // per cell, index of its first layer; plus one entry
+  std::vector<std::uint32_t> sectionsBegin_;  // per cell: its levelSplatCount
+  std::vector<std::uint32_t> sectionsEnd_;    // and where its points start
+  std::vector<std::uint32_t> first_;          // per cell, index of its first layer; plus one entry
   std::vector<PacketLayer> layers_;
 };
 

@@ -56,6 +56,13 @@ TEST(RunSettings, AFrameMayAskOnlyForWhatTheRunCanDraw) {
   EXPECT_THROW(checkFrameSettings(run(v1::RENDERER_AUTO, true), frame(v1::RENDER_MODE_BLENDED)),
                UsageError);
   EXPECT_NO_THROW(checkFrameSettings(run(v1::RENDERER_AUTO, true), frame(v1::RENDER_MODE_SPLATS)));
+  // The instanced mode needs a dataset with instanced sections and the GL renderer.
+  EXPECT_THROW(checkFrameSettings(run(), frame(v1::RENDER_MODE_INSTANCED)), UsageError);
+  v1::RunSettings withSections = run();
+  withSections.set_instanced_sections(true);
+  EXPECT_NO_THROW(checkFrameSettings(withSections, frame(v1::RENDER_MODE_INSTANCED)));
+  withSections.set_renderer(v1::RENDERER_CPU);
+  EXPECT_THROW(checkFrameSettings(withSections, frame(v1::RENDER_MODE_INSTANCED)), UsageError);
   // Modes not built yet, and levels of detail that are no size.
   EXPECT_THROW(checkFrameSettings(run(), frame(v1::RENDER_MODE_STATISTICAL)), UsageError);
   EXPECT_THROW(checkFrameSettings(run(), frame(v1::RENDER_MODE_POINTS, -1.0f)), UsageError);

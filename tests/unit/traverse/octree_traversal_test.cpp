@@ -405,6 +405,16 @@ TEST(OctreeTraversal, InstancedModeDrawsSectionsWherePointsWereDrawn) {
     }
   }
   EXPECT_GT(sectionsSeen, 0u);
+  // A need that ends in the sections travels through the sections, not the points.
+  const PacketLayers layers(content.cells, content.topLevel);
+  for (std::uint32_t k = 0; k < content.topLevel.size(); ++k) {
+    const TopLevelCell& t = content.topLevel[k];
+    if (t.instancedRecordCount == 0) continue;
+    EXPECT_EQ(layers.roundUp(k, t.levelSplatCount + 1), pointsStart(t));
+    EXPECT_EQ(layers.roundUp(k, static_cast<std::uint32_t>(pointsStart(t))), pointsStart(t));
+    EXPECT_EQ(layers.roundUp(k, static_cast<std::uint32_t>(pointsStart(t)) + 1),
+              layers.totalSplats(k));
+  }
 }
 
 }  // namespace
