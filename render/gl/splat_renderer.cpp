@@ -454,25 +454,49 @@ RenderStats SplatRenderer::draw(
   RenderStats stats;
   std::vector<GLint> firsts;
   std::vector<GLsizei> counts;
+  // Splat ranges and the sections' plain remainders first, one multi-draw per
+  // cell; then every section's pools with the instanced program (one program
+  // switch per frame, not two per section). A tile draws a subset of the
+  // frame's draws in the same order, so equal depths resolve as in the frame.
   auto drawAll = [&] {
+    bool anySection = false;
     for (const auto& [cell, ranges] : groups) {
       firsts.clear();
       counts.clear();
       for (const DrawRange& range : ranges) {
-        if (range.count == 0 || range.section) continue;
-        firsts.push_back(static_cast<GLint>(range.offset));
-        counts.push_back(static_cast<GLsizei>(range.count));
+        if (range.count == 0) continue;
+        std::uint64_t first = range.offset, count = range.count;
+        if (range.section) {
+          anySection = true;
+          const Section& s = section(*cell, range);
+          first += s.header.remainderOffset / sizeof(Splat);
+          count = s.header.remainderCount;
+          if (count == 0) continue;
+        }
+        firsts.push_back(static_cast<GLint>(first));
+        counts.push_back(static_cast<GLsizei>(count));
       }
+      if (firsts.empty()) continue;
       glBindBuffer(GL_ARRAY_BUFFER, cell->buffer);
-      if (!firsts.empty()) {
-        splatAttributes(0);
-        glMultiDrawArrays(GL_POINTS, firsts.data(), counts.data(),
-                          static_cast<GLsizei>(firsts.size()));
-        ++stats.drawCalls;
-      }
-      for (const DrawRange& range : ranges)
-        if (range.section) drawSection(*cell, range, prog, stats);
+      splatAttributes(0);
+      glMultiDrawArrays(GL_POINTS, firsts.data(), counts.data(),
+                        static_cast<GLsizei>(firsts.size()));
+      ++stats.drawCalls;
     }
+    if (!anySection) return;
+    glUseProgram(programs_->instanced);
+    glEnableVertexAttribArray(kTag);
+    glEnableVertexAttribArray(kTranslation);
+    glVertexAttribDivisor(kTranslation, 1);
+    for (const auto& [cell, ranges] : groups) {
+      glBindBuffer(GL_ARRAY_BUFFER, cell->buffer);
+      for (const DrawRange& range : ranges)
+        if (range.section) drawPools(*cell, range, stats);
+    }
+    glVertexAttribDivisor(kTranslation, 0);
+    glDisableVertexAttribArray(kTag);
+    glDisableVertexAttribArray(kTranslation);
+    glUseProgram(prog);
   };
   for (const auto& group : groups) {
     for (const DrawRange& range : group.second) {
@@ -573,19 +597,15 @@ const SplatRenderer::Section& SplatRenderer::section(const Cell& cell,
   return cell.sections.emplace(range.offset, std::move(out)).first->second;
 }
 
-void SplatRenderer::drawSection(const Cell& cell, const DrawRange& range, unsigned pointsProgram,
-                                RenderStats& stats) {
+void SplatRenderer::drawPools(const Cell& cell, const DrawRange& range, RenderStats& stats) {
   const Section& s = section(cell, range);
+  if (s.pools.empty()) return;
   const std::size_t base = std::size_t{range.offset} * sizeof(Splat);
   const GLuint prog = programs_->instanced;
-  glUseProgram(prog);
   glUniform3fv(uniform(prog, "origin"), 1, s.header.origin);
   glUniform3fv(uniform(prog, "high"), 1, s.header.high);
   glUniform1f(uniform(prog, "step"), s.header.step);
   glUniform1f(uniform(prog, "radiusUnit"), s.header.radiusUnit);
-  glEnableVertexAttribArray(kTag);
-  glEnableVertexAttribArray(kTranslation);
-  glVertexAttribDivisor(kTranslation, 1);
   constexpr GLsizei stride = sizeof(InstancedVertex);
   for (const InstancedPool& pool : s.pools) {
     if (pool.vertexCount == 0) continue;
@@ -604,16 +624,6 @@ void SplatRenderer::drawSection(const Cell& cell, const DrawRange& range, unsign
                            byteOffset(base + pool.translationOffset));
     glDrawArraysInstanced(GL_POINTS, 0, static_cast<GLsizei>(pool.vertexCount),
                           static_cast<GLsizei>(pool.translationCount));
-    ++stats.drawCalls;
-  }
-  glVertexAttribDivisor(kTranslation, 0);
-  glDisableVertexAttribArray(kTag);
-  glDisableVertexAttribArray(kTranslation);
-  glUseProgram(pointsProgram);
-  splatAttributes(0);
-  if (s.header.remainderCount > 0) {
-    glDrawArrays(GL_POINTS, static_cast<GLint>((base + s.header.remainderOffset) / sizeof(Splat)),
-                 static_cast<GLsizei>(s.header.remainderCount));
     ++stats.drawCalls;
   }
 }

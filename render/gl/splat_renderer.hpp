@@ -29,10 +29,10 @@
 //    disk, the fragment shader intersects the pixel's ray with the disk plane,
 //    discards outside the radius and writes that depth; flat headlight shading.
 //  - Instanced: Points, and seed 000's instanced sections where a range is
-//    one (DrawRange::section): per pool one instanced draw straight from the
-//    cell's buffer -- its vertex records per vertex, its translations per
-//    instance, the tag bit masks tested in the vertex shader -- then the
-//    section's remainder as points.
+//    one (DrawRange::section): the section's remainder as points, and per
+//    pool one instanced draw straight from the cell's buffer -- its vertex
+//    records per vertex, its translations per instance, the tag bit masks
+//    tested in the vertex shader.
 //  - Blended: the same disks, EWA-style: a depth pass pushed back by
 //    blendDepthRadii radii, an additive pass of Gaussian-weighted colours of the
 //    splats within that offset of the visible surface (float framebuffer), and
@@ -119,8 +119,8 @@ class SplatRenderer final : public TileRenderer {
   void upload(Cell& cell, std::span<const Splat> splats);
   // The section `range` is in `cell`, parsed and checked on first use.
   const Section& section(const Cell& cell, const DrawRange& range) const;
-  void drawSection(const Cell& cell, const DrawRange& range, unsigned pointsProgram,
-                   RenderStats& stats);
+  // The section's pools, instanced (the instanced program is in use).
+  void drawPools(const Cell& cell, const DrawRange& range, RenderStats& stats);
   void ensureAccumulation(std::uint32_t width, std::uint32_t height);
   void destroyAccumulation();
   void destroy(Cell& cell);
