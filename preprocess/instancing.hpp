@@ -29,6 +29,7 @@
 #include "common/dataset_writer.hpp"
 #include "common/instanced_section.hpp"
 #include "common/splat.hpp"
+#include "preprocess/translation_palette.hpp"
 
 namespace pointillist::preprocess {
 
@@ -66,31 +67,6 @@ struct QuantizedCell {
   std::vector<Voxel> voxels;                  // one per input point
 };
 QuantizedCell quantizeCell(std::span<const Splat> points, const InstancingOptions& options);
-
-struct TranslationCount {
-  std::array<std::int32_t, 3> t{};
-  std::uint32_t count = 0;  // ordered pairs of occupied voxels it maps
-  bool operator==(const TranslationCount&) const = default;
-};
-
-// The `limit` most common non-null translations among distinct occupied
-// voxels inside `dims`, no component beyond +-window, counted by FFT
-// autocorrelation; only counts of at least 2; by count descending, then t
-// ascending. Thread-safe.
-std::vector<TranslationCount> translationPalette(std::span<const Voxel> occupied,
-                                                 const std::array<std::int32_t, 3>& dims,
-                                                 std::size_t limit, std::int32_t window = 32);
-// Every non-null translation's count by comparing all pairs, sorted by t (tests).
-std::vector<TranslationCount> bruteForceTranslationCounts(std::span<const Voxel> occupied);
-
-// Wall time spent in FFTs by this thread, and FFT shapes planned (statistics).
-double fftSecondsThisThread();
-std::size_t fftPlansMade();
-// FFTW wisdom lives in $XDG_CACHE_HOME/pointillist (or ~/.cache/pointillist).
-// A shape it knows is planned measured; a new one is estimated at once, and
-// this measures the new shapes within the budget and saves the wisdom for the
-// next runs. Returns the shapes measured.
-std::size_t saveFftWisdom(double budgetSeconds = 2.0);
 
 struct InstancingStats {
   std::uint64_t points = 0;
