@@ -106,30 +106,40 @@ void instancedPosition(const InstancedHeader& h, const std::int32_t voxel[3], fl
         std::clamp(h.origin[a] + static_cast<float>(voxel[a]) * h.step, h.origin[a], h.high[a]);
 }
 
+namespace {
+
+// Calls fn(vertex, voxel) for every generated point, pool by pool,
+// translation by translation, vertex by vertex.
+template <typename Fn>
+void forEachGenerated(const InstancedSectionView& view, Fn fn) {
+  for (const auto& pool : view.pools)
+    for (std::uint32_t i = 0; i < pool.translations.size(); ++i)
+      for (const InstancedVertex& v : pool.vertices)
+        if (tagHas(v, i)) {
+          const InstancedTranslation& t = pool.translations[i];
+          fn(v, Voxel{{v.q[0] + t.t[0], v.q[1] + t.t[1], v.q[2] + t.t[2]}});
+        }
+}
+
+}  // namespace
+
 std::vector<Splat> expandInstancedSection(const InstancedSectionView& view) {
   std::vector<Splat> out;
   out.reserve(view.header.generatedCount + view.remainder.size());
-  for (const auto& pool : view.pools) {
-    for (std::uint32_t i = 0; i < pool.translations.size(); ++i) {
-      const InstancedTranslation& t = pool.translations[i];
-      for (const InstancedVertex& v : pool.vertices) {
-        if (!tagHas(v, i)) continue;
-        Splat s{};
-        const std::int32_t voxel[3] = {v.q[0] + t.t[0], v.q[1] + t.t[1], v.q[2] + t.t[2]};
-        instancedPosition(view.header, voxel, s.position);
-        float len2 = 0.0f;
-        for (int a = 0; a < 3; ++a) {
-          s.normal[a] = static_cast<float>(v.normal[a]) / 127.0f;
-          len2 += s.normal[a] * s.normal[a];
-        }
-        if (len2 > 0.0f)
-          for (float& c : s.normal) c /= std::sqrt(len2);
-        s.radius = static_cast<float>(v.radius) * view.header.radiusUnit;
-        std::memcpy(s.color, v.color, 4);
-        out.push_back(s);
-      }
+  forEachGenerated(view, [&](const InstancedVertex& v, const Voxel& voxel) {
+    Splat s{};
+    instancedPosition(view.header, voxel.q, s.position);
+    float len2 = 0.0f;
+    for (int a = 0; a < 3; ++a) {
+      s.normal[a] = static_cast<float>(v.normal[a]) / 127.0f;
+      len2 += s.normal[a] * s.normal[a];
     }
-  }
+    if (len2 > 0.0f)
+      for (float& c : s.normal) c /= std::sqrt(len2);
+    s.radius = static_cast<float>(v.radius) * view.header.radiusUnit;
+    std::memcpy(s.color, v.color, 4);
+    out.push_back(s);
+  });
   out.insert(out.end(), view.remainder.begin(), view.remainder.end());
   return out;
 }
@@ -137,12 +147,7 @@ std::vector<Splat> expandInstancedSection(const InstancedSectionView& view) {
 std::vector<Voxel> generatedVoxels(const InstancedSectionView& view) {
   std::vector<Voxel> out;
   out.reserve(view.header.generatedCount);
-  for (const auto& pool : view.pools)
-    for (std::uint32_t i = 0; i < pool.translations.size(); ++i)
-      for (const InstancedVertex& v : pool.vertices)
-        if (tagHas(v, i))
-          out.push_back({{v.q[0] + pool.translations[i].t[0], v.q[1] + pool.translations[i].t[1],
-                          v.q[2] + pool.translations[i].t[2]}});
+  forEachGenerated(view, [&](const InstancedVertex&, const Voxel& voxel) { out.push_back(voxel); });
   return out;
 }
 

@@ -58,7 +58,7 @@ input_of() {
   esac
 }
 
-# field NAME LINE: the number after NAME in a summary line.
+# seconds_of LINE: the seconds of a preprocess summary line ("... in S s (...").
 seconds_of() { sed -n 's/.* in \([0-9.]*\) s (.*/\1/p' <<<"$1" | head -1; }
 
 table="$out/table.md"

@@ -6,6 +6,7 @@
 #include <cstring>
 #include <exception>
 #include <mutex>
+#include <numbers>
 #include <thread>
 
 #include "common/errors.hpp"
@@ -131,9 +132,8 @@ void InstancingStats::merge(const InstancingStats& o) {
 
 namespace {
 
-// A section without pools: every point plain (a unit whose pools would not pay).
-std::vector<std::byte> plainSection(std::span<const Splat> points, const QuantizedCell& grid,
-                                    InstancingStats& stats) {
+// A section's header for the unit's grid; counts and offsets are the caller's.
+InstancedHeader sectionHeader(const QuantizedCell& grid) {
   InstancedHeader h{};
   h.magic = kInstancedMagic;
   h.version = kInstancedVersion;
@@ -143,6 +143,13 @@ std::vector<std::byte> plainSection(std::span<const Splat> points, const Quantiz
     h.high[a] = grid.high[a];
   }
   h.step = grid.step;
+  return h;
+}
+
+// A section without pools: every point plain (a unit whose pools would not pay).
+std::vector<std::byte> plainSection(std::span<const Splat> points, const QuantizedCell& grid,
+                                    InstancingStats& stats) {
+  InstancedHeader h = sectionHeader(grid);
   h.remainderOffset = sizeof(InstancedHeader);
   h.remainderCount = static_cast<std::uint32_t>(points.size());
   h.sectionBytes = static_cast<std::uint32_t>(h.remainderOffset + points.size_bytes());
@@ -186,7 +193,7 @@ std::vector<std::byte> encodeInstancedCell(std::span<const Splat> points, const 
     return occupancy.at(v.q[0] + t[0], v.q[1] + t[1], v.q[2] + t[2]);
   };
 
-  const double cosNormal = std::cos(options.normalToleranceDegrees * 3.141592653589793 / 180.0);
+  const double cosNormal = std::cos(options.normalToleranceDegrees * std::numbers::pi / 180.0);
   auto mayStandFor = [&](const Splat& source, const Splat& other) {
     if (colorDifference(source, other) > options.colorTolerance) return false;
     const bool a = knownNormal(source), b = knownNormal(other);
@@ -320,16 +327,8 @@ std::vector<std::byte> encodeInstancedCell(std::span<const Splat> points, const 
 
   // Encode: header, pool table, translations and vertices per pool, remainder.
   std::vector<std::byte> out;
-  InstancedHeader h{};
-  h.magic = kInstancedMagic;
-  h.version = kInstancedVersion;
-  h.bits = static_cast<std::uint8_t>(grid.bits);
+  InstancedHeader h = sectionHeader(grid);
   h.poolCount = static_cast<std::uint8_t>(pools.size());
-  for (std::size_t a = 0; a < 3; ++a) {
-    h.origin[a] = grid.origin[a];
-    h.high[a] = grid.high[a];
-  }
-  h.step = grid.step;
   h.radiusUnit = radiusUnit;
   std::size_t offset = sizeof(InstancedHeader) + pools.size() * sizeof(InstancedPool);
   std::vector<InstancedPool> table;
@@ -405,12 +404,9 @@ std::vector<std::byte> encodeInstancedCell(std::span<const Splat> points, const 
 std::vector<std::byte> instanceCell(std::span<const Splat> points, const InstancingOptions& options,
                                     InstancingStats& stats) {
   const QuantizedCell grid = quantizeCell(points, options);
-  if (points.size() < options.minCellPoints) {
-    stats.cells += 1;
-    stats.points += points.size();
-    stats.plainBytes += points.size() * sizeof(Splat);
-    return points.empty() ? std::vector<std::byte>{} : plainSection(points, grid, stats);
-  }
+  // Too few points to repeat: no palette, a plain section.
+  if (points.size() < options.minCellPoints)
+    return encodeInstancedCell(points, grid, {}, options, stats);
   // The palette counts distinct voxels: a second point in a voxel is no translation.
   std::vector<Voxel> distinct(grid.voxels);
   std::sort(distinct.begin(), distinct.end());

@@ -29,9 +29,6 @@ class TraverseProcess final : public WorkerProcess {
 
   void begin(const v1::RunSettings& settings) override {
     const PeerRanks peers = job_.peers();
-    if (settings.mode() == v1::RENDER_MODE_INSTANCED)
-      layers_ =
-          std::make_shared<const PacketLayers>(dataset_.cells(), dataset_.topLevelCells(), true);
     planner_.emplace(peers, job_.worldRank(), settings, layers_,
                      assignOwners(dataset_.topLevelCells(), job_.layout().datasend));
     culling_.emplace(dataset_.cells(), planner_->traversal().sizeScale);

@@ -30,10 +30,8 @@ ReferenceFrame ReferenceRenderer::render(const Camera& camera,
 
   std::vector<DrawRange> ranges;
   ranges.reserve(result.ranges.size());
-  const auto table = dataset_.topLevelCells();
   for (const auto& range : result.ranges) {
-    ranges.push_back({range.topLevel, range.offset, range.count,
-                      inInstancedSection(table[range.topLevel], range.offset)});
+    ranges.push_back({range.topLevel, range.offset, range.count, range.section});
   }
   RenderSettings frameSettings = settings;
   frameSettings.sizeScale = traversal.sizeScale;

@@ -24,7 +24,8 @@ enum class SplatMode { Points, Splats, Blended, Instanced };
 const char* splatModeName(SplatMode mode);
 // "points" | "splats" | "blended" | "instanced"; UsageError otherwise.
 SplatMode parseSplatMode(const std::string& name);
-// RENDER_MODE_POINTS -> Points, _SPLATS -> Splats, _BLENDED -> Blended; UsageError otherwise.
+// RENDER_MODE_POINTS -> Points, _SPLATS -> Splats, _BLENDED -> Blended,
+// _INSTANCED -> Instanced; UsageError otherwise.
 SplatMode splatModeFromProto(v1::RenderMode mode);
 v1::RenderMode splatModeToProto(SplatMode mode);
 
@@ -78,8 +79,8 @@ struct DrawRange {
   std::uint32_t cell = 0;    // id given to uploadCell
   std::uint32_t offset = 0;  // in splats, from the start of the cell
   std::uint32_t count = 0;
-  // The range is a top-level cell's instanced section (its records; count
-  // is the section's record count): SplatMode::Instanced on GL only.
+  // The range is an instancing unit's section (its records; count is the
+  // section's record count): SplatMode::Instanced on GL only.
   bool section = false;
 };
 

@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-
 #include <cstring>
 
 #include "common/errors.hpp"
@@ -160,8 +159,9 @@ std::vector<CellPrefix> topLevelCellsInTile(const CullingTable& table, const Pac
     } else if (cell.topLevel != kNoIndex) {
       if (cell.pointsCount + cell.splatsCount > 0) {
         const float distance = distanceToCell(culling, eye);
-        found.push_back({cell.topLevel, layers.prefixAt(cell.topLevel, camera, distance,
-                                                        settings.lodPixels, settings.sizeScale)});
+        found.push_back(
+            {cell.topLevel, layers.prefixAt(cell.topLevel, camera, distance, settings.lodPixels,
+                                            settings.sizeScale, settings.instanced != nullptr)});
       }
       index = cell.nextSibling;
     } else {

@@ -9,14 +9,13 @@
 namespace pointillist::traverse {
 
 PacketLayers::PacketLayers(std::span<const OctreeCell> cells,
-                           std::span<const TopLevelCell> topLevel, bool instanced) {
+                           std::span<const TopLevelCell> topLevel) {
   totals_.reserve(topLevel.size());
   for (const TopLevelCell& t : topLevel) {
+    totals_.push_back(static_cast<std::uint32_t>(packetRecords(t)));
     sectionsBegin_.push_back(t.levelSplatCount);
     sectionsEnd_.push_back(static_cast<std::uint32_t>(pointsStart(t)));
   }
-  for (const TopLevelCell& t : topLevel)
-    totals_.push_back(static_cast<std::uint32_t>(packetRecords(t)));
   // level -> (end, radius) per top-level cell, filled in one pass over the cells.
   std::vector<std::map<std::uint8_t, PacketLayer, std::greater<>>> perCell(topLevel.size());
   for (const OctreeCell& cell : cells) {
@@ -34,10 +33,7 @@ PacketLayers::PacketLayers(std::span<const OctreeCell> cells,
   for (std::size_t k = 0; k < topLevel.size(); ++k) {
     first_.push_back(static_cast<std::uint32_t>(layers_.size()));
     for (const auto& [level, layer] : perCell[k]) layers_.push_back(layer);
-    // The points (or the sections standing for them): full detail.
-    const bool sections = instanced && topLevel[k].instancedRecordCount > 0;
-    layers_.push_back(
-        {sections ? static_cast<std::uint32_t>(pointsStart(topLevel[k])) : totals_[k], 0.0f});
+    layers_.push_back({totals_[k], 0.0f});  // the points: full detail
   }
   first_.push_back(static_cast<std::uint32_t>(layers_.size()));
 }
@@ -59,14 +55,19 @@ std::uint32_t PacketLayers::roundUp(std::uint32_t cell, std::uint32_t splats) co
 }
 
 std::uint32_t PacketLayers::prefixAt(std::uint32_t cell, const Camera& camera, float distance,
-                                     float lodPixels, float sizeScale) const {
-  if (distance <= 0.0f) return totalSplats(cell);
-  for (const PacketLayer& layer : layers(cell)) {
-    if (projectedRadiusPixels(camera, layer.radius * sizeScale, distance) <= lodPixels) {
-      return layer.end;
+                                     float lodPixels, float sizeScale, bool instanced) const {
+  std::uint32_t prefix = totalSplats(cell);
+  if (distance > 0.0f) {
+    for (const PacketLayer& layer : layers(cell)) {
+      if (projectedRadiusPixels(camera, layer.radius * sizeScale, distance) <= lodPixels) {
+        prefix = layer.end;
+        break;
+      }
     }
   }
-  return totalSplats(cell);
+  // Full detail of an instanced frame: the sections, not the points after them.
+  const bool sections = sectionsEnd_.at(cell) > sectionsBegin_[cell];
+  return instanced && sections && prefix > sectionsEnd_[cell] ? sectionsEnd_[cell] : prefix;
 }
 
 }  // namespace pointillist::traverse

@@ -23,10 +23,7 @@ struct PacketLayer {
 class PacketLayers {
  public:
   // Throws InputError when a cell's data lies outside its packet.
-  // With `instanced` (--mode instanced), full detail ends after a cell's
-  // instanced sections, which stand for its points, where it has any.
-  PacketLayers(std::span<const OctreeCell> cells, std::span<const TopLevelCell> topLevel,
-               bool instanced = false);
+  PacketLayers(std::span<const OctreeCell> cells, std::span<const TopLevelCell> topLevel);
 
   std::size_t cellCount() const { return totals_.size(); }
   std::uint32_t totalSplats(std::uint32_t cell) const { return totals_.at(cell); }
@@ -38,9 +35,11 @@ class PacketLayers {
   // The prefix a view probably needs from `cell` when its nearest point is
   // `distance` from the eye: through the first layer whose splats project to
   // at most `lodPixels` there (an estimate for ordering ahead: a tile's own
-  // walk gives the exact need).
+  // walk gives the exact need). With `instanced` (--mode instanced), full
+  // detail ends after the cell's instanced sections, which stand for its
+  // points, where it has any.
   std::uint32_t prefixAt(std::uint32_t cell, const Camera& camera, float distance, float lodPixels,
-                         float sizeScale) const;
+                         float sizeScale, bool instanced = false) const;
 
  private:
   std::vector<std::uint32_t> totals_;

@@ -10,7 +10,7 @@ layout(location = 3) in vec3 inNormal;      // snorm8
 layout(location = 4) in uvec2 inTag;
 layout(location = 5) in ivec3 inTranslation;  // per instance
 uniform vec3 origin;
-uniform vec3 high;  // decoded voxels are clamped to the cell's points' bounds
+uniform vec3 high;  // decoded voxels are clamped to the unit's points' bounds
 uniform float step;
 uniform float radiusUnit;
 void emitPoint(vec3 position, vec4 color, float radius, vec3 normal);

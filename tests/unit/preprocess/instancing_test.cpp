@@ -8,7 +8,6 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
-#include <iostream>
 #include <map>
 #include <numeric>
 #include <random>
@@ -202,12 +201,9 @@ TEST(Instancing, RealDataDecodesToTheQuantizedInput) {
     const double halfDiagonal = std::sqrt(3.0) * 0.5 * double{view.header.step};
     EXPECT_LE(stats.positionErrorMax, halfDiagonal * 1.0001);
     EXPECT_LE(stats.sectionBytes, stats.plainBytes);
-    std::cout << name << ": " << points.size() << " points, " << stats.covered << " covered by "
-              << stats.pools << " pools (" << stats.vertices << " vertices, " << stats.translations
-              << " translations), " << stats.sectionBytes << " of " << stats.plainBytes
-              << " bytes, colour error mean "
-              << stats.colorErrorSum / double(std::max<std::uint64_t>(stats.covered, 1)) << " max "
-              << stats.colorErrorMax << ", " << unsigned{view.header.bits} << " bits\n";
+    // Pools formed: the figures above concern generated points, not a plain copy.
+    EXPECT_GT(stats.covered, points.size() / 5);
+    EXPECT_GE(view.pools.size(), 1u);
   }
 }
 
