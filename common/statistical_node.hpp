@@ -1,0 +1,170 @@
+#pragma once
+// Seed 004's statistical point geometry: a top-level cell's points as a binary
+// hierarchy of PCA nodes, each an anisotropic Gaussian of position, normal and
+// colour, quantized to 18 bytes (the paper's 13 bytes of position and normal,
+// 4 of colour, 1 of flags), written by `pointillist-preprocess --statistical`
+// and drawn by the `statistical` render mode, which generates points from the
+// nodes of a view-dependent cut (common/statistical_cut.hpp).
+//
+// Storage. Each top-level cell t has a *statistical packet*: 32-byte records
+// in statistical.bin (common/dataset.hpp), addressed like any packet but under
+// the packet id topLevelCount + t, so data-send shards, render caches and
+// prefixes serve it as they serve the points. Layout, little-endian:
+//
+//   StatisticalPacketHeader (64 B)
+//   nodes, kStatisticalNodeBytes each, breadth-first (node 0 is the root; the
+//     children of the j-th node with children are nodes 2j + 1 and 2j + 2)
+//   zero padding to a multiple of 32
+//
+// A prefix of the packet holding nodes [0, k) decodes those nodes: a cut never
+// needs more than the nodes up to its deepest one (statisticalPrefixRecords).
+//
+// Node layout (bits, from byte 0, little-endian bit order within each field):
+//   mean       32  11-11-10: the offset from the parent's decoded mean along the
+//                  parent's decoded axes f1, f2 (11 bits each) and f3 (10 bits),
+//                  each in [-kChildMeanRange, +kChildMeanRange] * parent sigma_k
+//                  (sigma_k floored at kSigmaFloor * sigma_1); the root's in the
+//                  header's box along x, y, z.
+//   frame      24  f3 (smallest spread) as theta 8 bits in [0, pi/2] (f3 and -f3
+//                  are the same Gaussian) and phi 10 bits in [0, 2 pi); psi 6 bits
+//                  in [0, pi): the angle from x' (x rotated like z onto f3) to f1.
+//   sigmaClass 12  index into ClassTables::position: sigma / parent's sigma_1
+//                  (root: / the header's extent)
+//   normalClass12  index into ClassTables::normal (radians)
+//   normalFrame24  z = mean normal: theta 8 bits in [0, pi], phi 10 bits, psi 6
+//                  bits in [0, pi): x = the major axis of the normals unwrapped
+//                  onto the tangent plane (seed 004 §3)
+//   color      16  mean RGB 5-6-5
+//   colorFrame 10  theta 4, phi 3, psi 3 (as frame)
+//   colorClass  6  index into ClassTables::color (RGB units 0..255)
+//   flags       8  bit 0: the node has children (they follow, breadth-first)
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <span>
+#include <string>
+#include <type_traits>
+#include <vector>
+
+#include "common/splat.hpp"
+
+namespace pointillist {
+
+inline constexpr std::uint32_t kStatisticalMagic = 0x4e535450u;  // "PTSN"
+inline constexpr std::uint16_t kStatisticalVersion = 1;
+inline constexpr std::size_t kStatisticalNodeBytes = 18;
+inline constexpr std::size_t kStatisticalHeaderBytes = 64;
+// Generated samples lie within this many standard deviations (seed 004 §6.2:
+// gamma = 3.5 holds 99.7 % of the distribution); culling spheres use it too.
+inline constexpr float kStatisticalGamma = 3.5f;
+// A child's mean lies within this many of its parent's standard deviations
+// along each parent axis (a subset holding a share f of the points has its mean
+// within sigma * sqrt((1 - f) / f) of the parent's: f >= 1/65 fits).
+inline constexpr float kChildMeanRange = 8.0f;
+inline constexpr float kSigmaFloor = 1.0f / 1024.0f;
+inline constexpr std::uint32_t kPositionClassBits = 12;
+inline constexpr std::uint32_t kNormalClassBits = 12;
+inline constexpr std::uint32_t kColorClassBits = 6;
+inline constexpr std::uint8_t kNodeHasChildren = 1;
+
+struct StatisticalPacketHeader {
+  std::uint32_t magic;
+  std::uint16_t version;
+  std::uint16_t reserved0;
+  std::uint32_t nodeCount;
+  std::uint32_t pointCount;  // the top-level cell's points the hierarchy stands for
+  float origin[3];           // the root mean's box: origin + [0, 1]^3 * extent
+  float extent[3];
+  std::uint32_t reserved[6];
+};
+static_assert(sizeof(StatisticalPacketHeader) == kStatisticalHeaderBytes);
+static_assert(std::is_trivially_copyable_v<StatisticalPacketHeader>);
+
+// Records of a statistical packet that hold nodes [0, nodes).
+inline std::uint32_t statisticalPrefixRecords(std::uint32_t nodes) {
+  return static_cast<std::uint32_t>(
+      (kStatisticalHeaderBytes + std::uint64_t{nodes} * kStatisticalNodeBytes + 31) / 32);
+}
+// Complete nodes in a prefix of `records` records (at most nodeCount).
+inline std::uint32_t statisticalNodesInRecords(std::uint32_t records, std::uint32_t nodeCount) {
+  const std::uint64_t bytes = std::uint64_t{records} * 32;
+  if (bytes < kStatisticalHeaderBytes) return 0;
+  const std::uint64_t n = (bytes - kStatisticalHeaderBytes) / kStatisticalNodeBytes;
+  return n < nodeCount ? static_cast<std::uint32_t>(n) : nodeCount;
+}
+
+// The global classification tables (seed 004 §5): the client's start-up
+// information. statistical-classes.bin holds them: a 16-byte header (magic
+// "PTSC", version, then uint16 counts position, normal, color, reserved), then
+// float position[count][3], normal[count][2], color[count][3].
+struct ClassTables {
+  // sigma_1..3 of a node over its parent's sigma_1 (root: over the header's
+  // largest extent), descending.
+  std::vector<std::array<float, 3>> position;
+  // sigma of the unwrapped normals along the normal frame's x and y, radians.
+  std::vector<std::array<float, 2>> normal;
+  // sigma of colour along the colour frame's axes, RGB units (0..255).
+  std::vector<std::array<float, 3>> color;
+};
+inline constexpr const char* kStatisticalPacketsKey = "statistical";
+inline constexpr const char* kStatisticalPacketsName = "statistical.bin";
+inline constexpr const char* kStatisticalIndexKey = "statistical_index";
+inline constexpr const char* kStatisticalIndexName = "statistical-index.bin";
+inline constexpr const char* kStatisticalClassesKey = "statistical_classes";
+inline constexpr const char* kStatisticalClassesName = "statistical-classes.bin";
+
+std::vector<std::byte> encodeClassTables(const ClassTables& tables);
+// Throws InputError naming `where` for a bad magic, version, counts above the
+// class bits or a size mismatch, and for non-finite or negative values.
+ClassTables decodeClassTables(std::span<const std::byte> bytes, const std::string& where);
+
+// statistical-index.bin: one entry per top-level cell, in table order: where
+// its statistical packet lies in statistical.bin and its checksum
+// (common/checksum.hpp, of the packet's records).
+struct StatisticalPacketEntry {
+  std::uint64_t byteOffset = 0;
+  std::uint32_t records = 0;
+  std::uint32_t nodeCount = 0;
+  std::uint64_t checksum = 0;
+};
+static_assert(sizeof(StatisticalPacketEntry) == 24);
+
+// A decoded node: what the cut and the point generation work from. Axes are
+// unit and orthogonal; sigma is descending; every generated point is
+//   position = mean + sum_k axes[k] * sigma[k] * g[k]
+//   normal   = normalFrame[2] cos(theta) + (normalFrame[0] a + normalFrame[1] b) sin(theta) / theta
+//              with (a, b) = (sigmaNormal[0] n[0], sigmaNormal[1] n[1]), theta = |(a, b)|
+//   color    = clamp(color + sum_k colorAxes[k] * sigmaColor[k] * c[k], 0, 255)
+// for a GaussianSample (g, n, c) (common/statistical_samples.hpp).
+struct StatisticalNode {
+  float mean[3];
+  float axes[3][3];
+  float sigma[3];
+  float normalFrame[3][3];  // [2] is the mean normal
+  float sigmaNormal[2];     // radians
+  float color[3];           // RGB 0..255
+  float colorAxes[3][3];
+  float sigmaColor[3];
+  std::uint32_t firstChild;  // index of the left child; 0 for a leaf
+  std::uint32_t parent;      // index of the parent; 0 for the root
+};
+
+// The culling sphere of a node's own generated points: radius gamma * sigma[0].
+inline float statisticalNodeRadius(const StatisticalNode& node) {
+  return kStatisticalGamma * node.sigma[0];
+}
+
+struct StatisticalPacketView {
+  StatisticalPacketHeader header{};
+  std::vector<StatisticalNode> nodes;  // the complete nodes of the bytes given
+};
+
+// Decodes every complete node of a packet or packet prefix. Throws InputError
+// naming `where` for a bad header, a class index outside the tables, or a
+// breadth-first structure that does not hold (more children than nodes).
+StatisticalPacketView decodeStatisticalPacket(std::span<const std::byte> bytes,
+                                              const ClassTables& tables, const std::string& where);
+StatisticalPacketView decodeStatisticalPacket(std::span<const Splat> records,
+                                              const ClassTables& tables, const std::string& where);
+
+}  // namespace pointillist
