@@ -1,0 +1,44 @@
+#pragma once
+// How many points a statistical node generates (seed 004 §6.2, Table 1): an
+// empirical table, measured on llvmpipe by `pointillist-statistical-table`,
+// of the fewest samples of the quasi-random sequence that cover the screen
+// projection of a node's gamma ellipsoid, indexed by that projection's
+// semi-axes in pixels. Beyond the paper, which estimates the size from the
+// z distance only, the projection here is the node's covariance projected to
+// the screen (a Gaussian projects to a Gaussian), so a node seen edge-on
+// generates fewer points than one seen face-on.
+#include <cstdint>
+
+#include "common/camera.hpp"
+#include "common/statistical_node.hpp"
+
+namespace pointillist {
+
+// Generated points are drawn this many pixels wide (the table is measured so).
+inline constexpr float kStatisticalPointPixels = 2.0f;
+// The render's static sample buffer: no node draws more samples than this.
+inline constexpr std::uint32_t kStatisticalMaxSamples = 4096;
+
+// The screen ellipse of a node's gamma ellipsoid (kStatisticalGamma * sigma),
+// semi-axes in full-frame pixels, major >= minor >= 0, from the covariance
+// projected through the perspective at the node's mean (the Jacobian of the
+// projection there). Zero when the mean is behind the eye.
+struct NodeFootprint {
+  float major = 0.0f;
+  float minor = 0.0f;
+};
+NodeFootprint nodeFootprint(const StatisticalNode& node, const Camera& camera);
+
+struct PointBudget {
+  std::uint32_t count = 1;                      // samples 0..count-1 of the sequence
+  float pointPixels = kStatisticalPointPixels;  // point width: larger only when count is capped
+};
+// The table's entry for the footprint (semi-axes rounded up to whole pixels);
+// beyond the table, the largest entry scaled by area, capped at
+// kStatisticalMaxSamples with wider points to keep the ellipse covered.
+PointBudget statisticalPointBudget(const NodeFootprint& footprint);
+inline PointBudget nodePointBudget(const StatisticalNode& node, const Camera& camera) {
+  return statisticalPointBudget(nodeFootprint(node, camera));
+}
+
+}  // namespace pointillist
