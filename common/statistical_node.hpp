@@ -154,6 +154,51 @@ inline float statisticalNodeRadius(const StatisticalNode& node) {
   return kStatisticalGamma * node.sigma[0];
 }
 
+// The quantized fields of one node, as packed into its 18 bytes (see the
+// layout above). Frames are (theta, phi, psi) codes.
+struct StatisticalNodeCode {
+  std::uint16_t mean[3] = {0, 0, 0};   // 11, 11, 10 bits
+  std::uint16_t frame[3] = {0, 0, 0};  // 8, 10, 6 bits
+  std::uint16_t sigmaClass = 0;
+  std::uint16_t normalClass = 0;
+  std::uint16_t normalFrame[3] = {0, 0, 0};  // 8, 10, 6 bits
+  std::uint16_t color565 = 0;
+  std::uint16_t colorFrame[3] = {0, 0, 0};  // 4, 3, 3 bits
+  std::uint8_t colorClass = 0;
+  std::uint8_t flags = 0;
+  bool operator==(const StatisticalNodeCode&) const = default;
+};
+void packStatisticalNode(const StatisticalNodeCode& code, std::byte* out);  // 18 bytes
+StatisticalNodeCode unpackStatisticalNode(const std::byte* in);
+
+// The three frames of a node and their angle codes.
+enum class FrameKind {
+  Position,  // 8-10-6 bits, f3 on the upper hemisphere
+  Normal,    // 8-10-6 bits, z anywhere on the sphere
+  Color,     // 4-3-3 bits, f3 on the upper hemisphere
+};
+// Unit, orthogonal, right-handed axes (rows) of a frame code.
+std::array<std::array<float, 3>, 3> decodeFrame(FrameKind kind, const std::uint16_t code[3]);
+// The code whose decoded frame is nearest to `axes` (rows, unit, right-handed;
+// axes[0] and axes[2] may be negated where the kind allows: a Gaussian is
+// symmetric about its axes, the mean normal is not).
+void encodeFrame(FrameKind kind, const std::array<std::array<double, 3>, 3>& axes,
+                 std::uint16_t code[3]);
+
+// Decodes one node; `parent` is null for the root. Class indices must be
+// inside the tables (decodeStatisticalPacket checks them).
+StatisticalNode decodeStatisticalNode(const StatisticalNodeCode& code,
+                                      const StatisticalNode* parent,
+                                      const StatisticalPacketHeader& header,
+                                      const ClassTables& tables);
+// The mean code that decodes nearest to `mean` under `parent` (null: the root
+// in the header's box), and the reference length the node's position class is
+// a ratio of (parent sigma_1, or the header's largest extent).
+void encodeNodeMean(const double mean[3], const StatisticalNode* parent,
+                    const StatisticalPacketHeader& header, std::uint16_t code[3]);
+float positionClassReference(const StatisticalNode* parent, const StatisticalPacketHeader& header);
+std::uint16_t encodeColor565(const double rgb[3]);
+
 struct StatisticalPacketView {
   StatisticalPacketHeader header{};
   std::vector<StatisticalNode> nodes;  // the complete nodes of the bytes given
