@@ -41,8 +41,8 @@ std::vector<char> readWholeFile(const fs::path& path, std::uint64_t expectedSize
   return bytes;
 }
 
-template <class T>
-std::vector<T> asRecords(const std::vector<char>& bytes) {
+template <class T, class Byte>
+std::vector<T> asRecords(const std::vector<Byte>& bytes) {
   std::vector<T> out(bytes.size() / sizeof(T));
   if (!out.empty()) std::memcpy(out.data(), bytes.data(), out.size() * sizeof(T));
   return out;
@@ -330,8 +330,10 @@ Dataset Dataset::open(const fs::path& dir, DatasetParts parts) {
   }
   if (hasParts(parts, DatasetParts::Cells))
     ds.cells_ = asRecords<OctreeCell>(loadChecked(kCellsFile));
-  if (hasParts(parts, DatasetParts::TopLevel))
+  if (hasParts(parts, DatasetParts::TopLevel)) {
     validateDatasetStructure(m, ds.cells_, ds.topLevel_, dir.string());
+    if (m.file(kStatisticalIndexKey) != nullptr) ds.loadStatisticalIndex();
+  }
   if (hasParts(parts, DatasetParts::Points)) {
     const DatasetFile* f = m.file(kPointsFile.key);
     const fs::path p = dir / f->name;
@@ -345,11 +347,69 @@ Dataset Dataset::open(const fs::path& dir, DatasetParts parts) {
                          std::to_string(ds.topLevel_[k].byteSize) +
                          "): checksum mismatch (damaged file)");
     }
+    if (ds.hasStatistical()) {
+      const DatasetFile* sf = m.file(kStatisticalPacketsKey);
+      ds.statisticalRecords_ = asRecords<Splat>(readWholeFile(dir / sf->name, sf->size));
+      for (std::uint32_t t = 0; t < ds.statistical_.size(); ++t) {
+        const auto s = ds.packet(ds.statisticalPacketId(t));
+        if (checksum64(s.data(), s.size_bytes()) != ds.statistical_[t].checksum)
+          throw InputError((dir / sf->name).string() + ": statistical packet of top-level cell " +
+                           std::to_string(t) + ": checksum mismatch (damaged file)");
+      }
+    }
   }
   return ds;
 }
 
+void Dataset::loadStatisticalIndex() {
+  const DatasetFile* index = manifest_.file(kStatisticalIndexKey);
+  const DatasetFile* packets = manifest_.file(kStatisticalPacketsKey);
+  const std::string where = (dir_ / index->name).string();
+  if (packets == nullptr || manifest_.file(kStatisticalClassesKey) == nullptr)
+    throw InputError(where + ": statistical index without " + kStatisticalPacketsName + " and " +
+                     kStatisticalClassesName);
+  const auto bytes = readFile(kStatisticalIndexKey);
+  if (bytes.size() != topLevel_.size() * sizeof(StatisticalPacketEntry))
+    throw InputError(where + ": " + std::to_string(bytes.size()) + " bytes, " +
+                     std::to_string(topLevel_.size()) + " top-level cells need " +
+                     std::to_string(topLevel_.size() * sizeof(StatisticalPacketEntry)));
+  statistical_ = asRecords<StatisticalPacketEntry>(bytes);
+  std::uint64_t offset = 0;
+  for (std::size_t t = 0; t < statistical_.size(); ++t) {
+    const StatisticalPacketEntry& e = statistical_[t];
+    if (e.byteOffset != offset || e.nodeCount == 0 ||
+        statisticalPrefixRecords(e.nodeCount) != e.records)
+      throw InputError(where + ": entry " + std::to_string(t) + " (offset " +
+                       std::to_string(e.byteOffset) + ", " + std::to_string(e.records) +
+                       " records, " + std::to_string(e.nodeCount) +
+                       " nodes) does not follow the one before or does not fit its nodes");
+    offset += std::uint64_t{e.records} * sizeof(Splat);
+  }
+  if (offset != packets->size)
+    throw InputError(where + ": the packets cover " + std::to_string(offset) + " bytes, " +
+                     kStatisticalPacketsName + " has " + std::to_string(packets->size));
+}
+
+std::uint64_t Dataset::packetRecordCount(std::uint32_t id) const {
+  if (id < topLevel_.size()) return topLevel_[id].byteSize / sizeof(Splat);
+  if (id - topLevel_.size() < statistical_.size())
+    return statistical_[id - topLevel_.size()].records;
+  throw UsageError("packet " + std::to_string(id) + " out of range or table not loaded");
+}
+
+ClassTables Dataset::readStatisticalClasses() const {
+  if (manifest_.file(kStatisticalClassesKey) == nullptr)
+    throw UsageError(dir_.string() +
+                     " has no statistical hierarchy; build it with pointillist-preprocess "
+                     "--statistical");
+  return decodeClassTables(readFile(kStatisticalClassesKey),
+                           (dir_ / kStatisticalClassesName).string());
+}
+
 std::uint64_t Dataset::packetChecksum(std::uint32_t topLevel) const {
+  if (topLevel >= packetChecksums_.size() &&
+      topLevel - packetChecksums_.size() < statistical_.size())
+    return statistical_[topLevel - packetChecksums_.size()].checksum;
   if (topLevel >= packetChecksums_.size())
     throw UsageError("top-level cell " + std::to_string(topLevel) +
                      " out of range or table not loaded");
@@ -357,6 +417,12 @@ std::uint64_t Dataset::packetChecksum(std::uint32_t topLevel) const {
 }
 
 std::span<const Splat> Dataset::packet(std::uint32_t topLevel) const {
+  if (topLevel >= topLevel_.size() && topLevel - topLevel_.size() < statistical_.size() &&
+      !statisticalRecords_.empty()) {
+    const StatisticalPacketEntry& e = statistical_[topLevel - topLevel_.size()];
+    return std::span<const Splat>(statisticalRecords_)
+        .subspan(static_cast<std::size_t>(e.byteOffset / sizeof(Splat)), e.records);
+  }
   if (topLevel >= topLevel_.size() || points_.empty())
     throw UsageError("top-level cell " + std::to_string(topLevel) +
                      " out of range or points not loaded");
@@ -386,6 +452,24 @@ std::vector<std::byte> Dataset::readFile(std::string_view key) const {
 }
 
 std::vector<Splat> Dataset::readTopLevel(std::uint32_t topLevel) const {
+  if (topLevel >= topLevel_.size() && topLevel - topLevel_.size() < statistical_.size()) {
+    const std::uint32_t t = topLevel - static_cast<std::uint32_t>(topLevel_.size());
+    const StatisticalPacketEntry& e = statistical_[t];
+    const fs::path p = dir_ / manifest_.file(kStatisticalPacketsKey)->name;
+    std::ifstream in(p, std::ios::binary);
+    if (!in) throw InputError(p.string() + ": cannot open: " + std::strerror(errno));
+    std::vector<Splat> out(e.records);
+    const auto bytes = static_cast<std::streamsize>(out.size() * sizeof(Splat));
+    in.seekg(static_cast<std::streamoff>(e.byteOffset));
+    in.read(reinterpret_cast<char*>(out.data()), bytes);
+    if (!in || in.gcount() != bytes)
+      throw InputError(p.string() + ": statistical packet of top-level cell " + std::to_string(t) +
+                       ": short read (truncated file)");
+    if (checksum64(out.data(), out.size() * sizeof(Splat)) != e.checksum)
+      throw InputError(p.string() + ": statistical packet of top-level cell " + std::to_string(t) +
+                       ": checksum mismatch (damaged file)");
+    return out;
+  }
   if (topLevel >= topLevel_.size())
     throw UsageError("top-level cell " + std::to_string(topLevel) +
                      " out of range or table not loaded");

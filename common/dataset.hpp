@@ -51,6 +51,7 @@
 #include "common/dataset_writer.hpp"
 #include "common/octree_cell.hpp"
 #include "common/splat.hpp"
+#include "common/statistical_node.hpp"
 
 namespace pointillist {
 
@@ -81,27 +82,50 @@ class Dataset {
   const DatasetManifest& manifest() const { return manifest_; }
   std::span<const OctreeCell> cells() const { return cells_; }               // needs Cells
   std::span<const TopLevelCell> topLevelCells() const { return topLevel_; }  // needs TopLevel
-  std::uint64_t packetChecksum(std::uint32_t topLevel) const;                // needs TopLevel
+  std::uint64_t packetChecksum(std::uint32_t id) const;  // needs TopLevel; any packet id
 
-  // Reads one top-level cell's packet from points.bin and verifies its
-  // checksum (throws InputError on a short read or mismatch). Thread-safe.
-  std::vector<Splat> readTopLevel(std::uint32_t topLevel) const;  // needs TopLevel
+  // Packets are addressed by id: top-level cell t's packet is id t; a dataset
+  // built with --statistical also has t's statistical packet
+  // (common/statistical_node.hpp) as id topLevelCount + t, in statistical.bin.
+  // Data-send processes, render caches and prefixes treat both alike.
+  std::uint32_t packetCount() const {
+    return static_cast<std::uint32_t>(topLevel_.size() + statistical_.size());
+  }
+  bool hasStatistical() const { return !statistical_.empty(); }  // needs TopLevel
+  std::uint32_t statisticalPacketId(std::uint32_t topLevel) const {
+    return static_cast<std::uint32_t>(topLevel_.size()) + topLevel;
+  }
+  std::span<const StatisticalPacketEntry> statisticalPackets() const { return statistical_; }
+  // Records (32 bytes) of packet `id`.
+  std::uint64_t packetRecordCount(std::uint32_t id) const;  // needs TopLevel
 
-  // The whole point-array and one packet of it in memory (needs Points).
+  // Reads one packet (a top-level cell's from points.bin, a statistical one
+  // from statistical.bin) and verifies its checksum (throws InputError on a
+  // short read or mismatch). Thread-safe.
+  std::vector<Splat> readTopLevel(std::uint32_t id) const;  // needs TopLevel
+
+  // The whole point-array and one packet of it in memory (needs Points; the
+  // statistical packets are then in memory too).
   std::span<const Splat> points() const { return points_; }
-  std::span<const Splat> packet(std::uint32_t topLevel) const;
+  std::span<const Splat> packet(std::uint32_t id) const;
+  // The class tables of a dataset built with --statistical (statistical-classes.bin).
+  ClassTables readStatisticalClasses() const;
 
   // Reads any listed file whole (e.g. a later stage's extra file) and verifies
   // its checksum. Throws InputError when the key is not in the manifest.
   std::vector<std::byte> readFile(std::string_view key) const;
 
  private:
+  void loadStatisticalIndex();
+
   std::filesystem::path dir_;
   DatasetManifest manifest_;
   std::vector<OctreeCell> cells_;
   std::vector<TopLevelCell> topLevel_;
   std::vector<std::uint64_t> packetChecksums_;
   std::vector<Splat> points_;
+  std::vector<StatisticalPacketEntry> statistical_;
+  std::vector<Splat> statisticalRecords_;
 };
 
 // Checks the top-level table against the manifest (contiguous packets that

@@ -21,4 +21,12 @@ std::vector<std::uint32_t> assignOwners(std::span<const TopLevelCell> topLevel,
   return owner;
 }
 
+std::vector<std::uint32_t> assignPacketOwners(std::span<const TopLevelCell> topLevel,
+                                              std::uint32_t owners, std::uint32_t packetCount) {
+  std::vector<std::uint32_t> out = assignOwners(topLevel, owners);
+  for (std::size_t id = out.size(); id < packetCount; ++id)
+    out.push_back(out[id % topLevel.size()]);
+  return out;
+}
+
 }  // namespace pointillist

@@ -14,4 +14,9 @@ namespace pointillist {
 std::vector<std::uint32_t> assignOwners(std::span<const TopLevelCell> topLevel,
                                         std::uint32_t owners);
 
+// The owner of every packet id below `packetCount` (common/dataset.hpp): a
+// top-level cell's statistical packet (id topLevel.size() + t) goes with it.
+std::vector<std::uint32_t> assignPacketOwners(std::span<const TopLevelCell> topLevel,
+                                              std::uint32_t owners, std::uint32_t packetCount);
+
 }  // namespace pointillist

@@ -100,6 +100,13 @@ void checkInstancedSections(const v1::RunSettings& run, const std::string& datas
                      "--instanced");
 }
 
+void checkStatisticalHierarchy(const v1::RunSettings& run, const std::string& dataset) {
+  if (!run.statistical_hierarchy())
+    throw UsageError("--mode statistical: " + dataset +
+                     " has no statistical hierarchy; build it with pointillist-preprocess "
+                     "--statistical");
+}
+
 v1::RunSettings frameRunSettings(const v1::RunSettings& run, const v1::FrameSettings& frame) {
   v1::RunSettings settings = run;
   if (frame.mode() != v1::RENDER_MODE_UNSPECIFIED) settings.set_mode(frame.mode());
@@ -112,10 +119,11 @@ void checkFrameSettings(const v1::RunSettings& run, const v1::FrameSettings& fra
   const v1::RenderMode mode = frame.mode();
   if (mode != v1::RENDER_MODE_UNSPECIFIED && mode != v1::RENDER_MODE_POINTS &&
       mode != v1::RENDER_MODE_SPLATS && mode != v1::RENDER_MODE_BLENDED &&
-      mode != v1::RENDER_MODE_INSTANCED) {
+      mode != v1::RENDER_MODE_INSTANCED && mode != v1::RENDER_MODE_STATISTICAL) {
     throw UsageError("mode " + v1::RenderMode_Name(mode) + " is not available");
   }
   if (mode == v1::RENDER_MODE_INSTANCED) checkInstancedSections(run, "this job's dataset");
+  if (mode == v1::RENDER_MODE_STATISTICAL) checkStatisticalHierarchy(run, "this job's dataset");
   if (mode != v1::RENDER_MODE_UNSPECIFIED) {
     resolveRenderer(run.renderer(), mode);
     if (run.edl()) checkEdl(mode, run.edl_strength(), run.edl_radius());

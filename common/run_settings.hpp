@@ -45,6 +45,8 @@ v1::RunSettings frameRunSettings(const v1::RunSettings& run, const v1::FrameSett
 // UsageError when the run's dataset has no instanced sections (--mode
 // instanced needs a dataset built with --instanced); `dataset` names it.
 void checkInstancedSections(const v1::RunSettings& run, const std::string& dataset);
+// The same for RENDER_MODE_STATISTICAL and statistical_hierarchy.
+void checkStatisticalHierarchy(const v1::RunSettings& run, const std::string& dataset);
 // UsageError naming what a frame cannot ask of this run: a mode the run's
 // renderer cannot draw or that EDL cannot shade, a mode not built yet,
 // instanced on a dataset without sections, a level of detail that is not a

@@ -13,7 +13,8 @@ void addViewOptions(CLI::App& app, ViewOptions& options) {
                  "Render mode: points (fast), splats (oriented disks from a geometry shader), "
                  "blended (the disks blended EWA-style: smooth, about 2.5 times splats' cost) or "
                  "instanced (points; full-detail cells drawn from the vertex and transformation "
-                 "streams of a dataset built with --instanced)");
+                 "streams of a dataset built with --instanced) or statistical (points generated "
+                 "from the PCA nodes of a view-dependent cut, a dataset built with --statistical)");
   app.add_option("--up", options.up, "Up axis of the data for built-in paths: auto, x, y, z");
   app.add_option("--lod-pixels", options.lodPixels,
                  "Use a cell's level-splats once its splats project to this radius in pixels");
@@ -41,7 +42,9 @@ v1::RenderMode parseRenderMode(const std::string& name) {
   if (name == "splats") return v1::RENDER_MODE_SPLATS;
   if (name == "blended") return v1::RENDER_MODE_BLENDED;
   if (name == "instanced") return v1::RENDER_MODE_INSTANCED;
-  throw UsageError("render mode '" + name + "' is not one of: points, splats, blended, instanced");
+  if (name == "statistical") return v1::RENDER_MODE_STATISTICAL;
+  throw UsageError("render mode '" + name +
+                   "' is not one of: points, splats, blended, instanced, statistical");
 }
 
 const char* renderModeName(v1::RenderMode mode) {

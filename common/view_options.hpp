@@ -32,8 +32,9 @@ struct ViewOptions {
 
 void addViewOptions(CLI::App& app, ViewOptions& options);
 
-v1::RenderMode parseRenderMode(const std::string& name);  // points | splats | blended | instanced
-const char* renderModeName(v1::RenderMode mode);          // parseRenderMode's names
+// points | splats | blended | instanced | statistical
+v1::RenderMode parseRenderMode(const std::string& name);
+const char* renderModeName(v1::RenderMode mode);  // parseRenderMode's names
 // With --edl: checkEdl for the options' mode, strength and radius.
 void checkViewEdl(const ViewOptions& options);
 glm::vec3 parseUpAxis(const std::string& name, const SceneBounds& bounds);

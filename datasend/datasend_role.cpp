@@ -19,11 +19,14 @@ class DataSendProcess final : public WorkerProcess {
   DataSendProcess(Job& job, const std::string& datasetPath)
       : job_(job),
         dataset_(Dataset::open(datasetPath, DatasetParts::TopLevel)),
-        ledger_(job.peers(), assignOwners(dataset_.topLevelCells(), job.layout().datasend),
+        ledger_(job.peers(),
+                assignPacketOwners(dataset_.topLevelCells(), job.layout().datasend,
+                                   dataset_.packetCount()),
                 static_cast<std::uint32_t>(job.indexInRole())) {
-    // Hold only the cells this process owns (seed 003: no process needs all data).
+    // Hold only the packets this process owns (seed 003: no process needs all
+    // data); a statistical packet goes with its top-level cell's.
     const auto start = std::chrono::steady_clock::now();
-    for (std::uint32_t cell = 0; cell < dataset_.topLevelCells().size(); ++cell) {
+    for (std::uint32_t cell = 0; cell < dataset_.packetCount(); ++cell) {
       if (!ledger_.owns(cell)) continue;
       auto splats = std::make_shared<const std::vector<Splat>>(dataset_.readTopLevel(cell));
       bytesHeld_ += splats->size() * sizeof(Splat);
@@ -34,8 +37,8 @@ class DataSendProcess final : public WorkerProcess {
 
   std::string readyDetail() const override {
     char line[160];
-    std::snprintf(line, sizeof line, "owns %zu of %zu top-level cells, %.1f MiB, loaded in %.2f s",
-                  packets_.size(), dataset_.topLevelCells().size(),
+    std::snprintf(line, sizeof line, "owns %zu of %u packets, %.1f MiB, loaded in %.2f s",
+                  packets_.size(), dataset_.packetCount(),
                   static_cast<double>(bytesHeld_) / (1024.0 * 1024.0), loadSeconds_);
     return line;
   }

@@ -21,6 +21,7 @@
 #include "common/mpi/role_program.hpp"
 #include "common/peer_watch.hpp"
 #include "common/run_settings.hpp"
+#include "common/statistical_node.hpp"
 #include "common/view_options.hpp"
 #include "display/core/frame_assembly.hpp"
 #include "display/core/frame_stats.hpp"
@@ -95,8 +96,10 @@ double since(Clock::time_point start, Clock::time_point now) {
 // `manifest`: the dataset's, when the display has one.
 v1::RunSettings runSettings(const DisplayOptions& options, const DatasetManifest* manifest) {
   v1::RunSettings settings;
-  if (manifest != nullptr)
+  if (manifest != nullptr) {
     settings.set_instanced_sections(manifest->file(kInstancedSectionsKey) != nullptr);
+    settings.set_statistical_hierarchy(manifest->file(kStatisticalIndexKey) != nullptr);
+  }
   settings.set_mode(parseRenderMode(options.view.mode));
   settings.set_lod_pixels(options.view.lodPixels);
   settings.set_size_scale(options.view.sizeScale);
@@ -115,6 +118,8 @@ v1::RunSettings runSettings(const DisplayOptions& options, const DatasetManifest
   setLiveness(settings, options.liveness);
   if (manifest != nullptr && settings.mode() == v1::RENDER_MODE_INSTANCED)
     checkInstancedSections(settings, options.datasetPath);
+  if (manifest != nullptr && settings.mode() == v1::RENDER_MODE_STATISTICAL)
+    checkStatisticalHierarchy(settings, options.datasetPath);
   return settings;
 }
 

@@ -259,6 +259,13 @@ DatasetContent buildDatasetContent(std::vector<Splat> points, const PreprocessOp
         addInstancedSections(content, *options.instancing, options.threads, stage("instancing"));
     if (options.instancingStats != nullptr) options.instancingStats->merge(stats);
   }
+  if (options.statistical) {
+    StatisticalOptions statistical = *options.statistical;
+    statistical.threads = options.threads;
+    const StatisticalStats stats =
+        addStatisticalPackets(content, statistical, stage("statistical hierarchy"));
+    if (options.statisticalStats != nullptr) *options.statisticalStats = stats;
+  }
   return content;
 }
 

@@ -15,6 +15,7 @@
 #include "preprocess/level_splats.hpp"
 #include "preprocess/normals.hpp"
 #include "preprocess/octree_builder.hpp"
+#include "preprocess/statistical_encoding.hpp"
 
 namespace pointillist::preprocess {
 
@@ -39,6 +40,11 @@ struct PreprocessOptions {
   // *instancingStats when it is set.
   std::optional<InstancingOptions> instancing;
   InstancingStats* instancingStats = nullptr;
+  // --statistical: every top-level cell's points also as a hierarchy of PCA
+  // nodes (seed 004, preprocess/statistical_encoding.hpp); its figures go to
+  // *statisticalStats when it is set.
+  std::optional<StatisticalOptions> statistical;
+  StatisticalStats* statisticalStats = nullptr;
 };
 
 // stage is "octree", "normals and radii", "radii", "level-splats" or "cells";

@@ -195,6 +195,8 @@ struct Options {
   std::string check;  // verify this dataset instead of building one
   bool instanced = false;
   pp::InstancingOptions instancing;
+  bool statistical = false;
+  pp::StatisticalOptions statisticalOptions;
 };
 
 // New FFT shapes are measured after the run (a few seconds at most) so the
@@ -244,6 +246,24 @@ void printInstancingSummary(const pp::InstancingStats& s, std::uint64_t topLevel
           cells)
           .c_str(),
       humanBytes(static_cast<double>(s.plainBytes) / cells).c_str());
+}
+
+// --statistical's closing line: the hierarchy and its bytes in the paper's accounting.
+void printStatisticalSummary(const pp::StatisticalStats& s) {
+  const double points = static_cast<double>(std::max<std::uint64_t>(s.points, 1));
+  const double nodes = static_cast<double>(s.nodes);
+  std::printf(
+      "%s: statistical: %s nodes (%s leaves, %.1f points per leaf, depth %u, %llu Euclidean "
+      "splits) in %s + classes %s: %.2f bits per point for position and normal (13 of 18 bytes "
+      "a node), %.2f with colour and flags; decoded mean error rms %.4f, max %.3f sigma; sigma "
+      "error rms %.1f %%; tree %.2f s, classes %.2f s, encoding %.2f s\n",
+      kTool, humanCount(nodes).c_str(), humanCount(static_cast<double>(s.leaves)).c_str(),
+      points / static_cast<double>(std::max<std::uint64_t>(s.leaves, 1)), s.maxDepth,
+      static_cast<unsigned long long>(s.euclideanSplits),
+      humanBytes(static_cast<double>(s.packetBytes)).c_str(),
+      humanBytes(static_cast<double>(s.classBytes)).c_str(), nodes * 13 * 8 / points,
+      nodes * 18 * 8 / points, s.meanErrorRms, s.meanErrorMax, 100.0 * s.sigmaLogErrorRms,
+      s.treeSeconds, s.classSeconds, s.encodeSeconds);
 }
 
 // Opens the dataset as a traverse would (manifest, sizes, cell array), then
@@ -306,7 +326,32 @@ int checkDataset(const std::string& dir) {
                        "'s sections end at record " + std::to_string(next) +
                        ", its points start at " + std::to_string(pointsStart(table[k])));
   }
+  // --statistical: every statistical packet decodes whole against the classes
+  // and stands for its top-level cell's points.
+  std::uint64_t statisticalNodes = 0;
+  if (dataset.hasStatistical()) {
+    const pointillist::ClassTables classes = dataset.readStatisticalClasses();
+    for (std::uint32_t k = 0; k < table.size(); ++k) {
+      const std::uint32_t id = dataset.statisticalPacketId(k);
+      const std::vector<pointillist::Splat> packet = dataset.readTopLevel(id);
+      records += packet.size();
+      const std::string where = dir + "/" + pointillist::kStatisticalPacketsName +
+                                ": top-level cell " + std::to_string(k);
+      const auto view = pointillist::decodeStatisticalPacket(packet, classes, where);
+      if (view.nodes.size() != view.header.nodeCount ||
+          view.header.pointCount != table[k].pointCount)
+        throw InputError(where + ": " + std::to_string(view.nodes.size()) + " of " +
+                         std::to_string(view.header.nodeCount) + " nodes stand for " +
+                         std::to_string(view.header.pointCount) + " points, the cell holds " +
+                         std::to_string(table[k].pointCount));
+      statisticalNodes += view.nodes.size();
+    }
+  }
   const auto& m = dataset.manifest();
+  if (dataset.hasStatistical())
+    std::printf("%s: statistical: %llu nodes in %u packets decode against the class tables\n",
+                kTool, static_cast<unsigned long long>(statisticalNodes),
+                static_cast<unsigned>(table.size()));
   std::printf(
       "%s: %s is a sound dataset (format %u): %llu points, %llu level-splats, %llu instanced "
       "records (%llu sections), %llu cells, %llu top-level cells; every packet's checksum verified "
@@ -465,8 +510,15 @@ int run(const Options& o) {
     throw UsageError("output '" + o.output + "' already exists (use --force to replace it)");
 
   Progress progress(o.quiet);
-  if (o.generate.empty() && !pp::fitsInMemory(o.memoryMb << 20, estimatePoints(o.inputs, o.points)))
+  if (o.generate.empty() &&
+      !pp::fitsInMemory(o.memoryMb << 20, estimatePoints(o.inputs, o.points))) {
+    if (o.statistical)
+      throw UsageError(
+          "--statistical needs the whole input in memory (its class tables are "
+          "global); this input may not fit under --memory-mb " +
+          std::to_string(o.memoryMb) + ": raise it");
     return runOutOfCore(o, progress, start);
+  }
   pp::PointCloud cloud;
   if (!o.inputs.empty()) {
     pp::ReadOptions ro;
@@ -505,6 +557,11 @@ int run(const Options& o) {
     po.instancing = o.instancing;
     po.instancingStats = &instancingStats;
   }
+  pp::StatisticalStats statisticalStats;
+  if (o.statistical) {
+    po.statistical = o.statisticalOptions;
+    po.statisticalStats = &statisticalStats;
+  }
   const auto buildStart = Clock::now();
   pointillist::DatasetContent content = pp::buildDatasetContent(
       std::move(cloud.splats), po, [&](const char* stage, std::uint64_t done, std::uint64_t total) {
@@ -528,6 +585,7 @@ int run(const Options& o) {
     printInstancingSummary(instancingStats, content.manifest.topLevelCount);
     saveWisdom(o);
   }
+  if (o.statistical) printStatisticalSummary(statisticalStats);
   return 0;
 }
 
@@ -616,6 +674,21 @@ int main(int argc, char** argv) {
                  "Largest RGBA channel difference a generated point may carry from its source")
       ->capture_default_str()
       ->check(CLI::Range(0, 255));
+  app.add_flag("--statistical", o.statistical,
+               "Also store each top-level cell's points as a hierarchy of PCA nodes (seed 004) "
+               "for --mode statistical");
+  app.add_option("--statistical-leaf-points", o.statisticalOptions.leafPoints,
+                 "Statistical hierarchy: nodes with fewer points are leaves (seed 004: 6..30)")
+      ->capture_default_str()
+      ->check(CLI::Range(2u, 1024u));
+  app.add_option("--statistical-classes", o.statisticalOptions.positionClasses,
+                 "Classes of the position standard deviations (the normal ones get as many, "
+                 "colour 64)")
+      ->capture_default_str()
+      ->check(CLI::Range(16u, 4096u))
+      ->each([&o](const std::string&) {
+        o.statisticalOptions.normalClasses = o.statisticalOptions.positionClasses;
+      });
   app.add_flag("-q,--quiet", o.quiet, "No progress output");
   app.add_flag("-f,--force", o.force, "Replace an existing dataset at the output");
   try {

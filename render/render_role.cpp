@@ -49,7 +49,9 @@ class RenderProcess final : public WorkerProcess {
         options_(options),
         dataset_(Dataset::open(datasetPath, DatasetParts::TopLevel)),
         core_(coreConfig(options, job), job.peers(), job.worldRank(), dataset_.topLevelCells(),
-              assignOwners(dataset_.topLevelCells(), job.layout().datasend)) {
+              assignPacketOwners(dataset_.topLevelCells(), job.layout().datasend,
+                                 dataset_.packetCount()),
+              dataset_.statisticalPackets()) {
     // Fail before the handshake on an option that cannot work.
     (void)parseProfile(options.profile);
   }
@@ -69,6 +71,10 @@ class RenderProcess final : public WorkerProcess {
     const v1::Renderer kind = resolveRenderer(settings.renderer(), settings.mode());
     renderers_.push_back(
         makeTileRenderer(kind, parseProfile(options_.profile), options_.drawThreads));
+    if (settings.mode() == v1::RENDER_MODE_STATISTICAL || settings.statistical_hierarchy()) {
+      classes_ = std::make_shared<const ClassTables>(dataset_.readStatisticalClasses());
+      renderers_.back()->setStatisticalClasses(classes_);
+    }
     kinds_.push_back(kind);
     renderer_ = renderers_.back().get();
     renderer_->warmUp(settings_);
@@ -114,7 +120,7 @@ class RenderProcess final : public WorkerProcess {
     const auto first = static_cast<std::uint32_t>(header.first_splat());
     const auto count = static_cast<std::uint32_t>(header.splat_count());
     const bool wholePacket =
-        cell < dataset_.topLevelCells().size() && first == 0 && count == core_.packetSplats(cell);
+        cell < dataset_.packetCount() && first == 0 && count == core_.packetSplats(cell);
     if (checksum64(envelope.payload.data(), envelope.payload.size()) != header.checksum() ||
         (wholePacket && header.checksum() != dataset_.packetChecksum(cell))) {
       throw ProtocolError(what + " (splats " + std::to_string(first) + "+" + std::to_string(count) +
@@ -200,6 +206,7 @@ class RenderProcess final : public WorkerProcess {
       }
     }
     auto next = makeTileRenderer(kind, parseProfile(options_.profile), options_.drawThreads);
+    if (classes_) next->setStatisticalClasses(classes_);
     next->warmUp(settings);
     renderer_->forEachCell(
         [&](std::uint32_t id, std::span<const Splat> splats) { next->uploadCell(id, splats); });
@@ -229,6 +236,7 @@ class RenderProcess final : public WorkerProcess {
   TileRenderer* renderer_ = nullptr;
   RenderSettings settings_;
   v1::RunSettings run_;
+  std::shared_ptr<const ClassTables> classes_;  // a dataset built with --statistical
 };
 
 }  // namespace

@@ -29,8 +29,16 @@ class TraverseProcess final : public WorkerProcess {
 
   void begin(const v1::RunSettings& settings) override {
     const PeerRanks peers = job_.peers();
+    // Frames may ask for the statistical mode whenever the dataset has hierarchies.
+    if (settings.mode() == v1::RENDER_MODE_STATISTICAL || settings.statistical_hierarchy()) {
+      auto trees = StatisticalTrees::load(dataset_);
+      layers_ = std::make_shared<const PacketLayers>(dataset_.cells(), dataset_.topLevelCells(),
+                                                     trees.get());
+      statistical_ = std::make_shared<StatisticalCutMemo>(std::move(trees));
+    }
     planner_.emplace(peers, job_.worldRank(), settings, layers_,
-                     assignOwners(dataset_.topLevelCells(), job_.layout().datasend));
+                     assignPacketOwners(dataset_.topLevelCells(), job_.layout().datasend,
+                                        static_cast<std::uint32_t>(layers_->cellCount())));
     culling_.emplace(dataset_.cells(), planner_->traversal().sizeScale);
     // Frames may ask for the instanced mode whenever the dataset has sections.
     runMode_ = settings.mode();
@@ -62,6 +70,13 @@ class TraverseProcess final : public WorkerProcess {
             throw ProtocolError(
                 "a frame asks for the instanced mode of a dataset without sections");
           traversal.instanced = instanced_;
+        }
+        if ((frameMode != v1::RENDER_MODE_UNSPECIFIED ? frameMode : runMode_) ==
+            v1::RENDER_MODE_STATISTICAL) {
+          if (!statistical_)
+            throw ProtocolError(
+                "a frame asks for the statistical mode of a dataset without hierarchies");
+          traversal.statistical = statistical_;
         }
         const TraversalResult walk = traverseTile(*culling_, task.camera(), task.rect(), traversal);
         std::vector<CellPrefix> ahead;
@@ -102,6 +117,7 @@ class TraverseProcess final : public WorkerProcess {
   std::optional<PacketPlanner> planner_;
   std::optional<CullingTable> culling_;              // for the run's size scale
   std::shared_ptr<const InstancedCells> instanced_;  // the dataset's sections, if it has them
+  std::shared_ptr<StatisticalCutMemo> statistical_;  // its hierarchies, if it has them
   v1::RenderMode runMode_ = v1::RENDER_MODE_POINTS;
   std::optional<DecisionLogWriter> log_;
 };

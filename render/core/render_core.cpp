@@ -10,7 +10,8 @@
 namespace pointillist::render {
 
 RenderCore::RenderCore(const RenderCoreConfig& config, PeerRanks peers, int selfRank,
-                       std::span<const TopLevelCell> topLevel, std::vector<std::uint32_t> owners)
+                       std::span<const TopLevelCell> topLevel, std::vector<std::uint32_t> owners,
+                       std::span<const StatisticalPacketEntry> statistical)
     : config_(config),
       peers_(std::move(peers)),
       selfRank_(selfRank),
@@ -21,6 +22,8 @@ RenderCore::RenderCore(const RenderCoreConfig& config, PeerRanks peers, int self
   for (const TopLevelCell& cell : topLevel) {
     cellSplats_.push_back(static_cast<std::uint32_t>(packetRecords(cell)));
   }
+  nodeRangesFrom_ = static_cast<std::uint32_t>(cellSplats_.size());
+  for (const StatisticalPacketEntry& entry : statistical) cellSplats_.push_back(entry.records);
   if (owners_.size() != cellSplats_.size()) {
     throw UsageError("render core: " + std::to_string(owners_.size()) + " owners for " +
                      std::to_string(cellSplats_.size()) + " top-level cells");
@@ -61,7 +64,7 @@ namespace {
 // Every range lies inside the prefix the packet names for its cell; both
 // lists are sorted by cell (the traversal's order).
 void checkRanges(const v1::RenderPacket& packet, int sourceRank,
-                 std::span<const std::uint32_t> cellSplats) {
+                 std::span<const std::uint32_t> cellSplats, std::uint32_t nodeRangesFrom) {
   const auto fail = [&](const std::string& what) {
     throw ProtocolError("render packet " + std::to_string(packet.packet_id()) + " from rank " +
                         std::to_string(sourceRank) + ": " + what);
@@ -92,7 +95,11 @@ void checkRanges(const v1::RenderPacket& packet, int sourceRank,
            ", which the packet does not name (or ranges not sorted)");
     }
     const std::uint64_t end = std::uint64_t{packet.range_offset(r)} + packet.range_count(r);
-    if (end > packet.top_level_splats(at)) {
+    const std::uint32_t prefix = packet.top_level_splats(at);
+    // A statistical packet's ranges are nodes (common/statistical_node.hpp).
+    const std::uint64_t limit =
+        cell >= nodeRangesFrom ? statisticalNodesInRecords(prefix, ~std::uint32_t{0}) : prefix;
+    if (end > limit) {
       fail("range " + std::to_string(r) + " ends at splat " + std::to_string(end) +
            " of top-level cell " + std::to_string(cell) + ", beyond the prefix of " +
            std::to_string(packet.top_level_splats(at)) + " it waits for");
@@ -104,7 +111,7 @@ void checkRanges(const v1::RenderPacket& packet, int sourceRank,
 
 void RenderCore::receivePacket(int sourceRank, v1::RenderPacket packet, TimePoint now,
                                RenderEffects& effects) {
-  checkRanges(packet, sourceRank, cellSplats_);
+  checkRanges(packet, sourceRank, cellSplats_, nodeRangesFrom_);
   const std::size_t traverse = peers_.indexOf(v1::ROLE_TRAVERSE, sourceRank);
   lastPacketFrom_[traverse] = std::max(lastPacketFrom_[traverse], packet.packet_id());
   Requests requests;

@@ -22,6 +22,7 @@
 #include "common/messages.hpp"
 #include "common/octree_cell.hpp"
 #include "common/peer_ranks.hpp"
+#include "common/statistical_node.hpp"
 #include "render/core/cell_cache.hpp"
 #include "render/core/rate_estimates.hpp"
 
@@ -81,7 +82,8 @@ void checkDataPacketHeader(const v1::DataPacketHeader& header, std::size_t paylo
 class RenderCore {
  public:
   RenderCore(const RenderCoreConfig& config, PeerRanks peers, int selfRank,
-             std::span<const TopLevelCell> topLevel, std::vector<std::uint32_t> owners);
+             std::span<const TopLevelCell> topLevel, std::vector<std::uint32_t> owners,
+             std::span<const StatisticalPacketEntry> statistical = {});
 
   // A render packet from traverse `sourceRank`. Prefixes neither held nor asked
   // for are asked for (the traverse ordered them already; asking too covers a
@@ -163,7 +165,9 @@ class RenderCore {
   RenderCoreConfig config_;
   PeerRanks peers_;
   int selfRank_;
-  std::vector<std::uint32_t> cellSplats_;  // whole packet per cell
+  std::vector<std::uint32_t> cellSplats_;  // whole packet per cell (packet id)
+  // Packets from this id on are statistical: their ranges count nodes.
+  std::uint32_t nodeRangesFrom_ = 0;
   std::vector<std::uint32_t> owners_;
   CellCache cache_;
   std::deque<QueuedPacket> queue_;

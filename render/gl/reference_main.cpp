@@ -86,6 +86,9 @@ int run(int argc, char** argv) {
   traversal.backfaceCull = !options.view.noBackfaceCull;
   if (parseRenderMode(options.view.mode) == v1::RENDER_MODE_INSTANCED)
     traversal.instanced = traverse::InstancedCells::load(dataset);
+  if (parseRenderMode(options.view.mode) == v1::RENDER_MODE_STATISTICAL)
+    traversal.statistical =
+        std::make_shared<traverse::StatisticalCutMemo>(StatisticalTrees::load(dataset));
   RenderSettings settings;
   settings.mode = splatModeFromProto(parseRenderMode(options.view.mode));
   settings.lighting = !options.view.unlit;

@@ -9,8 +9,11 @@ namespace pointillist::render {
 ReferenceRenderer::ReferenceRenderer(const Dataset& dataset, v1::Renderer kind, GlProfile profile,
                                      unsigned cpuThreads)
     : dataset_(dataset), renderer_(makeTileRenderer(kind, profile, cpuThreads)) {
-  const auto count = static_cast<std::uint32_t>(dataset.topLevelCells().size());
-  for (std::uint32_t cell = 0; cell < count; ++cell) {
+  // Statistical packets too (ids after the top-level cells), as render processes hold them.
+  if (dataset.hasStatistical())
+    renderer_->setStatisticalClasses(
+        std::make_shared<const ClassTables>(dataset.readStatisticalClasses()));
+  for (std::uint32_t cell = 0; cell < dataset.packetCount(); ++cell) {
     renderer_->uploadCell(cell, dataset.packet(cell));
   }
 }

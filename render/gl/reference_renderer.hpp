@@ -26,7 +26,7 @@ struct ReferenceFrame {
 class ReferenceRenderer {
  public:
   // The dataset must have its points loaded (DatasetParts::All); every
-  // top-level cell is uploaded once. `kind` is resolved (Gl or Cpu);
+  // packet is uploaded once. `kind` is resolved (Gl or Cpu);
   // `cpuThreads` draw each frame of the CPU renderer.
   ReferenceRenderer(const Dataset& dataset, v1::Renderer kind,
                     GlProfile profile = GlProfile::Compatibility, unsigned cpuThreads = 1);

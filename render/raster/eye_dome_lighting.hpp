@@ -92,6 +92,9 @@ class EdlTileRenderer final : public TileRenderer {
   }
   void warmUp(const RenderSettings& settings) override { inner_->warmUp(settings); }
   std::string describe() const override { return inner_->describe(); }
+  void setStatisticalClasses(std::shared_ptr<const ClassTables> classes) override {
+    inner_->setStatisticalClasses(std::move(classes));
+  }
 
   TileRenderer& inner() { return *inner_; }
 

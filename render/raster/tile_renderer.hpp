@@ -9,12 +9,14 @@
 #include <array>
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <span>
 #include <string>
 
 #include "common/camera.hpp"
 #include "common/run_settings.hpp"
 #include "common/splat.hpp"
+#include "common/statistical_node.hpp"
 
 namespace pointillist::render {
 
@@ -118,6 +120,9 @@ class TileRenderer {
   // Whatever the first draw would pay once (shader compilation), paid now.
   virtual void warmUp(const RenderSettings& settings) = 0;
   virtual std::string describe() const = 0;
+  // The dataset's class tables, for renderers that draw the statistical mode
+  // (they decode its packets); the others ignore them.
+  virtual void setStatisticalClasses(std::shared_ptr<const ClassTables> classes) { (void)classes; }
 };
 
 }  // namespace pointillist::render

@@ -143,6 +143,8 @@ std::vector<CellPrefix> topLevelCellsInTile(const CullingTable& table, const Pac
                                             const TraversalSettings& settings) {
   checkScale(table, settings);
   std::vector<CellPrefix> found;
+  // A statistical frame orders nothing ahead yet: its cut is cheap to send.
+  if (settings.statistical) return found;
   const std::span<const OctreeCell> cells = table.cells();
   if (cells.empty()) return found;
   const FrustumPlanes planes = tilePlanes(camera, rect, settings.marginPixels);
@@ -177,9 +179,64 @@ TraversalResult traverseTile(std::span<const OctreeCell> cells, const Camera& ca
   return traverseTile(CullingTable(cells, settings.sizeScale), camera, rect, settings);
 }
 
+struct StatisticalCutMemo::Entry {
+  std::string camera;
+  StatisticalCutSettings settings;
+  std::shared_ptr<const StatisticalCut> cut;
+};
+
+StatisticalCutMemo::StatisticalCutMemo(std::shared_ptr<const StatisticalTrees> trees)
+    : trees_(std::move(trees)) {}
+
+std::shared_ptr<const StatisticalCut> StatisticalCutMemo::cutFor(
+    const Camera& camera, const StatisticalCutSettings& settings) {
+  const std::string key = camera.SerializeAsString();
+  const auto same = [&](const Entry& e) {
+    return e.camera == key && e.settings.lodPixels == settings.lodPixels &&
+           e.settings.backfaceCull == settings.backfaceCull &&
+           e.settings.marginPixels == settings.marginPixels;
+  };
+  {
+    std::lock_guard lock(mutex_);
+    for (const Entry& e : recent_)
+      if (same(e)) return e.cut;
+  }
+  auto cut = std::make_shared<const StatisticalCut>(cutStatistical(*trees_, camera, settings));
+  std::lock_guard lock(mutex_);
+  // A few frames: tiles of consecutive frames may interleave.
+  if (recent_.size() >= 4) recent_.erase(recent_.begin());
+  recent_.push_back({key, settings, cut});
+  return cut;
+}
+
+namespace {
+
+TraversalResult traverseStatistical(const Camera& camera, const TileRect& rect,
+                                    const TraversalSettings& settings) {
+  const StatisticalCutSettings cutSettings{settings.lodPixels, settings.backfaceCull,
+                                           settings.marginPixels};
+  const auto cut = settings.statistical->cutFor(camera, cutSettings);
+  const StatisticalTile tile =
+      statisticalTile(settings.statistical->trees(), *cut, camera, rect, cutSettings);
+  TraversalResult result;
+  result.ranges.reserve(tile.ranges.size());
+  for (const StatisticalTile::Range& r : tile.ranges)
+    result.ranges.push_back({r.packet, r.first, r.count, false});
+  result.needs = tile.needs;
+  result.splats = tile.points;
+  result.sections = tile.nodes;
+  result.cellsVisited = cut->visited;
+  result.cellsCulledFrustum = cut->culledFrustum;
+  result.cellsCulledBackface = cut->culledBackface;
+  return result;
+}
+
+}  // namespace
+
 TraversalResult traverseTile(const CullingTable& table, const Camera& camera, const TileRect& rect,
                              const TraversalSettings& settings) {
   checkScale(table, settings);
+  if (settings.statistical) return traverseStatistical(camera, rect, settings);
   TraversalResult result;
   const std::span<const OctreeCell> cells = table.cells();
   if (cells.empty()) return result;

@@ -8,6 +8,7 @@
 // traversal draws: that is what makes composed frames match the reference.
 #include <cstdint>
 #include <memory>
+#include <mutex>
 #include <span>
 #include <string>
 #include <vector>
@@ -16,6 +17,7 @@
 #include "common/cell_prefix.hpp"
 #include "common/dataset.hpp"
 #include "common/octree_cell.hpp"
+#include "common/statistical_cut.hpp"
 #include "traverse/core/culling_table.hpp"
 #include "traverse/core/packet_layers.hpp"
 
@@ -41,6 +43,22 @@ class InstancedCells {
   std::vector<Cell> cells_;
 };
 
+// --mode statistical: the cut of one camera, kept while tiles of its frame
+// come in (the cut is the same for every tile of a frame). Thread-safe.
+class StatisticalCutMemo {
+ public:
+  explicit StatisticalCutMemo(std::shared_ptr<const StatisticalTrees> trees);
+  const StatisticalTrees& trees() const { return *trees_; }
+  std::shared_ptr<const StatisticalCut> cutFor(const Camera& camera,
+                                               const StatisticalCutSettings& settings);
+
+ private:
+  struct Entry;
+  std::shared_ptr<const StatisticalTrees> trees_;
+  std::mutex mutex_;
+  std::vector<Entry> recent_;
+};
+
 struct TraversalSettings {
   // Draw a cell's level-splats once its largest splat projects to at most this
   // many pixels in radius at the cell's nearest point (about one splat per pixel).
@@ -57,6 +75,9 @@ struct TraversalSettings {
   // still add up to the full frame; sections lie before the points, so the
   // prefix a render process needs is shorter.
   std::shared_ptr<const InstancedCells> instanced;
+  // --mode statistical (seed 004): the octree plays no part; the ranges are
+  // node ranges of the cut (common/statistical_cut.hpp) in statistical packets.
+  std::shared_ptr<StatisticalCutMemo> statistical;
 };
 
 // One drawn range: splats [offset, offset + count) of a top-level cell's packet.
@@ -75,8 +96,10 @@ struct TraversalResult {
   // The top-level cells drawn from (distinct, ascending), each with the
   // shortest prefix holding its ranges (the largest range end).
   std::vector<CellPrefix> needs;
-  std::uint64_t splats = 0;  // to draw: an instanced section counts the points it generates
-  std::uint64_t sections = 0;
+  // To draw: an instanced section counts the points it generates, a
+  // statistical node its estimated generated points.
+  std::uint64_t splats = 0;
+  std::uint64_t sections = 0;  // instanced sections drawn, or statistical nodes
   std::uint64_t cellsVisited = 0;
   std::uint64_t cellsCulledFrustum = 0;
   std::uint64_t cellsCulledBackface = 0;

@@ -9,7 +9,8 @@
 namespace pointillist::traverse {
 
 PacketLayers::PacketLayers(std::span<const OctreeCell> cells,
-                           std::span<const TopLevelCell> topLevel) {
+                           std::span<const TopLevelCell> topLevel,
+                           const StatisticalTrees* statistical) {
   totals_.reserve(topLevel.size());
   for (const TopLevelCell& t : topLevel) {
     totals_.push_back(static_cast<std::uint32_t>(packetRecords(t)));
@@ -34,6 +35,19 @@ PacketLayers::PacketLayers(std::span<const OctreeCell> cells,
     first_.push_back(static_cast<std::uint32_t>(layers_.size()));
     for (const auto& [level, layer] : perCell[k]) layers_.push_back(layer);
     layers_.push_back({totals_[k], 0.0f});  // the points: full detail
+  }
+  if (statistical != nullptr) {
+    if (statistical->firstPacketId() != topLevel.size() ||
+        statistical->cellCount() != topLevel.size())
+      throw InputError("the statistical hierarchies do not match the top-level table");
+    for (std::uint32_t t = 0; t < statistical->cellCount(); ++t) {
+      const auto ends = statistical->levelEnds(t);
+      first_.push_back(static_cast<std::uint32_t>(layers_.size()));
+      for (const std::uint32_t end : ends) layers_.push_back({end, 0.0f});
+      totals_.push_back(ends.empty() ? 0 : ends.back());
+      sectionsBegin_.push_back(0);
+      sectionsEnd_.push_back(0);
+    }
   }
   first_.push_back(static_cast<std::uint32_t>(layers_.size()));
 }

@@ -10,6 +10,7 @@
 
 #include "common/camera.hpp"
 #include "common/octree_cell.hpp"
+#include "common/statistical_cut.hpp"
 
 namespace pointillist::traverse {
 
@@ -22,8 +23,11 @@ struct PacketLayer {
 
 class PacketLayers {
  public:
-  // Throws InputError when a cell's data lies outside its packet.
-  PacketLayers(std::span<const OctreeCell> cells, std::span<const TopLevelCell> topLevel);
+  // Throws InputError when a cell's data lies outside its packet. With
+  // `statistical`, the statistical packets follow as ids topLevel.size() + t,
+  // layered by depth of their hierarchy (a cut needs every node above it).
+  PacketLayers(std::span<const OctreeCell> cells, std::span<const TopLevelCell> topLevel,
+               const StatisticalTrees* statistical = nullptr);
 
   std::size_t cellCount() const { return totals_.size(); }
   std::uint32_t totalSplats(std::uint32_t cell) const { return totals_.at(cell); }
