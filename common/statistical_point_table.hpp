@@ -9,6 +9,8 @@
 // generates fewer points than one seen face-on.
 #include <cstdint>
 
+#include <glm/glm.hpp>
+
 #include "common/camera.hpp"
 #include "common/statistical_node.hpp"
 
@@ -18,6 +20,10 @@ namespace pointillist {
 inline constexpr float kStatisticalPointPixels = 2.0f;
 // The render's static sample buffer: no node draws more samples than this.
 inline constexpr std::uint32_t kStatisticalMaxSamples = 4096;
+// The measured table covers semi-axes 1..kStatisticalTableSize pixels (at 7
+// and 8 pixels full coverage of the gamma ellipse already needs 5740 to 14148
+// samples: the Gaussian's rim is thin, so beyond the table the points widen).
+inline constexpr std::uint32_t kStatisticalTableSize = 6;
 
 // The screen ellipse of a node's gamma ellipsoid (kStatisticalGamma * sigma),
 // semi-axes in full-frame pixels, major >= minor >= 0, from the covariance
@@ -28,17 +34,38 @@ struct NodeFootprint {
   float minor = 0.0f;
 };
 NodeFootprint nodeFootprint(const StatisticalNode& node, const Camera& camera);
+// nodeFootprint for many nodes of one camera (the camera's frame taken once);
+// the same values.
+class FootprintProjector {
+ public:
+  explicit FootprintProjector(const Camera& camera);
+  NodeFootprint operator()(const StatisticalNode& node) const;
+
+ private:
+  glm::vec3 eye_, forward_, right_, up_;
+  float focal_;  // pixels
+};
 
 struct PointBudget {
   std::uint32_t count = 1;                      // samples 0..count-1 of the sequence
   float pointPixels = kStatisticalPointPixels;  // point width: larger only when count is capped
 };
-// The table's entry for the footprint (semi-axes rounded up to whole pixels);
-// beyond the table, the largest entry scaled by area, capped at
-// kStatisticalMaxSamples with wider points to keep the ellipse covered.
+// The table's entry for the footprint (semi-axes rounded up to whole pixels,
+// at least 1); beyond the table (a semi-axis above kStatisticalTableSize) the
+// entry at the clamped semi-axes times the ratio of the areas,
+// ceil(entry * (a / a') * (b / b')); above kStatisticalMaxSamples the count is
+// capped and the points widened to ceil(kStatisticalPointPixels *
+// sqrt(wanted / cap)) pixels, so the same area is covered. Monotone in both
+// semi-axes.
 PointBudget statisticalPointBudget(const NodeFootprint& footprint);
+// The measured table's entry for semi-axes (a, b) in whole pixels, each
+// clamped to [1, kStatisticalTableSize] (order does not matter).
+std::uint32_t statisticalTableEntry(std::uint32_t a, std::uint32_t b);
 inline PointBudget nodePointBudget(const StatisticalNode& node, const Camera& camera) {
   return statisticalPointBudget(nodeFootprint(node, camera));
+}
+inline PointBudget nodePointBudget(const StatisticalNode& node, const FootprintProjector& project) {
+  return statisticalPointBudget(project(node));
 }
 
 }  // namespace pointillist

@@ -122,13 +122,79 @@ void splatAttributes(std::size_t base) {
 constexpr GLuint kTag = 4;
 constexpr GLuint kTranslation = 5;
 
+// statistical_points.vert: a GaussianSample per vertex (locations 0-2), a
+// StatisticalInstance per instance (3-13).
+constexpr GLuint kSampleAttributes = 3;
+constexpr GLuint kFirstInstanceAttribute = 3;
+constexpr GLuint kInstanceAttributes = 11;
+struct StatisticalInstance {
+  float mean[4];  // w: point width in pixels
+  float axes[3][3];
+  float normal[3][3];
+  float color[3];
+  float colorAxes[3][3];
+};
+static_assert(sizeof(StatisticalInstance) == 34 * sizeof(float));
+
+StatisticalInstance statisticalInstance(const StatisticalNode& node, float pointPixels) {
+  StatisticalInstance out{};
+  for (int i = 0; i < 3; ++i) {
+    out.mean[i] = node.mean[i];
+    out.color[i] = node.color[i];
+    for (int k = 0; k < 3; ++k) {
+      out.axes[k][i] = node.axes[k][i] * node.sigma[k];
+      out.colorAxes[k][i] = node.colorAxes[k][i] * node.sigmaColor[k];
+    }
+    out.normal[0][i] = node.normalFrame[0][i] * node.sigmaNormal[0];
+    out.normal[1][i] = node.normalFrame[1][i] * node.sigmaNormal[1];
+    out.normal[2][i] = node.normalFrame[2][i];
+  }
+  out.mean[3] = pointPixels;
+  return out;
+}
+
+// The instance attributes, starting at instance `first` of the bound buffer.
+void statisticalInstanceAttributes(std::size_t first) {
+  constexpr GLsizei stride = sizeof(StatisticalInstance);
+  const std::size_t base = first * sizeof(StatisticalInstance);
+  GLuint location = kFirstInstanceAttribute;
+  glVertexAttribPointer(location++, 4, GL_FLOAT, GL_FALSE, stride,
+                        byteOffset(base + offsetof(StatisticalInstance, mean)));
+  for (std::size_t k = 0; k < 3; ++k) {
+    glVertexAttribPointer(location++, 3, GL_FLOAT, GL_FALSE, stride,
+                          byteOffset(base + offsetof(StatisticalInstance, axes) + k * 12));
+  }
+  for (std::size_t k = 0; k < 3; ++k) {
+    glVertexAttribPointer(location++, 3, GL_FLOAT, GL_FALSE, stride,
+                          byteOffset(base + offsetof(StatisticalInstance, normal) + k * 12));
+  }
+  glVertexAttribPointer(location++, 3, GL_FLOAT, GL_FALSE, stride,
+                        byteOffset(base + offsetof(StatisticalInstance, color)));
+  for (std::size_t k = 0; k < 3; ++k) {
+    glVertexAttribPointer(location++, 3, GL_FLOAT, GL_FALSE, stride,
+                          byteOffset(base + offsetof(StatisticalInstance, colorAxes) + k * 12));
+  }
+}
+
+bool hasExtension(const char* name) {
+  GLint count = 0;
+  glGetIntegerv(GL_NUM_EXTENSIONS, &count);
+  for (GLint i = 0; i < count; ++i) {
+    const auto* extension =
+        reinterpret_cast<const char*>(glGetStringi(GL_EXTENSIONS, static_cast<GLuint>(i)));
+    if (extension != nullptr && std::string(extension) == name) return true;
+  }
+  return false;
+}
+
 }  // namespace
 
 struct SplatRenderer::Programs {
   GLuint points = 0;
-  GLuint splats = 0;     // also the blended mode's two passes
-  GLuint resolve = 0;    // blended mode's normalization
-  GLuint instanced = 0;  // instanced sections' pools (seed 000)
+  GLuint splats = 0;       // also the blended mode's two passes
+  GLuint resolve = 0;      // blended mode's normalization
+  GLuint instanced = 0;    // instanced sections' pools (seed 000)
+  GLuint statistical = 0;  // statistical nodes (seed 004)
 };
 
 SplatRenderer::SplatRenderer(OffscreenContext& context)
@@ -144,6 +210,7 @@ SplatRenderer::SplatRenderer(OffscreenContext& context)
   GLint bounds[2] = {0, 0};
   glGetIntegerv(GL_VIEWPORT_BOUNDS_RANGE, bounds);
   viewportBoundsMin_ = bounds[0];
+  baseInstance_ = context_.glVersion() >= 42 || hasExtension("GL_ARB_base_instance");
   throwOnGlError("SplatRenderer");
 }
 
@@ -156,9 +223,12 @@ SplatRenderer::~SplatRenderer() {
   releaseAll();
   destroy(scratch_);
   destroyAccumulation();
-  for (GLuint prog :
-       {programs_->points, programs_->splats, programs_->resolve, programs_->instanced}) {
+  for (GLuint prog : {programs_->points, programs_->splats, programs_->resolve,
+                      programs_->instanced, programs_->statistical}) {
     if (prog != 0) glDeleteProgram(prog);
+  }
+  for (GLuint buffer : {sampleBuffer_, instanceBuffer_}) {
+    if (buffer != 0) glDeleteBuffers(1, &buffer);
   }
   glDeleteVertexArrays(1, &vertexArray_);
 }
@@ -175,6 +245,7 @@ void SplatRenderer::upload(Cell& cell, std::span<const Splat> splats) {
   glBindBuffer(GL_ARRAY_BUFFER, 0);
   cell.count = static_cast<std::uint32_t>(splats.size());
   cell.sections.clear();
+  cell.statistical.reset();
   throwOnGlError("uploadCell");
 }
 
@@ -232,6 +303,7 @@ void SplatRenderer::appendToCell(std::uint32_t id, std::span<const Splat> splats
   glDeleteBuffers(1, &cell.buffer);
   cell.buffer = grown;
   cell.count = static_cast<std::uint32_t>(total);
+  cell.statistical.reset();  // the longer prefix holds more nodes
   uploadedBytes_ += splats.size_bytes();
 }
 
@@ -285,6 +357,14 @@ std::uint32_t SplatRenderer::guardPixels(const Camera& camera) const {
 }
 
 unsigned SplatRenderer::program(SplatMode mode) {
+  if (mode == SplatMode::Statistical) {
+    if (programs_->statistical == 0) {
+      programs_->statistical =
+          linkProgram({shaders::kPointEmitVertex, shaders::kStatisticalPointsVertex}, nullptr,
+                      shaders::kPointsFragment, "statistical points program");
+    }
+    return programs_->statistical;
+  }
   if (mode == SplatMode::Points || mode == SplatMode::Instanced) {
     if (programs_->points == 0) {
       programs_->points = linkProgram({shaders::kPointEmitVertex, shaders::kPointsVertex}, nullptr,
@@ -315,7 +395,8 @@ void SplatRenderer::setUniforms(unsigned prog, const Camera& camera, const TileR
   const auto frameH = static_cast<float>(camera.image_height());
   glUniform2f(uniform(prog, "frameSize"), frameW, frameH);
   glUniform1f(uniform(prog, "guard"), static_cast<float>(guardPixels(camera)));
-  if (settings.mode == SplatMode::Points || settings.mode == SplatMode::Instanced) {
+  if (settings.mode == SplatMode::Points || settings.mode == SplatMode::Instanced ||
+      settings.mode == SplatMode::Statistical) {
     glUniformMatrix4fv(uniform(prog, "viewProjection"), 1, GL_FALSE,
                        glm::value_ptr(viewProjection));
     glUniform1f(uniform(prog, "diameterScale"), 2.0f * focal * scale);
@@ -398,9 +479,10 @@ void SplatRenderer::destroyAccumulation() {
 RenderStats SplatRenderer::draw(
     const Camera& camera, const TileRect& rect,
     std::span<const std::pair<const Cell*, std::span<const DrawRange>>> groups,
-    const RenderSettings& settings) {
+    const RenderSettings& settings, std::span<StatisticalDraw> statistical) {
   const auto start = std::chrono::steady_clock::now();
-  const bool points = settings.mode == SplatMode::Points || settings.mode == SplatMode::Instanced;
+  const bool points = settings.mode == SplatMode::Points || settings.mode == SplatMode::Instanced ||
+                      settings.mode == SplatMode::Statistical;
   const bool blended = settings.mode == SplatMode::Blended;
   if (settings.keepDepth && blended) {
     throw UsageError("SplatRenderer: the blended mode keeps no depth of the visible surface");
@@ -459,6 +541,10 @@ RenderStats SplatRenderer::draw(
   // switch per frame, not two per section). A tile draws a subset of the
   // frame's draws in the same order, so equal depths resolve as in the frame.
   auto drawAll = [&] {
+    if (settings.mode == SplatMode::Statistical) {
+      drawStatistical(statistical, stats);
+      return;
+    }
     bool anySection = false;
     for (const auto& [cell, ranges] : groups) {
       firsts.clear();
@@ -498,6 +584,14 @@ RenderStats SplatRenderer::draw(
     glDisableVertexAttribArray(kTranslation);
     glUseProgram(prog);
   };
+  // Budget, then cell and node: the frame's global order, which a tile's
+  // subset keeps.
+  std::sort(statistical.begin(), statistical.end(),
+            [](const StatisticalDraw& a, const StatisticalDraw& b) {
+              if (a.count != b.count) return a.count < b.count;
+              return a.cell != b.cell ? a.cell < b.cell : a.index < b.index;
+            });
+  for (const StatisticalDraw& node : statistical) stats.splats += node.count;
   for (const auto& group : groups) {
     for (const DrawRange& range : group.second) {
       if (!range.section) {
@@ -653,6 +747,7 @@ RenderStats SplatRenderer::render(const Camera& camera, const TileRect& rect,
       if (sorted[j].section && settings.mode != SplatMode::Instanced) {
         throw UsageError("SplatRenderer::render: an instanced section outside --mode instanced");
       }
+      if (settings.mode == SplatMode::Statistical) continue;  // node ranges: checked below
       if (std::uint64_t{sorted[j].offset} + sorted[j].count > it->second.count) {
         throw UsageError("SplatRenderer::render: range [" + std::to_string(sorted[j].offset) +
                          ", +" + std::to_string(sorted[j].count) + ") outside cell " +
@@ -663,7 +758,156 @@ RenderStats SplatRenderer::render(const Camera& camera, const TileRect& rect,
     groups.emplace_back(&it->second, std::span<const DrawRange>(sorted).subspan(i, j - i));
     i = j;
   }
-  return draw(camera, rect, groups, settings);
+  if (settings.mode != SplatMode::Statistical) return draw(camera, rect, groups, settings);
+
+  context_.makeCurrent();
+  const FootprintProjector project(camera);
+  std::vector<StatisticalDraw> draws;
+  for (const auto& [cell, cellRanges] : groups) {
+    for (const DrawRange& range : cellRanges) {
+      if (range.count == 0) continue;
+      const StatisticalPacketView& view = statisticalNodes(*cell, range.cell);
+      if (std::uint64_t{range.offset} + range.count > view.nodes.size()) {
+        throw UsageError("SplatRenderer::render: node range [" + std::to_string(range.offset) +
+                         ", +" + std::to_string(range.count) + ") outside cell " +
+                         std::to_string(range.cell) + " of " + std::to_string(view.nodes.size()) +
+                         " decoded statistical nodes");
+      }
+      for (std::uint32_t k = range.offset; k < range.offset + range.count; ++k) {
+        const StatisticalNode& node = view.nodes[k];
+        const PointBudget budget = nodePointBudget(node, project);
+        draws.push_back({budget.count, range.cell, k, budget.pointPixels, &node});
+      }
+    }
+  }
+  return draw(camera, rect, {}, settings, draws);
+}
+
+void SplatRenderer::setStatisticalClasses(std::shared_ptr<const ClassTables> classes) {
+  statisticalClasses_ = std::move(classes);
+  for (auto& entry : cells_) entry.second.statistical.reset();
+}
+
+void SplatRenderer::setStatisticalSamples(std::vector<GaussianSample> samples) {
+  if (samples.empty()) throw UsageError("setStatisticalSamples: no samples");
+  if (samples.size() > static_cast<std::size_t>(INT_MAX)) {
+    throw UsageError("setStatisticalSamples: more than 2^31 samples");
+  }
+  samples_ = std::move(samples);
+  if (sampleBuffer_ != 0) {
+    context_.makeCurrent();
+    glDeleteBuffers(1, &sampleBuffer_);
+    sampleBuffer_ = 0;
+  }
+}
+
+const StatisticalPacketView& SplatRenderer::statisticalNodes(const Cell& cell,
+                                                             std::uint32_t id) const {
+  if (cell.statistical) return *cell.statistical;
+  if (!statisticalClasses_) {
+    throw UsageError(
+        "SplatRenderer: the statistical mode needs the class tables (setStatisticalClasses)");
+  }
+  // Read once from the buffer (llvmpipe: a memcpy) and decoded whole.
+  std::vector<Splat> records(cell.count);
+  if (!records.empty()) {
+    glBindBuffer(GL_ARRAY_BUFFER, cell.buffer);
+    glGetBufferSubData(GL_ARRAY_BUFFER, 0, static_cast<GLsizeiptr>(records.size() * sizeof(Splat)),
+                       records.data());
+    glBindBuffer(GL_ARRAY_BUFFER, 0);
+    throwOnGlError("reading a statistical packet");
+  }
+  cell.statistical = std::make_shared<const StatisticalPacketView>(decodeStatisticalPacket(
+      std::span<const Splat>(records), *statisticalClasses_, "cell " + std::to_string(id)));
+  return *cell.statistical;
+}
+
+void SplatRenderer::drawStatistical(std::span<const StatisticalDraw> draws, RenderStats& stats) {
+  if (draws.empty()) return;
+  if (sampleBuffer_ == 0) {
+    if (samples_.empty()) samples_ = gaussianSamples(kStatisticalMaxSamples);
+    glGenBuffers(1, &sampleBuffer_);
+    glBindBuffer(GL_ARRAY_BUFFER, sampleBuffer_);
+    glBufferData(GL_ARRAY_BUFFER, static_cast<GLsizeiptr>(samples_.size() * sizeof(GaussianSample)),
+                 samples_.data(), GL_STATIC_DRAW);
+    sampleCount_ = static_cast<std::uint32_t>(samples_.size());
+    samples_.clear();
+    samples_.shrink_to_fit();
+  }
+  std::vector<StatisticalInstance> instances;
+  instances.reserve(draws.size());
+  for (const StatisticalDraw& draw : draws) {
+    instances.push_back(statisticalInstance(*draw.node, draw.pointPixels));
+  }
+  if (instanceBuffer_ == 0) glGenBuffers(1, &instanceBuffer_);
+  glBindBuffer(GL_ARRAY_BUFFER, instanceBuffer_);
+  glBufferData(GL_ARRAY_BUFFER, static_cast<GLsizeiptr>(instances.size() * sizeof(instances[0])),
+               instances.data(), GL_STREAM_DRAW);
+
+  glBindBuffer(GL_ARRAY_BUFFER, sampleBuffer_);
+  constexpr GLsizei sampleStride = sizeof(GaussianSample);
+  glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, sampleStride,
+                        byteOffset(offsetof(GaussianSample, position)));
+  glVertexAttribPointer(1, 2, GL_FLOAT, GL_FALSE, sampleStride,
+                        byteOffset(offsetof(GaussianSample, normal)));
+  glVertexAttribPointer(2, 3, GL_FLOAT, GL_FALSE, sampleStride,
+                        byteOffset(offsetof(GaussianSample, color)));
+  for (GLuint a = 0; a < kSampleAttributes; ++a) glEnableVertexAttribArray(a);
+  glBindBuffer(GL_ARRAY_BUFFER, instanceBuffer_);
+  for (GLuint a = kFirstInstanceAttribute; a < kFirstInstanceAttribute + kInstanceAttributes; ++a) {
+    glEnableVertexAttribArray(a);
+    glVertexAttribDivisor(a, 1);
+  }
+  statisticalInstanceAttributes(0);
+  // One instanced draw per distinct budget (draws are sorted by it).
+  for (std::size_t i = 0; i < draws.size();) {
+    std::size_t j = i + 1;
+    while (j < draws.size() && draws[j].count == draws[i].count) ++j;
+    const auto vertices = static_cast<GLsizei>(std::min(draws[i].count, sampleCount_));
+    const auto count = static_cast<GLsizei>(j - i);
+    if (baseInstance_) {
+      glDrawArraysInstancedBaseInstance(GL_POINTS, 0, vertices, count, static_cast<GLuint>(i));
+    } else {
+      statisticalInstanceAttributes(i);
+      glDrawArraysInstanced(GL_POINTS, 0, vertices, count);
+    }
+    ++stats.drawCalls;
+    i = j;
+  }
+  for (GLuint a = kFirstInstanceAttribute; a < kFirstInstanceAttribute + kInstanceAttributes; ++a) {
+    glVertexAttribDivisor(a, 0);
+    if (a > kNormal) glDisableVertexAttribArray(a);
+  }
+}
+
+RenderStats SplatRenderer::renderNodes(const Camera& camera, const TileRect& rect,
+                                       std::span<const StatisticalNode> nodes,
+                                       const RenderSettings& settings,
+                                       std::span<const PointBudget> budgets) {
+  validateCamera(camera);
+  if (!tileInsideFrame(camera, rect)) {
+    throw UsageError("SplatRenderer::renderNodes: tile rectangle is empty or outside the image");
+  }
+  if (!budgets.empty() && budgets.size() != nodes.size()) {
+    throw UsageError("SplatRenderer::renderNodes: " + std::to_string(budgets.size()) +
+                     " budgets for " + std::to_string(nodes.size()) + " nodes");
+  }
+  if (nodes.size() > std::numeric_limits<std::uint32_t>::max()) {
+    throw UsageError("SplatRenderer::renderNodes: more than 2^32 nodes");
+  }
+  context_.makeCurrent();
+  const FootprintProjector project(camera);
+  std::vector<StatisticalDraw> draws;
+  draws.reserve(nodes.size());
+  for (std::size_t i = 0; i < nodes.size(); ++i) {
+    const PointBudget budget = budgets.empty() ? nodePointBudget(nodes[i], project) : budgets[i];
+    if (budget.count == 0) continue;
+    draws.push_back(
+        {budget.count, 0, static_cast<std::uint32_t>(i), budget.pointPixels, &nodes[i]});
+  }
+  RenderSettings statistical = settings;
+  statistical.mode = SplatMode::Statistical;
+  return draw(camera, rect, {}, statistical, draws);
 }
 
 RenderStats SplatRenderer::renderSplats(const Camera& camera, const TileRect& rect,
@@ -672,6 +916,9 @@ RenderStats SplatRenderer::renderSplats(const Camera& camera, const TileRect& re
   validateCamera(camera);
   if (!tileInsideFrame(camera, rect)) {
     throw UsageError("SplatRenderer::renderSplats: tile rectangle is empty or outside the image");
+  }
+  if (settings.mode == SplatMode::Statistical) {
+    throw UsageError("SplatRenderer::renderSplats: statistical nodes are drawn by renderNodes");
   }
   context_.makeCurrent();
   upload(scratch_, splats);
@@ -687,6 +934,16 @@ std::string SplatRenderer::describe() const {
 void SplatRenderer::warmUp(const RenderSettings& settings) {
   const Camera camera = makeCamera({0.0f, 0.0f, 2.0f}, {0.0f, 0.0f, 0.0f}, {0.0f, 1.0f, 0.0f},
                                    60.0f, 0.1f, 10.0f, 8, 8);
+  if (settings.mode == SplatMode::Statistical) {
+    StatisticalNode node{};
+    for (int k = 0; k < 3; ++k) {
+      node.axes[k][k] = node.normalFrame[k][k] = node.colorAxes[k][k] = 1.0f;
+      node.sigma[k] = 0.05f;
+    }
+    node.color[0] = 255.0f;
+    renderNodes(camera, makeTileRect(0, 0, 8, 8), {&node, 1}, settings);
+    return;
+  }
   Splat splat{};
   splat.normal[2] = 1.0f;
   splat.radius = 0.1f;

@@ -33,6 +33,18 @@
 //    pool one instanced draw straight from the cell's buffer -- its vertex
 //    records per vertex, its translations per instance, the tag bit masks
 //    tested in the vertex shader.
+//  - Statistical: seed 004's PCA nodes (common/statistical_node.hpp): a cell
+//    holds a statistical packet and a range is a range of its node indices.
+//    The cell's nodes are decoded once (with the class tables given to
+//    setStatisticalClasses) and kept until the cell changes. Per tile every
+//    node of the ranges gets its point budget (common/statistical_point_table.hpp)
+//    for the full frame's camera; the nodes go into one instance buffer in the
+//    order (budget, cell, node index) -- a tile draws a subset of the frame's
+//    instances in the frame's relative order -- and each distinct budget n is
+//    one instanced draw of the first n vertices of a static buffer of
+//    Gaussian samples (common/statistical_samples.hpp); statistical_points.vert
+//    turns sample and node into a point, drawn as in Points (snapped,
+//    headlight) and budget.pointPixels wide.
 //  - Blended: the same disks, EWA-style: a depth pass pushed back by
 //    blendDepthRadii radii, an additive pass of Gaussian-weighted colours of the
 //    splats within that offset of the visible surface (float framebuffer), and
@@ -48,6 +60,9 @@
 #include "common/camera.hpp"
 #include "common/instanced_section.hpp"
 #include "common/splat.hpp"
+#include "common/statistical_node.hpp"
+#include "common/statistical_point_table.hpp"
+#include "common/statistical_samples.hpp"
 #include "render/gl/offscreen_context.hpp"
 #include "render/raster/tile_renderer.hpp"
 
@@ -94,6 +109,24 @@ class SplatRenderer final : public TileRenderer {
   RenderStats renderSplats(const Camera& camera, const TileRect& rect,
                            std::span<const Splat> splats, const RenderSettings& settings);
 
+  // Statistical mode: the class tables its cells' packets decode with. Decoded
+  // nodes of every cell are dropped (decoded again with these on next use).
+  void setStatisticalClasses(std::shared_ptr<const ClassTables> classes);
+  // Draws statistical nodes that are not cached, in any mode's settings (drawn
+  // as SplatMode::Statistical): node i is cell 0's node i, with budgets[i] when
+  // budgets are given (counts clamped to the sample buffer), otherwise its
+  // budget for `camera`. Throws UsageError when budgets' size is not the nodes'.
+  RenderStats renderNodes(const Camera& camera, const TileRect& rect,
+                          std::span<const StatisticalNode> nodes, const RenderSettings& settings,
+                          std::span<const PointBudget> budgets = {});
+  // Replaces the static sample buffer (default: the first
+  // kStatisticalMaxSamples Sobol samples), e.g. with pseudo-random samples for
+  // pointillist-statistical-table. Throws UsageError when empty.
+  void setStatisticalSamples(std::vector<GaussianSample> samples);
+  // Whether instanced draws start at a base instance (GL 4.2 /
+  // ARB_base_instance) or move the instance attribute pointers instead.
+  bool usesBaseInstance() const { return baseInstance_; }
+
   OffscreenContext& context() { return context_; }
 
  private:
@@ -108,6 +141,17 @@ class SplatRenderer final : public TileRenderer {
     unsigned buffer = 0;
     std::uint32_t count = 0;
     mutable std::unordered_map<std::uint32_t, Section> sections;  // by first record
+    // Statistical mode: the packet's nodes, decoded on first use.
+    mutable std::shared_ptr<const StatisticalPacketView> statistical;
+  };
+  // One statistical node of a frame: what its instance draws and where it
+  // sorts.
+  struct StatisticalDraw {
+    std::uint32_t count = 0;  // samples
+    std::uint32_t cell = 0;
+    std::uint32_t index = 0;  // node index in the cell
+    float pointPixels = 0.0f;
+    const StatisticalNode* node = nullptr;
   };
 
   struct Accumulation {
@@ -120,6 +164,10 @@ class SplatRenderer final : public TileRenderer {
   const Section& section(const Cell& cell, const DrawRange& range) const;
   // The section's pools, instanced (the instanced program is in use).
   void drawPools(const Cell& cell, const DrawRange& range, RenderStats& stats);
+  // The cell's decoded statistical nodes (decoded on first use).
+  const StatisticalPacketView& statisticalNodes(const Cell& cell, std::uint32_t id) const;
+  // Sorted, uploaded and drawn (the statistical program is in use).
+  void drawStatistical(std::span<const StatisticalDraw> draws, RenderStats& stats);
   void ensureAccumulation(std::uint32_t width, std::uint32_t height);
   void destroyAccumulation();
   void destroy(Cell& cell);
@@ -129,7 +177,7 @@ class SplatRenderer final : public TileRenderer {
                    const RenderSettings& settings);
   RenderStats draw(const Camera& camera, const TileRect& rect,
                    std::span<const std::pair<const Cell*, std::span<const DrawRange>>> groups,
-                   const RenderSettings& settings);
+                   const RenderSettings& settings, std::span<StatisticalDraw> statistical = {});
 
   OffscreenContext& context_;
   std::unique_ptr<Programs> programs_;
@@ -143,6 +191,13 @@ class SplatRenderer final : public TileRenderer {
   std::int64_t viewportBoundsMin_ = 0;  // GL_VIEWPORT_BOUNDS_RANGE[0]
   std::uint32_t drawSerial_ = 0;
   std::vector<float> depths_;
+  // Statistical mode.
+  std::shared_ptr<const ClassTables> statisticalClasses_;
+  std::vector<GaussianSample> samples_;  // uploaded on first use, then emptied
+  unsigned sampleBuffer_ = 0;
+  std::uint32_t sampleCount_ = 0;
+  unsigned instanceBuffer_ = 0;
+  bool baseInstance_ = false;
 };
 
 }  // namespace pointillist::render

@@ -12,6 +12,8 @@ const char* splatModeName(SplatMode mode) {
       return "blended";
     case SplatMode::Instanced:
       return "instanced";
+    case SplatMode::Statistical:
+      return "statistical";
     case SplatMode::Points:
       break;
   }
@@ -23,7 +25,9 @@ SplatMode parseSplatMode(const std::string& name) {
   if (name == "splats") return SplatMode::Splats;
   if (name == "blended") return SplatMode::Blended;
   if (name == "instanced") return SplatMode::Instanced;
-  throw UsageError("unknown render mode '" + name + "' (points, splats, blended or instanced)");
+  if (name == "statistical") return SplatMode::Statistical;
+  throw UsageError("unknown render mode '" + name +
+                   "' (points, splats, blended, instanced or statistical)");
 }
 
 DepthLinearizer::DepthLinearizer(const Camera& camera) {
@@ -44,6 +48,8 @@ SplatMode splatModeFromProto(v1::RenderMode mode) {
       return SplatMode::Blended;
     case v1::RENDER_MODE_INSTANCED:
       return SplatMode::Instanced;
+    case v1::RENDER_MODE_STATISTICAL:
+      return SplatMode::Statistical;
     default:
       throw UsageError("render mode " + v1::RenderMode_Name(mode) +
                        " is not drawn by the splat renderers");
@@ -58,6 +64,8 @@ v1::RenderMode splatModeToProto(SplatMode mode) {
       return v1::RENDER_MODE_BLENDED;
     case SplatMode::Instanced:
       return v1::RENDER_MODE_INSTANCED;
+    case SplatMode::Statistical:
+      return v1::RENDER_MODE_STATISTICAL;
     case SplatMode::Points:
       break;
   }

@@ -22,12 +22,15 @@ namespace pointillist::render {
 
 // Instanced: the points of Points, and instanced sections (seed 000) drawn
 // with instancing where a range says so (DrawRange::section).
-enum class SplatMode { Points, Splats, Blended, Instanced };
+// Statistical: seed 004's PCA nodes, points generated on the GPU; every range
+// is a range of node indices of a cell holding a statistical packet (GL only).
+enum class SplatMode { Points, Splats, Blended, Instanced, Statistical };
 const char* splatModeName(SplatMode mode);
-// "points" | "splats" | "blended" | "instanced"; UsageError otherwise.
+// "points" | "splats" | "blended" | "instanced" | "statistical"; UsageError
+// otherwise.
 SplatMode parseSplatMode(const std::string& name);
 // RENDER_MODE_POINTS -> Points, _SPLATS -> Splats, _BLENDED -> Blended,
-// _INSTANCED -> Instanced; UsageError otherwise.
+// _INSTANCED -> Instanced, _STATISTICAL -> Statistical; UsageError otherwise.
 SplatMode splatModeFromProto(v1::RenderMode mode);
 v1::RenderMode splatModeToProto(SplatMode mode);
 
@@ -80,14 +83,14 @@ struct DepthLinearizer {
 struct DrawRange {
   std::uint32_t cell = 0;    // id given to uploadCell
   std::uint32_t offset = 0;  // in splats, from the start of the cell
-  std::uint32_t count = 0;
+  std::uint32_t count = 0;   // (SplatMode::Statistical: offset and count in nodes)
   // The range is an instancing unit's section (its records; count is the
   // section's record count): SplatMode::Instanced on GL only.
   bool section = false;
 };
 
 struct RenderStats {
-  std::uint64_t splats = 0;     // vertices submitted
+  std::uint64_t splats = 0;     // vertices submitted (statistical: points generated)
   std::uint32_t drawCalls = 0;  // glMultiDrawArrays calls (one per cell)
   double seconds = 0.0;         // clear to glFinish
 };

@@ -397,7 +397,11 @@ TEST(SplatRendererContexts, RenderersInTwoContextsStayApart) {
 TEST(SplatMode, FromProtoAndNames) {
   EXPECT_EQ(splatModeFromProto(v1::RENDER_MODE_POINTS), SplatMode::Points);
   EXPECT_EQ(splatModeFromProto(v1::RENDER_MODE_SPLATS), SplatMode::Splats);
-  EXPECT_THROW(splatModeFromProto(v1::RENDER_MODE_STATISTICAL), UsageError);
+  EXPECT_EQ(splatModeFromProto(v1::RENDER_MODE_STATISTICAL), SplatMode::Statistical);
+  EXPECT_EQ(splatModeToProto(SplatMode::Statistical), v1::RENDER_MODE_STATISTICAL);
+  EXPECT_EQ(parseSplatMode("statistical"), SplatMode::Statistical);
+  EXPECT_STREQ(splatModeName(SplatMode::Statistical), "statistical");
+  EXPECT_THROW(splatModeFromProto(v1::RENDER_MODE_UNSPECIFIED), UsageError);
   EXPECT_EQ(parseSplatMode("splats"), SplatMode::Splats);
   EXPECT_EQ(parseSplatMode("blended"), SplatMode::Blended);
   EXPECT_THROW(parseSplatMode("ewa"), UsageError);
