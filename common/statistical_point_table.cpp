@@ -97,7 +97,8 @@ PointBudget statisticalPointBudget(const NodeFootprint& footprint) {
   // Capped: wider points cover the same area with fewer of them.
   budget.count = kStatisticalMaxSamples;
   budget.pointPixels = static_cast<float>(
-      std::ceil(static_cast<double>(kStatisticalPointPixels) * std::sqrt(wanted / cap)));
+      std::min(std::ceil(static_cast<double>(kStatisticalPointPixels) * std::sqrt(wanted / cap)),
+               static_cast<double>(kStatisticalMaxPointPixels)));
   return budget;
 }
 

@@ -20,6 +20,9 @@ namespace pointillist {
 inline constexpr float kStatisticalPointPixels = 2.0f;
 // The render's static sample buffer: no node draws more samples than this.
 inline constexpr std::uint32_t kStatisticalMaxSamples = 4096;
+// The widest point the budget gives (culling grows node spheres by half of it):
+// a node nearer than that leaves holes between its points.
+inline constexpr float kStatisticalMaxPointPixels = 16.0f;
 // The measured table covers semi-axes 1..kStatisticalTableSize pixels (at 7
 // and 8 pixels full coverage of the gamma ellipse already needs 5740 to 14148
 // samples: the Gaussian's rim is thin, so beyond the table the points widen).
