@@ -455,6 +455,7 @@ std::uint32_t NearestClass<D>::operator()(const std::array<float, D>& v) const {
 template <std::size_t D>
 std::uint32_t NearestClass<D>::nearest(const std::array<float, D>& v,
                                        std::uint32_t candidate) const {
+  if (candidate >= index_->centres.size()) return (*this)(v);
   NearestResult result;
   result.index = candidate;
   result.distance = distance2(v, index_->centres[candidate]);

@@ -130,7 +130,7 @@ class NearestClass {
   std::uint32_t operator()(const std::array<float, D>& v) const;
   // The same, starting from a candidate (a centre near v, e.g. its previous
   // one): faster when the candidate is close. Equidistant centres may resolve
-  // differently from operator().
+  // differently from operator(); a candidate out of range is ignored.
   std::uint32_t nearest(const std::array<float, D>& v, std::uint32_t candidate) const;
   const std::vector<std::array<float, D>>& centres() const;
 
