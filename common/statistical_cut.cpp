@@ -238,7 +238,7 @@ StatisticalCut cutStatistical(const StatisticalTrees& trees, const Camera& camer
       } else {
         footprint.major = footprint.minor = static_cast<float>(camera.image_height());
       }
-      const std::uint32_t points = statisticalPointBudget(footprint).count;
+      const std::uint32_t points = statisticalPointBudget(coverageEllipse(footprint)).count;
       cut.nodes.push_back({cell, i, points});
       cut.points += points;
     }

@@ -9,9 +9,10 @@ namespace pointillist {
 
 namespace {
 
-// kStatisticalQuasiTable[a - 1][b - 1]: the fewest Sobol samples whose
-// kStatisticalPointPixels-wide points cover every pixel centre inside an
-// ellipse of semi-axes a >= b pixels (the worst of four sub-pixel offsets of
+// kStatisticalQuasiTable[a - 1][b - 1]: the fewest Sobol samples of a node
+// whose kStatisticalPointPixels-wide points cover every pixel centre inside
+// its coverage ellipse of semi-axes a >= b pixels (coverageEllipse: half its
+// gamma ellipse) (the worst of four sub-pixel offsets of
 // its centre), measured on llvmpipe (Mesa 22.3.6, LLVM 15) by
 // `pointillist-statistical-table --size 6` and made monotone in both axes
 // (entries with b > a repeat [a][a]). The raw measurement, with the
@@ -19,11 +20,11 @@ namespace {
 constexpr std::array<std::array<std::uint16_t, kStatisticalTableSize>, kStatisticalTableSize>
     kStatisticalQuasiTable{{
         {3, 3, 3, 3, 3, 3},
-        {31, 31, 31, 31, 31, 31},
-        {127, 296, 296, 296, 296, 296},
-        {508, 508, 508, 759, 759, 759},
-        {508, 508, 508, 846, 1904, 1904},
-        {1014, 1014, 1014, 1522, 2023, 3720},
+        {7, 13, 13, 13, 13, 13},
+        {15, 21, 27, 27, 27, 27},
+        {21, 21, 37, 66, 66, 66},
+        {21, 31, 54, 66, 114, 114},
+        {31, 37, 105, 143, 143, 174},
     }};
 
 }  // namespace

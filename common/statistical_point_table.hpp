@@ -64,11 +64,19 @@ PointBudget statisticalPointBudget(const NodeFootprint& footprint);
 // The measured table's entry for semi-axes (a, b) in whole pixels, each
 // clamped to [1, kStatisticalTableSize] (order does not matter).
 std::uint32_t statisticalTableEntry(std::uint32_t a, std::uint32_t b);
+// The ellipse a node's points must cover: half its gamma footprint. Seed
+// 004's Table 1 sizes an ellipsoid by gamma * sigma across (its (4, 4, 4)
+// needs 54 quasi-random points, not the thousands that covering all of the
+// 3.5-sigma ellipse, where samples are rare, would take); the overlapping
+// tails of neighbouring nodes fill the rest.
+inline NodeFootprint coverageEllipse(const NodeFootprint& footprint) {
+  return {0.5f * footprint.major, 0.5f * footprint.minor};
+}
 inline PointBudget nodePointBudget(const StatisticalNode& node, const Camera& camera) {
-  return statisticalPointBudget(nodeFootprint(node, camera));
+  return statisticalPointBudget(coverageEllipse(nodeFootprint(node, camera)));
 }
 inline PointBudget nodePointBudget(const StatisticalNode& node, const FootprintProjector& project) {
-  return statisticalPointBudget(project(node));
+  return statisticalPointBudget(coverageEllipse(project(node)));
 }
 
 }  // namespace pointillist

@@ -113,37 +113,38 @@ std::vector<RateDistortionPoint> rateDistortion(std::span<const Splat> allPoints
     p.cutNodes = cut.size();
     p.bitsPerPoint = double(p.prefixNodes) * 13 * 8 / double(points);
     p.bitsWithColor = double(p.prefixNodes) * 18 * 8 / double(points);
-    const std::uint64_t stride = std::max<std::uint64_t>(1, (cutPoints + maxGenerated - 1) / maxGenerated);
+    const std::uint64_t stride =
+        std::max<std::uint64_t>(1, (cutPoints + maxGenerated - 1) / maxGenerated);
     std::mutex mutex;
     double sumQ = 0, sumU = 0;
     std::uint64_t generated = 0;
-    parallelFor(
-        (cut.size() + stride - 1) / stride, threads,
-        [&](std::size_t k) {
-          const Pick pick = cut[k * stride];
-          const CellHierarchy& cell = cells[pick.cell];
-          const PcaNode& node = cell.tree->nodes[pick.node];
-          const StatisticalNode raw = unquantizedNode(node);
-          const StatisticalNode& decoded = cell.decoded[pick.node];
-          double q = 0, u = 0;
-          const std::uint32_t count = std::min<std::uint32_t>(node.pointCount, static_cast<std::uint32_t>(samples.size()));
-          for (std::uint32_t i = 0; i < count; ++i) {
-            for (int pass = 0; pass < 2; ++pass) {
-              const Splat s = generatePoint(pass == 0 ? decoded : raw, samples[i], 0.0f);
-              std::uint32_t index = 0;
-              float d2 = std::numeric_limits<float>::max();
-              nanoflann::KNNResultSet<float, std::uint32_t> result(1);
-              result.init(&index, &d2);
-              tree.findNeighbors(result, s.position, nanoflann::SearchParams(10));
-              (pass == 0 ? q : u) += double(d2);
-            }
-          }
-          std::lock_guard lock(mutex);
-          sumQ += q;
-          sumU += u;
-          generated += count;
-        },
-        16);
+    parallelFor((cut.size() + stride - 1) / stride, threads,
+                [&](std::size_t k) {
+                  const Pick pick = cut[k * stride];
+                  const CellHierarchy& cell = cells[pick.cell];
+                  const PcaNode& node = cell.tree->nodes[pick.node];
+                  const StatisticalNode raw = unquantizedNode(node);
+                  const StatisticalNode& decoded = cell.decoded[pick.node];
+                  double q = 0, u = 0;
+                  const std::uint32_t count = std::min<std::uint32_t>(
+                      node.pointCount, static_cast<std::uint32_t>(samples.size()));
+                  for (std::uint32_t i = 0; i < count; ++i) {
+                    for (int pass = 0; pass < 2; ++pass) {
+                      const Splat s = generatePoint(pass == 0 ? decoded : raw, samples[i], 0.0f);
+                      std::uint32_t index = 0;
+                      float d2 = std::numeric_limits<float>::max();
+                      nanoflann::KNNResultSet<float, std::uint32_t> result(1);
+                      result.init(&index, &d2);
+                      tree.findNeighbors(result, s.position, nanoflann::SearchParams(10));
+                      (pass == 0 ? q : u) += double(d2);
+                    }
+                  }
+                  std::lock_guard lock(mutex);
+                  sumQ += q;
+                  sumU += u;
+                  generated += count;
+                },
+                16);
     p.generated = generated;
     if (generated > 0) {
       p.rmsDistance = std::sqrt(sumQ / double(generated));

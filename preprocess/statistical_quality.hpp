@@ -25,7 +25,7 @@ struct RateDistortionPoint {
   double bitsWithColor = 0.0;     // the whole 18-byte node
   std::uint64_t generated = 0;    // points measured (nodes may be sampled, see maxGenerated)
   double rmsDistance = 0.0;
-  double psnr = 0.0;          // decoded (quantized) nodes
+  double psnr = 0.0;             // decoded (quantized) nodes
   double psnrUnquantized = 0.0;  // the same cut from the unquantized PCA
 };
 

@@ -58,9 +58,9 @@ int run(const std::string& dir, std::uint64_t maxGenerated, const std::string& c
     firstPoint[t] = all.size();
     all.insert(all.end(), packet.begin(), packet.end());
     trees[t] = pp::buildPcaTree(packet, options);
-    auto view = pointillist::decodeStatisticalPacket(
-        dataset.packet(dataset.statisticalPacketId(t)), classes,
-        dir + ": top-level cell " + std::to_string(t));
+    auto view = pointillist::decodeStatisticalPacket(dataset.packet(dataset.statisticalPacketId(t)),
+                                                     classes,
+                                                     dir + ": top-level cell " + std::to_string(t));
     if (view.nodes.size() != trees[t].nodes.size())
       throw InputError(dir + ": top-level cell " + std::to_string(t) + ": the packet holds " +
                        std::to_string(view.nodes.size()) + " nodes, the rebuilt hierarchy " +
@@ -69,21 +69,24 @@ int run(const std::string& dir, std::uint64_t maxGenerated, const std::string& c
   }
   std::vector<pp::CellHierarchy> cells(table.size());
   for (std::uint32_t t = 0; t < table.size(); ++t)
-    cells[t] = {std::span<const pointillist::Splat>(all).subspan(firstPoint[t], table[t].pointCount),
-                &trees[t], decoded[t]};
+    cells[t] = {
+        std::span<const pointillist::Splat>(all).subspan(firstPoint[t], table[t].pointCount),
+        &trees[t], decoded[t]};
   const auto curve = pp::rateDistortion(all, cells, maxGenerated, threads);
   std::printf("%s: %s, %zu points, %zu top-level cells, leaves of < %u points\n", kTool,
               dir.c_str(), all.size(), table.size(), options.leafPoints);
-  std::printf("| depth | cut nodes | nodes to depth | bits/point (position+normal) | bits/point "
-              "(18-byte nodes) | generated | Hausdorff PSNR dB | unquantized PSNR dB |\n");
+  std::printf(
+      "| depth | cut nodes | nodes to depth | bits/point (position+normal) | bits/point "
+      "(18-byte nodes) | generated | Hausdorff PSNR dB | unquantized PSNR dB |\n");
   std::printf("|---|---|---|---|---|---|---|---|\n");
   for (const auto& p : curve)
     std::printf("| %u | %llu | %llu | %.3f | %.3f | %llu | %.2f | %.2f |\n", p.depth,
                 static_cast<unsigned long long>(p.cutNodes),
                 static_cast<unsigned long long>(p.prefixNodes), p.bitsPerPoint, p.bitsWithColor,
                 static_cast<unsigned long long>(p.generated), p.psnr, p.psnrUnquantized);
-  std::printf("seed 004, Lucy (14 M points): 2.52 bits per point for position and normal at "
-              "about 71 dB\n");
+  std::printf(
+      "seed 004, Lucy (14 M points): 2.52 bits per point for position and normal at "
+      "about 71 dB\n");
   if (!csv.empty()) {
     std::ofstream out(csv);
     if (!out) throw InputError(csv + ": cannot write");
@@ -100,12 +103,14 @@ int run(const std::string& dir, std::uint64_t maxGenerated, const std::string& c
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"Rate-distortion curve of a dataset's statistical hierarchies (seed 004 §10.1): "
-               "bits per point against Hausdorff PSNR, cut by cut"};
+  CLI::App app{
+      "Rate-distortion curve of a dataset's statistical hierarchies (seed 004 §10.1): "
+      "bits per point against Hausdorff PSNR, cut by cut"};
   std::string dir, csv;
   std::uint64_t maxGenerated = 2'000'000;
   unsigned threads = 0;
-  app.add_option("dataset", dir, "Dataset directory built with pointillist-preprocess --statistical")
+  app.add_option("dataset", dir,
+                 "Dataset directory built with pointillist-preprocess --statistical")
       ->required();
   app.add_option("--max-generated", maxGenerated,
                  "Generated points measured per depth at most (every k-th node beyond)")

@@ -111,7 +111,7 @@ class SplatRenderer final : public TileRenderer {
 
   // Statistical mode: the class tables its cells' packets decode with. Decoded
   // nodes of every cell are dropped (decoded again with these on next use).
-  void setStatisticalClasses(std::shared_ptr<const ClassTables> classes);
+  void setStatisticalClasses(std::shared_ptr<const ClassTables> classes) override;
   // Draws statistical nodes that are not cached, in any mode's settings (drawn
   // as SplatMode::Statistical): node i is cell 0's node i, with budgets[i] when
   // budgets are given (counts clamped to the sample buffer), otherwise its

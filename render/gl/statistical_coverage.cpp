@@ -33,8 +33,10 @@ StatisticalNode EllipseCoverage::node(float a, float b, float offsetX, float off
   node.mean[1] = offsetY * unitsPerPixel_;
   for (int k = 0; k < 3; ++k)
     node.axes[k][k] = node.normalFrame[k][k] = node.colorAxes[k][k] = 1.0f;
-  node.sigma[0] = a * unitsPerPixel_ / kStatisticalGamma;
-  node.sigma[1] = b * unitsPerPixel_ / kStatisticalGamma;
+  // Seed 004's Table 1 sizes a node by gamma * sigma *across*: the ellipse
+  // to cover is half the node's gamma ellipse (coverageEllipse).
+  node.sigma[0] = 2.0f * a * unitsPerPixel_ / kStatisticalGamma;
+  node.sigma[1] = 2.0f * b * unitsPerPixel_ / kStatisticalGamma;
   node.sigma[2] = 1e-3f * node.sigma[1];  // f3 along the view: no screen extent
   for (float& c : node.color) c = 255.0f;
   return node;

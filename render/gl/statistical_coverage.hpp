@@ -28,7 +28,8 @@ class EllipseCoverage {
   EllipseCoverage(SplatRenderer& renderer, std::uint32_t maxSemiAxis);
 
   const Camera& camera() const { return camera_; }
-  // The node whose gamma ellipse projects to (a, b) pixels at the offset.
+  // The node whose coverage ellipse (half its gamma ellipse, common/
+  // statistical_point_table.hpp) projects to (a, b) pixels at the offset.
   StatisticalNode node(float a, float b, float offsetX, float offsetY) const;
   // Pixels inside the ellipse (a, b) at the offset.
   std::uint32_t insidePixels(float a, float b, float offsetX, float offsetY) const;

@@ -29,6 +29,9 @@ class GlTileRenderer final : public TileRenderer {
   std::span<const float> depths() const override { return renderer_.depths(); }
   void warmUp(const RenderSettings& settings) override { renderer_.warmUp(settings); }
   std::string describe() const override { return renderer_.describe(); }
+  void setStatisticalClasses(std::shared_ptr<const ClassTables> classes) override {
+    renderer_.setStatisticalClasses(std::move(classes));
+  }
 
  private:
   OffscreenContext context_;

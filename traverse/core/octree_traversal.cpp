@@ -179,12 +179,6 @@ TraversalResult traverseTile(std::span<const OctreeCell> cells, const Camera& ca
   return traverseTile(CullingTable(cells, settings.sizeScale), camera, rect, settings);
 }
 
-struct StatisticalCutMemo::Entry {
-  std::string camera;
-  StatisticalCutSettings settings;
-  std::shared_ptr<const StatisticalCut> cut;
-};
-
 StatisticalCutMemo::StatisticalCutMemo(std::shared_ptr<const StatisticalTrees> trees)
     : trees_(std::move(trees)) {}
 

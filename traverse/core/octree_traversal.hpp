@@ -53,7 +53,11 @@ class StatisticalCutMemo {
                                                const StatisticalCutSettings& settings);
 
  private:
-  struct Entry;
+  struct Entry {
+    std::string camera;  // serialized
+    StatisticalCutSettings settings;
+    std::shared_ptr<const StatisticalCut> cut;
+  };
   std::shared_ptr<const StatisticalTrees> trees_;
   std::mutex mutex_;
   std::vector<Entry> recent_;

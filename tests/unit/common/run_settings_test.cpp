@@ -63,8 +63,14 @@ TEST(RunSettings, AFrameMayAskOnlyForWhatTheRunCanDraw) {
   EXPECT_NO_THROW(checkFrameSettings(withSections, frame(v1::RENDER_MODE_INSTANCED)));
   withSections.set_renderer(v1::RENDERER_CPU);
   EXPECT_THROW(checkFrameSettings(withSections, frame(v1::RENDER_MODE_INSTANCED)), UsageError);
-  // Modes not built yet, and levels of detail that are no size.
+  // The statistical mode likewise needs hierarchies and the GL renderer.
   EXPECT_THROW(checkFrameSettings(run(), frame(v1::RENDER_MODE_STATISTICAL)), UsageError);
+  v1::RunSettings withHierarchy = run();
+  withHierarchy.set_statistical_hierarchy(true);
+  EXPECT_NO_THROW(checkFrameSettings(withHierarchy, frame(v1::RENDER_MODE_STATISTICAL)));
+  withHierarchy.set_renderer(v1::RENDERER_CPU);
+  EXPECT_THROW(checkFrameSettings(withHierarchy, frame(v1::RENDER_MODE_STATISTICAL)), UsageError);
+  // Levels of detail that are no size.
   EXPECT_THROW(checkFrameSettings(run(), frame(v1::RENDER_MODE_POINTS, -1.0f)), UsageError);
   EXPECT_THROW(checkFrameSettings(run(), frame(v1::RENDER_MODE_POINTS, NAN)), UsageError);
   v1::FrameSettings unknown;
