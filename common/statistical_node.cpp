@@ -343,19 +343,22 @@ ClassTables decodeClassTables(std::span<const std::byte> bytes, const std::strin
   return t;
 }
 
-StatisticalPacketView decodeStatisticalPacket(std::span<const std::byte> bytes,
-                                              const ClassTables& tables, const std::string& where) {
+void extendStatisticalPacket(StatisticalPacketView& view, std::span<const std::byte> bytes,
+                             const ClassTables& tables, const std::string& where) {
   const std::string at = where + ": statistical packet: ";
-  StatisticalPacketView view;
+  StatisticalPacketHeader header{};
   if (bytes.size() < sizeof(StatisticalPacketHeader))
     throw InputError(at + "only " + std::to_string(bytes.size()) + " bytes, less than a header");
-  std::memcpy(&view.header, bytes.data(), sizeof view.header);
+  std::memcpy(&header, bytes.data(), sizeof header);
+  if (!view.nodes.empty() && std::memcmp(&header, &view.header, sizeof header) != 0)
+    throw InputError(at + "the header changed between two prefixes of the packet");
+  view.header = header;
   const StatisticalPacketHeader& h = view.header;
   if (h.magic != kStatisticalMagic) throw InputError(at + "bad magic number");
   if (h.version != kStatisticalVersion)
     throw InputError(at + "version " + std::to_string(h.version) + ", this build reads " +
                      std::to_string(kStatisticalVersion));
-  for (int k = 0; k < 3; ++k)
+  for (std::size_t k = 0; k < 3; ++k)
     if (!std::isfinite(h.origin[k]) || !std::isfinite(h.extent[k]) || h.extent[k] < 0.0f)
       throw InputError(at + "the root's box is not finite");
   if (h.nodeCount == 0 || h.nodeCount % 2 == 0)
@@ -363,21 +366,26 @@ StatisticalPacketView decodeStatisticalPacket(std::span<const std::byte> bytes,
                      " nodes: a binary hierarchy has an odd number");
   const std::uint64_t available = (bytes.size() - sizeof h) / kStatisticalNodeBytes;
   const auto count = static_cast<std::uint32_t>(std::min<std::uint64_t>(available, h.nodeCount));
+  auto& withChildren = view.withChildren;  // breadth-first: the j-th has children 2j+1, 2j+2
+  const auto from = static_cast<std::uint32_t>(view.nodes.size());
+  if (count <= from) return;
   view.nodes.resize(count);
-  std::vector<std::uint32_t> withChildren;  // breadth-first: the j-th has children 2j+1, 2j+2
-  withChildren.reserve(count / 2 + 1);
-  for (std::uint32_t i = 0; i < count; ++i) {
+  for (std::uint32_t i = from; i < count; ++i) {
     const StatisticalNodeCode code =
         unpackStatisticalNode(bytes.data() + sizeof h + std::size_t{i} * kStatisticalNodeBytes);
     if (code.sigmaClass >= tables.position.size() || code.normalClass >= tables.normal.size() ||
-        code.colorClass >= tables.color.size())
+        code.colorClass >= tables.color.size()) {
+      view.nodes.resize(i);
       throw InputError(at + "node " + std::to_string(i) + " names a class outside the tables");
+    }
     const StatisticalNode* parent = nullptr;
     std::uint32_t parentIndex = 0;
     if (i > 0) {
       const std::uint32_t j = (i - 1) / 2;
-      if (j >= withChildren.size())
+      if (j >= withChildren.size()) {
+        view.nodes.resize(i);
         throw InputError(at + "node " + std::to_string(i) + " has no parent");
+      }
       parentIndex = withChildren[j];
       parent = &view.nodes[parentIndex];
     }
@@ -385,9 +393,11 @@ StatisticalPacketView decodeStatisticalPacket(std::span<const std::byte> bytes,
     view.nodes[i].parent = parentIndex;
     if ((code.flags & kNodeHasChildren) != 0) {
       const std::uint64_t first = 2 * std::uint64_t{withChildren.size()} + 1;
-      if (first + 1 >= h.nodeCount)
+      if (first + 1 >= h.nodeCount) {
+        view.nodes.resize(i);
         throw InputError(at + "node " + std::to_string(i) + "'s children lie beyond the " +
                          std::to_string(h.nodeCount) + " nodes");
+      }
       view.nodes[i].firstChild = static_cast<std::uint32_t>(first);
       withChildren.push_back(i);
     }
@@ -396,6 +406,12 @@ StatisticalPacketView decodeStatisticalPacket(std::span<const std::byte> bytes,
     throw InputError(at + std::to_string(withChildren.size()) + " nodes with children need " +
                      std::to_string(2 * withChildren.size() + 1) + " nodes, the packet has " +
                      std::to_string(h.nodeCount));
+}
+
+StatisticalPacketView decodeStatisticalPacket(std::span<const std::byte> bytes,
+                                              const ClassTables& tables, const std::string& where) {
+  StatisticalPacketView view;
+  extendStatisticalPacket(view, bytes, tables, where);
   return view;
 }
 

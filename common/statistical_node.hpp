@@ -202,6 +202,9 @@ std::uint16_t encodeColor565(const double rgb[3]);
 struct StatisticalPacketView {
   StatisticalPacketHeader header{};
   std::vector<StatisticalNode> nodes;  // the complete nodes of the bytes given
+  // The nodes with children, in order: the decoder's state, so a longer
+  // prefix of the same packet continues where this one ended.
+  std::vector<std::uint32_t> withChildren;
 };
 
 // Decodes every complete node of a packet or packet prefix. Throws InputError
@@ -211,5 +214,11 @@ StatisticalPacketView decodeStatisticalPacket(std::span<const std::byte> bytes,
                                               const ClassTables& tables, const std::string& where);
 StatisticalPacketView decodeStatisticalPacket(std::span<const Splat> records,
                                               const ClassTables& tables, const std::string& where);
+// Decodes the complete nodes of `bytes` (a longer prefix of the packet `view`
+// was decoded from, or any prefix when `view` is empty) that `view` lacks:
+// what a render process does when more of a cached packet arrives. Throws as
+// decodeStatisticalPacket, and InputError when the header changed.
+void extendStatisticalPacket(StatisticalPacketView& view, std::span<const std::byte> bytes,
+                             const ClassTables& tables, const std::string& where);
 
 }  // namespace pointillist

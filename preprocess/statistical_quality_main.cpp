@@ -3,7 +3,9 @@
 // beside the paper's figure for Lucy (2.52 bits per point at 71 dB).
 #include <CLI/CLI.hpp>
 #include <cstdio>
+#include <exception>
 #include <fstream>
+#include <mutex>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -11,6 +13,7 @@
 #include "common/dataset.hpp"
 #include "common/errors.hpp"
 #include "common/tool_entry.hpp"
+#include "preprocess/parallel.hpp"
 #include "preprocess/statistical_quality.hpp"
 
 namespace pp = pointillist::preprocess;
@@ -57,16 +60,32 @@ int run(const std::string& dir, std::uint64_t maxGenerated, const std::string& c
     const auto packet = dataset.packet(t).subspan(pointillist::pointsStart(table[t]));
     firstPoint[t] = all.size();
     all.insert(all.end(), packet.begin(), packet.end());
-    trees[t] = pp::buildPcaTree(packet, options);
-    auto view = pointillist::decodeStatisticalPacket(dataset.packet(dataset.statisticalPacketId(t)),
-                                                     classes,
-                                                     dir + ": top-level cell " + std::to_string(t));
-    if (view.nodes.size() != trees[t].nodes.size())
-      throw InputError(dir + ": top-level cell " + std::to_string(t) + ": the packet holds " +
-                       std::to_string(view.nodes.size()) + " nodes, the rebuilt hierarchy " +
-                       std::to_string(trees[t].nodes.size()) + " (other build options?)");
-    decoded[t] = std::move(view.nodes);
   }
+  // The hierarchies again, one cell per thread as the preprocess built them.
+  std::mutex mutex;
+  std::exception_ptr error;
+  pp::parallelFor(
+      table.size(), threads,
+      [&](std::size_t t) {
+        try {
+          const auto cell = static_cast<std::uint32_t>(t);
+          trees[t] = pp::buildPcaTree(
+              dataset.packet(cell).subspan(pointillist::pointsStart(table[t])), options);
+          auto view = pointillist::decodeStatisticalPacket(
+              dataset.packet(dataset.statisticalPacketId(cell)), classes,
+              dir + ": top-level cell " + std::to_string(t));
+          if (view.nodes.size() != trees[t].nodes.size())
+            throw InputError(dir + ": top-level cell " + std::to_string(t) + ": the packet holds " +
+                             std::to_string(view.nodes.size()) + " nodes, the rebuilt hierarchy " +
+                             std::to_string(trees[t].nodes.size()) + " (other build options?)");
+          decoded[t] = std::move(view.nodes);
+        } catch (...) {
+          std::lock_guard lock(mutex);
+          if (!error) error = std::current_exception();
+        }
+      },
+      1);
+  if (error) std::rethrow_exception(error);
   std::vector<pp::CellHierarchy> cells(table.size());
   for (std::uint32_t t = 0; t < table.size(); ++t)
     cells[t] = {

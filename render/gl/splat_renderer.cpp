@@ -303,7 +303,7 @@ void SplatRenderer::appendToCell(std::uint32_t id, std::span<const Splat> splats
   glDeleteBuffers(1, &cell.buffer);
   cell.buffer = grown;
   cell.count = static_cast<std::uint32_t>(total);
-  cell.statistical.reset();  // the longer prefix holds more nodes
+  cell.statisticalStale = true;  // the longer prefix holds more nodes
   uploadedBytes_ += splats.size_bytes();
 }
 
@@ -803,7 +803,7 @@ void SplatRenderer::setStatisticalSamples(std::vector<GaussianSample> samples) {
 
 const StatisticalPacketView& SplatRenderer::statisticalNodes(const Cell& cell,
                                                              std::uint32_t id) const {
-  if (cell.statistical) return *cell.statistical;
+  if (cell.statistical && !cell.statisticalStale) return *cell.statistical;
   if (!statisticalClasses_) {
     throw UsageError(
         "SplatRenderer: the statistical mode needs the class tables (setStatisticalClasses)");
@@ -817,8 +817,10 @@ const StatisticalPacketView& SplatRenderer::statisticalNodes(const Cell& cell,
     glBindBuffer(GL_ARRAY_BUFFER, 0);
     throwOnGlError("reading a statistical packet");
   }
-  cell.statistical = std::make_shared<const StatisticalPacketView>(decodeStatisticalPacket(
-      std::span<const Splat>(records), *statisticalClasses_, "cell " + std::to_string(id)));
+  if (!cell.statistical) cell.statistical = std::make_shared<StatisticalPacketView>();
+  cell.statisticalStale = false;
+  extendStatisticalPacket(*cell.statistical, std::as_bytes(std::span<const Splat>(records)),
+                          *statisticalClasses_, "cell " + std::to_string(id));
   return *cell.statistical;
 }
 

@@ -142,7 +142,10 @@ class SplatRenderer final : public TileRenderer {
     std::uint32_t count = 0;
     mutable std::unordered_map<std::uint32_t, Section> sections;  // by first record
     // Statistical mode: the packet's nodes, decoded on first use.
-    mutable std::shared_ptr<const StatisticalPacketView> statistical;
+    // Decoded statistical nodes; `stale` when more of the packet arrived since
+    // (decoding goes on from the last node, common/statistical_node.hpp).
+    mutable std::shared_ptr<StatisticalPacketView> statistical;
+    mutable bool statisticalStale = false;
   };
   // One statistical node of a frame: what its instance draws and where it
   // sorts.

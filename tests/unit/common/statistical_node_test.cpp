@@ -248,6 +248,31 @@ TEST(StatisticalNode, PacketsDecodeBreadthFirstAndPrefixesDecodeTheirNodes) {
     EXPECT_EQ(std::memcmp(&prefix.nodes[i], &view.nodes[i], sizeof(StatisticalNode)), 0);
 }
 
+// A render process holds a prefix and receives more: decoding goes on where
+// it stopped and gives the nodes a whole decode gives.
+TEST(StatisticalNode, LongerPrefixesExtendWhatWasDecoded) {
+  const ClassTables tables = someTables();
+  const auto bytes = fiveNodePacket(tables);
+  const auto whole = decodeStatisticalPacket(bytes, tables, "test");
+  StatisticalPacketView view;
+  for (std::uint32_t nodes : {1u, 2u, 2u, 4u, 5u}) {
+    const std::size_t records = statisticalPrefixRecords(nodes);
+    extendStatisticalPacket(view, std::span<const std::byte>(bytes).first(records * 32), tables,
+                            "test");
+    ASSERT_GE(view.nodes.size(), nodes);
+  }
+  ASSERT_EQ(view.nodes.size(), whole.nodes.size());
+  for (std::size_t i = 0; i < whole.nodes.size(); ++i)
+    EXPECT_EQ(std::memcmp(&view.nodes[i], &whole.nodes[i], sizeof(StatisticalNode)), 0) << i;
+  // Another packet's bytes are refused.
+  auto other = bytes;
+  StatisticalPacketHeader h{};
+  std::memcpy(&h, other.data(), sizeof h);
+  h.origin[0] += 1.0f;
+  std::memcpy(other.data(), &h, sizeof h);
+  EXPECT_THROW(extendStatisticalPacket(view, other, tables, "test"), InputError);
+}
+
 TEST(StatisticalNode, DamagedPacketsAreRefusedWithTheirPlace) {
   const ClassTables tables = someTables();
   const auto good = fiveNodePacket(tables);
