@@ -8,6 +8,7 @@
 
 #include <boost/math/special_functions/erf.hpp>
 #include <boost/random/sobol.hpp>
+#include <glm/glm.hpp>
 
 namespace pointillist {
 
@@ -107,6 +108,20 @@ Splat generatePoint(const StatisticalNode& node, const GaussianSample& sample, f
   out.color[3] = 255;
   out.radius = radius;
   return out;
+}
+
+void randomFrame(std::mt19937& rng, float (&axes)[3][3]) {
+  std::normal_distribution<float> g;
+  glm::vec3 x(g(rng), g(rng), g(rng)), y(g(rng), g(rng), g(rng));
+  x = glm::normalize(x);
+  y = glm::normalize(y - glm::dot(x, y) * x);
+  const glm::vec3 z = glm::cross(x, y);
+  for (glm::length_t i = 0; i < 3; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    axes[0][k] = x[i];
+    axes[1][k] = y[i];
+    axes[2][k] = z[i];
+  }
 }
 
 }  // namespace pointillist

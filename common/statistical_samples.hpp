@@ -4,6 +4,7 @@
 // process, so generated points never flicker and a tile equals the same pixels
 // of a whole frame. Sample i of a node is drawn with GaussianSample i.
 #include <cstdint>
+#include <random>
 #include <vector>
 
 #include "common/splat.hpp"
@@ -36,5 +37,9 @@ std::vector<GaussianSample> gaussianSamples(std::uint32_t count,
 // The point `sample` generates from `node` (formulas at StatisticalNode), in
 // float as the vertex shader computes it; alpha 255, radius as given.
 Splat generatePoint(const StatisticalNode& node, const GaussianSample& sample, float radius);
+
+// A random right-handed orthonormal frame (rows): random nodes for tests and
+// pointillist-statistical-table --speed.
+void randomFrame(std::mt19937& rng, float (&axes)[3][3]);
 
 }  // namespace pointillist

@@ -18,26 +18,13 @@
 #include "common/geometry.hpp"
 #include "preprocess/neighbour_grid.hpp"
 #include "preprocess/parallel.hpp"
+#include "preprocess/splat_kd_tree.hpp"
 
 namespace pointillist::preprocess {
 
 namespace {
 
-struct CloudAdaptor {
-  const std::vector<Splat>& splats;
-  std::size_t kdtree_get_point_count() const { return splats.size(); }
-  float kdtree_get_pt(std::uint32_t index, std::size_t dim) const {
-    return splats[index].position[dim];
-  }
-  template <class Box>
-  bool kdtree_get_bbox(Box&) const {
-    return false;
-  }
-};
-
-using KdTree =
-    nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, CloudAdaptor>,
-                                        CloudAdaptor, 3, std::uint32_t>;
+using KdTree = SplatKdTree;
 
 Vec3d position(const Splat& s) {
   return {s.position[0], s.position[1], s.position[2]};
@@ -277,7 +264,7 @@ void estimateNormalsAndRadii(PointCloud& cloud, const NormalOptions& options) {
 
   if (options.progress) options.progress(0, total);  // the search tree's build is ours
   const std::size_t k = std::min(static_cast<std::size_t>(options.neighbours), n - 1);
-  CloudAdaptor adaptor{splats};
+  SplatCloudAdaptor adaptor{splats};
   std::optional<KdTree> tree;
   std::optional<NeighbourGrid> grid;
   if (options.search == NeighbourSearch::KdTree)

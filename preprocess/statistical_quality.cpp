@@ -5,31 +5,12 @@
 #include <cmath>
 #include <limits>
 #include <mutex>
-#include <nanoflann.hpp>
 
 #include "common/statistical_samples.hpp"
 #include "preprocess/parallel.hpp"
+#include "preprocess/splat_kd_tree.hpp"
 
 namespace pointillist::preprocess {
-
-namespace {
-
-struct PointsAdaptor {
-  std::span<const Splat> splats;
-  std::size_t kdtree_get_point_count() const { return splats.size(); }
-  float kdtree_get_pt(std::uint32_t index, std::size_t dim) const {
-    return splats[index].position[dim];
-  }
-  template <class Box>
-  bool kdtree_get_bbox(Box&) const {
-    return false;
-  }
-};
-using KdTree =
-    nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, PointsAdaptor>,
-                                        PointsAdaptor, 3, std::uint32_t>;
-
-}  // namespace
 
 StatisticalNode unquantizedNode(const PcaNode& n) {
   StatisticalNode out{};
@@ -68,8 +49,8 @@ std::vector<RateDistortionPoint> rateDistortion(std::span<const Splat> allPoints
     diagonal += double(high[k] - low[k]) * double(high[k] - low[k]);
   diagonal = std::sqrt(diagonal);
 
-  const PointsAdaptor adaptor{allPoints};
-  KdTree tree(3, adaptor, nanoflann::KDTreeSingleIndexAdaptorParams(16));
+  const SplatCloudAdaptor adaptor{allPoints};
+  SplatKdTree tree(3, adaptor, nanoflann::KDTreeSingleIndexAdaptorParams(16));
   tree.buildIndex();
 
   // Depth of every node, per cell; the deepest overall.

@@ -44,18 +44,6 @@ std::uint32_t worstOverOffsets(EllipseCoverage& coverage, float a, float b, std:
 }
 
 // A random orthonormal frame (columns of a QR of a Gaussian matrix, roughly).
-void randomFrame(std::mt19937& rng, float (&axes)[3][3]) {
-  std::normal_distribution<float> g;
-  glm::vec3 x(g(rng), g(rng), g(rng)), y(g(rng), g(rng), g(rng));
-  x = glm::normalize(x);
-  y = glm::normalize(y - glm::dot(x, y) * x);
-  const glm::vec3 z = glm::cross(x, y);
-  for (int i = 0; i < 3; ++i) {
-    axes[0][i] = x[i];
-    axes[1][i] = y[i];
-    axes[2][i] = z[i];
-  }
-}
 
 void timeFrames(SplatRenderer& renderer, std::uint32_t nodes, std::uint32_t width,
                 std::uint32_t height, float sigmaPixels) {

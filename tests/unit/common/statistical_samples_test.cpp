@@ -17,18 +17,6 @@ namespace {
 
 // Test double: a decoded node built directly (no packet), random orthonormal
 // frames and the given spreads.
-void randomFrame(std::mt19937& rng, float (&axes)[3][3]) {
-  std::normal_distribution<float> g;
-  glm::vec3 x(g(rng), g(rng), g(rng)), y(g(rng), g(rng), g(rng));
-  x = glm::normalize(x);
-  y = glm::normalize(y - glm::dot(x, y) * x);
-  const glm::vec3 z = glm::cross(x, y);
-  for (int i = 0; i < 3; ++i) {
-    axes[0][i] = x[i];
-    axes[1][i] = y[i];
-    axes[2][i] = z[i];
-  }
-}
 
 StatisticalNode randomNode(std::mt19937& rng) {
   std::uniform_real_distribution<float> u(0.0f, 1.0f);

@@ -24,18 +24,6 @@ namespace {
 
 // Test double: decoded nodes built directly (the packet decoder is not this
 // test's subject).
-void randomFrame(std::mt19937& rng, float (&axes)[3][3]) {
-  std::normal_distribution<float> g;
-  glm::vec3 x(g(rng), g(rng), g(rng)), y(g(rng), g(rng), g(rng));
-  x = glm::normalize(x);
-  y = glm::normalize(y - glm::dot(x, y) * x);
-  const glm::vec3 z = glm::cross(x, y);
-  for (int i = 0; i < 3; ++i) {
-    axes[0][i] = x[i];
-    axes[1][i] = y[i];
-    axes[2][i] = z[i];
-  }
-}
 
 std::vector<StatisticalNode> randomNodes(std::size_t count, float sigma, std::uint32_t seed) {
   std::mt19937 rng(seed);
