@@ -184,8 +184,9 @@ class DisplayProcess {
     info.set_top_level_cells(static_cast<std::uint32_t>(manifest.topLevelCount));
     // The modes a client may switch to (set_options): those this job's
     // renderer draws and, with EDL, shades.
-    for (const v1::RenderMode mode : {v1::RENDER_MODE_POINTS, v1::RENDER_MODE_SPLATS,
-                                      v1::RENDER_MODE_BLENDED, v1::RENDER_MODE_INSTANCED}) {
+    for (const v1::RenderMode mode :
+         {v1::RENDER_MODE_POINTS, v1::RENDER_MODE_SPLATS, v1::RENDER_MODE_BLENDED,
+          v1::RENDER_MODE_INSTANCED, v1::RENDER_MODE_STATISTICAL}) {
       v1::FrameSettings frame;
       frame.set_mode(mode);
       try {

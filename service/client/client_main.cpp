@@ -512,8 +512,8 @@ int run(int argc, char** argv) {
   app.add_option("--size", options.size, "Frame size WxH");
   app.add_option("--jpeg-quality", options.jpegQuality, "1-100")->check(CLI::Range(1, 100));
   app.add_option("--mode", options.mode,
-                 "This client's frames: points, splats, blended or instanced (a dataset built with "
-                 "--instanced)");
+                 "This client's frames: points, splats, blended, instanced (a dataset built with "
+                 "--instanced) or statistical (built with --statistical)");
   app.add_option("--lod-pixels", options.lodPixels,
                  "This client's frames: target splat size on screen in pixels")
       ->check(CLI::PositiveNumber);

@@ -26,6 +26,8 @@
 #   instanced a dataset built with --instanced: a client switches to the
 #             instanced mode while another keeps points; info offers it;
 #             both clients' frames equal the reference renderer's
+#   statistical the same for a dataset built with --statistical and the
+#             statistical mode
 #   curve     CURVE with keys from files: an authorized client renders, a client
 #             with another key or without CURVE gets nothing
 #   sigint    SIGINT to the display: clean shutdown of every process
@@ -201,24 +203,27 @@ case "$scenario" in
     ((JOB_CODE == 0)) || fail "the job exited with $JOB_CODE"
     assert_nothing_left
     ;;
-  instanced)
-    # A dataset built with --instanced, a points job: one client switches to
-    # the instanced mode, another keeps points; both get the reference's frames.
+  instanced | statistical)
+    # A dataset built with --instanced (--statistical), a points job: one
+    # client switches to that mode, another keeps points; both get the
+    # reference's frames.
+    mode="$scenario"
     start_service_job
-    "${client[@]}" --name instanced --mode instanced path --camera-path orbit --frames 3 \
-      -o "$WORK/instanced" >"$WORK/instanced.log" 2>&1 ||
-      fail "instanced frames: $(cat "$WORK/instanced.log")"
-    cat "$WORK/instanced.log"
-    grep -q "drawn as instanced, lod 1 px" "$WORK/instanced.log" ||
-      fail "the instanced frames were not drawn as asked"
+    "${client[@]}" --name "$mode" --mode "$mode" path --camera-path orbit --frames 3 \
+      -o "$WORK/$mode" >"$WORK/$mode.log" 2>&1 ||
+      fail "$mode frames: $(cat "$WORK/$mode.log")"
+    cat "$WORK/$mode.log"
+    grep -q "drawn as $mode, lod 1 px" "$WORK/$mode.log" ||
+      fail "the $mode frames were not drawn as asked"
     "${client[@]}" --name points path --camera-path orbit --frames 3 -o "$WORK/points" \
       >"$WORK/points.log" 2>&1 || fail "points frames: $(cat "$WORK/points.log")"
     "${client[@]}" info >"$WORK/info.log" 2>&1 || fail "info"
-    grep -q "available: points, splats, blended, instanced" "$WORK/info.log" ||
-      fail "info does not offer the instanced mode: $(cat "$WORK/info.log")"
+    grep -Eq "available: points, splats, blended(, instanced)?(, statistical)?" "$WORK/info.log" &&
+      grep -q "available: .*$mode" "$WORK/info.log" ||
+      fail "info does not offer the $mode mode: $(cat "$WORK/info.log")"
     "$BIN/pointillist-reference" --dataset "$DATASET" --camera-path orbit --frames 3 \
-      --size 480x270 --mode instanced --compare "$WORK/instanced" "${floors[@]}" ||
-      fail "instanced client's frames"
+      --size 480x270 --mode "$mode" --compare "$WORK/$mode" "${floors[@]}" ||
+      fail "$mode client's frames"
     "$BIN/pointillist-reference" --dataset "$DATASET" --camera-path orbit --frames 3 \
       --size 480x270 --compare "$WORK/points" "${floors[@]}" || fail "points client's frames"
     "${client[@]}" shutdown || fail "shutdown request"
