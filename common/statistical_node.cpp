@@ -217,7 +217,7 @@ void encodeNodeMean(const double mean[3], const StatisticalNode* parent,
     if (parent == nullptr) {
       unit = h.extent[k] > 0.0f ? (mean[k] - double(h.origin[k])) / double(h.extent[k]) : 0.0;
     } else {
-      const double s = double(std::max(parent->sigma[k], kSigmaFloor * parent->sigma[0]));
+      const double s = double(std::max(parent->sigma[k], kMeanRangeFloor * parent->sigma[0]));
       double d = 0.0;
       for (int j = 0; j < 3; ++j)
         d += (mean[j] - double(parent->mean[j])) * double(parent->axes[k][j]);
@@ -246,7 +246,7 @@ StatisticalNode decodeStatisticalNode(const StatisticalNodeCode& c, const Statis
     double offset[3] = {0, 0, 0};
     for (int k = 0; k < 3; ++k) {
       const double unit = c.mean[k] / double((1u << kMeanBits[k]) - 1);
-      const double s = double(std::max(parent->sigma[k], kSigmaFloor * parent->sigma[0]));
+      const double s = double(std::max(parent->sigma[k], kMeanRangeFloor * parent->sigma[0]));
       const double along = (2.0 * unit - 1.0) * double(kChildMeanRange) * s;
       for (int j = 0; j < 3; ++j) offset[j] += along * double(parent->axes[k][j]);
     }

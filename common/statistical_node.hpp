@@ -23,7 +23,7 @@
 //   mean       32  11-11-10: the offset from the parent's decoded mean along the
 //                  parent's decoded axes f1, f2 (11 bits each) and f3 (10 bits),
 //                  each in [-kChildMeanRange, +kChildMeanRange] * parent sigma_k
-//                  (sigma_k floored at kSigmaFloor * sigma_1); the root's in the
+//                  (sigma_k floored at kMeanRangeFloor * sigma_1); the root's in the
 //                  header's box along x, y, z.
 //   frame      24  f3 (smallest spread) as theta 8 bits in [0, pi/2] (f3 and -f3
 //                  are the same Gaussian) and phi 10 bits in [0, 2 pi); psi 6 bits
@@ -51,7 +51,8 @@
 namespace pointillist {
 
 inline constexpr std::uint32_t kStatisticalMagic = 0x4e535450u;  // "PTSN"
-inline constexpr std::uint16_t kStatisticalVersion = 1;
+// 2: child means over +-16 sigma, thin axes floored at sigma_1 / 32.
+inline constexpr std::uint16_t kStatisticalVersion = 2;
 inline constexpr std::size_t kStatisticalNodeBytes = 18;
 inline constexpr std::size_t kStatisticalHeaderBytes = 64;
 // Generated samples lie within this many standard deviations (seed 004 §6.2:
@@ -59,8 +60,13 @@ inline constexpr std::size_t kStatisticalHeaderBytes = 64;
 inline constexpr float kStatisticalGamma = 3.5f;
 // A child's mean lies within this many of its parent's standard deviations
 // along each parent axis (a subset holding a share f of the points has its mean
-// within sigma * sqrt((1 - f) / f) of the parent's: f >= 1/65 fits).
-inline constexpr float kChildMeanRange = 8.0f;
+// within sigma * sqrt((1 - f) / f) of the parent's: f >= 1/257 fits, so an
+// outlier split off a dense cluster by the Euclidean fallback still does).
+inline constexpr float kChildMeanRange = 16.0f;
+// The coding range along a thin axis is at least this share of sigma_1: the
+// frame's angular quantization (a few tenths of a degree) moves in-plane
+// offsets of a flat parent across its normal axis by more than its sigma_3.
+inline constexpr float kMeanRangeFloor = 1.0f / 32.0f;
 inline constexpr float kSigmaFloor = 1.0f / 1024.0f;
 inline constexpr std::uint32_t kPositionClassBits = 12;
 inline constexpr std::uint32_t kNormalClassBits = 12;

@@ -255,14 +255,16 @@ void printStatisticalSummary(const pp::StatisticalStats& s) {
   std::printf(
       "%s: statistical: %s nodes (%s leaves, %.1f points per leaf, depth %u, %llu Euclidean "
       "splits) in %s + classes %s: %.2f bits per point for position and normal (13 of 18 bytes "
-      "a node), %.2f with colour and flags; decoded mean error rms %.4f, max %.3f sigma; sigma "
-      "error rms %.1f %%; tree %.2f s, classes %.2f s, encoding %.2f s\n",
+      "a node), %.2f with colour and flags; decoded mean error rms %.5f, max %.4f of the "
+      "parent's sigma (%llu means clamped to their parent's range); sigma error rms %.1f %%; "
+      "tree %.2f s, classes %.2f s, encoding %.2f s\n",
       kTool, humanCount(nodes).c_str(), humanCount(static_cast<double>(s.leaves)).c_str(),
       points / static_cast<double>(std::max<std::uint64_t>(s.leaves, 1)), s.maxDepth,
       static_cast<unsigned long long>(s.euclideanSplits),
       humanBytes(static_cast<double>(s.packetBytes)).c_str(),
       humanBytes(static_cast<double>(s.classBytes)).c_str(), nodes * 13 * 8 / points,
-      nodes * 18 * 8 / points, s.meanErrorRms, s.meanErrorMax, 100.0 * s.sigmaLogErrorRms,
+      nodes * 18 * 8 / points, s.meanErrorRms, s.meanErrorMax,
+      static_cast<unsigned long long>(s.clampedMeans), 100.0 * s.sigmaLogErrorRms,
       s.treeSeconds, s.classSeconds, s.encodeSeconds);
 }
 

@@ -229,25 +229,37 @@ StatisticalStats addStatisticalPackets(
   parallelFor(count, options.threads, guarded([&](std::size_t k) {
                 EncodedCell cell = encoder.encode(trees[k], headers[k]);
                 double sq = 0, mx = 0, ss = 0;
-                std::uint64_t terms = 0;
+                std::uint64_t terms = 0, clamped = 0;
                 const auto& nodes = trees[k].nodes;
-                for (std::size_t i = 0; i < nodes.size(); ++i) {
+                constexpr double levels[3] = {2047, 2047, 1023};
+                for (std::size_t i = 1; i < nodes.size(); ++i) {
                   const StatisticalNode& d = cell.decoded[i];
+                  const StatisticalNode& p = cell.decoded[nodes[i].parent];
                   const PcaNode& n = nodes[i];
-                  if (n.sigma[0] > 0) {
-                    double e = 0;
+                  // The mean's error in its parent's frame: within half a
+                  // step of the parent's range unless the mean lay outside it.
+                  double e = 0;
+                  bool outside = false;
+                  for (std::size_t a = 0; a < 3; ++a) {
+                    double along = 0;
                     for (std::size_t j = 0; j < 3; ++j)
-                      e += (double(d.mean[j]) - n.mean[j]) * (double(d.mean[j]) - n.mean[j]);
-                    e = std::sqrt(e) / n.sigma[0];
-                    sq += e * e;
-                    mx = std::max(mx, e);
-                    for (std::size_t j = 0; j < 3; ++j)
-                      if (n.sigma[j] > double(kSigmaFloor) * n.sigma[0]) {
-                        const double l = std::log(double(d.sigma[j]) / n.sigma[j]);
-                        ss += l * l;
-                        ++terms;
-                      }
+                      along += (double(d.mean[j]) - n.mean[j]) * double(p.axes[a][j]);
+                    e += along * along;
+                    const double s = double(std::max(p.sigma[a], kMeanRangeFloor * p.sigma[0]));
+                    if (std::abs(along) > (0.5 + 1e-3) * 2 * double(kChildMeanRange) * s / levels[a] +
+                                              1e-6 * double(p.sigma[0]))
+                      outside = true;
                   }
+                  if (outside) ++clamped;
+                  e = std::sqrt(e) / std::max(double(p.sigma[0]), 1e-30);
+                  sq += e * e;
+                  mx = std::max(mx, e);
+                  for (std::size_t j = 0; j < 3; ++j)
+                    if (n.sigma[j] > double(kSigmaFloor) * n.sigma[0]) {
+                      const double l = std::log(double(d.sigma[j]) / n.sigma[j]);
+                      ss += l * l;
+                      ++terms;
+                    }
                 }
                 packets[k] = std::move(cell.bytes);
                 std::lock_guard lock(mutex);
@@ -255,6 +267,7 @@ StatisticalStats addStatisticalPackets(
                 meanMax = std::max(meanMax, mx);
                 sigmaSq += ss;
                 sigmaTerms += terms;
+                stats.clampedMeans += clamped;
                 stats.nodes += nodes.size();
                 for (const PcaNode& n : nodes) {
                   if (n.firstChild == 0) ++stats.leaves;

@@ -24,10 +24,13 @@ struct StatisticalStats {
   std::uint32_t maxDepth = 0;
   std::uint64_t packetBytes = 0;  // statistical.bin
   std::uint64_t classBytes = 0;   // statistical-classes.bin
-  // Decoded against unquantized nodes: the mean's error in units of the
-  // node's own sigma_1 (rms and largest), the position sigmas' relative error (rms of log).
+  // Decoded against unquantized nodes: the mean's error in units of its
+  // parent's sigma_1 (the scale it is coded at; rms and largest), the means
+  // that lay outside their parent's coding range (clamped), the position
+  // sigmas' relative error (rms of log).
   double meanErrorRms = 0.0;
   double meanErrorMax = 0.0;
+  std::uint64_t clampedMeans = 0;
   double sigmaLogErrorRms = 0.0;
   double treeSeconds = 0.0;
   double classSeconds = 0.0;
