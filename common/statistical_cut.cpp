@@ -183,6 +183,40 @@ float reachPixels(float marginPixels) {
   return marginPixels + 0.5f * kStatisticalMaxPointPixels + 0.5f;
 }
 
+// The window rectangle of the corners of the cube around the node's sphere:
+// a perspective projection maps the cube's hull to its corners' hull, which
+// holds the sphere's image. Everything when a corner is not in front of the eye.
+void screenBounds(const glm::mat4& viewProjection, const Camera& camera, const CutNode& n,
+                  StatisticalCut::Node& entry) {
+  constexpr float kEverywhere = 1e30f;
+  entry.low[0] = entry.low[1] = kEverywhere;
+  entry.high[0] = entry.high[1] = -kEverywhere;
+  const float w = static_cast<float>(camera.image_width());
+  const float h = static_cast<float>(camera.image_height());
+  for (int corner = 0; corner < 8; ++corner) {
+    const glm::vec4 p(n.mean[0] + ((corner & 1) ? n.radius : -n.radius),
+                      n.mean[1] + ((corner & 2) ? n.radius : -n.radius),
+                      n.mean[2] + ((corner & 4) ? n.radius : -n.radius), 1.0f);
+    const glm::vec4 clip = viewProjection * p;
+    if (!(clip.w > 1e-6f)) {
+      entry.low[0] = entry.low[1] = -kEverywhere;
+      entry.high[0] = entry.high[1] = kEverywhere;
+      return;
+    }
+    const float x = (clip.x / clip.w * 0.5f + 0.5f) * w;
+    const float y = (clip.y / clip.w * 0.5f + 0.5f) * h;
+    entry.low[0] = std::min(entry.low[0], x);
+    entry.low[1] = std::min(entry.low[1], y);
+    entry.high[0] = std::max(entry.high[0], x);
+    entry.high[1] = std::max(entry.high[1], y);
+  }
+  // A pixel of slack for the rounding of the projection.
+  entry.low[0] -= 1.0f;
+  entry.low[1] -= 1.0f;
+  entry.high[0] += 1.0f;
+  entry.high[1] += 1.0f;
+}
+
 }  // namespace
 
 StatisticalCut cutStatistical(const StatisticalTrees& trees, const Camera& camera,
@@ -194,6 +228,7 @@ StatisticalCut cutStatistical(const StatisticalTrees& trees, const Camera& camer
   const glm::vec3 forward = glm::normalize(cameraTarget(camera) - eye);
   const double focal = focalLengthPixels(camera);
   const float threshold = kStatisticalCutPixels * settings.lodPixels;
+  const glm::mat4 viewProjection = viewProjectionMatrix(camera);
   std::vector<std::uint32_t> stack;
   for (std::uint32_t cell = 0; cell < trees.cellCount(); ++cell) {
     const auto nodes = trees.nodes(cell);
@@ -239,7 +274,9 @@ StatisticalCut cutStatistical(const StatisticalTrees& trees, const Camera& camer
         footprint.major = footprint.minor = static_cast<float>(camera.image_height());
       }
       const std::uint32_t points = statisticalPointBudget(coverageEllipse(footprint)).count;
-      cut.nodes.push_back({cell, i, points});
+      StatisticalCut::Node entry{cell, i, points, {0, 0}, {0, 0}};
+      screenBounds(viewProjection, camera, n, entry);
+      cut.nodes.push_back(entry);
       cut.points += points;
     }
     std::sort(cut.nodes.begin() + static_cast<std::ptrdiff_t>(begin), cut.nodes.end(),
@@ -255,7 +292,16 @@ StatisticalTile statisticalTile(const StatisticalTrees& trees, const Statistical
                                 const StatisticalCutSettings& settings) {
   StatisticalTile tile;
   const FrustumPlanes planes = tilePlanes(camera, rect, reachPixels(settings.marginPixels));
+  const float reach = reachPixels(settings.marginPixels);
+  const float low[2] = {static_cast<float>(rect.x()) - reach, static_cast<float>(rect.y()) - reach};
+  const float high[2] = {static_cast<float>(rect.x() + rect.width()) + reach,
+                         static_cast<float>(rect.y() + rect.height()) + reach};
   for (const StatisticalCut::Node& entry : cut.nodes) {
+    // Most of a frame's nodes lie far from a tile: their rectangles say so
+    // before the sphere test does.
+    if (entry.high[0] < low[0] || entry.low[0] > high[0] || entry.high[1] < low[1] ||
+        entry.low[1] > high[1])
+      continue;
     const CutNode& n = trees.nodes(entry.cell)[entry.node];
     if (sphereOutside(planes, vec(n.mean), n.radius)) continue;
     const std::uint32_t packet = trees.packetId(entry.cell);

@@ -81,6 +81,10 @@ struct StatisticalCut {
     std::uint32_t cell;
     std::uint32_t node;
     std::uint32_t points;  // estimated generated points (the cost function's workload)
+    // Full-frame pixels holding the node's sphere (conservative; the whole
+    // plane when it reaches behind the eye): tiles test this first.
+    float low[2];
+    float high[2];
   };
   std::vector<Node> nodes;  // sorted by (cell, node)
   std::uint64_t points = 0;

@@ -202,6 +202,31 @@ TEST(StatisticalCut, BackFacingHierarchiesAreCulled) {
   EXPECT_FALSE(cutStatistical(trees, below, noCull).nodes.empty());
 }
 
+TEST(StatisticalCut, ScreenRectanglesHoldTheirSpheres) {
+  const auto view = squareTree(12);
+  const StatisticalTrees trees(std::span<const StatisticalPacketView>(&view, 1), 0);
+  std::mt19937_64 rng(23);
+  std::normal_distribution<float> n;
+  for (const float distance : {0.8f, 3.0f, 20.0f}) {
+    const Camera camera = cameraAt(distance);
+    const StatisticalCut cut = cutStatistical(trees, camera, {});
+    ASSERT_FALSE(cut.nodes.empty());
+    for (const auto& entry : cut.nodes) {
+      const CutNode& c = trees.nodes(0)[entry.node];
+      for (int s = 0; s < 20; ++s) {
+        const glm::vec3 d = glm::normalize(glm::vec3(n(rng), n(rng), n(rng)));
+        const glm::vec4 p =
+            projectToWindow(camera, glm::vec3(c.mean[0], c.mean[1], c.mean[2]) + d * c.radius);
+        if (p.w <= 0.0f) continue;
+        EXPECT_GE(p.x, entry.low[0]);
+        EXPECT_LE(p.x, entry.high[0]);
+        EXPECT_GE(p.y, entry.low[1]);
+        EXPECT_LE(p.y, entry.high[1]);
+      }
+    }
+  }
+}
+
 TEST(StatisticalCut, TilesAddUpToTheFramesCut) {
   const auto a = squareTree(12, 1);
   auto b = squareTree(10, 2);
