@@ -69,14 +69,30 @@ void mergeCone(glm::vec3& a1, float& angle1, const glm::vec3& a2, float angle2) 
 
 }  // namespace
 
-bool coneFacesAway(const float axis[3], float angle, const float centre[3], float radius,
-                   const glm::vec3& eye) {
+namespace {
+
+// coneFacesAway from the cone's cosine and sine: the half angle of the view
+// directions onto the sphere enters through its sine r / d, so the sum of the
+// angles needs no asin.
+bool facesAway(const float axis[3], const float cosSin[2], const float centre[3], float radius,
+               const glm::vec3& eye) {
   const glm::vec3 d = eye - vec(centre);
   const float distance = glm::length(d);
   if (!(distance > radius)) return false;
-  const float spread = angle + std::asin(std::min(1.0f, radius / distance));
-  if (spread >= 0.5f * kPi) return false;
-  return glm::dot(vec(axis), d) < -std::sin(spread) * distance;
+  const float sinView = radius / distance;
+  const float cosView = std::sqrt(std::max(0.0f, 1.0f - sinView * sinView));
+  // cos(angle + view) <= 0: the normals and view directions reach 90 degrees.
+  if (cosSin[0] * cosView - cosSin[1] * sinView <= 0.0f) return false;
+  const float sinSpread = cosSin[1] * cosView + cosSin[0] * sinView;
+  return glm::dot(vec(axis), d) < -sinSpread * distance;
+}
+
+}  // namespace
+
+bool coneFacesAway(const float axis[3], float angle, const float centre[3], float radius,
+                   const glm::vec3& eye) {
+  const float cosSin[2] = {std::cos(angle), std::sin(angle)};
+  return facesAway(axis, cosSin, centre, radius, eye);
 }
 
 StatisticalTrees::StatisticalTrees(std::span<const StatisticalPacketView> packets,
@@ -117,6 +133,10 @@ StatisticalTrees::StatisticalTrees(std::span<const StatisticalPacketView> packet
       c.boundRadius = radius;
       store(axis, c.boundAxis);
       c.boundAngle = angle;
+      c.coneCosSin[0] = std::cos(c.coneAngle);
+      c.coneCosSin[1] = std::sin(c.coneAngle);
+      c.boundCosSin[0] = std::cos(angle);
+      c.boundCosSin[1] = std::sin(angle);
     }
     // Breadth-first order: depths never decrease, so each depth ends once.
     std::vector<std::uint32_t> depth(in.size(), 0);
@@ -245,7 +265,7 @@ StatisticalCut cutStatistical(const StatisticalTrees& trees, const Camera& camer
         continue;
       }
       if (settings.backfaceCull &&
-          coneFacesAway(n.boundAxis, n.boundAngle, n.boundCentre, n.boundRadius, eye)) {
+          facesAway(n.boundAxis, n.boundCosSin, n.boundCentre, n.boundRadius, eye)) {
         ++cut.culledBackface;
         continue;
       }
@@ -262,7 +282,7 @@ StatisticalCut cutStatistical(const StatisticalTrees& trees, const Camera& camer
         ++cut.culledFrustum;
         continue;
       }
-      if (settings.backfaceCull && coneFacesAway(n.normal, n.coneAngle, n.mean, n.radius, eye)) {
+      if (settings.backfaceCull && facesAway(n.normal, n.coneCosSin, n.mean, n.radius, eye)) {
         ++cut.culledBackface;
         continue;
       }

@@ -38,6 +38,10 @@ struct CutNode {
   float boundRadius;
   float boundAxis[3];  // a cone holding their normals
   float boundAngle;
+  // Cosine and sine of coneAngle and boundAngle: the walk's cone tests take
+  // no trigonometry.
+  float coneCosSin[2];
+  float boundCosSin[2];
   std::uint32_t firstChild;  // 0: leaf
 };
 
