@@ -122,25 +122,28 @@ void splatAttributes(std::size_t base) {
 constexpr GLuint kTag = 4;
 constexpr GLuint kTranslation = 5;
 
-// statistical_points.vert: a GaussianSample per vertex (locations 0-2), a
-// StatisticalInstance per instance (3-13).
-constexpr GLuint kSampleAttributes = 3;
-constexpr GLuint kFirstInstanceAttribute = 3;
-constexpr GLuint kInstanceAttributes = 11;
+// statistical_points.vert reads each node from a buffer texture of
+// StatisticalInstance records (10 RGBA32F texels; llvmpipe spends about
+// 0.75 us per instance of an instanced draw, and a cut holds about 100 k nodes
+// of 3-13 points) and its samples from a buffer texture of GaussianSample
+// records (2 texels), so a draw of n points per node over m nodes is one
+// glDrawArrays of n * m vertices.
+constexpr GLint kStatisticalNodeUnit = 2;
+constexpr GLint kStatisticalSampleUnit = 3;
+constexpr GLuint kStatisticalAttributes = 14;  // every attribute location the modes use
 struct StatisticalInstance {
-  float mean[4];  // w: point width in pixels
-  float axes[3][3];
-  float normal[3][3];
-  float color[3];
-  float colorAxes[3][3];
+  float mean[4];     // w: point width in pixels
+  float axes[3][4];  // axes[k] * sigma[k]; w: colour channel k
+  float normal[3][4];
+  float colorAxes[3][4];
 };
-static_assert(sizeof(StatisticalInstance) == 34 * sizeof(float));
+static_assert(sizeof(StatisticalInstance) == 40 * sizeof(float));
 
 StatisticalInstance statisticalInstance(const StatisticalNode& node, float pointPixels) {
   StatisticalInstance out{};
   for (int i = 0; i < 3; ++i) {
     out.mean[i] = node.mean[i];
-    out.color[i] = node.color[i];
+    out.axes[i][3] = node.color[i];
     for (int k = 0; k < 3; ++k) {
       out.axes[k][i] = node.axes[k][i] * node.sigma[k];
       out.colorAxes[k][i] = node.colorAxes[k][i] * node.sigmaColor[k];
@@ -151,40 +154,6 @@ StatisticalInstance statisticalInstance(const StatisticalNode& node, float point
   }
   out.mean[3] = pointPixels;
   return out;
-}
-
-// The instance attributes, starting at instance `first` of the bound buffer.
-void statisticalInstanceAttributes(std::size_t first) {
-  constexpr GLsizei stride = sizeof(StatisticalInstance);
-  const std::size_t base = first * sizeof(StatisticalInstance);
-  GLuint location = kFirstInstanceAttribute;
-  glVertexAttribPointer(location++, 4, GL_FLOAT, GL_FALSE, stride,
-                        byteOffset(base + offsetof(StatisticalInstance, mean)));
-  for (std::size_t k = 0; k < 3; ++k) {
-    glVertexAttribPointer(location++, 3, GL_FLOAT, GL_FALSE, stride,
-                          byteOffset(base + offsetof(StatisticalInstance, axes) + k * 12));
-  }
-  for (std::size_t k = 0; k < 3; ++k) {
-    glVertexAttribPointer(location++, 3, GL_FLOAT, GL_FALSE, stride,
-                          byteOffset(base + offsetof(StatisticalInstance, normal) + k * 12));
-  }
-  glVertexAttribPointer(location++, 3, GL_FLOAT, GL_FALSE, stride,
-                        byteOffset(base + offsetof(StatisticalInstance, color)));
-  for (std::size_t k = 0; k < 3; ++k) {
-    glVertexAttribPointer(location++, 3, GL_FLOAT, GL_FALSE, stride,
-                          byteOffset(base + offsetof(StatisticalInstance, colorAxes) + k * 12));
-  }
-}
-
-bool hasExtension(const char* name) {
-  GLint count = 0;
-  glGetIntegerv(GL_NUM_EXTENSIONS, &count);
-  for (GLint i = 0; i < count; ++i) {
-    const auto* extension =
-        reinterpret_cast<const char*>(glGetStringi(GL_EXTENSIONS, static_cast<GLuint>(i)));
-    if (extension != nullptr && std::string(extension) == name) return true;
-  }
-  return false;
 }
 
 }  // namespace
@@ -210,7 +179,6 @@ SplatRenderer::SplatRenderer(OffscreenContext& context)
   GLint bounds[2] = {0, 0};
   glGetIntegerv(GL_VIEWPORT_BOUNDS_RANGE, bounds);
   viewportBoundsMin_ = bounds[0];
-  baseInstance_ = context_.glVersion() >= 42 || hasExtension("GL_ARB_base_instance");
   throwOnGlError("SplatRenderer");
 }
 
@@ -229,6 +197,9 @@ SplatRenderer::~SplatRenderer() {
   }
   for (GLuint buffer : {sampleBuffer_, instanceBuffer_}) {
     if (buffer != 0) glDeleteBuffers(1, &buffer);
+  }
+  for (GLuint texture : {nodeTexture_, sampleTexture_}) {
+    if (texture != 0) glDeleteTextures(1, &texture);
   }
   glDeleteVertexArrays(1, &vertexArray_);
 }
@@ -842,44 +813,40 @@ void SplatRenderer::drawStatistical(std::span<const StatisticalDraw> draws, Rend
     instances.push_back(statisticalInstance(*draw.node, draw.pointPixels));
   }
   if (instanceBuffer_ == 0) glGenBuffers(1, &instanceBuffer_);
-  glBindBuffer(GL_ARRAY_BUFFER, instanceBuffer_);
-  glBufferData(GL_ARRAY_BUFFER, static_cast<GLsizeiptr>(instances.size() * sizeof(instances[0])),
+  glBindBuffer(GL_TEXTURE_BUFFER, instanceBuffer_);
+  glBufferData(GL_TEXTURE_BUFFER, static_cast<GLsizeiptr>(instances.size() * sizeof(instances[0])),
                instances.data(), GL_STREAM_DRAW);
-
-  glBindBuffer(GL_ARRAY_BUFFER, sampleBuffer_);
-  constexpr GLsizei sampleStride = sizeof(GaussianSample);
-  glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, sampleStride,
-                        byteOffset(offsetof(GaussianSample, position)));
-  glVertexAttribPointer(1, 2, GL_FLOAT, GL_FALSE, sampleStride,
-                        byteOffset(offsetof(GaussianSample, normal)));
-  glVertexAttribPointer(2, 3, GL_FLOAT, GL_FALSE, sampleStride,
-                        byteOffset(offsetof(GaussianSample, color)));
-  for (GLuint a = 0; a < kSampleAttributes; ++a) glEnableVertexAttribArray(a);
-  glBindBuffer(GL_ARRAY_BUFFER, instanceBuffer_);
-  for (GLuint a = kFirstInstanceAttribute; a < kFirstInstanceAttribute + kInstanceAttributes; ++a) {
-    glEnableVertexAttribArray(a);
-    glVertexAttribDivisor(a, 1);
-  }
-  statisticalInstanceAttributes(0);
-  // One instanced draw per distinct budget (draws are sorted by it).
+  glBindBuffer(GL_TEXTURE_BUFFER, 0);
+  if (nodeTexture_ == 0) glGenTextures(1, &nodeTexture_);
+  if (sampleTexture_ == 0) glGenTextures(1, &sampleTexture_);
+  // Attached every time: the sample buffer may have been replaced.
+  glActiveTexture(GL_TEXTURE0 + kStatisticalNodeUnit);
+  glBindTexture(GL_TEXTURE_BUFFER, nodeTexture_);
+  glTexBuffer(GL_TEXTURE_BUFFER, GL_RGBA32F, instanceBuffer_);
+  glActiveTexture(GL_TEXTURE0 + kStatisticalSampleUnit);
+  glBindTexture(GL_TEXTURE_BUFFER, sampleTexture_);
+  glTexBuffer(GL_TEXTURE_BUFFER, GL_RGBA32F, sampleBuffer_);
+  glActiveTexture(GL_TEXTURE0);
+  const GLuint program = programs_->statistical;
+  glUniform1i(glGetUniformLocation(program, "statisticalNodes"), kStatisticalNodeUnit);
+  glUniform1i(glGetUniformLocation(program, "statisticalSamples"), kStatisticalSampleUnit);
+  const GLint firstNode = glGetUniformLocation(program, "statisticalFirstNode");
+  const GLint perNode = glGetUniformLocation(program, "statisticalCount");
+  // No vertex arrays: everything comes from gl_VertexID and the textures.
+  for (GLuint a = 0; a < kStatisticalAttributes; ++a) glDisableVertexAttribArray(a);
+  // One draw per distinct budget (draws are sorted by it): node after node,
+  // each node's samples in order, as an instanced draw would order them.
   for (std::size_t i = 0; i < draws.size();) {
     std::size_t j = i + 1;
     while (j < draws.size() && draws[j].count == draws[i].count) ++j;
     const auto vertices = static_cast<GLsizei>(std::min(draws[i].count, sampleCount_));
-    const auto count = static_cast<GLsizei>(j - i);
-    if (baseInstance_) {
-      glDrawArraysInstancedBaseInstance(GL_POINTS, 0, vertices, count, static_cast<GLuint>(i));
-    } else {
-      statisticalInstanceAttributes(i);
-      glDrawArraysInstanced(GL_POINTS, 0, vertices, count);
-    }
+    glUniform1i(firstNode, static_cast<GLint>(i));
+    glUniform1i(perNode, vertices);
+    glDrawArrays(GL_POINTS, 0, vertices * static_cast<GLsizei>(j - i));
     ++stats.drawCalls;
     i = j;
   }
-  for (GLuint a = kFirstInstanceAttribute; a < kFirstInstanceAttribute + kInstanceAttributes; ++a) {
-    glVertexAttribDivisor(a, 0);
-    if (a > kNormal) glDisableVertexAttribArray(a);
-  }
+  for (GLuint a = 0; a <= kNormal; ++a) glEnableVertexAttribArray(a);
 }
 
 RenderStats SplatRenderer::renderNodes(const Camera& camera, const TileRect& rect,

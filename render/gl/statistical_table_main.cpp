@@ -111,8 +111,7 @@ int run(int argc, char** argv) {
 
   OffscreenContext context(1, 1, GlProfile::Compatibility);
   SplatRenderer renderer(context);
-  std::printf("# %s; base instance: %s; points %.0f px wide, gamma %.1f\n",
-              renderer.describe().c_str(), renderer.usesBaseInstance() ? "yes" : "no",
+  std::printf("# %s; points %.0f px wide, gamma %.1f\n", renderer.describe().c_str(),
               static_cast<double>(kStatisticalPointPixels), static_cast<double>(kStatisticalGamma));
   if (speedNodes > 0) {
     timeFrames(renderer, speedNodes, 1280, 720, speedSigma);

@@ -64,13 +64,6 @@ class Statistical : public ::testing::Test {
   SplatRenderer renderer_{context_};
 };
 
-TEST_F(Statistical, UsesBaseInstanceOnLlvmpipe) {
-  EXPECT_GE(context_.glVersion(), 33);
-  if (context_.glVersion() >= 42) {
-    EXPECT_TRUE(renderer_.usesBaseInstance());
-  }
-}
-
 TEST_F(Statistical, TilesMatchTheFullFrameAndSplatsAreTheBudgets) {
   const Camera camera = sceneCamera();
   // Sigmas of a few pixels: budgets from 3 up to hundreds, several draws.
