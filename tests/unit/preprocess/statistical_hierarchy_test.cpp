@@ -6,7 +6,6 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <numbers>
@@ -47,10 +46,6 @@ std::vector<Vec3d> positionsOf(const std::vector<Splat>& points) {
   std::vector<Vec3d> out;
   for (const Splat& s : points) out.push_back(positionOf(s));
   return out;
-}
-
-double seconds(std::chrono::steady_clock::time_point since) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - since).count();
 }
 
 // A jittered grid on [x0, x0 + wx] x [y0, y0 + wy] at height z.
@@ -574,28 +569,5 @@ TEST(StatisticalClasses, NearestClassAgreesWithBruteForce) {
 
 // Timings for the report (no assertion on them: the machine is shared); the
 // results must still hold together.
-TEST(StatisticalHierarchy, TimingsAtPreprocessSizes) {
-  const std::vector<Splat> points = generateScene("city", 100000, 3).splats;
-  StatisticalOptions options;
-  for (const unsigned threads : {1u, 0u}) {
-    options.threads = threads;
-    const auto start = std::chrono::steady_clock::now();
-    const PcaTree tree = buildPcaTree(points, options);
-    std::printf("buildPcaTree: %zu points, %zu nodes, threads %u: %.3f s\n", points.size(),
-                tree.nodes.size(), threads, seconds(start));
-    EXPECT_EQ(tree.nodes[0].pointCount, points.size());
-  }
-
-  std::mt19937_64 rng(21);
-  std::normal_distribution<float> gauss;
-  std::vector<std::array<float, 3>> vectors(262144);
-  for (auto& v : vectors) v = {gauss(rng), 0.5f * gauss(rng), 0.25f * gauss(rng)};
-  const auto start = std::chrono::steady_clock::now();
-  const auto centres = kMeansClasses<3>(vectors, 4096);
-  std::printf("kMeansClasses: %zu vectors, %zu classes: %.3f s\n", vectors.size(), centres.size(),
-              seconds(start));
-  EXPECT_EQ(centres.size(), 4096u);
-}
-
 }  // namespace
 }  // namespace pointillist::preprocess
