@@ -77,14 +77,16 @@ namespace {
 bool facesAway(const float axis[3], const float cosSin[2], const float centre[3], float radius,
                const glm::vec3& eye) {
   const glm::vec3 d = eye - vec(centre);
-  const float distance = glm::length(d);
-  if (!(distance > radius)) return false;
-  const float sinView = radius / distance;
-  const float cosView = std::sqrt(std::max(0.0f, 1.0f - sinView * sinView));
+  const float along = glm::dot(vec(axis), d);
+  if (along >= 0.0f) return false;  // the axis itself faces the eye (most nodes)
+  // With distance L, sin(view) = r / L and cos(view) = sqrt(L^2 - r^2) / L;
+  // both sides below are multiplied by L.
+  const float squared = glm::dot(d, d) - radius * radius;
+  if (!(squared > 0.0f)) return false;  // the eye is inside the sphere
+  const float tangent = std::sqrt(squared);
   // cos(angle + view) <= 0: the normals and view directions reach 90 degrees.
-  if (cosSin[0] * cosView - cosSin[1] * sinView <= 0.0f) return false;
-  const float sinSpread = cosSin[1] * cosView + cosSin[0] * sinView;
-  return glm::dot(vec(axis), d) < -sinSpread * distance;
+  if (cosSin[0] * tangent - cosSin[1] * radius <= 0.0f) return false;
+  return along < -(cosSin[1] * tangent + cosSin[0] * radius);
 }
 
 }  // namespace

@@ -10,6 +10,7 @@
 #include <climits>
 #include <cstddef>
 #include <cstdint>
+#include <cstring>
 #include <exception>
 #include <initializer_list>
 #include <limits>
@@ -557,11 +558,27 @@ RenderStats SplatRenderer::draw(
   };
   // Budget, then cell and node: the frame's global order, which a tile's
   // subset keeps.
-  std::sort(statistical.begin(), statistical.end(),
-            [](const StatisticalDraw& a, const StatisticalDraw& b) {
-              if (a.count != b.count) return a.count < b.count;
-              return a.cell != b.cell ? a.cell < b.cell : a.index < b.index;
-            });
+  const auto byNode = [](const StatisticalDraw& a, const StatisticalDraw& b) {
+    return a.cell != b.cell ? a.cell < b.cell : a.index < b.index;
+  };
+  if (std::is_sorted(statistical.begin(), statistical.end(), byNode)) {
+    // Ranges come in node order: a stable counting sort by budget (at most
+    // kStatisticalMaxSamples) gives the order, in memory kept between tiles.
+    std::vector<std::uint32_t>& starts = statisticalStarts_;
+    starts.assign(kStatisticalMaxSamples + 2, 0);
+    for (const StatisticalDraw& d : statistical)
+      ++starts[std::min(d.count, kStatisticalMaxSamples) + 1];
+    for (std::size_t c = 1; c < starts.size(); ++c) starts[c] += starts[c - 1];
+    statisticalSorted_.resize(statistical.size());
+    for (const StatisticalDraw& d : statistical)
+      statisticalSorted_[starts[std::min(d.count, kStatisticalMaxSamples)]++] = d;
+    std::copy(statisticalSorted_.begin(), statisticalSorted_.end(), statistical.begin());
+  } else {
+    std::sort(statistical.begin(), statistical.end(),
+              [&byNode](const StatisticalDraw& a, const StatisticalDraw& b) {
+                return a.count != b.count ? a.count < b.count : byNode(a, b);
+              });
+  }
   for (const StatisticalDraw& node : statistical) stats.splats += node.count;
   for (const auto& group : groups) {
     for (const DrawRange& range : group.second) {
@@ -733,7 +750,8 @@ RenderStats SplatRenderer::render(const Camera& camera, const TileRect& rect,
 
   context_.makeCurrent();
   const FootprintProjector project(camera);
-  std::vector<StatisticalDraw> draws;
+  std::vector<StatisticalDraw>& draws = statisticalDraws_;  // its capacity kept
+  draws.clear();
   for (const auto& [cell, cellRanges] : groups) {
     for (const DrawRange& range : cellRanges) {
       if (range.count == 0) continue;
@@ -807,15 +825,23 @@ void SplatRenderer::drawStatistical(std::span<const StatisticalDraw> draws, Rend
     samples_.clear();
     samples_.shrink_to_fit();
   }
-  std::vector<StatisticalInstance> instances;
-  instances.reserve(draws.size());
-  for (const StatisticalDraw& draw : draws) {
-    instances.push_back(statisticalInstance(*draw.node, draw.pointPixels));
+  // Memory kept from tile to tile: fresh pages cost more than the copy.
+  static_assert(sizeof(StatisticalInstance) % sizeof(float) == 0);
+  constexpr std::size_t floats = sizeof(StatisticalInstance) / sizeof(float);
+  instanceScratch_.resize(draws.size() * floats);
+  for (std::size_t i = 0; i < draws.size(); ++i) {
+    const StatisticalInstance instance = statisticalInstance(*draws[i].node, draws[i].pointPixels);
+    std::memcpy(instanceScratch_.data() + i * floats, &instance, sizeof instance);
   }
+  const std::size_t bytes = instanceScratch_.size() * sizeof(float);
   if (instanceBuffer_ == 0) glGenBuffers(1, &instanceBuffer_);
   glBindBuffer(GL_TEXTURE_BUFFER, instanceBuffer_);
-  glBufferData(GL_TEXTURE_BUFFER, static_cast<GLsizeiptr>(instances.size() * sizeof(instances[0])),
-               instances.data(), GL_STREAM_DRAW);
+  if (bytes > instanceCapacity_) {
+    instanceCapacity_ = bytes + bytes / 2;
+    glBufferData(GL_TEXTURE_BUFFER, static_cast<GLsizeiptr>(instanceCapacity_), nullptr,
+                 GL_STREAM_DRAW);
+  }
+  glBufferSubData(GL_TEXTURE_BUFFER, 0, static_cast<GLsizeiptr>(bytes), instanceScratch_.data());
   glBindBuffer(GL_TEXTURE_BUFFER, 0);
   if (nodeTexture_ == 0) glGenTextures(1, &nodeTexture_);
   if (sampleTexture_ == 0) glGenTextures(1, &sampleTexture_);

@@ -201,6 +201,11 @@ class SplatRenderer final : public TileRenderer {
   unsigned sampleBuffer_ = 0;
   std::uint32_t sampleCount_ = 0;
   unsigned instanceBuffer_ = 0;
+  std::size_t instanceCapacity_ = 0;  // bytes of instanceBuffer_
+  std::vector<float> instanceScratch_;
+  std::vector<StatisticalDraw> statisticalDraws_;
+  std::vector<StatisticalDraw> statisticalSorted_;
+  std::vector<std::uint32_t> statisticalStarts_;
   unsigned nodeTexture_ = 0;    // buffer textures over instanceBuffer_
   unsigned sampleTexture_ = 0;  // and sampleBuffer_
 };
