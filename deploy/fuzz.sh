@@ -12,7 +12,9 @@
 # fuzz_messages (each MPI message as the roles' cores take it: tile images,
 # render packets, data packets, send orders, render reports, tile tasks) and
 # fuzz_service_request (every
-# client message's parser and checks). Installs clang and libFuzzer when missing, builds them in
+# client message's parser and checks), and fuzz_statistical_packet (a
+# statistical packet decoded whole and in two steps, then cut; the same bytes
+# as class tables). Installs clang and libFuzzer when missing, builds them in
 # build-fuzz/ (only what they need), seeds each corpus from real files
 # (libcgal-demo's scans and meshes, cut to 32 KiB; a small LAS file written
 # here; service requests the Python client's module makes) and runs each
@@ -27,7 +29,7 @@ shift || true
 targets=("$@")
 ((${#targets[@]})) ||
   targets=(fuzz_ply fuzz_xyz fuzz_las fuzz_off fuzz_dataset_manifest fuzz_dataset_files
-    fuzz_messages fuzz_service_request)
+    fuzz_statistical_packet fuzz_messages fuzz_service_request)
 
 POINTILLIST_PACKAGES+=(clang libfuzzer-14-dev)
 install_packages
@@ -175,6 +177,14 @@ for target in "${targets[@]}"; do
         cp "$file" "$corpus/$(echo "$file" | md5sum | cut -c1-12)"
       done ;;
     fuzz_service_request) write_request_seeds "$corpus" ;;
+    fuzz_statistical_packet)
+      # The statistical packets of a small dataset built here (their class
+      # indices are the dataset's, so most name classes the target's small
+      # tables lack: the fuzzer finds its way from there) and its tables.
+      "$build/bin/pointillist-preprocess" --generate city --points 3000 --statistical \
+        -o "$out/$target/dataset" --force --quiet
+      split -b 4096 -d "$out/$target/dataset/statistical.bin" "$corpus/packet-"
+      cp "$out/$target/dataset/statistical-classes.bin" "$corpus/classes" ;;
     fuzz_messages) write_message_seeds "$corpus" ;;
     fuzz_dataset_files)
       # A small dataset the target copies and damages one file at a time; its
