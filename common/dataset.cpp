@@ -390,13 +390,6 @@ void Dataset::loadStatisticalIndex() {
                      kStatisticalPacketsName + " has " + std::to_string(packets->size));
 }
 
-std::uint64_t Dataset::packetRecordCount(std::uint32_t id) const {
-  if (id < topLevel_.size()) return topLevel_[id].byteSize / sizeof(Splat);
-  if (id - topLevel_.size() < statistical_.size())
-    return statistical_[id - topLevel_.size()].records;
-  throw UsageError("packet " + std::to_string(id) + " out of range or table not loaded");
-}
-
 ClassTables Dataset::readStatisticalClasses() const {
   if (manifest_.file(kStatisticalClassesKey) == nullptr)
     throw UsageError(dir_.string() +
@@ -451,44 +444,44 @@ std::vector<std::byte> Dataset::readFile(std::string_view key) const {
   return out;
 }
 
+namespace {
+
+// One packet's records from `file`, verified against its checksum; `what`
+// names the packet in errors.
+std::vector<Splat> readPacketAt(const fs::path& file, std::uint64_t byteOffset,
+                                std::uint64_t records, std::uint64_t checksum,
+                                const std::string& what) {
+  std::ifstream in(file, std::ios::binary);
+  if (!in) throw InputError(file.string() + ": cannot open: " + std::strerror(errno));
+  std::vector<Splat> out(static_cast<std::size_t>(records));
+  const auto bytes = static_cast<std::streamsize>(out.size() * sizeof(Splat));
+  in.seekg(static_cast<std::streamoff>(byteOffset));
+  in.read(reinterpret_cast<char*>(out.data()), bytes);
+  if (!in || in.gcount() != bytes)
+    throw InputError(file.string() + ": " + what + ": short read (truncated file)");
+  if (checksum64(out.data(), out.size() * sizeof(Splat)) != checksum)
+    throw InputError(file.string() + ": " + what + " (bytes " + std::to_string(byteOffset) + "+" +
+                     std::to_string(bytes) + "): checksum mismatch (damaged file)");
+  return out;
+}
+
+}  // namespace
+
 std::vector<Splat> Dataset::readTopLevel(std::uint32_t topLevel) const {
   if (topLevel >= topLevel_.size() && topLevel - topLevel_.size() < statistical_.size()) {
     const std::uint32_t t = topLevel - static_cast<std::uint32_t>(topLevel_.size());
     const StatisticalPacketEntry& e = statistical_[t];
-    const fs::path p = dir_ / manifest_.file(kStatisticalPacketsKey)->name;
-    std::ifstream in(p, std::ios::binary);
-    if (!in) throw InputError(p.string() + ": cannot open: " + std::strerror(errno));
-    std::vector<Splat> out(e.records);
-    const auto bytes = static_cast<std::streamsize>(out.size() * sizeof(Splat));
-    in.seekg(static_cast<std::streamoff>(e.byteOffset));
-    in.read(reinterpret_cast<char*>(out.data()), bytes);
-    if (!in || in.gcount() != bytes)
-      throw InputError(p.string() + ": statistical packet of top-level cell " + std::to_string(t) +
-                       ": short read (truncated file)");
-    if (checksum64(out.data(), out.size() * sizeof(Splat)) != e.checksum)
-      throw InputError(p.string() + ": statistical packet of top-level cell " + std::to_string(t) +
-                       ": checksum mismatch (damaged file)");
-    return out;
+    return readPacketAt(dir_ / manifest_.file(kStatisticalPacketsKey)->name, e.byteOffset,
+                        e.records, e.checksum,
+                        "statistical packet of top-level cell " + std::to_string(t));
   }
   if (topLevel >= topLevel_.size())
     throw UsageError("top-level cell " + std::to_string(topLevel) +
                      " out of range or table not loaded");
   const TopLevelCell& t = topLevel_[topLevel];
-  const fs::path p = dir_ / manifest_.file(kPointsFile.key)->name;
-  std::ifstream in(p, std::ios::binary);
-  if (!in) throw InputError(p.string() + ": cannot open: " + std::strerror(errno));
-  std::vector<Splat> out(static_cast<std::size_t>(t.byteSize / sizeof(Splat)));
-  in.seekg(static_cast<std::streamoff>(t.byteOffset));
-  in.read(reinterpret_cast<char*>(out.data()), static_cast<std::streamsize>(t.byteSize));
-  if (!in || static_cast<std::uint64_t>(in.gcount()) != t.byteSize)
-    throw InputError(p.string() + ": top-level cell " + std::to_string(topLevel) +
-                     ": short read (truncated file)");
-  const std::uint64_t sum = checksum64(out.data(), out.size() * sizeof(Splat));
-  if (sum != packetChecksums_[topLevel])
-    throw InputError(p.string() + ": top-level cell " + std::to_string(topLevel) + " (bytes " +
-                     std::to_string(t.byteOffset) + "+" + std::to_string(t.byteSize) +
-                     "): checksum mismatch (damaged file)");
-  return out;
+  return readPacketAt(dir_ / manifest_.file(kPointsFile.key)->name, t.byteOffset,
+                      t.byteSize / sizeof(Splat), packetChecksums_[topLevel],
+                      "top-level cell " + std::to_string(topLevel));
 }
 
 }  // namespace pointillist

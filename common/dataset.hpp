@@ -96,8 +96,6 @@ class Dataset {
     return static_cast<std::uint32_t>(topLevel_.size()) + topLevel;
   }
   std::span<const StatisticalPacketEntry> statisticalPackets() const { return statistical_; }
-  // Records (32 bytes) of packet `id`.
-  std::uint64_t packetRecordCount(std::uint32_t id) const;  // needs TopLevel
 
   // Reads one packet (a top-level cell's from points.bin, a statistical one
   // from statistical.bin) and verifies its checksum (throws InputError on a

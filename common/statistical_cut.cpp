@@ -102,53 +102,55 @@ StatisticalTrees::StatisticalTrees(std::span<const StatisticalPacketView> packet
     : firstPacketId_(firstPacketId) {
   first_.push_back(0);
   firstLevel_.push_back(0);
-  for (const StatisticalPacketView& packet : packets) {
-    const auto& in = packet.nodes;
-    if (in.size() != packet.header.nodeCount)
-      throw Error("internal error: the cut needs whole statistical packets");
-    const std::size_t base = nodes_.size();
-    nodes_.resize(base + in.size());
-    CutNode* out = nodes_.data() + base;
-    for (std::size_t i = 0; i < in.size(); ++i) {
-      const StatisticalNode& n = in[i];
-      CutNode& c = out[i];
-      std::copy(n.mean, n.mean + 3, c.mean);
-      c.radius = kStatisticalGamma * n.sigma[0];
-      c.minorRadius = kStatisticalGamma * n.sigma[1];
-      std::copy(n.normalFrame[2], n.normalFrame[2] + 3, c.normal);
-      c.coneAngle = std::min(kPi, kStatisticalGamma * n.sigmaNormal[0]);
-      c.firstChild = n.firstChild;
-    }
-    // Bounds bottom-up: children come after their parent.
-    for (std::size_t i = in.size(); i-- > 0;) {
-      CutNode& c = out[i];
-      glm::vec3 centre = vec(c.mean), axis = vec(c.normal);
-      float radius = c.radius, angle = c.coneAngle;
-      if (c.firstChild != 0) {
-        for (std::uint32_t k = 0; k < 2; ++k) {
-          const CutNode& child = out[c.firstChild + k];
-          mergeSphere(centre, radius, vec(child.boundCentre), child.boundRadius);
-          mergeCone(axis, angle, vec(child.boundAxis), child.boundAngle);
-        }
-      }
-      store(centre, c.boundCentre);
-      c.boundRadius = radius;
-      store(axis, c.boundAxis);
-      c.boundAngle = angle;
-      c.coneCosSin[0] = std::cos(c.coneAngle);
-      c.coneCosSin[1] = std::sin(c.coneAngle);
-      c.boundCosSin[0] = std::cos(angle);
-      c.boundCosSin[1] = std::sin(angle);
-    }
-    // Breadth-first order: depths never decrease, so each depth ends once.
-    std::vector<std::uint32_t> depth(in.size(), 0);
-    for (std::size_t i = 1; i < in.size(); ++i) depth[i] = depth[in[i].parent] + 1;
-    for (std::size_t i = 0; i < in.size(); ++i)
-      if (i + 1 == in.size() || depth[i + 1] != depth[i])
-        levelEnds_.push_back(statisticalPrefixRecords(static_cast<std::uint32_t>(i + 1)));
-    first_.push_back(nodes_.size());
-    firstLevel_.push_back(levelEnds_.size());
+  for (const StatisticalPacketView& packet : packets) addPacket(packet);
+}
+
+void StatisticalTrees::addPacket(const StatisticalPacketView& packet) {
+  const auto& in = packet.nodes;
+  if (in.size() != packet.header.nodeCount)
+    throw Error("internal error: the cut needs whole statistical packets");
+  const std::size_t base = nodes_.size();
+  nodes_.resize(base + in.size());
+  CutNode* out = nodes_.data() + base;
+  for (std::size_t i = 0; i < in.size(); ++i) {
+    const StatisticalNode& n = in[i];
+    CutNode& c = out[i];
+    std::copy(n.mean, n.mean + 3, c.mean);
+    c.radius = kStatisticalGamma * n.sigma[0];
+    c.minorRadius = kStatisticalGamma * n.sigma[1];
+    std::copy(n.normalFrame[2], n.normalFrame[2] + 3, c.normal);
+    c.coneAngle = std::min(kPi, kStatisticalGamma * n.sigmaNormal[0]);
+    c.firstChild = n.firstChild;
   }
+  // Bounds bottom-up: children come after their parent.
+  for (std::size_t i = in.size(); i-- > 0;) {
+    CutNode& c = out[i];
+    glm::vec3 centre = vec(c.mean), axis = vec(c.normal);
+    float radius = c.radius, angle = c.coneAngle;
+    if (c.firstChild != 0) {
+      for (std::uint32_t k = 0; k < 2; ++k) {
+        const CutNode& child = out[c.firstChild + k];
+        mergeSphere(centre, radius, vec(child.boundCentre), child.boundRadius);
+        mergeCone(axis, angle, vec(child.boundAxis), child.boundAngle);
+      }
+    }
+    store(centre, c.boundCentre);
+    c.boundRadius = radius;
+    store(axis, c.boundAxis);
+    c.boundAngle = angle;
+    c.coneCosSin[0] = std::cos(c.coneAngle);
+    c.coneCosSin[1] = std::sin(c.coneAngle);
+    c.boundCosSin[0] = std::cos(angle);
+    c.boundCosSin[1] = std::sin(angle);
+  }
+  // Breadth-first order: depths never decrease, so each depth ends once.
+  std::vector<std::uint32_t> depth(in.size(), 0);
+  for (std::size_t i = 1; i < in.size(); ++i) depth[i] = depth[in[i].parent] + 1;
+  for (std::size_t i = 0; i < in.size(); ++i)
+    if (i + 1 == in.size() || depth[i + 1] != depth[i])
+      levelEnds_.push_back(statisticalPrefixRecords(static_cast<std::uint32_t>(i + 1)));
+  first_.push_back(nodes_.size());
+  firstLevel_.push_back(levelEnds_.size());
 }
 
 std::shared_ptr<const StatisticalTrees> StatisticalTrees::load(const Dataset& dataset) {
@@ -168,21 +170,9 @@ std::shared_ptr<const StatisticalTrees> StatisticalTrees::load(const Dataset& da
         static_cast<std::size_t>(entries[t].byteOffset), std::size_t{entries[t].records} * 32);
     const StatisticalPacketView view =
         decodeStatisticalPacket(packet, classes, where + ": top-level cell " + std::to_string(t));
-    const StatisticalTrees one(std::span<const StatisticalPacketView>(&view, 1), 0);
-    trees->append(one);
+    trees->addPacket(view);
   }
   return trees;
-}
-
-void StatisticalTrees::append(const StatisticalTrees& other) {
-  for (std::uint32_t c = 0; c < other.cellCount(); ++c) {
-    const auto n = other.nodes(c);
-    nodes_.insert(nodes_.end(), n.begin(), n.end());
-    first_.push_back(nodes_.size());
-    const auto l = other.levelEnds(c);
-    levelEnds_.insert(levelEnds_.end(), l.begin(), l.end());
-    firstLevel_.push_back(levelEnds_.size());
-  }
 }
 
 std::span<const CutNode> StatisticalTrees::nodes(std::uint32_t cell) const {

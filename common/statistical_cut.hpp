@@ -62,8 +62,8 @@ class StatisticalTrees {
   // Per depth, the packet prefix (records) holding every node down to it.
   std::span<const std::uint32_t> levelEnds(std::uint32_t cell) const;
   std::uint64_t nodeCount() const { return nodes_.size(); }
-  // Adds `other`'s cells after this one's.
-  void append(const StatisticalTrees& other);
+  // Adds the next top-level cell's whole decoded packet.
+  void addPacket(const StatisticalPacketView& packet);
 
  private:
   std::uint32_t firstPacketId_;

@@ -264,8 +264,8 @@ void printStatisticalSummary(const pp::StatisticalStats& s) {
       humanBytes(static_cast<double>(s.packetBytes)).c_str(),
       humanBytes(static_cast<double>(s.classBytes)).c_str(), nodes * 13 * 8 / points,
       nodes * 18 * 8 / points, s.meanErrorRms, s.meanErrorMax,
-      static_cast<unsigned long long>(s.clampedMeans), 100.0 * s.sigmaLogErrorRms,
-      s.treeSeconds, s.classSeconds, s.encodeSeconds);
+      static_cast<unsigned long long>(s.clampedMeans), 100.0 * s.sigmaLogErrorRms, s.treeSeconds,
+      s.classSeconds, s.encodeSeconds);
 }
 
 // Opens the dataset as a traverse would (manifest, sizes, cell array), then

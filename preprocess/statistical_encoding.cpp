@@ -6,9 +6,9 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
-#include <string>
 #include <exception>
 #include <mutex>
+#include <string>
 #include <thread>
 
 #include "common/checksum.hpp"
@@ -226,60 +226,61 @@ StatisticalStats addStatisticalPackets(
   std::vector<std::vector<std::byte>> packets(count);
   double meanSq = 0, meanMax = 0, sigmaSq = 0;
   std::uint64_t sigmaTerms = 0;
-  parallelFor(count, options.threads, guarded([&](std::size_t k) {
-                EncodedCell cell = encoder.encode(trees[k], headers[k]);
-                double sq = 0, mx = 0, ss = 0;
-                std::uint64_t terms = 0, clamped = 0;
-                const auto& nodes = trees[k].nodes;
-                constexpr double levels[3] = {2047, 2047, 1023};
-                for (std::size_t i = 1; i < nodes.size(); ++i) {
-                  const StatisticalNode& d = cell.decoded[i];
-                  const StatisticalNode& p = cell.decoded[nodes[i].parent];
-                  const PcaNode& n = nodes[i];
-                  // The mean's error in its parent's frame: within half a
-                  // step of the parent's range unless the mean lay outside it.
-                  double e = 0;
-                  bool outside = false;
-                  for (std::size_t a = 0; a < 3; ++a) {
-                    double along = 0;
-                    for (std::size_t j = 0; j < 3; ++j)
-                      along += (double(d.mean[j]) - n.mean[j]) * double(p.axes[a][j]);
-                    e += along * along;
-                    const double s = double(std::max(p.sigma[a], kMeanRangeFloor * p.sigma[0]));
-                    if (std::abs(along) > (0.5 + 1e-3) * 2 * double(kChildMeanRange) * s / levels[a] +
-                                              1e-6 * double(p.sigma[0]))
-                      outside = true;
-                  }
-                  if (outside) ++clamped;
-                  e = std::sqrt(e) / std::max(double(p.sigma[0]), 1e-30);
-                  sq += e * e;
-                  mx = std::max(mx, e);
-                  for (std::size_t j = 0; j < 3; ++j)
-                    if (n.sigma[j] > double(kSigmaFloor) * n.sigma[0]) {
-                      const double l = std::log(double(d.sigma[j]) / n.sigma[j]);
-                      ss += l * l;
-                      ++terms;
-                    }
-                }
-                packets[k] = std::move(cell.bytes);
-                std::lock_guard lock(mutex);
-                meanSq += sq;
-                meanMax = std::max(meanMax, mx);
-                sigmaSq += ss;
-                sigmaTerms += terms;
-                stats.clampedMeans += clamped;
-                stats.nodes += nodes.size();
-                for (const PcaNode& n : nodes) {
-                  if (n.firstChild == 0) ++stats.leaves;
-                  if (n.euclideanSplit) ++stats.euclideanSplits;
-                }
-                std::vector<std::uint32_t> depth(nodes.size(), 0);
-                for (std::size_t i = 1; i < nodes.size(); ++i) {
-                  depth[i] = depth[nodes[i].parent] + 1;
-                  stats.maxDepth = std::max(stats.maxDepth, depth[i]);
-                }
-              }),
-              1);
+  parallelFor(
+      count, options.threads, guarded([&](std::size_t k) {
+        EncodedCell cell = encoder.encode(trees[k], headers[k]);
+        double sq = 0, mx = 0, ss = 0;
+        std::uint64_t terms = 0, clamped = 0;
+        const auto& nodes = trees[k].nodes;
+        constexpr double levels[3] = {2047, 2047, 1023};
+        for (std::size_t i = 1; i < nodes.size(); ++i) {
+          const StatisticalNode& d = cell.decoded[i];
+          const StatisticalNode& p = cell.decoded[nodes[i].parent];
+          const PcaNode& n = nodes[i];
+          // The mean's error in its parent's frame: within half a
+          // step of the parent's range unless the mean lay outside it.
+          double e = 0;
+          bool outside = false;
+          for (std::size_t a = 0; a < 3; ++a) {
+            double along = 0;
+            for (std::size_t j = 0; j < 3; ++j)
+              along += (double(d.mean[j]) - n.mean[j]) * double(p.axes[a][j]);
+            e += along * along;
+            const double s = double(std::max(p.sigma[a], kMeanRangeFloor * p.sigma[0]));
+            if (std::abs(along) > (0.5 + 1e-3) * 2 * double(kChildMeanRange) * s / levels[a] +
+                                      1e-6 * double(p.sigma[0]))
+              outside = true;
+          }
+          if (outside) ++clamped;
+          e = std::sqrt(e) / std::max(double(p.sigma[0]), 1e-30);
+          sq += e * e;
+          mx = std::max(mx, e);
+          for (std::size_t j = 0; j < 3; ++j)
+            if (n.sigma[j] > double(kSigmaFloor) * n.sigma[0]) {
+              const double l = std::log(double(d.sigma[j]) / n.sigma[j]);
+              ss += l * l;
+              ++terms;
+            }
+        }
+        packets[k] = std::move(cell.bytes);
+        std::lock_guard lock(mutex);
+        meanSq += sq;
+        meanMax = std::max(meanMax, mx);
+        sigmaSq += ss;
+        sigmaTerms += terms;
+        stats.clampedMeans += clamped;
+        stats.nodes += nodes.size();
+        for (const PcaNode& n : nodes) {
+          if (n.firstChild == 0) ++stats.leaves;
+          if (n.euclideanSplit) ++stats.euclideanSplits;
+        }
+        std::vector<std::uint32_t> depth(nodes.size(), 0);
+        for (std::size_t i = 1; i < nodes.size(); ++i) {
+          depth[i] = depth[nodes[i].parent] + 1;
+          stats.maxDepth = std::max(stats.maxDepth, depth[i]);
+        }
+      }),
+      1);
   if (error) std::rethrow_exception(error);
   stats.encodeSeconds = seconds(start);
   if (stats.nodes > 0) stats.meanErrorRms = std::sqrt(meanSq / double(stats.nodes));

@@ -854,10 +854,10 @@ void SplatRenderer::drawStatistical(std::span<const StatisticalDraw> draws, Rend
   glTexBuffer(GL_TEXTURE_BUFFER, GL_RGBA32F, sampleBuffer_);
   glActiveTexture(GL_TEXTURE0);
   const GLuint program = programs_->statistical;
-  glUniform1i(glGetUniformLocation(program, "statisticalNodes"), kStatisticalNodeUnit);
-  glUniform1i(glGetUniformLocation(program, "statisticalSamples"), kStatisticalSampleUnit);
-  const GLint firstNode = glGetUniformLocation(program, "statisticalFirstNode");
-  const GLint perNode = glGetUniformLocation(program, "statisticalCount");
+  glUniform1i(uniform(program, "statisticalNodes"), kStatisticalNodeUnit);
+  glUniform1i(uniform(program, "statisticalSamples"), kStatisticalSampleUnit);
+  const GLint firstNode = uniform(program, "statisticalFirstNode");
+  const GLint perNode = uniform(program, "statisticalCount");
   // No vertex arrays: everything comes from gl_VertexID and the textures.
   for (GLuint a = 0; a < kStatisticalAttributes; ++a) glDisableVertexAttribArray(a);
   // One draw per distinct budget (draws are sorted by it): node after node,

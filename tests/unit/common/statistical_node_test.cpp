@@ -185,8 +185,7 @@ TEST(StatisticalNode, ChildMeansAreCodedRelativeToTheDecodedParent) {
       double d = 0;
       for (std::size_t j = 0; j < 3; ++j)
         d += (double(decoded.mean[j]) - child[j]) * double(parent.axes[k][j]);
-      const double s =
-          std::max(double(parent.sigma[k]), double(kMeanRangeFloor * parent.sigma[0]));
+      const double s = std::max(double(parent.sigma[k]), double(kMeanRangeFloor * parent.sigma[0]));
       EXPECT_LE(std::abs(d), double(kChildMeanRange) * s / levels[k] + 1e-5) << k;
     }
     // Position sigmas are ratios to the parent's largest.
