@@ -41,7 +41,13 @@ v1::Scheduler parseScheduler(const std::string& name) {
   if (name == "round-robin") return v1::SCHEDULER_ROUND_ROBIN;
   if (name == "static") return v1::SCHEDULER_STATIC;
   if (name == "equalizer") return v1::SCHEDULER_EQUALIZER;
-  throw UsageError("scheduler '" + name + "' is not one of: cost, round-robin, static, equalizer");
+  if (name == "regions") return v1::SCHEDULER_REGIONS;
+  throw UsageError("scheduler '" + name +
+                   "' is not one of: cost, regions, round-robin, static, equalizer");
+}
+
+std::uint32_t tileTasksAhead(const v1::RunSettings& settings) {
+  return settings.tile_tasks_ahead() > 0 ? settings.tile_tasks_ahead() : kDefaultTileTasksAhead;
 }
 
 const char* schedulerName(v1::Scheduler scheduler) {
@@ -54,6 +60,8 @@ const char* schedulerName(v1::Scheduler scheduler) {
       return "static";
     case v1::SCHEDULER_EQUALIZER:
       return "equalizer";
+    case v1::SCHEDULER_REGIONS:
+      return "regions";
     default:
       return "unknown";
   }

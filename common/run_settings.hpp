@@ -16,8 +16,14 @@ inline constexpr v1::CostModel kDefaultCostModel = v1::COST_MODEL_PAPER;
 v1::CostModel parseCostModel(const std::string& name);
 const char* costModelName(v1::CostModel model);
 
-// "cost" | "round-robin" | "static" | "equalizer"; a UsageError names the accepted ones.
+// "cost" | "regions" | "round-robin" | "static" | "equalizer"; a UsageError names the accepted
+// ones.
 v1::Scheduler parseScheduler(const std::string& name);
+// Tile requests a traverse process keeps at the display: with one, every tile
+// waits a request's round trip, which caps a job at T / (round trip + walk)
+// tiles per second (docs/scheduling.md).
+inline constexpr std::uint32_t kDefaultTileTasksAhead = 2;
+std::uint32_t tileTasksAhead(const v1::RunSettings& settings);
 const char* schedulerName(v1::Scheduler scheduler);
 
 // What draws: "auto" | "gl" | "cpu"; a UsageError names the accepted ones.

@@ -16,7 +16,7 @@
 #
 # --dataset city generates the built-in scene with --points N points (default
 # 2000000) into datasets/city-N unless it is there already. Schedulers default
-# to cost,round-robin,static,equalizer (the job option --scheduler NAME).
+# to cost,regions,round-robin,static,equalizer (the job option --scheduler NAME).
 # Each run goes to OUT/<scheduler>/ (stats.json, *.csv, run.log, and the PNG
 # frames with --save-frames: off by default, because the display's PNG encoding
 # competes with the render processes for the CPU and would dominate the figures);
@@ -43,7 +43,7 @@ layout="1,2,1,4"
 camera="orbit"
 frames=48
 size="1280x720"
-schedulers="cost,round-robin,static,equalizer"
+schedulers="cost,regions,round-robin,static,equalizer"
 out="out/bench-loadbalance"
 points=""
 save_frames=0

@@ -4,18 +4,23 @@
 # counts, per scheduler, by driving the roles' own decision cores (display,
 # traverse, data-send, render) with modelled time and network
 # (pointillist-simulate; no MPI job is started). Prints the table with the
-# model's assumptions.
+# model's assumptions, then a recommended layout (T, S) per scheduler and R:
+# the fewest traverse and data-send processes within 5 % of the best frame
+# rate swept, and what limits the job there (traverse, display, network,
+# render or round trips).
 #
 #   deploy/simulate.sh [--dataset D] [--camera-path orbit] [--frames 16] [--size 1280x720]
 #       [--renders 8,16,...,1024] [--traverses 1,2,4,8] [--datasends auto]
-#       [--scheduler cost,round-robin,static,equalizer] [--calibrate RUN_DIR]
+#       [--scheduler cost,regions,round-robin,static,equalizer] [--calibrate RUN_DIR]
 #       [--points N] [--out DIR] [-- more pointillist-simulate options]
 #
 # --dataset defaults to datasets/city-N (N = --points, default 2000000), the
 # built-in city scene, generated first when it is not there. --calibrate takes
 # T_s (render seconds per splat) from a deploy/bench-loadbalance.sh output
 # directory; other rates are options of pointillist-simulate (see its --help),
-# e.g. -- --bandwidth-mbs 1170 --latency-us 5 --cost-model overlap,paper.
+# e.g. -- --bandwidth-mbs 1170 --latency-us 5 --cost-model overlap,paper, or
+# -- --display-bandwidth-mbs 1170 (the display on 10 GbE, the rest on 1 GbE)
+# --tile-tasks-ahead 1 (each traverse asks for one tile at a time, as before).
 # OUT (default out/simulate) gets simulate.csv (every figure, raw units),
 # report.md (assumptions, table, plots), table.txt (what is printed) and:
 #   fps.png        steady frames/s vs render processes, one line per scheduler
@@ -42,7 +47,7 @@ size="1280x720"
 renders="8,16,32,64,128,256,512,1024"
 traverses="1,2,4,8"
 datasends="auto"
-schedulers="cost,round-robin,static,equalizer"
+schedulers="cost,regions,round-robin,static,equalizer"
 calibrate=""
 points=2000000
 out="out/simulate"

@@ -55,6 +55,7 @@ struct DisplayOptions {
   bool equalTiles = false;
   std::string costModel = costModelName(kDefaultCostModel);
   std::uint32_t prefetchFrames = 0;
+  std::uint32_t tileTasksAhead = kDefaultTileTasksAhead;
   bool quiet = false;
   // Serve mode: frames are asked for by clients over ZeroMQ.
   bool serve = false;
@@ -106,6 +107,7 @@ v1::RunSettings runSettings(const DisplayOptions& options, const DatasetManifest
   settings.set_backface_cull(!options.view.noBackfaceCull);
   settings.set_scheduler(schedulerMessage(parseSchedulerKind(options.scheduler)));
   settings.set_cost_model(parseCostModel(options.costModel));
+  settings.set_tile_tasks_ahead(options.tileTasksAhead);
   settings.set_unlit(options.view.unlit);
   settings.set_renderer(parseRenderer(options.view.renderer));
   (void)resolveRenderer(settings.renderer(), settings.mode());  // a mismatch fails here
@@ -669,8 +671,13 @@ int runDisplayMain(int argc, char** argv) {
                  "Write the statistics so far this often during the run (0: only at the end)")
       ->capture_default_str();
   app.add_option("--scheduler", options.scheduler,
-                 "How tiles are given to render processes: cost (seed 003), round-robin, "
-                 "static, equalizer");
+                 "How tiles are given to render processes: cost (seed 003), regions (one "
+                 "screen region per render, cut by last frame's work), round-robin, static, "
+                 "equalizer");
+  app.add_option("--tile-tasks-ahead", options.tileTasksAhead,
+                 "Tile requests each traverse process keeps at the display (1: one at a time)")
+      ->check(CLI::Range(1, 64))
+      ->capture_default_str();
   app.add_option("--cost-model", options.costModel,
                  "Cost scheduler: paper (seed 003: transfer time adds to the queue, default) or "
                  "overlap (transfers overlap queued work)");

@@ -93,6 +93,7 @@ int run(int argc, char** argv) {
   double secondsPerSplat = 0.0;
   double packetOverheadMs = p.packetOverheadSeconds * 1e3;
   double bandwidthMBs = p.bandwidthBytesPerSecond / 1e6;
+  double displayBandwidthMBs = 0.0;
   double latencyUs = p.latencySeconds * 1e6;
   double traverseSecondsPerCell = 0.0;
   double traverseTileUs = p.traverseTileSeconds * 1e6;
@@ -109,7 +110,8 @@ int run(int argc, char** argv) {
   app.add_option("--traverses", traverses, "Traverse process counts")->delimiter(',');
   app.add_option("--datasends", datasends, "Data-send process counts, or auto (renders/4)")
       ->delimiter(',');
-  app.add_option("--scheduler", schedulers, "cost, round-robin, static, equalizer")->delimiter(',');
+  app.add_option("--scheduler", schedulers, "cost, regions, round-robin, static, equalizer")
+      ->delimiter(',');
   app.add_option("--cost-model", costModels,
                  "Cost scheduler: paper (seed 003, runtime default), overlap, or both")
       ->delimiter(',');
@@ -127,6 +129,13 @@ int run(int argc, char** argv) {
   app.add_option("--packet-overhead-ms", packetOverheadMs, "Render time per packet besides splats")
       ->capture_default_str();
   app.add_option("--bandwidth-mbs", bandwidthMBs, "Link bandwidth in MB/s (117: 1 GbE)")
+      ->capture_default_str();
+  app.add_option("--display-bandwidth-mbs", displayBandwidthMBs,
+                 "The display's link in MB/s, where tile images come in (1170: 10 GbE; 0: as "
+                 "--bandwidth-mbs)")
+      ->capture_default_str();
+  app.add_option("--tile-tasks-ahead", sweep.tileTasksAhead,
+                 "Tile requests each traverse process keeps at the display (1: one at a time)")
       ->capture_default_str();
   app.add_option("--latency-us", latencyUs, "Message latency in microseconds")
       ->capture_default_str();
@@ -182,6 +191,7 @@ int run(int argc, char** argv) {
   sweep.jobs = jobs;
   p.packetOverheadSeconds = packetOverheadMs * 1e-3;
   p.bandwidthBytesPerSecond = bandwidthMBs * 1e6;
+  p.displayBandwidthBytesPerSecond = displayBandwidthMBs * 1e6;
   p.latencySeconds = latencyUs * 1e-6;
   p.traverseTileSeconds = traverseTileUs * 1e-6;
   p.composeSecondsPerPixel = composeNsPerPixel * 1e-9;
@@ -257,8 +267,9 @@ int run(int argc, char** argv) {
     });
   }
 
-  std::printf("Assumptions (simulated, not measured):\n%s\n%s",
-              formatAssumptions(assumptions).c_str(), formatTable(rows).c_str());
+  std::printf("Assumptions (simulated, not measured):\n%s\n%s\n%s",
+              formatAssumptions(assumptions).c_str(), formatTable(rows).c_str(),
+              formatRecommendations(recommendLayouts(rows)).c_str());
   if (!csvFile.empty()) writeText(csvFile, formatCsv(rows), "CSV figures");
   if (!reportFile.empty()) {
     writeText(reportFile, formatReport(rows, assumptions, reportPlots), "report");

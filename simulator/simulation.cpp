@@ -35,6 +35,7 @@ void validateParameters(const ModelParameters& p) {
   positive(p.secondsPerSplat, "T_s (--seconds-per-splat)");
   nonNegative(p.packetOverheadSeconds, "the packet overhead (--packet-overhead-ms)");
   positive(p.bandwidthBytesPerSecond, "the bandwidth (--bandwidth-mbs)");
+  nonNegative(p.displayBandwidthBytesPerSecond, "--display-bandwidth-mbs");
   nonNegative(p.latencySeconds, "the latency (--latency-us)");
   nonNegative(p.traverseSecondsPerCell, "--traverse-seconds-per-cell");
   nonNegative(p.traverseTileSeconds, "--traverse-tile-us");
@@ -130,6 +131,7 @@ struct TraverseProcess {
   traverse::PacketPlanner planner;
   bool busy = false;
   std::optional<v1::TileTask> task;
+  std::deque<v1::TileTask> waiting;  // tasks that came while walking (tile tasks ahead)
   const TileWork* work = nullptr;
   const std::vector<CellPrefix>* ahead = nullptr;  // cells of the lookahead walk
   std::vector<Delivery> deferred;                  // reports that came while walking
@@ -159,6 +161,7 @@ v1::RunSettings runSettings(const Scene& scene, const SimulationConfig& config) 
   settings.set_backface_cull(scene.traversal().backfaceCull);
   settings.set_scheduler(display::schedulerMessage(config.scheduler));
   settings.set_cost_model(traverse::costModelMessage(config.costModel));
+  settings.set_tile_tasks_ahead(config.tileTasksAhead);
   return settings;
 }
 
@@ -222,7 +225,7 @@ class Simulation {
     // Start-up: every traverse asks for work, every render reports once.
     for (TraverseProcess& traverse : traverses_) {
       Outbox out;
-      traverse.planner.requestWork(out);
+      traverse.planner.startWork(out);
       send(0.0, rankOf(traverse), out);
     }
     for (std::uint32_t r = 0; r < config_.renders; ++r) wakeRender(0.0, r);
@@ -260,6 +263,12 @@ class Simulation {
 
   double control(double now) const { return now + p_.latencySeconds; }
 
+  double linkBandwidth(int rank) const {
+    return rank == peers_.display && p_.displayBandwidthBytesPerSecond > 0.0
+               ? p_.displayBandwidthBytesPerSecond
+               : p_.bandwidthBytesPerSecond;
+  }
+
   // Bulk bytes leave on the sender's outgoing link, first come first served,
   // and enter on the receiver's incoming link, which also serves one message
   // at a time; the switch buffers between the two, so a busy receiver does not
@@ -267,12 +276,13 @@ class Simulation {
   double bulk(double now, int from, int to, std::uint64_t bytes) {
     Link& out = outLinks_[static_cast<std::size_t>(from)];
     Link& in = inLinks_[static_cast<std::size_t>(to)];
-    const double seconds = static_cast<double>(bytes) / p_.bandwidthBytesPerSecond;
-    const double sent = std::max(now, out.freeAt) + seconds;
-    out.busy.push_back({sent - seconds, sent});
+    const double sending = static_cast<double>(bytes) / linkBandwidth(from);
+    const double receiving = static_cast<double>(bytes) / linkBandwidth(to);
+    const double sent = std::max(now, out.freeAt) + sending;
+    out.busy.push_back({sent - sending, sent});
     out.freeAt = sent;
-    const double received = std::max(sent, in.freeAt + seconds);
-    in.busy.push_back({received - seconds, received});
+    const double received = std::max(sent, in.freeAt + receiving);
+    in.busy.push_back({received - receiving, received});
     in.freeAt = received;
     return received + p_.latencySeconds;
   }
@@ -411,26 +421,13 @@ class Simulation {
 
   void traverseMessage(double now, TraverseProcess& traverse, Delivery delivery) {
     switch (delivery.kind) {
-      case MessageKind::TileTask: {
+      case MessageKind::TileTask:
         if (traverse.busy) {
-          throw Error("internal error: a busy traverse process got a second task");
+          traverse.waiting.push_back(delivery.as<v1::TileTask>());
+        } else {
+          startWalk(now, traverse, delivery.as<v1::TileTask>());
         }
-        const auto& task = delivery.as<v1::TileTask>();
-        traverse.busy = true;
-        traverse.work = &scene_.tileWork(task.frame_id(), task.rect());
-        traverse.ahead =
-            traverse.planner.lookaheadCamera(task)
-                ? &scene_.cellsInTile(task.frame_id() + config_.prefetchFrames, task.rect())
-                : nullptr;
-        traverse.task = task;
-        // The prefetch walk stops at the top-level cells: one cell per cell found.
-        const double cells = static_cast<double>(traverse.work->cellsVisited) +
-                             (traverse.ahead ? static_cast<double>(traverse.ahead->size()) : 0.0);
-        const double seconds = p_.traverseTileSeconds + p_.traverseSecondsPerCell * cells;
-        traverse.busyIntervals.push_back({now, now + seconds});
-        schedule(now + seconds, Step::TraverseDone, rankOf(traverse));
         break;
-      }
       case MessageKind::RenderReport:
         // The choice sees the reports that arrived before the task, as in the
         // runtime, where reports wait in MPI while the traverse walks the tree.
@@ -445,6 +442,22 @@ class Simulation {
         throw Error(std::string("internal error: a traverse process got a ") +
                     messageKindName(delivery.kind));
     }
+  }
+
+  void startWalk(double now, TraverseProcess& traverse, const v1::TileTask& task) {
+    traverse.busy = true;
+    traverse.work = &scene_.tileWork(task.frame_id(), task.rect());
+    traverse.ahead =
+        traverse.planner.lookaheadCamera(task)
+            ? &scene_.cellsInTile(task.frame_id() + config_.prefetchFrames, task.rect())
+            : nullptr;
+    traverse.task = task;
+    // The prefetch walk stops at the top-level cells: one cell per cell found.
+    const double cells = static_cast<double>(traverse.work->cellsVisited) +
+                         (traverse.ahead ? static_cast<double>(traverse.ahead->size()) : 0.0);
+    const double seconds = p_.traverseTileSeconds + p_.traverseSecondsPerCell * cells;
+    traverse.busyIntervals.push_back({now, now + seconds});
+    schedule(now + seconds, Step::TraverseDone, rankOf(traverse));
   }
 
   void traverseDone(double now, TraverseProcess& traverse) {
@@ -468,6 +481,11 @@ class Simulation {
     for (const Delivery& report : std::exchange(traverse.deferred, {})) {
       traverse.planner.applyReport(report.source, report.as<v1::RenderReport>(),
                                    timeAfterEpoch(now));
+    }
+    if (!traverse.waiting.empty()) {
+      const v1::TileTask next = std::move(traverse.waiting.front());
+      traverse.waiting.pop_front();
+      startWalk(now, traverse, next);
     }
   }
 

@@ -31,6 +31,8 @@ struct ModelParameters {
   double secondsPerSplat = 2e-7;           // T_s: 5 M splats/s per render process
   double packetOverheadSeconds = 1e-3;     // per render packet (state, viewport, read-back)
   double bandwidthBytesPerSecond = 117e6;  // 1 GbE payload
+  // The display's own link (tile images come in on it); 0: as the others.
+  double displayBandwidthBytesPerSecond = 0.0;
   double latencySeconds = 50e-6;
   double traverseSecondsPerCell = 1e-7;  // Scene::measureTraverseSecondsPerCell() measures it
   double traverseTileSeconds = 20e-6;    // per tile task (messages, packet building)
@@ -59,6 +61,8 @@ struct SimulationConfig {
   // Cost scheduler: the traverse orders what each tile's rect needs this many
   // frames on for the render it chose (the display's --prefetch-frames; 0: off).
   std::uint32_t prefetchFrames = 0;
+  // Tile requests each traverse keeps at the display (the display's --tile-tasks-ahead).
+  std::uint32_t tileTasksAhead = kDefaultTileTasksAhead;
   // A render process that stops drawing after some packets (the render's
   // --stall-index / --stall-after): its tiles must be re-issued elsewhere.
   std::optional<std::uint32_t> stalledRender;

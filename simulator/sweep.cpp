@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cstdio>
 #include <exception>
+#include <map>
 #include <mutex>
 #include <numeric>
 #include <sstream>
@@ -154,6 +155,7 @@ std::vector<SimulationConfig> sweepConfigs(const SweepOptions& options) {
           config.minTileSize = options.minTileSize;
           config.balancedTiles = options.balancedTiles;
           config.prefetchFrames = options.prefetchFrames;
+          config.tileTasksAhead = options.tileTasksAhead;
           validateConfig(config);
           if (scheduler != display::SchedulerKind::Cost) {
             configs.push_back(config);
@@ -280,13 +282,18 @@ Assumptions describeAssumptions(const Scene& scene, const ViewOptions& view,
                        significant(p.traverseTileSeconds * 1e3, 3) + " ms" +
                        " per tile; the real traversal of every tile"},
       {"display", significant(p.composeSecondsPerPixel * 1e9, 3) + " ns" +
-                      " per composed pixel; tile images (4 bytes/pixel) on the display's link; " +
-                      std::to_string(p.framesInFlight) + " frames in flight, tile time-out " +
-                      significant(p.tileTimeoutSeconds) + " s"},
+                      " per composed pixel; tile images (4 bytes/pixel) on the display's link (" +
+                      (p.displayBandwidthBytesPerSecond > 0.0
+                           ? fixed(p.displayBandwidthBytesPerSecond / 1e6, 0) + " MB/s"
+                           : std::string("as the others")) +
+                      "); " + std::to_string(p.framesInFlight) +
+                      " frames in flight, tile time-out " + significant(p.tileTimeoutSeconds) +
+                      " s"},
       {"render cache", significant(p.cacheMegabytes) + " MiB, cells unused for " +
                            significant(p.cacheTimeoutSeconds) + " s expire"},
       {"tiling", significant(options.tilesPerRender) + " tiles per render process, sides >= " +
-                     std::to_string(options.minTileSize) + " px"},
+                     std::to_string(options.minTileSize) + " px; each traverse keeps " +
+                     std::to_string(options.tileTasksAhead) + " tile requests at the display"},
       {"sweep", "renders " + joinCounts(options.renders) + "; traverses " +
                     joinCounts(options.traverses) + "; data-sends " +
                     joinCounts(options.datasends) + " (auto: renders/4, at least 1); schedulers " +
@@ -309,6 +316,84 @@ Assumptions describeAssumptions(const Scene& scene, const ViewOptions& view,
 
 std::string formatTable(const std::vector<SweepRow>& rows) {
   return alignedTable(rows, false);
+}
+
+std::vector<LayoutRecommendation> recommendLayouts(const std::vector<SweepRow>& rows) {
+  // Rows grouped by scheduler and render count, in the order they first appear.
+  std::vector<std::pair<std::string, std::uint32_t>> keys;
+  std::map<std::pair<std::string, std::uint32_t>, std::vector<const SweepRow*>> groups;
+  for (const SweepRow& row : rows) {
+    const auto key = std::make_pair(configName(row.config), row.config.renders);
+    if (!groups.contains(key)) keys.push_back(key);
+    groups[key].push_back(&row);
+  }
+  std::sort(keys.begin(), keys.end(), [](const auto& a, const auto& b) {
+    return a.second != b.second ? a.second < b.second : a.first < b.first;
+  });
+  std::vector<LayoutRecommendation> result;
+  for (const auto& key : keys) {
+    const auto& group = groups[key];
+    double best = 0.0;
+    std::uint32_t mostTraverses = 0;
+    for (const SweepRow* row : group) {
+      best = std::max(best, row->framesPerSecondSteady);
+      mostTraverses = std::max(mostTraverses, row->config.traverses);
+    }
+    const SweepRow* chosen = nullptr;
+    for (const SweepRow* row : group) {
+      if (row->framesPerSecondSteady < 0.95 * best) continue;
+      if (chosen == nullptr || row->config.traverses < chosen->config.traverses ||
+          (row->config.traverses == chosen->config.traverses &&
+           row->config.datasends < chosen->config.datasends)) {
+        chosen = row;
+      }
+    }
+    if (chosen == nullptr) continue;
+    LayoutRecommendation r;
+    r.scheduler = key.first;
+    r.renders = key.second;
+    r.traverses = chosen->config.traverses;
+    r.datasends = chosen->config.datasends;
+    r.framesPerSecond = chosen->framesPerSecondSteady;
+    r.bottleneck = chosen->bottleneck;
+    r.bottleneckUtilisation = chosen->bottleneckUtilisation;
+    if (r.bottleneck == "traverse") {
+      r.advice = r.traverses == mostTraverses
+                     ? "the traverse processes keep up no longer: sweep more than " +
+                           std::to_string(mostTraverses)
+                     : "traverse-bound: more traverse processes did not help";
+    } else if (r.bottleneck == "display") {
+      const bool link = chosen->utilisation.displayLink >= chosen->utilisation.displayCpu;
+      r.advice = link ? "display-bound: its link carries the tile images; a faster display "
+                        "link (--display-bandwidth-mbs) or a smaller frame raises the rate"
+                      : "display-bound: composing tiles fills its CPU";
+    } else if (r.bottleneck == "network") {
+      r.advice = "network-bound: more data-send processes or faster links";
+    } else if (r.bottleneck == "render") {
+      r.advice = chosen->utilisation.renderMean < 0.5 * chosen->utilisation.renderMax
+                     ? "one render process is saturated while the mean is not: imbalance"
+                     : "render-bound: more render processes";
+    } else {
+      r.advice = "no resource saturated: frames in flight wait on round trips";
+    }
+    result.push_back(std::move(r));
+  }
+  return result;
+}
+
+std::string formatRecommendations(const std::vector<LayoutRecommendation>& recommendations) {
+  std::ostringstream out;
+  out << "Recommended layout (fewest traverse, then data-send processes within 5 % of the best "
+         "frame rate swept):\n";
+  for (const LayoutRecommendation& r : recommendations) {
+    char line[160];
+    std::snprintf(line, sizeof line,
+                  "  %-12s R=%-5u T=%-3u S=%-4u %8.2f frames/s  %s %.0f%%: ", r.scheduler.c_str(),
+                  r.renders, r.traverses, r.datasends, r.framesPerSecond, r.bottleneck.c_str(),
+                  r.bottleneckUtilisation * 100.0);
+    out << line << r.advice << '\n';
+  }
+  return out.str();
 }
 
 std::string formatAssumptions(const Assumptions& assumptions) {
@@ -362,6 +447,8 @@ std::string formatReport(const std::vector<SweepRow>& rows, const Assumptions& a
          "## Assumptions\n\n";
   for (const auto& [name, value] : assumptions) out << "- **" << name << "**: " << value << '\n';
   out << "\n## Figures\n\n" << alignedTable(rows, true) << '\n';
+  out << "## Recommended layouts\n\n```\n"
+      << formatRecommendations(recommendLayouts(rows)) << "```\n\n";
   out << "- R, T, S: render, traverse and data-send processes (one display).\n"
          "- imb busy / imb splats: per frame max/mean over all render processes, mean over the "
          "steady frames (1 is perfect balance); imb run: the same of busy time summed over the "

@@ -26,6 +26,7 @@ struct SweepOptions {
   std::uint32_t prefetchFrames = 0;  // cost scheduler: order data this many frames ahead
   double tilesPerRender = 2.0;
   std::uint32_t minTileSize = 32;
+  std::uint32_t tileTasksAhead = kDefaultTileTasksAhead;
   ModelParameters parameters;
   unsigned jobs = 1;  // configurations simulated at once
 };
@@ -81,6 +82,23 @@ Assumptions describeAssumptions(const Scene& scene, const ViewOptions& view,
 
 // The printed table: one line per row, columns aligned.
 std::string formatTable(const std::vector<SweepRow>& rows);
+// Per scheduler and render count: the smallest layout (traverses, then
+// data-sends) within 5 % of the best frame rate swept for it, what then
+// limits the job, and a word when more processes of a kind would help:
+// the traverse processes or the display are named when they are the bottleneck.
+struct LayoutRecommendation {
+  std::string scheduler;
+  std::uint32_t renders = 0;
+  std::uint32_t traverses = 0;
+  std::uint32_t datasends = 0;
+  double framesPerSecond = 0.0;
+  std::string bottleneck;
+  double bottleneckUtilisation = 0.0;
+  std::string advice;
+};
+std::vector<LayoutRecommendation> recommendLayouts(const std::vector<SweepRow>& rows);
+std::string formatRecommendations(const std::vector<LayoutRecommendation>& recommendations);
+
 // Assumptions as "name: value" lines.
 std::string formatAssumptions(const Assumptions& assumptions);
 // Header plus one line per row, raw units (seconds, bytes, shares 0..1).

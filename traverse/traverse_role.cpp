@@ -52,7 +52,7 @@ class TraverseProcess final : public WorkerProcess {
       log_.emplace(file, decisionLogStart(peers, job_.worldRank(), settings, datasetPath_), now);
     }
     Outbox out;
-    planner_->requestWork(out);
+    planner_->startWork(out);
     job_.sends().post(out);
   }
 

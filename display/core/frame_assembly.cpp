@@ -44,6 +44,7 @@ void FrameAssembly::admitFrames() {
                        [&](std::uint32_t a, std::uint32_t b) { return value[a] > value[b]; });
       tilePriority_.erase(priority);
     }
+    if (!planner_.homes().empty()) homes_[index] = planner_.homes();
     feedback_[index].assign(tiles.size(), TileFeedback{});
     frames_.addFrame(index, camera, std::move(tiles), std::move(order));
   }
@@ -85,12 +86,17 @@ std::uint32_t FrameAssembly::dispatch(TimePoint now, Outbox& out) {
     if (scheduler != runScheduler_) {
       message.mutable_frame_settings()->set_scheduler(schedulerMessage(scheduler));
     }
-    if (scheduler == SchedulerKind::Cost && config_.prefetchFrames > 0 &&
+    const bool choosesByCost =
+        scheduler == SchedulerKind::Cost || scheduler == SchedulerKind::Regions;
+    if (choosesByCost && config_.prefetchFrames > 0 &&
         task->frame + config_.prefetchFrames < config_.cameras.size()) {
       *message.mutable_lookahead_camera() = config_.cameras[task->frame + config_.prefetchFrames];
     }
     // Assigned as the tile is handed out: round-robin deals in that order.
-    message.set_assigned_render(planner_.assign(task->tile).value_or(0));
+    // A region's render was fixed when the frame was planned.
+    const auto homes = homes_.find(task->frame);
+    message.set_assigned_render(homes != homes_.end() ? homes->second.at(task->tile)
+                                                      : planner_.assign(task->tile).value_or(0));
     dispatchedAt_[{task->frame, task->tile}] = since(now);
     out.send(idleTraverses_.front(), std::move(message));
     idleTraverses_.pop_front();
@@ -176,6 +182,7 @@ std::vector<FinishedFrame> FrameAssembly::finishFrames(TimePoint now) {
     // A frame with failed tiles has no measurement for them: no re-split from it.
     if (record.failedTiles == 0) planner_.frameDone(feedback_.at(state->index));
     feedback_.erase(state->index);
+    homes_.erase(state->index);
     frameSettings_.erase(state->index);
     for (const TileState& tile : state->tiles) {
       if (tile.failed) frame.failedTiles.push_back(tile.rect);

@@ -121,6 +121,8 @@ class FrameAssembly {
   std::uint64_t framesAdded_ = 0;
   std::deque<int> idleTraverses_;
   std::map<std::uint64_t, std::vector<TileFeedback>> feedback_;
+  // Regions scheduler: each admitted frame's tiles' home render processes.
+  std::map<std::uint64_t, std::vector<std::uint32_t>> homes_;
   std::map<std::pair<std::uint64_t, std::uint32_t>, double> dispatchedAt_;
   std::map<std::uint64_t, FrameRecord> pending_;
   RunStats stats_;

@@ -11,19 +11,6 @@
 namespace pointillist::display {
 namespace {
 
-double area(const TileRect& rect) {
-  return static_cast<double>(rect.width()) * static_cast<double>(rect.height());
-}
-
-double overlapArea(const TileRect& a, const TileRect& b) {
-  const auto x0 = std::max(a.x(), b.x());
-  const auto y0 = std::max(a.y(), b.y());
-  const auto x1 = std::min(a.x() + a.width(), b.x() + b.width());
-  const auto y1 = std::min(a.y() + a.height(), b.y() + b.height());
-  if (x1 <= x0 || y1 <= y0) return 0.0;
-  return static_cast<double>(x1 - x0) * static_cast<double>(y1 - y0);
-}
-
 // The two halves of `rect` cut `offset` pixels along its longer side.
 std::pair<TileRect, TileRect> cut(const TileRect& rect, std::uint32_t offset) {
   if (rect.width() >= rect.height()) {
@@ -50,6 +37,8 @@ v1::Scheduler schedulerMessage(SchedulerKind kind) {
       return v1::SCHEDULER_STATIC;
     case SchedulerKind::Equalizer:
       return v1::SCHEDULER_EQUALIZER;
+    case SchedulerKind::Regions:
+      return v1::SCHEDULER_REGIONS;
   }
   return v1::SCHEDULER_COST;
 }
@@ -64,6 +53,8 @@ SchedulerKind schedulerKindOf(v1::Scheduler scheduler) {
       return SchedulerKind::Equalizer;
     case v1::SCHEDULER_COST:
       return SchedulerKind::Cost;
+    case v1::SCHEDULER_REGIONS:
+      return SchedulerKind::Regions;
     default:
       break;
   }
@@ -92,7 +83,9 @@ void TilePlanner::retireRender(std::uint32_t render) {
 
 std::vector<TileRect> TilePlanner::plan(const TileRect& area) {
   equalizerStrips_ = false;
+  homes_.clear();
   if (area.width() == 0 || area.height() == 0) return {};
+  if (options_.scheduler == SchedulerKind::Regions) return regionSplit(area);
   if (options_.scheduler == SchedulerKind::Equalizer) {
     auto strips = equalizer_.split(area);
     const bool emptyStrip = std::any_of(strips.begin(), strips.end(), [](const TileRect& tile) {
@@ -119,6 +112,7 @@ std::optional<std::uint32_t> TilePlanner::assign(std::uint32_t tileIndex) {
     case SchedulerKind::Equalizer:
       return live_[tileIndex % live_.size()];
     case SchedulerKind::Cost:
+    case SchedulerKind::Regions:  // homes(), kept per frame by the caller
       break;
   }
   return std::nullopt;
@@ -132,33 +126,9 @@ void TilePlanner::frameDone(std::span<const TileFeedback> tiles) {
     for (const TileFeedback& tile : tiles) seconds.push_back(tile.seconds);
     equalizer_.update(seconds);
   }
-  if (options_.scheduler == SchedulerKind::Cost) density_.assign(tiles.begin(), tiles.end());
-}
-
-double TilePlanner::estimatedWork(const TileRect& rect) const {
-  // Splats of the last completed frame, spread evenly over each tile they came
-  // from. Pixels no tile measured (the view moved onto new ground) are taken
-  // at the mean measured density: their work is unknown, not absent. A small
-  // floor keeps measured-empty ground splittable.
-  double work = 0.0;
-  double measuredArea = 0.0;
-  double measuredWork = 0.0;
-  double coveredArea = 0.0;
-  for (const TileFeedback& tile : density_) {
-    const double tileArea = area(tile.rect);
-    if (tileArea <= 0.0) continue;
-    measuredArea += tileArea;
-    measuredWork += static_cast<double>(tile.splats);
-    const double shared = overlapArea(rect, tile.rect);
-    if (shared > 0.0) {
-      work += static_cast<double>(tile.splats) * shared / tileArea;
-      coveredArea += shared;
-    }
+  if (options_.scheduler == SchedulerKind::Cost || options_.scheduler == SchedulerKind::Regions) {
+    density_.assign(tiles.begin(), tiles.end());
   }
-  if (measuredArea <= 0.0 || measuredWork <= 0.0) return area(rect);
-  const double meanDensity = measuredWork / measuredArea;
-  const double unmeasured = std::max(0.0, area(rect) - coveredArea);
-  return work + meanDensity * (unmeasured + 0.02 * area(rect));
 }
 
 std::vector<TileRect> TilePlanner::balancedSplit(const TileRect& area, std::uint32_t target) const {
@@ -171,7 +141,8 @@ std::vector<TileRect> TilePlanner::balancedSplit(const TileRect& area, std::uint
     double work = 0.0;
     bool splittable = true;
   };
-  std::vector<Piece> pieces{{area, estimatedWork(area), true}};
+  const WorkDensity density = densityFor(area);
+  std::vector<Piece> pieces{{area, density.work(area), true}};
   while (pieces.size() < target) {
     auto heaviest = pieces.end();
     for (auto it = pieces.begin(); it != pieces.end(); ++it) {
@@ -184,21 +155,11 @@ std::vector<TileRect> TilePlanner::balancedSplit(const TileRect& area, std::uint
       heaviest->splittable = false;
       continue;
     }
-    // Work on the low side grows with the cut: bisect for half the work.
-    std::uint32_t low = minSide;
-    std::uint32_t high = length - minSide;
-    const double half = heaviest->work / 2.0;
-    while (low < high) {
-      const std::uint32_t middle = low + (high - low) / 2;
-      if (estimatedWork(cut(rect, middle).first) < half) {
-        low = middle + 1;
-      } else {
-        high = middle;
-      }
-    }
-    const auto [first, second] = cut(rect, low);
-    *heaviest = {first, estimatedWork(first), true};
-    pieces.push_back({second, estimatedWork(second), true});
+    const std::uint32_t offset =
+        density.cutAt(rect, rect.width() >= rect.height(), 0.5, minSide, length - minSide);
+    const auto [first, second] = cut(rect, offset);
+    *heaviest = {first, density.work(first), true};
+    pieces.push_back({second, density.work(second), true});
   }
   // Heaviest first, so the longest packets start early and the light ones fill
   // the gaps at the end of the frame.
@@ -208,6 +169,44 @@ std::vector<TileRect> TilePlanner::balancedSplit(const TileRect& area, std::uint
   tiles.reserve(pieces.size());
   for (const Piece& piece : pieces) tiles.push_back(piece.rect);
   return tiles;
+}
+
+std::vector<TileRect> TilePlanner::regionSplit(const TileRect& area) {
+  const WorkDensity density = densityFor(area);
+  const auto leaves = static_cast<std::uint32_t>(live_.size());
+  const std::vector<TileRect> rects = regions_.split(area, leaves, density, options_.minTileSize);
+  struct Region {
+    TileRect rect;
+    std::uint32_t home = 0;
+    double work = 0.0;
+  };
+  std::vector<Region> regions;
+  regions.reserve(rects.size());
+  for (std::uint32_t leaf = 0; leaf < leaves; ++leaf) {
+    if (rects[leaf].width() == 0 || rects[leaf].height() == 0) continue;
+    regions.push_back({rects[leaf], live_[leaf], density.work(rects[leaf])});
+  }
+  // Heaviest first, as the cost scheduler hands them out.
+  std::stable_sort(regions.begin(), regions.end(),
+                   [](const Region& a, const Region& b) { return a.work > b.work; });
+  std::vector<TileRect> tiles;
+  tiles.reserve(regions.size());
+  for (const Region& region : regions) {
+    tiles.push_back(region.rect);
+    homes_.push_back(region.home);
+  }
+  return tiles;
+}
+
+WorkDensity TilePlanner::densityFor(const TileRect& area) const {
+  // The grid spans the frame as far as this area and the last frame's tiles reach.
+  std::uint32_t width = area.x() + area.width();
+  std::uint32_t height = area.y() + area.height();
+  for (const TileFeedback& tile : density_) {
+    width = std::max(width, tile.rect.x() + tile.rect.width());
+    height = std::max(height, tile.rect.y() + tile.rect.height());
+  }
+  return WorkDensity(width, height, density_);
 }
 
 }  // namespace pointillist::display

@@ -8,6 +8,10 @@
 //   round-robin equal tiles handed out in turn.
 //   static      equal tiles, tile i always to render i mod R.
 //   equalizer   one strip per render, borders moved from last frame's times.
+//   regions     one region per render, a k-d tree of cuts that split last
+//               frame's work in proportion and keep their place and axis
+//               from frame to frame (region_tiling.hpp); the traverse keeps a
+//               tile on its region's render unless that one is overloaded.
 #include <cstdint>
 #include <optional>
 #include <span>
@@ -16,10 +20,11 @@
 
 #include "common/camera.hpp"
 #include "display/core/load_equalizer.hpp"
+#include "display/core/region_tiling.hpp"
 
 namespace pointillist::display {
 
-enum class SchedulerKind { Cost, RoundRobin, Static, Equalizer };
+enum class SchedulerKind { Cost, RoundRobin, Static, Equalizer, Regions };
 
 // Throws UsageError naming the accepted names.
 SchedulerKind parseSchedulerKind(const std::string& name);
@@ -36,19 +41,15 @@ struct TilePlanOptions {
   bool balancedTiles = true;
 };
 
-// What one tile of a completed frame took.
-struct TileFeedback {
-  TileRect rect;
-  double seconds = 0.0;      // render time on its render process
-  std::uint64_t splats = 0;  // splats drawn
-};
-
 class TilePlanner {
  public:
   explicit TilePlanner(const TilePlanOptions& options);
 
   // Tiles covering `area` exactly once.
   std::vector<TileRect> plan(const TileRect& area);
+  // For the last plan() of the regions scheduler, the render process (index
+  // among renders) whose region each tile is; empty for the others.
+  const std::vector<std::uint32_t>& homes() const { return homes_; }
   // The render process (index among renders) that draws tile `tileIndex` of
   // its frame, asked when the tile is handed out (round-robin deals in that
   // order); nullopt when the traverse decides (cost).
@@ -68,7 +69,8 @@ class TilePlanner {
 
  private:
   std::vector<TileRect> balancedSplit(const TileRect& area, std::uint32_t target) const;
-  double estimatedWork(const TileRect& rect) const;
+  std::vector<TileRect> regionSplit(const TileRect& area);
+  WorkDensity densityFor(const TileRect& area) const;
 
   TilePlanOptions options_;
   LoadEqualizer equalizer_;
@@ -76,6 +78,8 @@ class TilePlanner {
   std::vector<TileFeedback> density_;  // last completed frame, splats spread over each rect
   bool equalizerStrips_ = false;       // the last plan used the equalizer's strips
   std::vector<std::uint32_t> live_;    // render indices still in the job
+  RegionTiling regions_;
+  std::vector<std::uint32_t> homes_;  // the last plan's, regions scheduler only
 };
 
 }  // namespace pointillist::display

@@ -41,6 +41,10 @@ PacketPlanner::PacketPlanner(PeerRanks peers, int selfRank, const v1::RunSetting
   }
 }
 
+void PacketPlanner::startWork(Outbox& out) {
+  for (std::uint32_t request = 0; request < tileTasksAhead(settings_); ++request) requestWork(out);
+}
+
 void PacketPlanner::requestWork(Outbox& out) {
   v1::WorkRequest request;
   request.set_traverse_rank(selfRank_);
@@ -62,7 +66,9 @@ TraversalSettings PacketPlanner::traversalFor(const v1::TileTask& task) const {
 }
 
 std::optional<Camera> PacketPlanner::lookaheadCamera(const v1::TileTask& task) const {
-  if (schedulerFor(task) != v1::SCHEDULER_COST || !task.has_lookahead_camera()) {
+  const v1::Scheduler scheduler = schedulerFor(task);
+  if ((scheduler != v1::SCHEDULER_COST && scheduler != v1::SCHEDULER_REGIONS) ||
+      !task.has_lookahead_camera()) {
     return std::nullopt;
   }
   return task.lookahead_camera();
@@ -81,9 +87,17 @@ PacketPlan PacketPlanner::planPacket(const v1::TileTask& task, const TileWalk& w
     }
     plan.needs.push_back({need.cell, layers_->roundUp(need.cell, need.splats)});
   }
-  plan.choice = schedulerFor(task) == v1::SCHEDULER_COST
-                    ? model_.choose(plan.needs, walk.splats, now)
-                    : model_.assigned(task.assigned_render(), plan.needs, walk.splats);
+  switch (schedulerFor(task)) {
+    case v1::SCHEDULER_COST:
+      plan.choice = model_.choose(plan.needs, walk.splats, now);
+      break;
+    case v1::SCHEDULER_REGIONS:
+      plan.choice = model_.chooseNearHome(task.assigned_render(), plan.needs, walk.splats, now);
+      break;
+    default:
+      plan.choice = model_.assigned(task.assigned_render(), plan.needs, walk.splats);
+      break;
+  }
   const RenderChoice& choice = plan.choice;
   plan.renderRank = peers_.renders.at(choice.render);
 

@@ -60,7 +60,9 @@ class PacketPlanner {
   v1::Scheduler schedulerFor(const v1::TileTask& task) const;
   const v1::RunSettings& settings() const { return settings_; }
 
-  // Asks the display for a tile (at start-up; planPacket asks again itself).
+  // Asks the display for the run's tile tasks ahead (at start-up; planPacket
+  // asks for one more after each tile, keeping that many on request).
+  void startWork(Outbox& out);
   void requestWork(Outbox& out);
   // The camera whose view of the task's rect should be ordered ahead, if the
   // run prefetches along the camera path; the caller walks it for planPacket.

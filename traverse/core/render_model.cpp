@@ -1,6 +1,7 @@
 #include "traverse/core/render_model.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <limits>
 
 #include "common/errors.hpp"
@@ -141,6 +142,29 @@ RenderChoice RenderModel::choose(std::span<const CellPrefix> needs, std::uint64_
   rotation_ = (best.render + 1) % count;
   best.missing = missing(best.render, needs);
   return best;
+}
+
+RenderChoice RenderModel::chooseNearHome(std::size_t home, std::span<const CellPrefix> needs,
+                                         std::uint64_t splats, Clock::time_point now) const {
+  if (liveCount() == 0) throw ProtocolError("no render process is left to draw a packet");
+  home %= renders_.size();
+  while (renders_[home].retired) home = (home + 1) % renders_.size();
+  double leastQueued = std::numeric_limits<double>::infinity();
+  for (std::size_t render = 0; render < renders_.size(); ++render) {
+    if (renders_[render].retired || render == home || suspectedStalled(render, now)) continue;
+    leastQueued = std::min(leastQueued, queuedSeconds(render));
+  }
+  const bool othersStalled = std::isinf(leastQueued);
+  if (othersStalled) return assigned(home, needs, splats);
+  const double slack = kHomeSlackPackets * static_cast<double>(splats) * secondsPerSplat();
+  if (!suspectedStalled(home, now) && queuedSeconds(home) <= leastQueued + slack) {
+    return assigned(home, needs, splats);
+  }
+  return choose(needs, splats, now);
+}
+
+double RenderModel::queuedSeconds(std::size_t render) const {
+  return static_cast<double>(workload(render)) * secondsPerSplat(render);
 }
 
 RenderChoice RenderModel::assigned(std::size_t render, std::span<const CellPrefix> needs,

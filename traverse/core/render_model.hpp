@@ -77,6 +77,14 @@ class RenderModel {
   RenderChoice choose(std::span<const CellPrefix> needs, std::uint64_t splats,
                       Clock::time_point now) const;
   bool suspectedStalled(std::size_t render, Clock::time_point now) const;
+  // The regions scheduler: the tile's own region's render `home`, unless its
+  // queue holds more than kHomeSlackPackets of this packet's time beyond the
+  // least loaded live render's, or it is suspected stalled; then the cost
+  // function chooses among all. So no render idles while another holds more
+  // than two tiles' worth of work.
+  RenderChoice chooseNearHome(std::size_t home, std::span<const CellPrefix> needs,
+                              std::uint64_t splats, Clock::time_point now) const;
+  static constexpr double kHomeSlackPackets = 2.0;
   // The same figures for a render chosen by someone else (other schedulers).
   RenderChoice assigned(std::size_t render, std::span<const CellPrefix> needs,
                         std::uint64_t splats) const;
@@ -92,6 +100,7 @@ class RenderModel {
   void applyReport(std::size_t render, const RenderReportView& report, Clock::time_point now);
 
   std::uint64_t workload(std::size_t render) const;  // reported + sent since the report
+  double queuedSeconds(std::size_t render) const;    // workload * its T_s
   // The prefix of `cell` that `render` holds or has on order, in splats.
   std::uint32_t heldSplats(std::size_t render, std::uint32_t cell) const;
   std::size_t cachedCellCount(std::size_t render) const;

@@ -4,6 +4,7 @@
 #include "display/core/frame_assembly.hpp"
 
 #include <algorithm>
+#include <map>
 
 #include <gtest/gtest.h>
 
@@ -100,6 +101,37 @@ TEST(FrameAssembly, HandsTilesOnlyToTraversesThatAskedAndStampsThem) {
   EXPECT_FALSE(task.has_lookahead_camera());
   EXPECT_EQ(assembly.idleTraverses(), 0u);
   EXPECT_THROW(assembly.workRequested(3), ProtocolError);  // a data-send process
+}
+
+TEST(FrameAssembly, RegionTilesGoToTheirOwnRenderInEveryFrameEvenWhenPlannedAhead) {
+  auto c = config(5, 3, SchedulerKind::Regions);
+  c.framesInFlight = 2;  // a frame is planned before the one ahead of it is handed out
+  FrameAssembly assembly(c, kPeers, kStart);
+  std::map<std::uint64_t, std::vector<std::uint32_t>> homes;
+  std::map<std::uint64_t, std::uint64_t> renderOnePixels;
+  for (int round = 0; round < 10 && !assembly.done(); ++round) {
+    for (const auto& task : takeAll(assembly, kStart)) {
+      homes[task.frame_id()].push_back(task.assigned_render());
+      if (task.assigned_render() == 1) {
+        renderOnePixels[task.frame_id()] =
+            std::uint64_t{task.rect().width()} * task.rect().height();
+      }
+      // Render 1's region measures three times the work of render 0's.
+      const std::uint64_t splats = task.assigned_render() == 1 ? 3000 : 1000;
+      EXPECT_TRUE(
+          assembly.tileArrived(tile(task, splats, kPeers.renders[task.assigned_render()]), kStart));
+    }
+    assembly.finishFrames(kStart);
+  }
+  ASSERT_TRUE(assembly.done());
+  ASSERT_EQ(homes.size(), 5u);
+  for (auto& [frame, renders] : homes) {
+    std::sort(renders.begin(), renders.end());
+    EXPECT_EQ(renders, (std::vector<std::uint32_t>{0, 1})) << "frame " << frame;
+  }
+  // Unmeasured, the frame is halved; once measured, the heavier region shrinks.
+  EXPECT_EQ(renderOnePixels[0], 128u * 64u / 2u);
+  EXPECT_LT(renderOnePixels[4], 128u * 64u / 3u);
 }
 
 TEST(FrameAssembly, ReissuesALateTileAndCountsTheLateCopyWithoutComposingIt) {

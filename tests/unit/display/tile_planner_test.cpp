@@ -65,7 +65,7 @@ double maxOverMean(const std::vector<TileRect>& tiles, const TileRect& area) {
 TEST(TilePlanner, EverySchedulerCoversTheAreaExactlyOnce) {
   std::mt19937 random(11);
   for (const auto kind : {SchedulerKind::Cost, SchedulerKind::RoundRobin, SchedulerKind::Static,
-                          SchedulerKind::Equalizer}) {
+                          SchedulerKind::Equalizer, SchedulerKind::Regions}) {
     TilePlanner planner(
         {.scheduler = kind, .renders = 5, .tilesPerRender = 2.0, .minTileSize = 16});
     for (int trial = 0; trial < 40; ++trial) {
@@ -160,7 +160,7 @@ TEST(TilePlanner, EqualizerStripsFollowTheStripTimes) {
 
 TEST(TilePlanner, NamesRoundTripAndUnknownNamesAreRefused) {
   for (const auto kind : {SchedulerKind::Cost, SchedulerKind::RoundRobin, SchedulerKind::Static,
-                          SchedulerKind::Equalizer}) {
+                          SchedulerKind::Equalizer, SchedulerKind::Regions}) {
     EXPECT_EQ(parseSchedulerKind(schedulerName(kind)), kind);
   }
   EXPECT_THROW(parseSchedulerKind("fastest"), UsageError);

@@ -24,7 +24,8 @@ namespace {
 using display::SchedulerKind;
 
 const SchedulerKind kAllSchedulers[] = {SchedulerKind::Cost, SchedulerKind::RoundRobin,
-                                        SchedulerKind::Static, SchedulerKind::Equalizer};
+                                        SchedulerKind::Static, SchedulerKind::Equalizer,
+                                        SchedulerKind::Regions};
 
 ViewOptions testView(std::uint32_t frames = 10) {
   ViewOptions view;
@@ -232,6 +233,38 @@ TEST(Simulator, SlowNetworkMakesTheNetworkOrDisplayTheBottleneck) {
   EXPECT_GT(fast.utilisation.renderMax, 0.9);
 }
 
+TEST(Simulator, TileTasksAheadHideTheRequestRoundTrip) {
+  // Many small tiles and a long latency: with one request at a time every
+  // tile waits a round trip at its traverse, which then stands idle.
+  ModelParameters p = fixedParameters();
+  p.latencySeconds = 500e-6;
+  p.bandwidthBytesPerSecond = 1e12;
+  p.displayBandwidthBytesPerSecond = 1e12;
+  p.secondsPerSplat = 1e-9;
+  p.packetOverheadSeconds = 1e-5;
+  SimulationConfig c = config(SchedulerKind::Cost, 32, 1, 4);
+  c.minTileSize = 8;
+  c.tileTasksAhead = 1;
+  const auto one = simulate(cityScene(), c, p);
+  c.tileTasksAhead = 3;
+  const auto three = simulate(cityScene(), c, p);
+  expectEveryTileOnce(three, cityScene().cameras().size());
+  EXPECT_GT(three.utilisation.traverseMax, 1.5 * one.utilisation.traverseMax);
+  EXPECT_GT(three.figures.framesPerSecondSteady, 1.5 * one.figures.framesPerSecondSteady);
+}
+
+TEST(Simulator, TheDisplaysOwnLinkCanBeFasterThanTheOthers) {
+  ModelParameters p = fixedParameters();
+  p.bandwidthBytesPerSecond = 1e7;  // 10 MB/s: tile images alone fill the display's link
+  const auto shared = simulate(cityScene(), config(SchedulerKind::Cost, 8, 2, 2), p);
+  EXPECT_EQ(shared.bottleneck, "display") << shared.bottleneck;
+  EXPECT_GT(shared.utilisation.displayLink, 0.5);
+  p.displayBandwidthBytesPerSecond = 1e10;
+  const auto fast = simulate(cityScene(), config(SchedulerKind::Cost, 8, 2, 2), p);
+  EXPECT_LT(fast.utilisation.displayLink, 0.1);
+  EXPECT_GT(fast.figures.framesPerSecondSteady, shared.figures.framesPerSecondSteady);
+}
+
 TEST(Simulator, ASmallRenderCacheEvictsAndStillCompletesEveryFrame) {
   ModelParameters p = fixedParameters();
   const auto roomy = simulate(cityScene(), config(SchedulerKind::RoundRobin, 3, 2, 2), p);
@@ -414,6 +447,33 @@ class TempDir {
 void writeFile(const std::filesystem::path& file, const std::string& text) {
   std::filesystem::create_directories(file.parent_path());
   std::ofstream(file) << text;
+}
+
+TEST(SimulatorSweep, RecommendsTheFewestProcessesWithinFivePercentAndNamesTheBottleneck) {
+  const auto row = [](std::uint32_t renders, std::uint32_t traverses, double fps,
+                      const char* bottleneck) {
+    SweepRow r;
+    r.config = config(SchedulerKind::Cost, renders, traverses, autoDatasends(renders));
+    r.framesPerSecondSteady = fps;
+    r.bottleneck = bottleneck;
+    r.bottleneckUtilisation = 0.9;
+    r.utilisation.displayLink = 0.9;
+    return r;
+  };
+  const std::vector<SweepRow> rows{row(64, 1, 40.0, "traverse"),  row(64, 2, 77.0, "render"),
+                                   row(64, 4, 80.0, "render"),    row(256, 1, 30.0, "traverse"),
+                                   row(256, 2, 60.0, "traverse"), row(256, 4, 90.0, "traverse"),
+                                   row(1024, 2, 50.0, "display"), row(1024, 4, 50.0, "display")};
+  const auto layouts = recommendLayouts(rows);
+  ASSERT_EQ(layouts.size(), 3u);
+  EXPECT_EQ(layouts[0].renders, 64u);
+  EXPECT_EQ(layouts[0].traverses, 2u);  // 77 is within 5 % of 80
+  EXPECT_EQ(layouts[1].traverses, 4u);
+  EXPECT_NE(layouts[1].advice.find("sweep more than 4"), std::string::npos);
+  EXPECT_EQ(layouts[2].traverses, 2u);
+  EXPECT_NE(layouts[2].advice.find("display link"), std::string::npos);
+  const std::string text = formatRecommendations(layouts);
+  EXPECT_NE(text.find("R=1024"), std::string::npos);
 }
 
 TEST(SimulatorCalibration, TimePerSplatComesFromBusySecondsOfTheRuns) {

@@ -254,6 +254,34 @@ TEST(RenderModel, AnIdleRenderWithAStaleSlowFigureStillGetsWork) {
 // A lost render process (the display's PeerLost): never chosen again, even
 // holding every cell; packets assigned to it go to the next live one; a report
 // still on its way changes nothing.
+TEST(RenderModel, RegionsKeepATileHomeUntilItsRenderHoldsTwoTilesMoreThanAnother) {
+  const Table cells{1'000'000, 1'000'000};
+  RenderModel model(3);
+  // Render 0 is the region's home; render 1 holds the data the tile needs.
+  model.applyReport(1, {.workloadSplats = 0, .loaded = whole(cells, {0})}, kNow);
+  const auto needed = whole(cells, {0});
+  const std::uint64_t tile = 10'000;
+  // Home with up to two tiles' worth queued beyond the least loaded: home,
+  // although the cost function would choose render 1.
+  ASSERT_EQ(model.choose(needed, tile, kNow).render, 1u);
+  for (const std::uint64_t queued : {std::uint64_t{0}, tile, 2 * tile}) {
+    model.applyReport(0, {.workloadSplats = queued}, kNow);
+    const auto choice = model.chooseNearHome(0, needed, tile, kNow);
+    EXPECT_EQ(choice.render, 0u) << queued;
+    EXPECT_EQ(choice.missingBytes, 1'000'000u);
+  }
+  // More than that while another idles: the cost function chooses.
+  model.applyReport(0, {.workloadSplats = 2 * tile + 1}, kNow);
+  EXPECT_EQ(model.chooseNearHome(0, needed, tile, kNow).render, 1u);
+  // Measured against the least loaded, not against an empty queue.
+  model.applyReport(1, {.workloadSplats = 5 * tile, .loaded = whole(cells, {0})}, kNow);
+  model.applyReport(2, {.workloadSplats = 5 * tile}, kNow);
+  EXPECT_EQ(model.chooseNearHome(0, needed, tile, kNow).render, 0u);
+  // A retired home passes its tiles to the next live render.
+  model.retire(0);
+  EXPECT_NE(model.chooseNearHome(0, needed, tile, kNow).render, 0u);
+}
+
 TEST(RenderModel, ARetiredRenderIsNeverChosenAgain) {
   const Table cells{10'000'000, 128};
   RenderModel model(3);
