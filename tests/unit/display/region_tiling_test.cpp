@@ -10,6 +10,7 @@
 
 #include "display/core/tile_planner.hpp"
 #include "display/core/work_density.hpp"
+#include "tile_cover.hpp"
 
 namespace pointillist::display {
 namespace {
@@ -55,23 +56,6 @@ std::vector<TileFeedback> randomFeedback(std::mt19937& random, std::uint32_t wid
     }
   }
   return tiles;
-}
-
-void expectExactCover(const TileRect& area, const std::vector<TileRect>& tiles) {
-  std::vector<int> hits(static_cast<std::size_t>(area.width()) * area.height(), 0);
-  for (const TileRect& tile : tiles) {
-    if (tile.width() == 0 || tile.height() == 0) continue;
-    ASSERT_GE(tile.x(), area.x());
-    ASSERT_GE(tile.y(), area.y());
-    ASSERT_LE(tile.x() + tile.width(), area.x() + area.width());
-    ASSERT_LE(tile.y() + tile.height(), area.y() + area.height());
-    for (std::uint32_t y = tile.y(); y < tile.y() + tile.height(); ++y) {
-      for (std::uint32_t x = tile.x(); x < tile.x() + tile.width(); ++x) {
-        ++hits[(y - area.y()) * area.width() + (x - area.x())];
-      }
-    }
-  }
-  for (int count : hits) ASSERT_EQ(count, 1);
 }
 
 TEST(WorkDensity, EqualsThePixelEstimateOnItsGridAndStaysCloseBetween) {
@@ -122,7 +106,7 @@ TEST(RegionTiling, CoversTheAreaExactlyWithOneRegionPerLeaf) {
       const TileRect area = makeTileRect(x, y, 1 + below(random, 680), 1 + below(random, 420));
       const auto regions = tiling.split(area, leaves, density, 8);
       ASSERT_EQ(regions.size(), leaves);
-      expectExactCover(area, regions);
+      expectExactCover(area, regions, true);
       const auto empty = std::count_if(regions.begin(), regions.end(), [](const TileRect& r) {
         return r.width() == 0 || r.height() == 0;
       });

@@ -8,27 +8,10 @@
 #include <random>
 
 #include "common/errors.hpp"
+#include "tile_cover.hpp"
 
 namespace pointillist::display {
 namespace {
-
-void expectExactCover(const TileRect& area, const std::vector<TileRect>& tiles) {
-  std::vector<int> hits(static_cast<std::size_t>(area.width()) * area.height(), 0);
-  for (const TileRect& tile : tiles) {
-    ASSERT_GT(tile.width(), 0u);
-    ASSERT_GT(tile.height(), 0u);
-    ASSERT_GE(tile.x(), area.x());
-    ASSERT_GE(tile.y(), area.y());
-    ASSERT_LE(tile.x() + tile.width(), area.x() + area.width());
-    ASSERT_LE(tile.y() + tile.height(), area.y() + area.height());
-    for (std::uint32_t y = tile.y(); y < tile.y() + tile.height(); ++y) {
-      for (std::uint32_t x = tile.x(); x < tile.x() + tile.width(); ++x) {
-        ++hits[(y - area.y()) * area.width() + (x - area.x())];
-      }
-    }
-  }
-  for (int count : hits) ASSERT_EQ(count, 1);
-}
 
 // Work that lives in one corner: splats per pixel are 100 in the left quarter
 // of the area and 1 elsewhere.
