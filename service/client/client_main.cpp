@@ -518,7 +518,8 @@ int run(int argc, char** argv) {
                  "This client's frames: target splat size on screen in pixels")
       ->check(CLI::PositiveNumber);
   app.add_option("--scheduler", options.scheduler,
-                 "Every client's frames from the next one: cost, round-robin, static, equalizer");
+                 "Every client's frames from the next one: cost, regions, round-robin, static, "
+                 "equalizer");
   app.add_option("--curve-server-key", options.curveServerKey,
                  "CURVE: file with the server's public key");
   app.add_option("--curve-key", options.curveKey, "CURVE: file with this client's secret key");
