@@ -16,6 +16,7 @@
 # Environment: POINTILLIST_BENCH_BUILD (default build-release, configured as Release).
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+source "$root/deploy/common.sh"
 build="${POINTILLIST_BENCH_BUILD:-$root/build-release}"
 out="$root/out/bench-instanced"
 scenes=city,building,bunny
@@ -39,24 +40,11 @@ while (($#)); do
 done
 die() { echo "bench-instanced: $*" >&2; exit 1; }
 command -v gnuplot >/dev/null || die "gnuplot is missing (Debian package gnuplot-nox)"
-data="$root/.cache/cgal-data/data"
-[[ -d "$data" ]] || bash "$root/deploy/fetch-test-data.sh"
-if [[ ! -f "$build/CMakeCache.txt" ]]; then
-  echo "bench-instanced: configuring a Release build in $build" >&2
-  cmake -S "$root" -B "$build" -DCMAKE_BUILD_TYPE=Release -DPOINTILLIST_BUILD_TESTS=OFF >/dev/null
-fi
-cmake --build "$build" -j "$(nproc)" >/dev/null
-export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
+ensure_cgal_data
+build_release "$build"
 mkdir -p "$out"
 
-input_of() {
-  case "$1" in
-    city) echo "--generate city" ;;
-    building) echo "$data/points_3/building.ply" ;;
-    bunny) echo "$data/meshes/bunny00.off --points 2000000" ;;
-    *) die "unknown scene '$1' (city, building, bunny)" ;;
-  esac
-}
+input_of() { bench_scene_input "$1" || die "unknown scene '$1' (city, building, bunny)"; }
 
 # seconds_of LINE: the seconds of a preprocess summary line ("... in S s (...").
 seconds_of() { sed -n 's/.* in \([0-9.]*\) s (.*/\1/p' <<<"$1" | head -1; }

@@ -29,6 +29,7 @@
 # Environment: POINTILLIST_BENCH_BUILD (default build-release, configured as Release).
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+source "$root/deploy/common.sh"
 build="${POINTILLIST_BENCH_BUILD:-$root/build-release}"
 out="$root/out/bench-statistical"
 scenes=city,building,bunny
@@ -74,26 +75,12 @@ for candidate in python3 /usr/bin/python3; do
   fi
 done
 [[ -n "$python" ]] || die "no python3 with numpy (Debian package python3-numpy)"
-data="$root/.cache/cgal-data/data"
-[[ -d "$data" ]] || bash "$root/deploy/fetch-test-data.sh"
-if [[ ! -f "$build/CMakeCache.txt" ]]; then
-  echo "bench-statistical: configuring a Release build in $build" >&2
-  cmake -S "$root" -B "$build" -DCMAKE_BUILD_TYPE=Release -DPOINTILLIST_BUILD_TESTS=OFF >/dev/null
-fi
-echo "bench-statistical: building $build" >&2
-cmake --build "$build" -j "$(nproc)" >/dev/null
-export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
+ensure_cgal_data
+build_release "$build"
 mkdir -p "$out"
 out="$(cd "$out" && pwd)"
 
-input_of() {
-  case "$1" in
-    city) echo "--generate city" ;;
-    building) echo "$data/points_3/building.ply" ;;
-    bunny) echo "$data/meshes/bunny00.off --points 2000000" ;;
-    *) die "unknown scene '$1' (city, building, bunny)" ;;
-  esac
-}
+input_of() { bench_scene_input "$1" || die "unknown scene '$1' (city, building, bunny)"; }
 IFS=',' read -ra list <<<"$scenes"
 ((${#list[@]} > 0)) || die "--scenes needs at least one scene"
 for scene in "${list[@]}"; do input_of "$scene" >/dev/null; done

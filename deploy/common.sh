@@ -95,6 +95,38 @@ build_all() {
   fi
 }
 
+# Configures DIR as a Release build without tests unless it is configured
+# already, then builds it (the benchmarks' build).
+build_release() {
+  local build="$1"
+  if [[ ! -f "$build/CMakeCache.txt" ]]; then
+    log "configuring a Release build in $build"
+    cmake -S "$POINTILLIST_ROOT" -B "$build" -DCMAKE_BUILD_TYPE=Release \
+      -DPOINTILLIST_BUILD_TESTS=OFF >/dev/null
+  fi
+  log "building $build"
+  cmake --build "$build" -j "$(nproc)" >/dev/null
+}
+
+# libcgal-demo's data (real scans and meshes), fetched once into .cache/.
+POINTILLIST_CGAL_DATA="$POINTILLIST_ROOT/.cache/cgal-data/data"
+ensure_cgal_data() {
+  [[ -d "$POINTILLIST_CGAL_DATA" ]] || bash "$POINTILLIST_ROOT/deploy/fetch-test-data.sh" >&2
+}
+
+# The seed benchmarks' scenes (bench-instanced, bench-statistical) as
+# pointillist-preprocess input arguments: the built-in city, CGAL's
+# building.ply scan, the bunny mesh sampled to 2 M points. Fails for another
+# name.
+bench_scene_input() {
+  case "$1" in
+    city) echo "--generate city" ;;
+    building) echo "$POINTILLIST_CGAL_DATA/points_3/building.ply" ;;
+    bunny) echo "$POINTILLIST_CGAL_DATA/meshes/bunny00.off --points 2000000" ;;
+    *) return 1 ;;
+  esac
+}
+
 # Prints the dataset folder of a benchmark scene, made first when it is not
 # there in this build's format: bunny-10M (Debian's bunny00.off from
 # libcgal-demo sampled to 10 M points) or city (the built-in city, 2 M points).
