@@ -1,6 +1,7 @@
 #include "common/run_settings.hpp"
 
 #include <algorithm>
+#include <charconv>
 #include <cmath>
 #include <cstdio>
 
@@ -44,6 +45,35 @@ v1::Scheduler parseScheduler(const std::string& name) {
   if (name == "regions") return v1::SCHEDULER_REGIONS;
   throw UsageError("scheduler '" + name +
                    "' is not one of: cost, regions, round-robin, static, equalizer");
+}
+
+void parseTileSplit(const std::string& text, v1::RunSettings& settings) {
+  if (text == "auto" || text == "off") {
+    settings.set_no_tile_split(text == "off");
+    settings.set_tile_part_splats(0);
+    return;
+  }
+  std::uint64_t splats = 0;
+  const auto [end, error] = std::from_chars(text.data(), text.data() + text.size(), splats);
+  if (error != std::errc() || end != text.data() + text.size() || splats == 0) {
+    throw UsageError("--tile-split takes auto, off or a part size in splats (>= 1), not '" + text +
+                     "'");
+  }
+  settings.set_no_tile_split(false);
+  settings.set_tile_part_splats(splats);
+}
+
+std::string tileSplitName(const v1::RunSettings& settings) {
+  if (settings.no_tile_split()) return "off";
+  return settings.tile_part_splats() > 0 ? std::to_string(settings.tile_part_splats()) : "auto";
+}
+
+bool tileSplitAllowed(const v1::RunSettings& run, const v1::FrameSettings& frame) {
+  if (run.no_tile_split() || run.edl() || frame.tile_depth()) return false;
+  const v1::RenderMode mode =
+      frame.mode() != v1::RENDER_MODE_UNSPECIFIED ? frame.mode() : run.mode();
+  const bool points = mode == v1::RENDER_MODE_POINTS || mode == v1::RENDER_MODE_UNSPECIFIED;
+  return points && resolveRenderer(run.renderer(), mode) == v1::RENDERER_CPU;
 }
 
 std::uint32_t tileTasksAhead(const v1::RunSettings& settings) {

@@ -26,6 +26,20 @@ inline constexpr std::uint32_t kDefaultTileTasksAhead = 2;
 std::uint32_t tileTasksAhead(const v1::RunSettings& settings);
 const char* schedulerName(v1::Scheduler scheduler);
 
+// Heavy tiles split by their data (RunSettings.no_tile_split): a part holds
+// at least this many splats, so its fixed costs (a packet, a composed image)
+// stay small beside its drawing.
+inline constexpr std::uint64_t kDefaultMinTilePartSplats = 8192;
+// "auto" | "off" | a part size in splats (>= 1), into no_tile_split and
+// tile_part_splats; a UsageError names the accepted ones.
+void parseTileSplit(const std::string& text, v1::RunSettings& settings);
+std::string tileSplitName(const v1::RunSettings& settings);
+// Whether a frame drawn with these settings may have split tiles: only where
+// composing parts by the minimum word is exact, that is points drawn by the
+// cpu kernel, without eye-dome lighting, and without the eye-space depth the
+// render cache asks for. The scheduler is the caller's to check.
+bool tileSplitAllowed(const v1::RunSettings& run, const v1::FrameSettings& frame);
+
 // What draws: "auto" | "gl" | "cpu"; a UsageError names the accepted ones.
 v1::Renderer parseRenderer(const std::string& name);
 const char* rendererName(v1::Renderer renderer);

@@ -25,6 +25,7 @@
 #include "common/view_options.hpp"
 #include "display/core/frame_assembly.hpp"
 #include "display/core/frame_stats.hpp"
+#include "display/core/tile_parts.hpp"
 #include "display/core/tile_planner.hpp"
 #include "display/frame_source.hpp"
 #include "display/service_frame_source.hpp"
@@ -56,6 +57,7 @@ struct DisplayOptions {
   std::string costModel = costModelName(kDefaultCostModel);
   std::uint32_t prefetchFrames = 0;
   std::uint32_t tileTasksAhead = kDefaultTileTasksAhead;
+  std::string tileSplit = "auto";
   bool quiet = false;
   // Serve mode: frames are asked for by clients over ZeroMQ.
   bool serve = false;
@@ -108,6 +110,7 @@ v1::RunSettings runSettings(const DisplayOptions& options, const DatasetManifest
   settings.set_scheduler(schedulerMessage(parseSchedulerKind(options.scheduler)));
   settings.set_cost_model(parseCostModel(options.costModel));
   settings.set_tile_tasks_ahead(options.tileTasksAhead);
+  parseTileSplit(options.tileSplit, settings);
   settings.set_unlit(options.view.unlit);
   settings.set_renderer(parseRenderer(options.view.renderer));
   (void)resolveRenderer(settings.renderer(), settings.mode());  // a mismatch fails here
@@ -158,6 +161,7 @@ class DisplayProcess {
     config_.maxAttempts = options.maxAttempts;
     config_.plan = tilePlanOptions(options, job.layout().render);
     config_.prefetchFrames = options.prefetchFrames;
+    config_.run = runSettings(options, &dataset_.manifest());
   }
 
   const DatasetManifest& manifest() const { return dataset_.manifest(); }
@@ -476,14 +480,24 @@ class DisplayProcess {
         const std::uint64_t pixelBytes =
             tileImagePixelBytes(header, envelope.payload.size(), envelope.source);
         const bool withDepth = header.depth() == v1::DEPTH_FORMAT_EYE_FLOAT32;
-        if (!assembly.tileArrived(header, Clock::now())) return;
+        const TileArrival arrival = assembly.tileArrived(header, Clock::now());
+        if (arrival == TileArrival::Late) return;
+        const auto* bytes = reinterpret_cast<const std::uint8_t*>(envelope.payload.data());
+        std::vector<std::uint8_t> composed;
+        if (header.format() == v1::PIXEL_FORMAT_POINT_WORDS64) {
+          parts_.merge(header.frame_id(), header.tile_id(), header.attempt(), rect,
+                       std::span<const std::byte>(envelope.payload.data(), pixelBytes));
+          if (arrival == TileArrival::Part) return;
+          composed = parts_.take(header.frame_id(), header.tile_id(), header.attempt(),
+                                 packRgba(kBackground));
+        }
         auto image = images_.find(header.frame_id());
         if (image == images_.end()) {
           image = images_.emplace(header.frame_id(), blankImage(header.frame_id())).first;
         }
-        const auto* bytes = reinterpret_cast<const std::uint8_t*>(envelope.payload.data());
-        blit(std::span<const std::uint8_t>(bytes, pixelBytes), rect.width(), rect.height(),
-             image->second, rect.x(), rect.y());
+        blit(composed.empty() ? std::span<const std::uint8_t>(bytes, pixelBytes)
+                              : std::span<const std::uint8_t>(composed),
+             rect.width(), rect.height(), image->second, rect.x(), rect.y());
         if (withDepth && depthFrames_.contains(header.frame_id())) {
           composeDepth(header.frame_id(), image->second, rect, bytes + pixelBytes);
         }
@@ -510,6 +524,7 @@ class DisplayProcess {
     const auto found = images_.find(record.frame);
     Image image = found != images_.end() ? std::move(found->second) : blankImage(record.frame);
     if (found != images_.end()) images_.erase(found);
+    parts_.dropFrame(record.frame);
     for (const TileRect& rect : frame.failedTiles) {
       for (std::uint32_t y = 0; y < rect.height(); ++y) {
         for (std::uint32_t x = 0; x < rect.width(); ++x) {
@@ -609,6 +624,7 @@ class DisplayProcess {
   std::uint32_t height_ = 0;
   RunStats stats_;
   std::map<std::uint64_t, Image> images_;  // frames with tiles composed so far
+  TilePartCompositor parts_;               // split tiles' parts so far
   std::vector<Image> spareImages_;
   std::unique_ptr<ServiceFrameSource> service_;
   FrameSource* source_ = nullptr;  // serve mode; the fixed path otherwise
@@ -677,6 +693,13 @@ int runDisplayMain(int argc, char** argv) {
   app.add_option("--tile-tasks-ahead", options.tileTasksAhead,
                  "Tile requests each traverse process keeps at the display (1: one at a time)")
       ->check(CLI::Range(1, 64))
+      ->capture_default_str();
+  app.add_option("--tile-split", options.tileSplit,
+                 "Cost and regions schedulers, points drawn by the cpu kernel without EDL: a tile "
+                 "whose walk draws at least twice the part size is split by its cells into parts "
+                 "drawn by several render processes and composed by depth here (exact). auto: "
+                 "the part size is last frame's splats per tile, at least " +
+                     std::to_string(kDefaultMinTilePartSplats) + "; off; or a part size in splats")
       ->capture_default_str();
   app.add_option("--cost-model", options.costModel,
                  "Cost scheduler: paper (seed 003: transfer time adds to the queue, default) or "

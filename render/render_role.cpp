@@ -177,13 +177,21 @@ class RenderProcess final : public WorkerProcess {
     RenderEffects effects;
     v1::TileImageHeader header =
         core_.packetDrawn(ready, stats.splats, stats.seconds, Clock::now(), effects);
-    const auto pixels = renderer_->pixels();
+    const bool part = header.format() == v1::PIXEL_FORMAT_POINT_WORDS64;
+    const auto words = renderer_->pointWords();
+    if (part &&
+        words.size() != static_cast<std::size_t>(packet.rect().width()) * packet.rect().height()) {
+      throw ProtocolError(
+          "a part of a split tile needs the cpu point kernel without eye-dome "
+          "lighting; this render process draws with " +
+          renderer_->describe());
+    }
+    const auto pixels = part ? std::as_bytes(words) : std::as_bytes(renderer_->pixels());
     const auto depths = settings.keepDepth ? renderer_->depths() : std::span<const float>();
     if (settings.keepDepth) header.set_depth(v1::DEPTH_FORMAT_EYE_FLOAT32);
     auto payload = std::make_shared<std::vector<std::byte>>();
     payload->reserve(pixels.size() + depths.size_bytes());
-    payload->insert(payload->end(), reinterpret_cast<const std::byte*>(pixels.data()),
-                    reinterpret_cast<const std::byte*>(pixels.data()) + pixels.size());
+    payload->insert(payload->end(), pixels.begin(), pixels.end());
     payload->insert(payload->end(), reinterpret_cast<const std::byte*>(depths.data()),
                     reinterpret_cast<const std::byte*>(depths.data()) + depths.size_bytes());
     const std::span<const std::byte> bytes(*payload);

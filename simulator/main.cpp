@@ -137,6 +137,12 @@ int run(int argc, char** argv) {
   app.add_option("--tile-tasks-ahead", sweep.tileTasksAhead,
                  "Tile requests each traverse process keeps at the display (1: one at a time)")
       ->capture_default_str();
+  std::string tileSplit = "auto";
+  app.add_option("--tile-split", tileSplit,
+                 "Heavy tiles split by their cells into parts drawn by several render processes "
+                 "and composed by depth at the display (the display's --tile-split): auto, off, "
+                 "or a part size in splats")
+      ->capture_default_str();
   app.add_option("--latency-us", latencyUs, "Message latency in microseconds")
       ->capture_default_str();
   app.add_option("--traverse-seconds-per-cell", traverseSecondsPerCell,
@@ -187,6 +193,12 @@ int run(int argc, char** argv) {
     sweep.costModels.push_back(traverse::costModelOf(parseCostModel(name)));
   }
   sweep.balancedTiles = !equalTiles;
+  {
+    v1::RunSettings split;
+    parseTileSplit(tileSplit, split);
+    sweep.tileSplit = !split.no_tile_split();
+    sweep.tilePartSplats = split.tile_part_splats();
+  }
   if (jobs == 0) throw UsageError("--jobs must be at least 1");
   sweep.jobs = jobs;
   p.packetOverheadSeconds = packetOverheadMs * 1e-3;

@@ -58,7 +58,7 @@ ReplayResult replayDecisions(const traverse::DecisionLog& log, std::span<const O
       ahead = traverse::topLevelCellsInTile(culling, *layers, *camera, task.rect(), traversal);
     }
     Outbox out;
-    planner.planPacket(task, traverse::walkOf(walk), ahead, now, out);
+    planner.planPackets(task, traverse::walkOf(walk), ahead, now, out);
     const std::string difference =
         compare(decision.outputs(), traverse::decisionOutputs(out.entries()));
     if (difference.empty()) {

@@ -78,6 +78,13 @@ const TileWork& Scene::tileWork(std::uint64_t frame, const TileRect& rect) const
   work.splats = result.splats;
   work.cellsVisited = result.cellsVisited;
   work.ranges = static_cast<std::uint32_t>(result.ranges.size());
+  work.drawn.assign(work.needs.size(), 0);
+  for (std::size_t need = 0, range = 0; need < work.needs.size(); ++need) {
+    for (; range < result.ranges.size() && result.ranges[range].topLevel == work.needs[need].cell;
+         ++range) {
+      work.drawn[need] += result.ranges[range].count;
+    }
+  }
   const std::lock_guard lock(mutex_);
   return memo_.emplace(key, std::move(work)).first->second;
 }

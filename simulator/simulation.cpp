@@ -53,6 +53,10 @@ std::string configName(const SimulationConfig& config) {
     if (config.costModel == traverse::CostModel::Overlap) name += "/overlap";
     if (!config.balancedTiles) name += "/equal";
   }
+  if (!config.tileSplit && (config.scheduler == display::SchedulerKind::Cost ||
+                            config.scheduler == display::SchedulerKind::Regions)) {
+    name += "/unsplit";
+  }
   return name;
 }
 
@@ -162,6 +166,8 @@ v1::RunSettings runSettings(const Scene& scene, const SimulationConfig& config) 
   settings.set_scheduler(display::schedulerMessage(config.scheduler));
   settings.set_cost_model(traverse::costModelMessage(config.costModel));
   settings.set_tile_tasks_ahead(config.tileTasksAhead);
+  settings.set_no_tile_split(!config.tileSplit);
+  settings.set_tile_part_splats(config.tilePartSplats);
   return settings;
 }
 
@@ -181,6 +187,7 @@ display::FrameAssemblyConfig assemblyConfig(const Scene& scene, const Simulation
                                            .minTileSize = config.minTileSize,
                                            .balancedTiles = config.balancedTiles};
   assembly.prefetchFrames = config.prefetchFrames;
+  assembly.run = runSettings(scene, config);
   return assembly;
 }
 
@@ -380,9 +387,11 @@ class Simulation {
         break;
       case MessageKind::TileImage: {
         const auto& header = delivery.as<v1::TileImageHeader>();
-        if (!assembly_.tileArrived(header, timeAfterEpoch(now))) return;
-        ++trace(header.frame_id()).tilesComposed;
-        // The display blits on its one CPU, tiles in arrival order.
+        const display::TileArrival arrival = assembly_.tileArrived(header, timeAfterEpoch(now));
+        if (arrival == display::TileArrival::Late) return;
+        if (arrival == display::TileArrival::Complete) ++trace(header.frame_id()).tilesComposed;
+        // The display blits on its one CPU, tiles in arrival order; a part
+        // is merged by the minimum at about the same cost per pixel.
         const double pixels = static_cast<double>(header.rect().width()) * header.rect().height();
         const double start = std::max(now, displayCpuFree_);
         displayCpuFree_ = start + pixels * p_.composeSecondsPerPixel;
@@ -464,15 +473,20 @@ class Simulation {
     const v1::TileTask& task = *traverse.task;
     const TileWork& work = *traverse.work;
     Outbox out;
-    const traverse::PacketPlan plan = traverse.planner.planPacket(
-        task, traverse::TileWalk{work.needs, work.splats, {}},
+    const std::vector<traverse::PacketPlan> plans = traverse.planner.planPackets(
+        task, traverse::TileWalk{work.needs, work.splats, {}, work.drawn},
         traverse.ahead != nullptr ? std::span<const CellPrefix>(*traverse.ahead)
                                   : std::span<const CellPrefix>(),
         timeAfterEpoch(now), out);
-    trace(task.frame_id()).bytesOrdered += plan.choice.missingBytes + plan.prefetchBytes;
-    trace(task.frame_id()).bytesPrefetched += plan.prefetchBytes;
-    // A render packet carries the camera, the cells and three numbers per range.
-    const std::uint64_t packetBytes = 160 + 8 * work.needs.size() + 12ull * work.ranges;
+    trace(task.frame_id()).extraParts += static_cast<std::uint32_t>(plans.size() - 1);
+    for (const traverse::PacketPlan& plan : plans) {
+      trace(task.frame_id()).bytesOrdered += plan.choice.missingBytes + plan.prefetchBytes;
+      trace(task.frame_id()).bytesPrefetched += plan.prefetchBytes;
+    }
+    // A render packet carries the camera, the cells and three numbers per
+    // range; a split tile's parts share them.
+    const std::uint64_t packetBytes =
+        160 + (8 * work.needs.size() + 12ull * work.ranges) / plans.size();
     send(now, rankOf(traverse), out, packetBytes);
     traverse.busy = false;
     traverse.task.reset();
@@ -591,8 +605,11 @@ class Simulation {
         ready, packet.total_splats(), process.currentSeconds, timeAfterEpoch(now), effects));
     ++trace(packet.frame_id()).packetsRendered;
     ++packetsRendered_;
-    const std::uint64_t imageBytes =
-        static_cast<std::uint64_t>(packet.rect().width()) * packet.rect().height() * 4 + 128;
+    // A part of a split tile goes as 8-byte words (depth and colour).
+    const std::uint64_t imageBytes = static_cast<std::uint64_t>(packet.rect().width()) *
+                                         packet.rect().height() *
+                                         (packet.part_count() > 1 ? 8 : 4) +
+                                     128;
     schedule(bulk(now, peers_.renders[r], peers_.display, imageBytes), Step::Deliver,
              peers_.display, Delivery{peers_.renders[r], MessageKind::TileImage, header});
     send(now, peers_.renders[r], effects.messages);

@@ -63,6 +63,10 @@ struct SimulationConfig {
   std::uint32_t prefetchFrames = 0;
   // Tile requests each traverse keeps at the display (the display's --tile-tasks-ahead).
   std::uint32_t tileTasksAhead = kDefaultTileTasksAhead;
+  // Heavy tiles split by their data (the display's --tile-split): off, or
+  // the part size in splats (0: the display's choice per frame).
+  bool tileSplit = true;
+  std::uint64_t tilePartSplats = 0;
   // A render process that stops drawing after some packets (the render's
   // --stall-index / --stall-after): its tiles must be re-issued elsewhere.
   std::optional<std::uint32_t> stalledRender;
@@ -81,6 +85,7 @@ struct FrameTrace {
   std::uint32_t tilesPlanned = 0;
   std::uint32_t tilesComposed = 0;    // tile images the display accepted
   std::uint32_t packetsRendered = 0;  // render packets finished for this frame (re-issues count)
+  std::uint32_t extraParts = 0;       // packets beyond one per tile: split tiles' other parts
   std::uint64_t bytesMoved = 0;       // cell data sent by data-send processes for this frame
   std::uint64_t bytesOrdered = 0;     // what the traverses ordered (missingBytes of their choices)
   std::uint64_t bytesPrefetched = 0;  // of what they ordered, ahead along the camera path

@@ -156,6 +156,8 @@ std::vector<SimulationConfig> sweepConfigs(const SweepOptions& options) {
           config.balancedTiles = options.balancedTiles;
           config.prefetchFrames = options.prefetchFrames;
           config.tileTasksAhead = options.tileTasksAhead;
+          config.tileSplit = options.tileSplit;
+          config.tilePartSplats = options.tilePartSplats;
           validateConfig(config);
           if (scheduler != display::SchedulerKind::Cost) {
             configs.push_back(config);
@@ -282,7 +284,8 @@ Assumptions describeAssumptions(const Scene& scene, const ViewOptions& view,
                        significant(p.traverseTileSeconds * 1e3, 3) + " ms" +
                        " per tile; the real traversal of every tile"},
       {"display", significant(p.composeSecondsPerPixel * 1e9, 3) + " ns" +
-                      " per composed pixel; tile images (4 bytes/pixel) on the display's link (" +
+                      " per composed pixel; tile images (4 bytes/pixel, 8 for a part of a split "
+                      "tile) on the display's link (" +
                       (p.displayBandwidthBytesPerSecond > 0.0
                            ? fixed(p.displayBandwidthBytesPerSecond / 1e6, 0) + " MB/s"
                            : std::string("as the others")) +
@@ -291,9 +294,15 @@ Assumptions describeAssumptions(const Scene& scene, const ViewOptions& view,
                       " s"},
       {"render cache", significant(p.cacheMegabytes) + " MiB, cells unused for " +
                            significant(p.cacheTimeoutSeconds) + " s expire"},
-      {"tiling", significant(options.tilesPerRender) + " tiles per render process, sides >= " +
-                     std::to_string(options.minTileSize) + " px; each traverse keeps " +
-                     std::to_string(options.tileTasksAhead) + " tile requests at the display"},
+      {"tiling", significant(options.tilesPerRender) +
+                     " tiles per render process, sides >= " + std::to_string(options.minTileSize) +
+                     " px; each traverse keeps " + std::to_string(options.tileTasksAhead) +
+                     " tile requests at the display; heavy tiles split by their cells: " +
+                     (!options.tileSplit ? std::string("off")
+                      : options.tilePartSplats > 0
+                          ? "parts of " + std::to_string(options.tilePartSplats) + " splats"
+                          : "parts of last frame's splats per tile, at least " +
+                                std::to_string(kDefaultMinTilePartSplats))},
       {"sweep", "renders " + joinCounts(options.renders) + "; traverses " +
                     joinCounts(options.traverses) + "; data-sends " +
                     joinCounts(options.datasends) + " (auto: renders/4, at least 1); schedulers " +

@@ -27,6 +27,10 @@ struct SweepOptions {
   double tilesPerRender = 2.0;
   std::uint32_t minTileSize = 32;
   std::uint32_t tileTasksAhead = kDefaultTileTasksAhead;
+  // Heavy tiles split by their data (--tile-split): off, or the part size
+  // in splats (0: the display's choice per frame).
+  bool tileSplit = true;
+  std::uint64_t tilePartSplats = 0;
   ModelParameters parameters;
   unsigned jobs = 1;  // configurations simulated at once
 };

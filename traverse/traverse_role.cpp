@@ -84,7 +84,7 @@ class TraverseProcess final : public WorkerProcess {
           ahead = topLevelCellsInTile(*culling_, *layers_, *camera, task.rect(), traversal);
         }
         Outbox out;
-        planner_->planPacket(task, walkOf(walk), ahead, now, out);
+        planner_->planPackets(task, walkOf(walk), ahead, now, out);
         if (log_) log_->recordTask(now, envelope.source, task, out.entries());
         job_.sends().post(out);
         break;

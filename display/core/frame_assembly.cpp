@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <numeric>
 
+#include "common/run_settings.hpp"
 #include "display/core/tiling.hpp"
 
 namespace pointillist::display {
@@ -97,6 +98,7 @@ std::uint32_t FrameAssembly::dispatch(TimePoint now, Outbox& out) {
     const auto homes = homes_.find(task->frame);
     message.set_assigned_render(homes != homes_.end() ? homes->second.at(task->tile)
                                                       : planner_.assign(task->tile).value_or(0));
+    message.set_part_splats(partSplatsFor(task->frame));
     dispatchedAt_[{task->frame, task->tile}] = since(now);
     out.send(idleTraverses_.front(), std::move(message));
     idleTraverses_.pop_front();
@@ -104,9 +106,15 @@ std::uint32_t FrameAssembly::dispatch(TimePoint now, Outbox& out) {
   return requeued;
 }
 
-bool FrameAssembly::tileArrived(const v1::TileImageHeader& header, TimePoint now) {
+TileArrival FrameAssembly::tileArrived(const v1::TileImageHeader& header, TimePoint now) {
   const int render = header.render_rank();
   peers_.indexOf(v1::ROLE_RENDER, render);  // throws for a stranger
+  const bool part = header.part_count() > 1;
+  if (part && header.part_index() >= header.part_count()) {
+    throw ProtocolError("tile image from rank " + std::to_string(render) + " is part " +
+                        std::to_string(header.part_index()) + " of " +
+                        std::to_string(header.part_count()));
+  }
   RenderSample sample;
   sample.seconds = since(now);
   sample.frame = header.frame_id();
@@ -129,7 +137,7 @@ bool FrameAssembly::tileArrived(const v1::TileImageHeader& header, TimePoint now
   if (const auto found = dispatchedAt_.find({header.frame_id(), header.tile_id()});
       found != dispatchedAt_.end()) {
     tile.dispatchedSeconds = found->second;
-    dispatchedAt_.erase(found);
+    if (!part) dispatchedAt_.erase(found);
   }
   tile.queuedSeconds = static_cast<double>(header.queued_time_us()) * 1e-6;
   tile.dataWaitSeconds = static_cast<double>(header.data_wait_us()) * 1e-6;
@@ -140,9 +148,30 @@ bool FrameAssembly::tileArrived(const v1::TileImageHeader& header, TimePoint now
   tile.prefetchBytes = header.prefetch_bytes();
   stats_.addTile(tile);
 
-  if (!frames_.tileArrived(header.frame_id(), header.tile_id(), header.rect())) {
+  if (!frames_.tileWaiting(header.frame_id(), header.tile_id(), header.rect())) {
     ++stats_.lateTiles;
-    return false;
+    return TileArrival::Late;
+  }
+  std::uint64_t tileSplats = header.splats_rendered();
+  double tileSeconds = tile.renderSeconds;
+  if (part) {
+    const auto key = std::make_tuple(header.frame_id(), header.tile_id(), header.attempt());
+    PartsInFlight& parts = parts_[key];
+    if (parts.received.empty()) {
+      parts.received.assign(header.part_count(), false);
+      parts.missing = header.part_count();
+    }
+    if (parts.received.size() != header.part_count() || parts.received[header.part_index()]) {
+      ++stats_.lateTiles;  // a copy, or a count that disagrees with its first part's
+      return TileArrival::Late;
+    }
+    parts.received[header.part_index()] = true;
+    --parts.missing;
+    parts.splats += header.splats_rendered();
+    parts.seconds += tile.renderSeconds;
+    ++stats_.tileParts;
+    tileSplats = parts.splats;
+    tileSeconds = parts.seconds;
   }
   FrameRecord& record = pending_[header.frame_id()];
   record.splats += header.splats_rendered();
@@ -150,9 +179,32 @@ bool FrameAssembly::tileArrived(const v1::TileImageHeader& header, TimePoint now
   record.bytesPrefetched += header.prefetch_bytes();
   record.splatsPerRender[render] += header.splats_rendered();
   record.busySecondsPerRender[render] += tile.renderSeconds;
+  if (part && parts_.at({header.frame_id(), header.tile_id(), header.attempt()}).missing > 0) {
+    return TileArrival::Part;
+  }
+  if (part) {
+    ++stats_.splitTiles;
+    // Other attempts' parts are late from now on.
+    parts_.erase(parts_.lower_bound({header.frame_id(), header.tile_id(), 0}),
+                 parts_.upper_bound({header.frame_id(), header.tile_id(), ~std::uint32_t{0}}));
+    dispatchedAt_.erase({header.frame_id(), header.tile_id()});
+  }
+  frames_.tileArrived(header.frame_id(), header.tile_id(), header.rect());
   feedback_.at(header.frame_id()).at(header.tile_id()) =
-      TileFeedback{header.rect(), tile.renderSeconds, header.splats_rendered()};
-  return true;
+      TileFeedback{header.rect(), tileSeconds, tileSplats};
+  return TileArrival::Complete;
+}
+
+std::uint64_t FrameAssembly::partSplatsFor(std::uint64_t frame) const {
+  const SchedulerKind scheduler = planner_.options().scheduler;
+  if (scheduler != SchedulerKind::Cost && scheduler != SchedulerKind::Regions) return 0;
+  const auto settings = frameSettings_.find(frame);
+  if (!tileSplitAllowed(
+          config_.run, settings != frameSettings_.end() ? settings->second : v1::FrameSettings())) {
+    return 0;
+  }
+  if (config_.run.tile_part_splats() > 0) return config_.run.tile_part_splats();
+  return planner_.partSplats(kDefaultMinTilePartSplats);
 }
 
 std::pair<std::uint32_t, std::uint32_t> FrameAssembly::tileProgress(std::uint64_t frame) {
@@ -183,6 +235,8 @@ std::vector<FinishedFrame> FrameAssembly::finishFrames(TimePoint now) {
     if (record.failedTiles == 0) planner_.frameDone(feedback_.at(state->index));
     feedback_.erase(state->index);
     homes_.erase(state->index);
+    parts_.erase(parts_.lower_bound({state->index, 0, 0}),
+                 parts_.lower_bound({state->index + 1, 0, 0}));
     frameSettings_.erase(state->index);
     for (const TileState& tile : state->tiles) {
       if (tile.failed) frame.failedTiles.push_back(tile.rect);
@@ -212,10 +266,16 @@ std::uint64_t tileImagePixelBytes(const v1::TileImageHeader& header, std::size_t
     throw ProtocolError("tile image from rank " + std::to_string(sourceRank) +
                         " has an unknown depth format " + std::to_string(header.depth()));
   }
+  const bool words = header.format() == v1::PIXEL_FORMAT_POINT_WORDS64;
+  if (words && withDepth) {
+    throw ProtocolError("tile image from rank " + std::to_string(sourceRank) +
+                        " has point words and a depth image");
+  }
   // In 64 bits: two 32-bit sides times 8 bytes cannot wrap.
-  const std::uint64_t pixelBytes = static_cast<std::uint64_t>(rect.width()) * rect.height() * 4;
+  const std::uint64_t pixelBytes =
+      static_cast<std::uint64_t>(rect.width()) * rect.height() * (words ? 8 : 4);
   const std::uint64_t expectedBytes = pixelBytes * (withDepth ? 2 : 1);
-  if (header.format() != v1::PIXEL_FORMAT_RGBA8 || payloadBytes != expectedBytes) {
+  if ((header.format() != v1::PIXEL_FORMAT_RGBA8 && !words) || payloadBytes != expectedBytes) {
     throw ProtocolError("tile image from rank " + std::to_string(sourceRank) + " has " +
                         std::to_string(payloadBytes) + " bytes, expected " +
                         std::to_string(expectedBytes));

@@ -14,6 +14,7 @@
 #include <map>
 #include <optional>
 #include <string>
+#include <tuple>
 #include <utility>
 #include <vector>
 
@@ -39,6 +40,16 @@ struct FrameAssemblyConfig {
   TilePlanOptions plan;
   // Cost scheduler: tiles carry the camera this many frames on (0: none).
   std::uint32_t prefetchFrames = 0;
+  // The run's settings, for splitting heavy tiles by their data
+  // (no_tile_split, tile_part_splats, and what tileSplitAllowed reads).
+  v1::RunSettings run;
+};
+
+// What became of a tile image that arrived.
+enum class TileArrival {
+  Late,      // a late copy, or a part of a tile already in: counted only
+  Part,      // a part of a split tile, kept: the caller composes its words
+  Complete,  // the tile is in (a whole one, or its attempt's last part)
 };
 
 // How much a tile matters to draw early; higher first.
@@ -49,10 +60,10 @@ struct FinishedFrame {
   std::vector<TileRect> failedTiles;  // never came back: the caller marks them
 };
 
-// The bytes of a TileImage's pixels (RGBA8 rows of its rect), checked
-// against its payload (`payloadBytes`: the pixels, then as many again of
-// float depth when the header says so). Throws ProtocolError naming
-// `sourceRank`.
+// The bytes of a TileImage's pixels (RGBA8 rows of its rect, or the point
+// kernel's words for a part of a split tile), checked against its payload
+// (`payloadBytes`: the pixels, then as many again of float depth when the
+// header says so). Throws ProtocolError naming `sourceRank`.
 std::uint64_t tileImagePixelBytes(const v1::TileImageHeader& header, std::size_t payloadBytes,
                                   int sourceRank);
 
@@ -78,10 +89,17 @@ class FrameAssembly {
   // then hands waiting tiles to idle traverse processes. Returns how many
   // tiles were re-queued.
   std::uint32_t dispatch(TimePoint now, Outbox& out);
-  // A tile image arrived (its pixels already checked against its rect). True
-  // when its frame was waiting for it: the caller composes it then; false for
-  // a late copy of a re-issued tile, which is only counted.
-  bool tileArrived(const v1::TileImageHeader& header, TimePoint now);
+  // A tile image arrived (its pixels already checked against its rect).
+  // Complete when its frame was waiting for it: the caller composes it then.
+  // A part of a split tile is Part until the last part of the same attempt
+  // arrives, which is Complete; the caller composes every part it is given
+  // (TilePartCompositor). Late for a late copy of a re-issued tile, or a part
+  // of a tile already in, which is only counted. Each part counts as its
+  // render's work. ProtocolError for a part index out of its count.
+  TileArrival tileArrived(const v1::TileImageHeader& header, TimePoint now);
+  // The part size the traverse processes split this frame's heavy tiles
+  // into (TileTask.part_splats); 0: not split.
+  std::uint64_t partSplatsFor(std::uint64_t frame) const;
   // Tiles of an admitted frame done (arrived or given up) and in all; {0, 0}
   // for a frame not in the window.
   std::pair<std::uint32_t, std::uint32_t> tileProgress(std::uint64_t frame);
@@ -124,6 +142,14 @@ class FrameAssembly {
   // Regions scheduler: each admitted frame's tiles' home render processes.
   std::map<std::uint64_t, std::vector<std::uint32_t>> homes_;
   std::map<std::pair<std::uint64_t, std::uint32_t>, double> dispatchedAt_;
+  // Split tiles whose parts are coming in, by (frame, tile, attempt).
+  struct PartsInFlight {
+    std::vector<bool> received;
+    std::uint32_t missing = 0;
+    std::uint64_t splats = 0;
+    double seconds = 0.0;
+  };
+  std::map<std::tuple<std::uint64_t, std::uint32_t, std::uint32_t>, PartsInFlight> parts_;
   std::map<std::uint64_t, FrameRecord> pending_;
   RunStats stats_;
 };

@@ -74,17 +74,21 @@ std::optional<TileTaskRef> FrameScheduler::nextTask(Clock::time_point now) {
   return std::nullopt;
 }
 
+bool FrameScheduler::tileWaiting(std::uint64_t frameIndex, std::uint32_t tileIndex,
+                                 const TileRect& rect) const {
+  const auto state = std::find_if(frames_.begin(), frames_.end(),
+                                  [&](const FrameState& f) { return f.index == frameIndex; });
+  if (state == frames_.end() || tileIndex >= state->tiles.size()) return false;
+  const TileState& tile = state->tiles[tileIndex];
+  return !tile.done && !tile.failed && tile.rect.x() == rect.x() && tile.rect.y() == rect.y() &&
+         tile.rect.width() == rect.width() && tile.rect.height() == rect.height();
+}
+
 bool FrameScheduler::tileArrived(std::uint64_t frameIndex, std::uint32_t tileIndex,
                                  const TileRect& rect) {
+  if (!tileWaiting(frameIndex, tileIndex, rect)) return false;
   FrameState* state = frame(frameIndex);
-  if (state == nullptr || tileIndex >= state->tiles.size()) return false;
-  TileState& tile = state->tiles[tileIndex];
-  if (tile.done || tile.failed) return false;
-  if (tile.rect.x() != rect.x() || tile.rect.y() != rect.y() || tile.rect.width() != rect.width() ||
-      tile.rect.height() != rect.height()) {
-    return false;
-  }
-  tile.done = true;
+  state->tiles[tileIndex].done = true;
   --state->remaining;
   return true;
 }

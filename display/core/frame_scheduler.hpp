@@ -54,6 +54,8 @@ class FrameScheduler {
   // A tile image arrived. Returns false when it is stale (frame gone, tile
   // already done, or the rect does not match); the image is then ignored.
   bool tileArrived(std::uint64_t frame, std::uint32_t tile, const TileRect& rect);
+  // Whether tileArrived would take it now (it changes nothing).
+  bool tileWaiting(std::uint64_t frame, std::uint32_t tile, const TileRect& rect) const;
   FrameState* frame(std::uint64_t index);
   // Tiles past their deadline go back to the queue, or fail after maxAttempts.
   // Returns how many were re-queued.

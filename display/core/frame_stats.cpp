@@ -111,6 +111,8 @@ std::vector<std::pair<std::string, std::string>> keyFigureFields(const KeyFigure
       {"reissued_tiles", count(k.reissuedTiles)},
       {"failed_tiles", count(k.failedTiles)},
       {"late_tiles", count(k.lateTiles)},
+      {"split_tiles", count(k.splitTiles)},
+      {"tile_parts", count(k.tileParts)},
       {"cpu_per_frame_display", number(cpuOf(k, "display"))},
       {"cpu_per_frame_traverse", number(cpuOf(k, "traverse"))},
       {"cpu_per_frame_datasend", number(cpuOf(k, "datasend"))},
@@ -259,6 +261,8 @@ KeyFigures RunStats::keyFigures() const {
   k.framesPerSecond = framesPerSecond(0);
   k.framesPerSecondSteady = framesPerSecond(k.steadyFrom);
   k.lateTiles = lateTiles;
+  k.splitTiles = splitTiles;
+  k.tileParts = tileParts;
   const FrameSums& all = totals.all;
   if (k.frames > 0) {
     const auto frameCount = static_cast<double>(k.frames);
@@ -549,10 +553,12 @@ std::string RunStats::summary() const {
                 static_cast<unsigned long long>(k.evictions),
                 static_cast<double>(k.peakCacheBytes) / 1048576.0);
   out << line;
-  std::snprintf(line, sizeof line, "tiles: %llu re-issued, %llu failed, %llu late\n",
-                static_cast<unsigned long long>(k.reissuedTiles),
-                static_cast<unsigned long long>(k.failedTiles),
-                static_cast<unsigned long long>(k.lateTiles));
+  std::snprintf(
+      line, sizeof line,
+      "tiles: %llu re-issued, %llu failed, %llu late, %llu split into %llu parts\n",
+      static_cast<unsigned long long>(k.reissuedTiles),
+      static_cast<unsigned long long>(k.failedTiles), static_cast<unsigned long long>(k.lateTiles),
+      static_cast<unsigned long long>(k.splitTiles), static_cast<unsigned long long>(k.tileParts));
   out << line;
   for (const LostProcess& p : lost) {
     std::snprintf(line, sizeof line, "lost: %s rank %d at %.2f s (%s)%s\n", p.role.c_str(), p.rank,

@@ -323,7 +323,13 @@ v1::TileImageHeader RenderCore::packetDrawn(const ReadyPacket& ready, std::uint6
   header.set_frame_id(packet.frame_id());
   header.set_tile_id(packet.tile_id());
   *header.mutable_rect() = packet.rect();
-  header.set_format(v1::PIXEL_FORMAT_RGBA8);
+  // A part of a split tile goes as the point kernel's words, to be composed.
+  const bool part = packet.part_count() > 1;
+  header.set_format(part ? v1::PIXEL_FORMAT_POINT_WORDS64 : v1::PIXEL_FORMAT_RGBA8);
+  if (part) {
+    header.set_part_index(packet.part_index());
+    header.set_part_count(packet.part_count());
+  }
   header.set_render_rank(selfRank_);
   header.set_splats_rendered(splats);
   header.set_render_time_us(static_cast<std::int64_t>(seconds * 1e6));

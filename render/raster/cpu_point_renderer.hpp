@@ -128,6 +128,9 @@ class CpuPointRenderer final : public TileRenderer {
   std::span<const std::uint8_t> pixels() const override { return pixels_; }
   // From the packed words' depth half (settings.keepDepth).
   std::span<const float> depths() const override { return depths_; }
+  std::span<const std::uint64_t> pointWords() const override {
+    return {buffers_.data(), pixels_.size() / 4};
+  }
   void warmUp(const RenderSettings&) override {}
   std::string describe() const override;
 

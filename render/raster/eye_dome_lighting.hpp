@@ -90,6 +90,10 @@ class EdlTileRenderer final : public TileRenderer {
   std::span<const float> depths() const override {
     return shaded_ ? std::span<const float>(depths_) : inner_->depths();
   }
+  // A shaded tile's words would be of the grown rect, before shading: none.
+  std::span<const std::uint64_t> pointWords() const override {
+    return shaded_ ? std::span<const std::uint64_t>() : inner_->pointWords();
+  }
   void warmUp(const RenderSettings& settings) override { inner_->warmUp(settings); }
   std::string describe() const override { return inner_->describe(); }
   void setStatisticalClasses(std::shared_ptr<const ClassTables> classes) override {

@@ -120,6 +120,10 @@ class TileRenderer {
   // With settings.keepDepth, the last tile's eye-space depth per pixel (as
   // pixels()), +infinity where nothing was drawn; otherwise empty.
   virtual std::span<const float> depths() const = 0;
+  // The cpu point kernel's packed word per pixel of the last tile (as
+  // pixels()), for a part of a split tile the display composes by the
+  // minimum; empty for renderers that draw otherwise.
+  virtual std::span<const std::uint64_t> pointWords() const { return {}; }
   // Whatever the first draw would pay once (shader compilation), paid now.
   virtual void warmUp(const RenderSettings& settings) = 0;
   virtual std::string describe() const = 0;

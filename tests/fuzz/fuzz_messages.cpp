@@ -180,7 +180,7 @@ void tileTask(const v1::TileTask& task) {
     ahead = traverse::topLevelCellsInTile(culling, *scene.layers, *camera, task.rect(), traversal);
   }
   Outbox out;
-  (void)planner.planPacket(task, traverse::walkOf(walk), ahead, kStart, out);
+  (void)planner.planPackets(task, traverse::walkOf(walk), ahead, kStart, out);
 }
 
 void traverseReport(const v1::RenderReport& report, int source) {

@@ -9,7 +9,7 @@
 
 namespace pointillist::traverse {
 TileWalk walkOf(const TraversalResult& result) {
-  return TileWalk{result.needs, result.splats, result.ranges};
+  return TileWalk{result.needs, result.splats, result.ranges, {}};
 }
 
 TraversalSettings traversalSettings(const v1::RunSettings& settings) {
@@ -74,29 +74,138 @@ std::optional<Camera> PacketPlanner::lookaheadCamera(const v1::TileTask& task) c
   return task.lookahead_camera();
 }
 
-PacketPlan PacketPlanner::planPacket(const v1::TileTask& task, const TileWalk& walk,
-                                     std::span<const CellPrefix> ahead, TimePoint now,
-                                     Outbox& out) {
-  PacketPlan plan;
-  plan.needs.reserve(walk.needs.size());
+std::vector<WalkPart> splitWalk(const TileWalk& walk, std::size_t parts) {
+  const std::size_t needs = walk.needs.size();
+  // Each need's drawn splats and its block of ranges (ranges are sorted by
+  // cell, needs ascending: one block per need).
+  std::vector<std::uint64_t> drawn(needs, 0);
+  std::vector<std::size_t> rangeStart(needs + 1, walk.ranges.size());
+  if (!walk.ranges.empty()) {
+    std::size_t range = 0;
+    for (std::size_t need = 0; need < needs; ++need) {
+      rangeStart[need] = range;
+      while (range < walk.ranges.size() && walk.ranges[range].topLevel == walk.needs[need].cell) {
+        drawn[need] += walk.ranges[range].count;
+        ++range;
+      }
+    }
+    if (range != walk.ranges.size()) {
+      throw ProtocolError("tile walk has ranges of top-level cell " +
+                          std::to_string(walk.ranges[range].topLevel) + " that it does not need");
+    }
+  } else if (walk.drawn.size() == needs) {
+    std::copy(walk.drawn.begin(), walk.drawn.end(), drawn.begin());
+    std::fill(rangeStart.begin(), rangeStart.end(), 0);
+  } else if (needs > 0) {
+    throw ProtocolError("tile walk has neither ranges nor drawn counts for its " +
+                        std::to_string(needs) + " cells");
+  }
+  std::vector<std::uint64_t> before(needs + 1, 0);  // splats drawn from needs [0, i)
+  for (std::size_t need = 0; need < needs; ++need) before[need + 1] = before[need] + drawn[need];
+  const std::uint64_t total = before[needs];
+
+  std::vector<WalkPart> result;
+  parts = std::clamp<std::size_t>(parts, 1, std::max<std::size_t>(1, needs));
+  std::size_t first = 0;
+  for (std::size_t part = 1; part <= parts && first < needs; ++part) {
+    std::size_t end = needs;
+    if (part < parts) {
+      // The cut nearest the share; at least one need in this part, and
+      // enough left for the parts after it.
+      const double share =
+          static_cast<double>(total) * static_cast<double>(part) / static_cast<double>(parts);
+      end = static_cast<std::size_t>(
+          std::lower_bound(before.begin(), before.end(), static_cast<std::uint64_t>(share)) -
+          before.begin());
+      if (end > first + 1 &&
+          share - static_cast<double>(before[end - 1]) < static_cast<double>(before[end]) - share) {
+        --end;
+      }
+      end = std::clamp(end, first + 1, needs - (parts - part));
+    }
+    const std::uint64_t splats = before[end] - before[first];
+    if (splats > 0 || result.empty()) {
+      result.push_back({first, end, rangeStart[first], rangeStart[end], splats});
+    } else {
+      // An empty run of cells joins the part before it.
+      result.back().endNeed = end;
+      result.back().endRange = rangeStart[end];
+    }
+    first = end;
+  }
+  if (walk.ranges.empty()) {
+    for (WalkPart& part : result) part.firstRange = part.endRange = 0;
+  }
+  return result;
+}
+
+std::size_t PacketPlanner::partsFor(const v1::TileTask& task, const TileWalk& walk) const {
+  const std::uint64_t partSplats = task.part_splats();
+  if (partSplats == 0 || walk.splats < 2 * partSplats || walk.needs.size() < 2) return 1;
+  const v1::Scheduler scheduler = schedulerFor(task);
+  if (scheduler != v1::SCHEDULER_COST && scheduler != v1::SCHEDULER_REGIONS) return 1;
+  if (!tileSplitAllowed(settings_, task.frame_settings())) return 1;
+  // Instanced sections are not the point kernel's to draw.
+  for (const PacketRange& range : walk.ranges) {
+    if (range.section) return 1;
+  }
+  return std::min<std::size_t>({walk.splats / partSplats, model_.liveCount(), walk.needs.size()});
+}
+
+std::vector<PacketPlan> PacketPlanner::planPackets(const v1::TileTask& task, const TileWalk& walk,
+                                                   std::span<const CellPrefix> ahead, TimePoint now,
+                                                   Outbox& out) {
   for (const CellPrefix& need : walk.needs) {
     if (need.cell >= layers_->cellCount() || need.splats > layers_->totalSplats(need.cell)) {
       throw ProtocolError("tile walk needs " + std::to_string(need.splats) +
                           " splats of top-level cell " + std::to_string(need.cell) +
                           ", beyond the dataset's packets");
     }
+  }
+  std::vector<WalkPart> parts;
+  if (const std::size_t count = partsFor(task, walk); count > 1) parts = splitWalk(walk, count);
+  if (parts.size() < 2) {
+    parts.assign(1, WalkPart{0, walk.needs.size(), 0, walk.ranges.size(), walk.splats});
+  }
+  std::vector<PacketPlan> plans;
+  plans.reserve(parts.size());
+  const auto count = static_cast<std::uint32_t>(parts.size());
+  for (std::uint32_t index = 0; index < count; ++index) {
+    plans.push_back(planPart(task, walk, parts[index], index, count,
+                             index == 0 ? ahead : std::span<const CellPrefix>(), now, out));
+  }
+  if (count > 1) {
+    ++tilesSplit_;
+    partsSent_ += count;
+  }
+  ++tasksDone_;
+  splatsPacked_ += walk.splats;
+  requestWork(out);
+  return plans;
+}
+
+PacketPlan PacketPlanner::planPart(const v1::TileTask& task, const TileWalk& walk,
+                                   const WalkPart& part, std::uint32_t partIndex,
+                                   std::uint32_t partCount, std::span<const CellPrefix> ahead,
+                                   TimePoint now, Outbox& out) {
+  PacketPlan plan;
+  plan.splats = part.splats;
+  plan.partIndex = partIndex;
+  plan.partCount = partCount;
+  plan.needs.reserve(part.endNeed - part.firstNeed);
+  for (std::size_t i = part.firstNeed; i < part.endNeed; ++i) {
+    const CellPrefix& need = walk.needs[i];
     plan.needs.push_back({need.cell, layers_->roundUp(need.cell, need.splats)});
   }
-  switch (schedulerFor(task)) {
-    case v1::SCHEDULER_COST:
-      plan.choice = model_.choose(plan.needs, walk.splats, now);
-      break;
-    case v1::SCHEDULER_REGIONS:
-      plan.choice = model_.chooseNearHome(task.assigned_render(), plan.needs, walk.splats, now);
-      break;
-    default:
-      plan.choice = model_.assigned(task.assigned_render(), plan.needs, walk.splats);
-      break;
+  const v1::Scheduler scheduler = schedulerFor(task);
+  if (scheduler == v1::SCHEDULER_COST || (scheduler == v1::SCHEDULER_REGIONS && partIndex > 0)) {
+    // The parts after the first go where the cost function sends them: the
+    // region's render already has the first.
+    plan.choice = model_.choose(plan.needs, part.splats, now);
+  } else if (scheduler == v1::SCHEDULER_REGIONS) {
+    plan.choice = model_.chooseNearHome(task.assigned_render(), plan.needs, part.splats, now);
+  } else {
+    plan.choice = model_.assigned(task.assigned_render(), plan.needs, part.splats);
   }
   const RenderChoice& choice = plan.choice;
   plan.renderRank = peers_.renders.at(choice.render);
@@ -153,34 +262,37 @@ PacketPlan PacketPlanner::planPacket(const v1::TileTask& task, const TileWalk& w
     packet.add_top_level_cells(need.cell);
     packet.add_top_level_splats(need.splats);
   }
-  const int ranges = static_cast<int>(walk.ranges.size());
-  packet.mutable_range_top_level()->Reserve(ranges);
-  packet.mutable_range_offset()->Reserve(ranges);
-  packet.mutable_range_count()->Reserve(ranges);
-  for (const PacketRange& range : walk.ranges) {
+  const std::span<const PacketRange> ranges =
+      walk.ranges.subspan(part.firstRange, part.endRange - part.firstRange);
+  const int rangeCount = static_cast<int>(ranges.size());
+  packet.mutable_range_top_level()->Reserve(rangeCount);
+  packet.mutable_range_offset()->Reserve(rangeCount);
+  packet.mutable_range_count()->Reserve(rangeCount);
+  for (const PacketRange& range : ranges) {
     packet.add_range_top_level(range.topLevel);
     packet.add_range_offset(range.offset);
     packet.add_range_count(range.count);
   }
-  packet.set_total_splats(walk.splats);
+  packet.set_total_splats(part.splats);
   packet.set_traverse_rank(selfRank_);
   packet.set_packet_id(++packetsSent_);
   packet.set_ordered_bytes(choice.missingBytes);
   packet.set_chosen_cost(choice.cost);
   packet.set_prefetch_bytes(plan.prefetchBytes);
+  if (partCount > 1) {
+    packet.set_part_index(partIndex);
+    packet.set_part_count(partCount);
+  }
   if (task.has_frame_settings()) *packet.mutable_frame_settings() = task.frame_settings();
   out.send(plan.renderRank, std::move(packet));
-  model_.recordPacket(choice.render, packetsSent_, walk.splats, choice.missing, now);
+  model_.recordPacket(choice.render, packetsSent_, part.splats, choice.missing, now);
 
-  ++tasksDone_;
   std::uint64_t packetBytes = 0;
   for (const CellPrefix& need : plan.needs)
     packetBytes += std::uint64_t{need.splats} * sizeof(Splat);
   maxPacketBytes_ = std::max(maxPacketBytes_, packetBytes);
-  splatsPacked_ += walk.splats;
   cellsOrdered_ += choice.missing.size();
   bytesOrdered_ += choice.missingBytes;
-  requestWork(out);
   return plan;
 }
 
@@ -215,19 +327,20 @@ void PacketPlanner::renderLost(int renderRank) {
 }
 
 std::string PacketPlanner::summary() const {
-  char line[256];
-  std::snprintf(line, sizeof line,
-                "tasks=%llu splats=%llu ordered_cells=%llu ordered_bytes=%llu "
-                "prefetched_cells=%llu prefetched_bytes=%llu largest_tile_data=%.2fMiB "
-                "T_s=%.3gs/splat T_n=%.3gs/B",
-                static_cast<unsigned long long>(tasksDone_),
-                static_cast<unsigned long long>(splatsPacked_),
-                static_cast<unsigned long long>(cellsOrdered_),
-                static_cast<unsigned long long>(bytesOrdered_),
-                static_cast<unsigned long long>(cellsPrefetched_),
-                static_cast<unsigned long long>(bytesPrefetched_),
-                static_cast<double>(maxPacketBytes_) / 1048576.0, model_.secondsPerSplat(),
-                model_.secondsPerByte());
+  char line[320];
+  std::snprintf(
+      line, sizeof line,
+      "tasks=%llu splats=%llu ordered_cells=%llu ordered_bytes=%llu "
+      "prefetched_cells=%llu prefetched_bytes=%llu largest_tile_data=%.2fMiB "
+      "tiles_split=%llu parts=%llu T_s=%.3gs/splat T_n=%.3gs/B",
+      static_cast<unsigned long long>(tasksDone_), static_cast<unsigned long long>(splatsPacked_),
+      static_cast<unsigned long long>(cellsOrdered_),
+      static_cast<unsigned long long>(bytesOrdered_),
+      static_cast<unsigned long long>(cellsPrefetched_),
+      static_cast<unsigned long long>(bytesPrefetched_),
+      static_cast<double>(maxPacketBytes_) / 1048576.0,
+      static_cast<unsigned long long>(tilesSplit_), static_cast<unsigned long long>(partsSent_),
+      model_.secondsPerSplat(), model_.secondsPerByte());
   return line;
 }
 

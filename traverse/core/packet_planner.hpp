@@ -32,20 +32,43 @@ struct TileWalk {
   std::span<const CellPrefix> needs;  // distinct cells, ascending; prefixes not yet rounded
   std::uint64_t splats = 0;
   std::span<const PacketRange> ranges;
+  // Splats drawn from each need (parallel to needs), for a walk without
+  // ranges; with ranges they are counted from those.
+  std::span<const std::uint32_t> drawn;
 };
 
 TileWalk walkOf(const TraversalResult& result);
 
+// One part of a split walk: needs [firstNeed, endNeed) and their ranges
+// [firstRange, endRange) (none for a walk without ranges).
+struct WalkPart {
+  std::size_t firstNeed = 0, endNeed = 0;
+  std::size_t firstRange = 0, endRange = 0;
+  std::uint64_t splats = 0;
+  bool operator==(const WalkPart&) const = default;
+};
+
+// Cuts a walk into at most `parts` pieces of whole top-level cells, runs of
+// neighbours in cell order (so the same cells tend to fall to the same part
+// from frame to frame, and stay cached where they went), each cut where the
+// running count of drawn splats is nearest an equal share. Never an empty
+// piece; one piece when the walk draws from one cell. ProtocolError when
+// ranges and needs disagree.
+std::vector<WalkPart> splitWalk(const TileWalk& walk, std::size_t parts);
+
 // The traversal settings of a run (level of detail, size scale, culling).
 TraversalSettings traversalSettings(const v1::RunSettings& settings);
 
-// What planPacket decided, beside the messages it queued.
+// What planPackets decided for one render packet, beside the messages it queued.
 struct PacketPlan {
   RenderChoice choice;
   int renderRank = -1;
   std::vector<CellPrefix> needs;  // the walk's needs rounded up to layer ends
   std::uint64_t prefetchBytes = 0;
   std::vector<CellPrefix> prefetch;
+  std::uint64_t splats = 0;
+  std::uint32_t partIndex = 0;
+  std::uint32_t partCount = 1;  // > 1: a part of a split tile
 };
 
 class PacketPlanner {
@@ -67,12 +90,19 @@ class PacketPlanner {
   // The camera whose view of the task's rect should be ordered ahead, if the
   // run prefetches along the camera path; the caller walks it for planPacket.
   std::optional<Camera> lookaheadCamera(const v1::TileTask& task) const;
-  // One walked tile: rounds its needs up to layer ends, chooses the render
-  // process, orders what it lacks of them and the prefetch (`ahead`: the
-  // lookahead walk's cells and estimated prefixes), sends the render packet,
-  // and asks the display for the next tile.
-  PacketPlan planPacket(const v1::TileTask& task, const TileWalk& walk,
-                        std::span<const CellPrefix> ahead, TimePoint now, Outbox& out);
+  // How many parts a tile's walk is cut into: walk.splats / task.part_splats
+  // when at least two, as far as the frame may be split (tileSplitAllowed),
+  // the walk has cells and live renders enough; else 1.
+  std::size_t partsFor(const v1::TileTask& task, const TileWalk& walk) const;
+  // One walked tile: cut into parts (partsFor, splitWalk), each rounds its
+  // needs up to layer ends, chooses its render process (a part that follows
+  // sees the earlier ones' work queued), orders what that process lacks of
+  // them and, for the first, the prefetch (`ahead`: the lookahead walk's cells
+  // and estimated prefixes), and sends its render packet; then asks the
+  // display for the next tile. One plan per packet sent, in part order.
+  std::vector<PacketPlan> planPackets(const v1::TileTask& task, const TileWalk& walk,
+                                      std::span<const CellPrefix> ahead, TimePoint now,
+                                      Outbox& out);
   // A render process's report of its workload, cache changes and rates.
   void applyReport(int sourceRank, const v1::RenderReport& report, TimePoint now);
 
@@ -81,6 +111,7 @@ class PacketPlanner {
   const RenderModel& model() const { return model_; }
   const PacketLayers& layers() const { return *layers_; }
   std::uint64_t tasksDone() const { return tasksDone_; }
+  std::uint64_t tilesSplit() const { return tilesSplit_; }
   std::uint64_t largestTileBytes() const { return maxPacketBytes_; }
   std::string summary() const;
 
@@ -93,7 +124,13 @@ class PacketPlanner {
   std::shared_ptr<const PacketLayers> layers_;
   std::vector<std::uint32_t> owners_;
   RenderModel model_;
+  PacketPlan planPart(const v1::TileTask& task, const TileWalk& walk, const WalkPart& part,
+                      std::uint32_t partIndex, std::uint32_t partCount,
+                      std::span<const CellPrefix> ahead, TimePoint now, Outbox& out);
+
   std::uint64_t tasksDone_ = 0;
+  std::uint64_t tilesSplit_ = 0;
+  std::uint64_t partsSent_ = 0;
   std::uint64_t packetsSent_ = 0;
   std::uint64_t ordersSent_ = 0;
   std::uint64_t splatsPacked_ = 0;

@@ -118,8 +118,9 @@ TEST(FrameAssembly, RegionTilesGoToTheirOwnRenderInEveryFrameEvenWhenPlannedAhea
       }
       // Render 1's region measures three times the work of render 0's.
       const std::uint64_t splats = task.assigned_render() == 1 ? 3000 : 1000;
-      EXPECT_TRUE(
-          assembly.tileArrived(tile(task, splats, kPeers.renders[task.assigned_render()]), kStart));
+      EXPECT_EQ(
+          assembly.tileArrived(tile(task, splats, kPeers.renders[task.assigned_render()]), kStart),
+          TileArrival::Complete);
     }
     assembly.finishFrames(kStart);
   }
@@ -140,7 +141,7 @@ TEST(FrameAssembly, ReissuesALateTileAndCountsTheLateCopyWithoutComposingIt) {
   ASSERT_EQ(first.size(), 4u);
   EXPECT_EQ(assembly.tileProgress(0), std::make_pair(0u, 4u));
   for (std::size_t i = 1; i < first.size(); ++i) {
-    EXPECT_TRUE(assembly.tileArrived(tile(first[i], 100), kStart + 100ms));
+    EXPECT_EQ(assembly.tileArrived(tile(first[i], 100), kStart + 100ms), TileArrival::Complete);
     EXPECT_EQ(assembly.tileProgress(0), std::make_pair(static_cast<std::uint32_t>(i), 4u));
   }
   EXPECT_TRUE(assembly.finishFrames(kStart + 100ms).empty());
@@ -158,7 +159,7 @@ TEST(FrameAssembly, ReissuesALateTileAndCountsTheLateCopyWithoutComposingIt) {
   ASSERT_EQ(again.size(), 1u);
   EXPECT_EQ(again[0].tile_id(), first[0].tile_id());
   EXPECT_EQ(again[0].attempt(), 1u);
-  EXPECT_TRUE(assembly.tileArrived(tile(again[0], 100), kStart + 1200ms));
+  EXPECT_EQ(assembly.tileArrived(tile(again[0], 100), kStart + 1200ms), TileArrival::Complete);
   EXPECT_EQ(assembly.tileProgress(0), std::make_pair(4u, 4u));
   const auto finished = assembly.finishFrames(kStart + 1200ms);
   ASSERT_EQ(finished.size(), 1u);
@@ -168,7 +169,7 @@ TEST(FrameAssembly, ReissuesALateTileAndCountsTheLateCopyWithoutComposingIt) {
   EXPECT_DOUBLE_EQ(finished[0].record.startSeconds, 0.0);
   EXPECT_DOUBLE_EQ(finished[0].record.endSeconds, 1.2);
   // The first attempt turns up after all: counted, not composed.
-  EXPECT_FALSE(assembly.tileArrived(tile(first[0], 100), kStart + 1300ms));
+  EXPECT_EQ(assembly.tileArrived(tile(first[0], 100), kStart + 1300ms), TileArrival::Late);
   EXPECT_EQ(assembly.stats().lateTiles, 1u);
   EXPECT_EQ(assembly.tileProgress(0), std::make_pair(0u, 0u));  // out of the window
   EXPECT_TRUE(assembly.done());
@@ -238,8 +239,8 @@ TEST(FrameAssembly, ALostRenderProcessesTilesGoOutAgainAtOnce) {
   const auto first = takeAll(assembly, kStart);
   ASSERT_EQ(first.size(), 4u);
   // Two tiles came back from render 4; render 5 held the other two and died.
-  EXPECT_TRUE(assembly.tileArrived(tile(first[0], 100, 4), kStart + 10ms));
-  EXPECT_TRUE(assembly.tileArrived(tile(first[1], 100, 4), kStart + 10ms));
+  EXPECT_EQ(assembly.tileArrived(tile(first[0], 100, 4), kStart + 10ms), TileArrival::Complete);
+  EXPECT_EQ(assembly.tileArrived(tile(first[1], 100, 4), kStart + 10ms), TileArrival::Complete);
   EXPECT_EQ(assembly.renderLost(5, kStart + 200ms, "no word from it for 5.0 s"), 2u);
   EXPECT_EQ(assembly.planner().liveRenders(), 1u);
   // Long before the tiles' deadline, they are handed out again.
@@ -248,13 +249,13 @@ TEST(FrameAssembly, ALostRenderProcessesTilesGoOutAgainAtOnce) {
   for (const auto& task : again) {
     EXPECT_EQ(task.attempt(), 1u);
     EXPECT_TRUE(task.tile_id() == first[2].tile_id() || task.tile_id() == first[3].tile_id());
-    EXPECT_TRUE(assembly.tileArrived(tile(task, 100, 4), kStart + 300ms));
+    EXPECT_EQ(assembly.tileArrived(tile(task, 100, 4), kStart + 300ms), TileArrival::Complete);
   }
   const auto finished = assembly.finishFrames(kStart + 300ms);
   ASSERT_EQ(finished.size(), 1u);
   EXPECT_EQ(finished[0].record.reissuedTiles, 2u);
   EXPECT_EQ(finished[0].record.failedTiles, 0u);
-  EXPECT_FALSE(assembly.tileArrived(tile(first[2], 100, 5), kStart + 350ms));
+  EXPECT_EQ(assembly.tileArrived(tile(first[2], 100, 5), kStart + 350ms), TileArrival::Late);
   ASSERT_EQ(assembly.stats().lost.size(), 1u);
   const LostProcess& lost = assembly.stats().lost[0];
   EXPECT_EQ(lost.role, "render");
@@ -373,7 +374,7 @@ TEST(FrameAssembly, ATilePriorityOrdersTheTilesHandedOut) {
     EXPECT_EQ(rects({planned[task.tile_id()]}), rects({task}));
   }
   for (const auto& task : ordered) {
-    EXPECT_TRUE(prioritized.tileArrived(tile(task, 100), kStart + 10ms));
+    EXPECT_EQ(prioritized.tileArrived(tile(task, 100), kStart + 10ms), TileArrival::Complete);
   }
   EXPECT_EQ(prioritized.finishFrames(kStart + 10ms).size(), 1u);
 }
@@ -386,6 +387,103 @@ TEST(FrameScheduler, RefusesATileOrderThatIsNotAPermutation) {
   scheduler.addFrame(0, camera(0.0f), tiles, {1, 0});
   EXPECT_EQ(scheduler.nextTask(FrameScheduler::Clock::now())->tile, 1u);
   EXPECT_EQ(scheduler.nextTask(FrameScheduler::Clock::now())->tile, 0u);
+}
+
+}  // namespace
+}  // namespace pointillist::display
+
+namespace pointillist::display {
+namespace {
+
+v1::TileImageHeader part(const v1::TileTask& task, std::uint32_t index, std::uint32_t count,
+                         std::uint64_t splats, int render) {
+  v1::TileImageHeader header = tile(task, splats, render);
+  header.set_format(v1::PIXEL_FORMAT_POINT_WORDS64);
+  header.set_part_index(index);
+  header.set_part_count(count);
+  header.set_render_time_us(static_cast<std::int64_t>(splats));
+  return header;
+}
+
+// A split tile (docs/scheduling.md §9) is in when every part of one attempt
+// is: each part counts as its own render's work, a copy or a part of an
+// attempt that lost is only counted, and the planner learns the tile's sum.
+TEST(FrameAssembly, ASplitTileIsInWhenEveryPartOfOneAttemptIs) {
+  FrameAssembly assembly(config(2), kPeers, kStart);
+  const auto tasks = takeAll(assembly, kStart);
+  ASSERT_EQ(tasks.size(), 4u);
+  for (std::size_t i = 1; i < 4; ++i) {
+    EXPECT_EQ(assembly.tileArrived(tile(tasks[i], 100), kStart + 1ms), TileArrival::Complete);
+  }
+  EXPECT_EQ(assembly.tileArrived(part(tasks[0], 1, 3, 400, 5), kStart + 2ms), TileArrival::Part);
+  EXPECT_EQ(assembly.tileArrived(part(tasks[0], 1, 3, 400, 5), kStart + 2ms), TileArrival::Late)
+      << "a copy of a part";
+  EXPECT_EQ(assembly.tileArrived(part(tasks[0], 0, 3, 500, 4), kStart + 3ms), TileArrival::Part);
+  EXPECT_TRUE(assembly.finishFrames(kStart + 3ms).empty()) << "a part is still out";
+  EXPECT_THROW(assembly.tileArrived(part(tasks[0], 3, 3, 1, 4), kStart), ProtocolError);
+  EXPECT_EQ(assembly.tileArrived(part(tasks[0], 2, 3, 600, 4), kStart + 4ms),
+            TileArrival::Complete);
+  EXPECT_EQ(assembly.tileArrived(part(tasks[0], 2, 3, 600, 4), kStart + 4ms), TileArrival::Late);
+  const auto finished = assembly.finishFrames(kStart + 4ms);
+  ASSERT_EQ(finished.size(), 1u);
+  const FrameRecord& record = finished[0].record;
+  EXPECT_EQ(record.splats, 300u + 1500u);
+  EXPECT_EQ(record.splatsPerRender.at(4), 300u + 500u + 600u);
+  EXPECT_EQ(record.splatsPerRender.at(5), 400u);
+  EXPECT_EQ(assembly.stats().splitTiles, 1u);
+  EXPECT_EQ(assembly.stats().tileParts, 3u);
+  EXPECT_EQ(assembly.stats().lateTiles, 2u);
+}
+
+TEST(FrameAssembly, ARetriedSplitTileTakesTheAttemptThatCompletesFirst) {
+  FrameAssemblyConfig c = config(1);
+  FrameAssembly assembly(c, kPeers, kStart);
+  const auto tasks = takeAll(assembly, kStart);
+  ASSERT_EQ(tasks.size(), 4u);
+  for (std::size_t i = 1; i < 4; ++i) assembly.tileArrived(tile(tasks[i], 100), kStart);
+  // The first attempt's part 0 arrives, then the tile times out.
+  EXPECT_EQ(assembly.tileArrived(part(tasks[0], 0, 2, 10, 4), kStart), TileArrival::Part);
+  const auto retried = takeAll(assembly, kStart + 2s);
+  ASSERT_EQ(retried.size(), 1u);
+  EXPECT_EQ(retried[0].attempt(), 1u);
+  // The retry is split three ways; its parts never complete the first attempt.
+  EXPECT_EQ(assembly.tileArrived(part(retried[0], 0, 3, 10, 5), kStart + 2s), TileArrival::Part);
+  EXPECT_EQ(assembly.tileArrived(part(retried[0], 1, 3, 10, 5), kStart + 2s), TileArrival::Part);
+  EXPECT_EQ(assembly.tileArrived(part(tasks[0], 1, 2, 10, 4), kStart + 2s), TileArrival::Complete)
+      << "the first attempt's last part completes it";
+  EXPECT_EQ(assembly.tileArrived(part(retried[0], 2, 3, 10, 5), kStart + 2s), TileArrival::Late);
+  EXPECT_EQ(assembly.finishFrames(kStart + 2s).size(), 1u);
+  EXPECT_TRUE(assembly.done());
+}
+
+TEST(FrameAssembly, TasksAskForSplitsOnlyOnceAFrameWasMeasuredAndWhereComposingIsExact) {
+  const auto partSplats = [](FrameAssemblyConfig c) {
+    FrameAssembly assembly(c, kPeers, kStart);
+    std::vector<std::uint64_t> perFrame;
+    for (std::size_t frame = 0; frame < c.cameras.size(); ++frame) {
+      const auto tasks = takeAll(assembly, kStart);
+      perFrame.push_back(tasks.empty() ? 0 : tasks[0].part_splats());
+      for (const auto& task : tasks) assembly.tileArrived(tile(task, 20'000), kStart);
+      assembly.finishFrames(kStart);
+    }
+    return perFrame;
+  };
+  // Four tiles of 20k splats for two renders at two tiles each: 20k a tile.
+  EXPECT_EQ(partSplats(config(2)), (std::vector<std::uint64_t>{0, 20'000}));
+  FrameAssemblyConfig fixed = config(2);
+  fixed.run.set_tile_part_splats(3000);
+  EXPECT_EQ(partSplats(fixed), (std::vector<std::uint64_t>{3000, 3000}));
+  FrameAssemblyConfig off = config(2);
+  off.run.set_no_tile_split(true);
+  EXPECT_EQ(partSplats(off), (std::vector<std::uint64_t>{0, 0}));
+  FrameAssemblyConfig gl = config(2);
+  gl.run.set_renderer(v1::RENDERER_GL);
+  EXPECT_EQ(partSplats(gl), (std::vector<std::uint64_t>{0, 0}));
+  EXPECT_EQ(partSplats(config(2, 3, SchedulerKind::RoundRobin)),
+            (std::vector<std::uint64_t>{0, 0}));
+  // Regions plans one tile per render: 40k over the four tiles' shares.
+  EXPECT_EQ(partSplats(config(2, 3, SchedulerKind::Regions)),
+            (std::vector<std::uint64_t>{0, 10'000}));
 }
 
 }  // namespace

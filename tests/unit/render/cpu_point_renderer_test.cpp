@@ -9,6 +9,7 @@
 
 #include "common/errors.hpp"
 #include "common/image.hpp"
+#include "display/core/tile_parts.hpp"
 #include "render/gl/tile_renderers.hpp"
 #include "render_test_util.hpp"
 
@@ -125,6 +126,58 @@ TEST(CpuPointRenderer, TilesAndThreadsMatchTheFullFrame) {
   }
   const ImageDiff diff = compareImages(full, tiled);
   EXPECT_EQ(diff.differingPixels, 0u) << "first at " << diff.firstX << "," << diff.firstY;
+}
+
+// A split tile (docs/scheduling.md §9): parts drawn by different renderers
+// from different cells, sent as the kernel's words and composed by the
+// display's TilePartCompositor in any order, equal the tile drawn whole.
+TEST(CpuPointRenderer, SplitTilePartsComposedAtTheDisplayEqualTheWholeTile) {
+  const Camera camera = cameraForBounds({-1, -1, -1}, {1, 1, 1}, 257, 190, 35.0f, 25.0f, 0.8f);
+  std::vector<Splat> splats = mixedScene(40000, 21);
+  // Exact depth ties across parts: the same position in two cells, two colours.
+  for (int i = 0; i < 200; ++i) {
+    Splat twin = splats[static_cast<std::size_t>(i) * 7];
+    twin.color[1] = static_cast<std::uint8_t>(twin.color[1] ^ 0x3c);
+    splats.push_back(twin);
+  }
+  RenderSettings settings = pointSettings();
+  settings.clearColor = {0.0f, 0.0f, 0.0f, 1.0f};  // the display's background
+  const TileRect rect = makeTileRect(37, 21, 150, 111);
+  CpuPointRenderer whole(1);
+  const Image expected = draw(whole, camera, rect, splats, settings);
+  EXPECT_GT(litCount(expected), 5000u);
+
+  // Five cells of different sizes, drawn as three parts on three renderers.
+  const std::uint32_t cellEnd[] = {9000, 9001, 22000, 31000,
+                                   static_cast<std::uint32_t>(splats.size())};
+  const std::vector<std::vector<std::uint32_t>> partCells = {{0, 1}, {2}, {3, 4}};
+  std::vector<std::vector<std::uint64_t>> partWords;
+  for (const auto& cells : partCells) {
+    CpuPointRenderer renderer(2);
+    std::vector<DrawRange> ranges;
+    for (std::uint32_t cell : cells) {
+      const std::uint32_t begin = cell == 0 ? 0 : cellEnd[cell - 1];
+      renderer.uploadCell(cell,
+                          std::span<const Splat>(splats).subspan(begin, cellEnd[cell] - begin));
+      ranges.push_back({cell, 0, cellEnd[cell] - begin});
+    }
+    renderer.render(camera, rect, ranges, settings);
+    const auto words = renderer.pointWords();
+    ASSERT_EQ(words.size(), std::size_t{rect.width()} * rect.height());
+    partWords.emplace_back(words.begin(), words.end());
+  }
+  for (const std::vector<std::size_t>& order :
+       {std::vector<std::size_t>{0, 1, 2}, std::vector<std::size_t>{2, 0, 1}}) {
+    display::TilePartCompositor compositor;
+    for (std::size_t part : order) {
+      compositor.merge(4, 9, 1, rect, std::as_bytes(std::span(partWords[part])));
+    }
+    const std::vector<std::uint8_t> rgba =
+        compositor.take(4, 9, 1, display::packRgba({0, 0, 0, 255}));
+    const ImageDiff diff = compareImages(expected, Image(rect.width(), rect.height(), rgba));
+    EXPECT_EQ(diff.differingPixels, 0u) << "first at " << diff.firstX << "," << diff.firstY;
+    EXPECT_EQ(compositor.tilesHeld(), 0u);
+  }
 }
 
 // Depth and colour are compared as one word, so the drawing order never shows.

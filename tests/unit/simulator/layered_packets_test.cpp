@@ -107,7 +107,7 @@ TEST(LayeredPackets, DeliverExactlyTheSplatsTheTraversalAskedFor) {
     *task.mutable_rect() = fullFrameRect(camera);
     Outbox out;
     const traverse::PacketPlan plan =
-        planner.planPacket(task, traverse::walkOf(walk), {}, now, out);
+        planner.planPackets(task, traverse::walkOf(walk), {}, now, out).front();
 
     // The prefix is the shortest layer-aligned one holding every range.
     ASSERT_EQ(plan.needs.size(), walk.needs.size());

@@ -83,7 +83,7 @@ traverse::DecisionLog recordedLog(const fs::path& file) {
         const auto walk = traverse::traverseTile(city.content.cells, task.camera(), task.rect(),
                                                  planner.traversal());
         Outbox out;
-        planner.planPacket(task, traverse::walkOf(walk), {}, now + 1ms, out);
+        planner.planPackets(task, traverse::walkOf(walk), {}, now + 1ms, out);
         writer.recordTask(now + 1ms, 0, task, out.entries());
         ++packets;
       }

@@ -82,21 +82,22 @@ void expectEveryTileOnce(const SimulationResult& result, std::size_t frames) {
                             " T=" + std::to_string(result.config.traverses);
   ASSERT_EQ(result.frames.size(), frames) << label;
   ASSERT_EQ(result.stats.frames.size(), frames) << label;
-  std::uint64_t tiles = 0;
+  std::uint64_t packets = 0;
   for (std::size_t i = 0; i < frames; ++i) {
     const FrameTrace& trace = result.frames[i];
     EXPECT_EQ(trace.frame, i) << label << ": frames completed out of order";
     EXPECT_GT(trace.tilesPlanned, 0u) << label;
     EXPECT_EQ(trace.tilesComposed, trace.tilesPlanned) << label << " frame " << i;
-    EXPECT_EQ(trace.packetsRendered, trace.tilesPlanned) << label << " frame " << i;
+    EXPECT_EQ(trace.packetsRendered, trace.tilesPlanned + trace.extraParts)
+        << label << " frame " << i;
     EXPECT_EQ(result.stats.frames[i].failedTiles, 0u) << label;
     EXPECT_EQ(result.stats.frames[i].reissuedTiles, 0u) << label;
     if (i > 0) {
       EXPECT_GE(result.stats.frames[i].endSeconds, result.stats.frames[i - 1].endSeconds);
     }
-    tiles += trace.tilesPlanned;
+    packets += trace.tilesPlanned + trace.extraParts;
   }
-  EXPECT_EQ(result.packetsRendered, tiles) << label;
+  EXPECT_EQ(result.packetsRendered, packets) << label;
   EXPECT_EQ(result.stats.lateTiles, 0u) << label;
 }
 

@@ -4,7 +4,9 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 #include <memory>
+#include <random>
 
 #include "common/splat.hpp"
 
@@ -98,7 +100,7 @@ struct Walk {
   std::vector<CellPrefix> needs;
   std::uint64_t splats;
   std::vector<PacketRange> ranges;
-  TileWalk view() const { return {needs, splats, ranges}; }
+  TileWalk view() const { return {needs, splats, ranges, {}}; }
 };
 
 v1::RenderReport report(std::uint64_t workload, std::vector<std::uint32_t> loaded = {},
@@ -143,7 +145,7 @@ TEST(PacketPlanner, SendsThePacketToTheRenderHoldingTheDataAndOrdersTheRestFromT
   p.applyReport(kRender1, report(0, {0, 4}), kStart);
   Outbox out;
   const Walk walk({0, 1, 4, 5}, 10'000, {{0, 0, 10}, {5, 3, 7}});
-  const PacketPlan plan = p.planPacket(task(3, 2), walk.view(), {}, kStart, out);
+  const PacketPlan plan = p.planPackets(task(3, 2), walk.view(), {}, kStart, out).front();
   EXPECT_EQ(plan.renderRank, kRender1);
   EXPECT_EQ(plan.choice.missing, whole({1, 5}));
   EXPECT_EQ(ordersIn(out),
@@ -174,12 +176,12 @@ TEST(PacketPlanner, OrderedCellsCountAsPresentUntilAReportSaysOtherwise) {
   PacketPlanner p = planner();
   Outbox first;
   const Walk walk({2});
-  const PacketPlan plan = p.planPacket(task(0, 0), walk.view(), {}, kStart, first);
+  const PacketPlan plan = p.planPackets(task(0, 0), walk.view(), {}, kStart, first).front();
   ASSERT_EQ(ordersIn(first).size(), 1u);
   // The same cells again: the same render wins (no bytes to move) and
   // nothing is ordered twice.
   Outbox second;
-  const PacketPlan again = p.planPacket(task(0, 1), walk.view(), {}, kStart, second);
+  const PacketPlan again = p.planPackets(task(0, 1), walk.view(), {}, kStart, second).front();
   EXPECT_EQ(again.renderRank, plan.renderRank);
   EXPECT_TRUE(ordersIn(second).empty());
   // The render reports the cell evicted: it must be ordered again.
@@ -196,18 +198,21 @@ TEST(PacketPlanner, AvoidsARenderThatHasStoppedFinishingWork) {
   p.applyReport(kRender1, report(0), kStart);
   const Walk walk({1}, 1000);
   Outbox out;
-  EXPECT_EQ(p.planPacket(task(0, 0), walk.view(), {}, kStart, out).renderRank, kRender0);
+  EXPECT_EQ(p.planPackets(task(0, 0), walk.view(), {}, kStart, out).front().renderRank, kRender0);
   // It acknowledges the packet but never finishes one.
   p.applyReport(kRender0, report(1000, {}, 0, 1), kStart + 100ms);
-  EXPECT_EQ(p.planPacket(task(0, 1), walk.view(), {}, kStart + 200ms, out).renderRank, kRender0);
+  EXPECT_EQ(p.planPackets(task(0, 1), walk.view(), {}, kStart + 200ms, out).front().renderRank,
+            kRender0);
   // After a second with work and no progress it is suspected stalled: the
   // work goes to render 1, although the data has to move.
-  const PacketPlan moved = p.planPacket(task(1, 0), walk.view(), {}, kStart + 2s, out);
+  const PacketPlan moved = p.planPackets(task(1, 0), walk.view(), {}, kStart + 2s, out).front();
   EXPECT_EQ(moved.renderRank, kRender1);
   EXPECT_EQ(moved.choice.missing, whole({1}));
   // Progress clears the suspicion.
   p.applyReport(kRender0, report(0, {}, 3, 3), kStart + 2100ms);
-  EXPECT_EQ(p.planPacket(task(1, 1), Walk({3}, 1000).view(), {}, kStart + 2200ms, out).renderRank,
+  EXPECT_EQ(p.planPackets(task(1, 1), Walk({3}, 1000).view(), {}, kStart + 2200ms, out)
+                .front()
+                .renderRank,
             kRender0);
 }
 
@@ -221,7 +226,8 @@ TEST(PacketPlanner, PrefetchesWhatTheRectNeedsLaterWithinTheBudgetWithoutDuplica
   // Cell 1 is needed now; 1 (again), 2 and 3 later. The 8 MiB budget takes
   // 2 (3 MB) and 3 (4 MB), not 5 (6 MB more).
   const auto ahead = whole({1, 2, 3, 5});
-  const PacketPlan plan = p.planPacket(withLookahead, Walk({1}).view(), ahead, kStart, out);
+  const PacketPlan plan =
+      p.planPackets(withLookahead, Walk({1}).view(), ahead, kStart, out).front();
   EXPECT_EQ(plan.prefetch, whole({2, 3}));
   EXPECT_EQ(plan.prefetchBytes, 7'000'000u);
   EXPECT_EQ(ordersIn(out),
@@ -254,7 +260,7 @@ TEST(PacketPlanner, RoundsNeedsUpToLayersAndOrdersOnlyWhatLiesBeyondTheHeldPrefi
   Outbox out;
   // 700 splats of cell 0 lie in its first layer, which render 0 holds.
   PacketPlan plan =
-      p.planPacket(task(0, 0), Walk::prefixes({{0, 700}}, 10).view(), {}, kStart, out);
+      p.planPackets(task(0, 0), Walk::prefixes({{0, 700}}, 10).view(), {}, kStart, out).front();
   EXPECT_EQ(plan.renderRank, kRender0);
   EXPECT_EQ(plan.needs, (std::vector<CellPrefix>{{0, 1000}}));
   EXPECT_TRUE(ordersIn(out).empty());
@@ -262,7 +268,8 @@ TEST(PacketPlanner, RoundsNeedsUpToLayersAndOrdersOnlyWhatLiesBeyondTheHeldPrefi
   // 1500 splats reach into the second layer: the order names the prefix through
   // it, and the packet counts only the 4000 splats beyond the first layer.
   Outbox closer;
-  plan = p.planPacket(task(0, 1), Walk::prefixes({{0, 1500}}, 10).view(), {}, kStart, closer);
+  plan =
+      p.planPackets(task(0, 1), Walk::prefixes({{0, 1500}}, 10).view(), {}, kStart, closer).front();
   EXPECT_EQ(plan.renderRank, kRender0);
   EXPECT_EQ(plan.needs, (std::vector<CellPrefix>{{0, 5000}}));
   EXPECT_EQ(ordersIn(closer), (std::vector<std::pair<int, std::vector<std::uint32_t>>>{{2, {0}}}));
@@ -271,13 +278,14 @@ TEST(PacketPlanner, RoundsNeedsUpToLayersAndOrdersOnlyWhatLiesBeyondTheHeldPrefi
   EXPECT_EQ(packetIn(closer).top_level_splats(0), 5000u);
   // Into the points: the whole packet.
   Outbox nearest;
-  plan = p.planPacket(task(0, 2), Walk::prefixes({{0, 5001}}, 10).view(), {}, kStart, nearest);
+  plan = p.planPackets(task(0, 2), Walk::prefixes({{0, 5001}}, 10).view(), {}, kStart, nearest)
+             .front();
   EXPECT_EQ(plan.needs, whole({0}));
   EXPECT_EQ(packetIn(nearest).ordered_bytes(), (wholeCell(0) - 5000u) * sizeof(Splat));
   // A need beyond the packet is refused.
-  EXPECT_THROW(
-      p.planPacket(task(0, 3), Walk::prefixes({{0, wholeCell(0) + 1}}, 10).view(), {}, kStart, out),
-      ProtocolError);
+  EXPECT_THROW(p.planPackets(task(0, 3), Walk::prefixes({{0, wholeCell(0) + 1}}, 10).view(), {},
+                             kStart, out),
+               ProtocolError);
 }
 
 TEST(PacketPlanner, OtherSchedulersTakeTheDisplaysChoice) {
@@ -286,7 +294,7 @@ TEST(PacketPlanner, OtherSchedulersTakeTheDisplaysChoice) {
   v1::TileTask assigned = task(0, 0);
   assigned.set_assigned_render(1);
   Outbox out;
-  const PacketPlan plan = p.planPacket(assigned, Walk({0}).view(), {}, kStart, out);
+  const PacketPlan plan = p.planPackets(assigned, Walk({0}).view(), {}, kStart, out).front();
   EXPECT_EQ(plan.renderRank, kRender1);
   EXPECT_EQ(ordersIn(out), (std::vector<std::pair<int, std::vector<std::uint32_t>>>{{2, {0}}}));
 }
@@ -307,7 +315,7 @@ TEST(PacketPlanner, AServedFramesSettingsOverrideTheRunsForItsTile) {
   EXPECT_EQ(p.traversalFor(task(0, 1)).lodPixels, 1.0f) << "a plain task walks at the run's";
   Outbox out;
   int destination = -1;
-  const PacketPlan plan = p.planPacket(served, Walk({0}).view(), {}, kStart, out);
+  const PacketPlan plan = p.planPackets(served, Walk({0}).view(), {}, kStart, out).front();
   EXPECT_EQ(plan.renderRank, kRender1) << "the frame's scheduler took the display's choice";
   const v1::RenderPacket& packet = packetIn(out, &destination);
   EXPECT_EQ(destination, kRender1);
@@ -315,7 +323,7 @@ TEST(PacketPlanner, AServedFramesSettingsOverrideTheRunsForItsTile) {
   EXPECT_EQ(packet.frame_settings().lod_pixels(), 3.0f);
 
   Outbox plainOut;
-  p.planPacket(task(0, 2), Walk({0}).view(), {}, kStart, plainOut);
+  p.planPackets(task(0, 2), Walk({0}).view(), {}, kStart, plainOut);
   EXPECT_FALSE(packetIn(plainOut).has_frame_settings());
 }
 
@@ -323,7 +331,7 @@ TEST(PacketPlanner, RefusesStrangersAndCellsOutsideTheDataset) {
   PacketPlanner p = planner();
   EXPECT_THROW(p.applyReport(2, report(0), kStart), ProtocolError);
   Outbox out;
-  EXPECT_THROW(p.planPacket(task(0, 0), Walk({6}).view(), {}, kStart, out), ProtocolError);
+  EXPECT_THROW(p.planPackets(task(0, 0), Walk({6}).view(), {}, kStart, out), ProtocolError);
 }
 
 TEST(PacketPlanner, TraversalSettingsComeFromTheRunSettings) {
@@ -347,6 +355,170 @@ TEST(PacketPlanner, EyeDomeLightingGrowsTheCullingMargin) {
   EXPECT_EQ(traversalSettings(s).marginPixels, plain + 3.0f);
   s.set_edl_radius(1.4f);
   EXPECT_EQ(traversalSettings(s).marginPixels, plain + 2.0f);
+}
+
+}  // namespace
+}  // namespace pointillist::traverse
+
+namespace pointillist::traverse {
+namespace {
+
+// A walk over cells 0..n-1 drawing `drawn[i]` splats of cell i, as two ranges
+// per cell (a level-splat run and a point run).
+struct SplitCase {
+  explicit SplitCase(std::vector<std::uint32_t> drawnPerCell) : drawn(std::move(drawnPerCell)) {
+    for (std::uint32_t cell = 0; cell < drawn.size(); ++cell) {
+      needs.push_back({cell, 5000 + drawn[cell]});
+      ranges.push_back({cell, 0, drawn[cell] / 2});
+      ranges.push_back({cell, 5000, drawn[cell] - drawn[cell] / 2});
+      splats += drawn[cell];
+    }
+  }
+  TileWalk withRanges() const { return {needs, splats, ranges, {}}; }
+  TileWalk withCounts() const { return {needs, splats, {}, drawn}; }
+  std::vector<std::uint32_t> drawn;
+  std::vector<CellPrefix> needs;
+  std::vector<PacketRange> ranges;
+  std::uint64_t splats = 0;
+};
+
+TEST(SplitWalk, PartsAreRunsOfWholeCellsCoveringTheWalkOnceNearEqualShares) {
+  std::mt19937 rng(5);
+  for (int trial = 0; trial < 200; ++trial) {
+    std::vector<std::uint32_t> drawn(1 + rng() % 40);
+    for (std::uint32_t& d : drawn)
+      d = static_cast<std::uint32_t>(2 + rng() % (trial % 2 == 0 ? 3000 : 300));
+    const SplitCase walk(drawn);
+    const std::size_t asked = 1 + rng() % 12;
+    const std::vector<WalkPart> parts = splitWalk(walk.withRanges(), asked);
+    ASSERT_FALSE(parts.empty());
+    EXPECT_EQ(parts.size(), std::min(asked, drawn.size()));
+    const std::uint32_t largest = *std::max_element(drawn.begin(), drawn.end());
+    const double share = static_cast<double>(walk.splats) / static_cast<double>(parts.size());
+    std::size_t need = 0, range = 0;
+    std::uint64_t splats = 0;
+    for (const WalkPart& part : parts) {
+      EXPECT_EQ(part.firstNeed, need);  // contiguous, in order, nothing left out
+      EXPECT_EQ(part.firstRange, range);
+      EXPECT_LT(part.firstNeed, part.endNeed);
+      EXPECT_GT(part.splats, 0u);
+      std::uint64_t counted = 0;
+      for (std::size_t r = part.firstRange; r < part.endRange; ++r) {
+        counted += walk.ranges[r].count;
+        EXPECT_GE(walk.ranges[r].topLevel, walk.needs[part.firstNeed].cell);
+        EXPECT_LE(walk.ranges[r].topLevel, walk.needs[part.endNeed - 1].cell);
+      }
+      EXPECT_EQ(counted, part.splats);
+      // A cut is never further from its share than the cell it falls in.
+      EXPECT_LE(std::abs(static_cast<double>(part.splats) - share), 2.0 * largest + 1.0);
+      need = part.endNeed;
+      range = part.endRange;
+      splats += part.splats;
+    }
+    EXPECT_EQ(need, walk.needs.size());
+    EXPECT_EQ(range, walk.ranges.size());
+    EXPECT_EQ(splats, walk.splats);
+    // The simulator's walks carry counts, not ranges: the same cuts.
+    const std::vector<WalkPart> counted = splitWalk(walk.withCounts(), asked);
+    ASSERT_EQ(counted.size(), parts.size());
+    for (std::size_t i = 0; i < parts.size(); ++i) {
+      EXPECT_EQ(counted[i].firstNeed, parts[i].firstNeed);
+      EXPECT_EQ(counted[i].endNeed, parts[i].endNeed);
+      EXPECT_EQ(counted[i].splats, parts[i].splats);
+    }
+  }
+  // Equal cells cut exactly.
+  const std::vector<WalkPart> even = splitWalk(SplitCase({10, 10, 10, 10, 10, 10}).withRanges(), 3);
+  ASSERT_EQ(even.size(), 3u);
+  for (const WalkPart& part : even) EXPECT_EQ(part.splats, 20u);
+  EXPECT_EQ(splitWalk(SplitCase({500}).withRanges(), 4).size(), 1u);
+}
+
+TEST(SplitWalk, RangesOfACellTheWalkDoesNotNeedAreRefused) {
+  SplitCase walk({10, 10});
+  walk.ranges.push_back({7, 0, 3});
+  EXPECT_THROW(splitWalk(walk.withRanges(), 2), ProtocolError);
+}
+
+v1::TileTask splitTask(std::uint64_t partSplats) {
+  v1::TileTask t = task(2, 5);
+  t.set_part_splats(partSplats);
+  return t;
+}
+
+std::vector<std::pair<int, v1::RenderPacket>> packetsIn(const Outbox& out) {
+  std::vector<std::pair<int, v1::RenderPacket>> packets;
+  for (const Outgoing& outgoing : out.entries()) {
+    if (outgoing.kind == MessageKind::RenderPacket) {
+      packets.emplace_back(outgoing.destinations.at(0), outgoing.as<v1::RenderPacket>());
+    }
+  }
+  return packets;
+}
+
+TEST(PacketPlanner, AHeavyTileIsSplitByItsCellsAndThePartsGoWhereTheirDataIs) {
+  PacketPlanner p = planner();
+  // Render 1 holds cells 3-5, render 0 cells 0-2.
+  p.applyReport(kRender0, report(0, {0, 1, 2}), kStart);
+  p.applyReport(kRender1, report(0, {3, 4, 5}), kStart);
+  const SplitCase walk({3000, 3000, 3000, 3000, 3000, 3000});
+  Outbox out;
+  const std::vector<PacketPlan> plans =
+      p.planPackets(splitTask(8000), walk.withRanges(), {}, kStart, out);
+  ASSERT_EQ(plans.size(), 2u);  // 18000 / 8000 parts, as many as live renders
+  const auto packets = packetsIn(out);
+  ASSERT_EQ(packets.size(), 2u);
+  EXPECT_EQ(packets[0].first, kRender0);
+  EXPECT_EQ(packets[1].first, kRender1);
+  std::uint64_t splats = 0;
+  for (std::uint32_t i = 0; i < 2; ++i) {
+    const v1::RenderPacket& packet = packets[i].second;
+    EXPECT_EQ(packet.part_index(), i);
+    EXPECT_EQ(packet.part_count(), 2u);
+    EXPECT_EQ(packet.tile_id(), 5u);
+    EXPECT_EQ(packet.total_splats(), 9000u);
+    EXPECT_EQ(packet.ordered_bytes(), 0u);  // each part's cells are where it went
+    for (int r = 0; r < packet.range_top_level_size(); ++r) {
+      EXPECT_EQ(packet.range_top_level(r) / 3, i) << "part " << i << " draws only its own cells";
+      splats += packet.range_count(r);
+    }
+    EXPECT_EQ(plans[i].partIndex, i);
+    EXPECT_EQ(plans[i].partCount, 2u);
+  }
+  EXPECT_EQ(splats, walk.splats);
+  EXPECT_TRUE(ordersIn(out).empty());
+  // One tile done, one more asked for.
+  EXPECT_EQ(std::count_if(out.entries().begin(), out.entries().end(),
+                          [](const Outgoing& o) { return o.kind == MessageKind::WorkRequest; }),
+            1);
+  EXPECT_EQ(p.tasksDone(), 1u);
+  EXPECT_EQ(p.tilesSplit(), 1u);
+}
+
+TEST(PacketPlanner, ATileIsSplitOnlyWhereComposingItsPartsIsExact) {
+  const SplitCase walk({3000, 3000, 3000, 3000, 3000, 3000});
+  const auto partsSent = [&](const v1::RunSettings& run, const v1::TileTask& t) {
+    PacketPlanner p(kPeers, kSelf, run, layers(), kOwners);
+    Outbox out;
+    return p.planPackets(t, walk.withRanges(), {}, kStart, out).size();
+  };
+  EXPECT_EQ(partsSent(settings(), splitTask(8000)), 2u);
+  EXPECT_EQ(partsSent(settings(v1::SCHEDULER_REGIONS), splitTask(8000)), 2u);
+  EXPECT_EQ(partsSent(settings(), splitTask(0)), 1u) << "the display did not ask";
+  EXPECT_EQ(partsSent(settings(), splitTask(9001)), 1u) << "less than two parts' worth";
+  EXPECT_EQ(partsSent(settings(v1::SCHEDULER_ROUND_ROBIN), splitTask(8000)), 1u);
+  v1::RunSettings gl = settings();
+  gl.set_renderer(v1::RENDERER_GL);
+  EXPECT_EQ(partsSent(gl, splitTask(8000)), 1u) << "GL's depth ties depend on order";
+  v1::RunSettings edl = settings();
+  edl.set_edl(true);
+  EXPECT_EQ(partsSent(edl, splitTask(8000)), 1u) << "EDL shades from neighbours' depth";
+  v1::TileTask depth = splitTask(8000);
+  depth.mutable_frame_settings()->set_tile_depth(true);
+  EXPECT_EQ(partsSent(settings(), depth), 1u) << "the render cache wants eye-space depth";
+  v1::TileTask splats = splitTask(8000);
+  splats.mutable_frame_settings()->set_mode(v1::RENDER_MODE_SPLATS);
+  EXPECT_EQ(partsSent(settings(), splats), 1u) << "blended splats do not compose by a minimum";
 }
 
 }  // namespace
