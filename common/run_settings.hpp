@@ -29,7 +29,7 @@ const char* schedulerName(v1::Scheduler scheduler);
 // Heavy tiles split by their data (RunSettings.no_tile_split): a part holds
 // at least this many splats, so its fixed costs (a packet, a composed image)
 // stay small beside its drawing.
-inline constexpr std::uint64_t kDefaultMinTilePartSplats = 8192;
+inline constexpr std::uint64_t kDefaultMinTilePartSplats = 4096;
 // "auto" | "off" | a part size in splats (>= 1), into no_tile_split and
 // tile_part_splats; a UsageError names the accepted ones.
 void parseTileSplit(const std::string& text, v1::RunSettings& settings);

@@ -98,7 +98,7 @@ std::uint32_t FrameAssembly::dispatch(TimePoint now, Outbox& out) {
     const auto homes = homes_.find(task->frame);
     message.set_assigned_render(homes != homes_.end() ? homes->second.at(task->tile)
                                                       : planner_.assign(task->tile).value_or(0));
-    message.set_part_splats(partSplatsFor(task->frame));
+    message.set_part_splats(partSplatsFor(task->frame, message.rect()));
     dispatchedAt_[{task->frame, task->tile}] = since(now);
     out.send(idleTraverses_.front(), std::move(message));
     idleTraverses_.pop_front();
@@ -195,7 +195,7 @@ TileArrival FrameAssembly::tileArrived(const v1::TileImageHeader& header, TimePo
   return TileArrival::Complete;
 }
 
-std::uint64_t FrameAssembly::partSplatsFor(std::uint64_t frame) const {
+std::uint64_t FrameAssembly::partSplatsFor(std::uint64_t frame, const TileRect& rect) const {
   const SchedulerKind scheduler = planner_.options().scheduler;
   if (scheduler != SchedulerKind::Cost && scheduler != SchedulerKind::Regions) return 0;
   const auto settings = frameSettings_.find(frame);
@@ -204,7 +204,19 @@ std::uint64_t FrameAssembly::partSplatsFor(std::uint64_t frame) const {
     return 0;
   }
   if (config_.run.tile_part_splats() > 0) return config_.run.tile_part_splats();
-  return planner_.partSplats(kDefaultMinTilePartSplats);
+  // Chosen here: only where cutting the screen has run out (a tile too small
+  // to halve); a larger heavy tile is cut by the next frame's plan, which
+  // moves no data.
+  const std::uint32_t minSide = std::max<std::uint32_t>(1, planner_.options().minTileSize);
+  if (std::max(rect.width(), rect.height()) >= 2 * minSide) return 0;
+  // Before a frame is measured: about a splat per pixel at the level of detail.
+  const Camera& camera = config_.cameras.at(frame);
+  const float lod = settings != frameSettings_.end() && settings->second.lod_pixels() > 0.0f
+                        ? settings->second.lod_pixels()
+                        : (config_.run.lod_pixels() > 0.0f ? config_.run.lod_pixels() : 1.0f);
+  const double pixels = static_cast<double>(camera.image_width()) * camera.image_height();
+  return planner_.partSplats(kDefaultMinTilePartSplats,
+                             static_cast<std::uint64_t>(pixels / static_cast<double>(lod * lod)));
 }
 
 std::pair<std::uint32_t, std::uint32_t> FrameAssembly::tileProgress(std::uint64_t frame) {

@@ -97,9 +97,11 @@ class FrameAssembly {
   // of a tile already in, which is only counted. Each part counts as its
   // render's work. ProtocolError for a part index out of its count.
   TileArrival tileArrived(const v1::TileImageHeader& header, TimePoint now);
-  // The part size the traverse processes split this frame's heavy tiles
-  // into (TileTask.part_splats); 0: not split.
-  std::uint64_t partSplatsFor(std::uint64_t frame) const;
+  // The part size the traverse processes split this tile `rect` of a frame
+  // into when it is heavy (TileTask.part_splats); 0: not split. A size the
+  // run fixed holds for every tile; the display's own choice
+  // (TilePlanner::partSplats) only for tiles too small to halve.
+  std::uint64_t partSplatsFor(std::uint64_t frame, const TileRect& rect) const;
   // Tiles of an admitted frame done (arrived or given up) and in all; {0, 0}
   // for a frame not in the window.
   std::pair<std::uint32_t, std::uint32_t> tileProgress(std::uint64_t frame);

@@ -131,12 +131,12 @@ void TilePlanner::frameDone(std::span<const TileFeedback> tiles) {
   }
 }
 
-std::uint64_t TilePlanner::partSplats(std::uint64_t minimum) const {
+std::uint64_t TilePlanner::partSplats(std::uint64_t minimum, std::uint64_t unmeasured) const {
   std::uint64_t splats = 0;
   for (const TileFeedback& tile : density_) splats += tile.splats;
-  if (splats == 0) return 0;
-  const double tiles = std::max(1.0, static_cast<double>(live_.size()) * options_.tilesPerRender);
-  return std::max(minimum, static_cast<std::uint64_t>(static_cast<double>(splats) / tiles));
+  if (splats == 0) splats = unmeasured;
+  const double renders = std::max<double>(1.0, static_cast<double>(live_.size()));
+  return std::max(minimum, static_cast<std::uint64_t>(static_cast<double>(splats) / renders));
 }
 
 std::vector<TileRect> TilePlanner::balancedSplit(const TileRect& area, std::uint32_t target) const {

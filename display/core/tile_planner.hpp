@@ -61,10 +61,12 @@ class TilePlanner {
   // starts again from even strips. UsageError when it was the last one.
   void retireRender(std::uint32_t render);
   std::uint32_t liveRenders() const { return static_cast<std::uint32_t>(live_.size()); }
-  // The part size heavy tiles are split into: last frame's splats over the
-  // tiles planned for the live renders (the share of one tile), at least
-  // `minimum`; 0 before a frame was measured (cost and regions only).
-  std::uint64_t partSplats(std::uint64_t minimum) const;
+  // The part size heavy tiles are split into: last frame's splats (or, before
+  // a frame was measured, `unmeasured`, a guess) over the live renders, so a
+  // tile holding two renders' share of a frame is split; at least `minimum`
+  // (cost and regions only). The first frames split too, since where their
+  // parts go sets where cells are cached from then on.
+  std::uint64_t partSplats(std::uint64_t minimum, std::uint64_t unmeasured) const;
 
   const TilePlanOptions& options() const { return options_; }
   // Frames planned from now on use `kind` (a served client chose it); what

@@ -29,6 +29,7 @@
 #include "common/splat.hpp"
 #include "datasend/core/send_ledger.hpp"
 #include "display/core/frame_assembly.hpp"
+#include "display/core/tile_parts.hpp"
 #include "preprocess/dataset_builder.hpp"
 #include "preprocess/generator.hpp"
 #include "render/core/render_core.hpp"
@@ -82,11 +83,21 @@ void tileImage(const v1::TileImageHeader& header, std::span<const std::byte> pay
     if (out.empty()) break;
   }
   const std::uint64_t pixelBytes = display::tileImagePixelBytes(header, payload.size(), 4);
-  if (!assembly.tileArrived(header, kStart + 1ms)) return;
-  Image frame(128, 64, {0, 0, 0, 255});
+  const display::TileArrival arrival = assembly.tileArrived(header, kStart + 1ms);
+  if (arrival == display::TileArrival::Late) return;
   const auto* bytes = reinterpret_cast<const std::uint8_t*>(payload.data());
-  blit(std::span<const std::uint8_t>(bytes, pixelBytes), header.rect().width(),
-       header.rect().height(), frame, header.rect().x(), header.rect().y());
+  std::vector<std::uint8_t> composed;
+  if (header.format() == v1::PIXEL_FORMAT_POINT_WORDS64) {  // a part of a split tile
+    display::TilePartCompositor parts;
+    parts.merge(header.frame_id(), header.tile_id(), header.attempt(), header.rect(),
+                payload.first(pixelBytes));
+    if (arrival == display::TileArrival::Part) return;
+    composed = parts.take(header.frame_id(), header.tile_id(), header.attempt(), 0xff000000u);
+  }
+  Image frame(128, 64, {0, 0, 0, 255});
+  blit(composed.empty() ? std::span<const std::uint8_t>(bytes, pixelBytes)
+                        : std::span<const std::uint8_t>(composed),
+       header.rect().width(), header.rect().height(), frame, header.rect().x(), header.rect().y());
   (void)assembly.finishFrames(kStart + 2ms);
 }
 

@@ -139,7 +139,8 @@ std::vector<WalkPart> splitWalk(const TileWalk& walk, std::size_t parts) {
   return result;
 }
 
-std::size_t PacketPlanner::partsFor(const v1::TileTask& task, const TileWalk& walk) const {
+std::size_t PacketPlanner::partsFor(const v1::TileTask& task, const TileWalk& walk,
+                                    TimePoint now) const {
   const std::uint64_t partSplats = task.part_splats();
   if (partSplats == 0 || walk.splats < 2 * partSplats || walk.needs.size() < 2) return 1;
   const v1::Scheduler scheduler = schedulerFor(task);
@@ -149,7 +150,11 @@ std::size_t PacketPlanner::partsFor(const v1::TileTask& task, const TileWalk& wa
   for (const PacketRange& range : walk.ranges) {
     if (range.section) return 1;
   }
-  return std::min<std::size_t>({walk.splats / partSplats, model_.liveCount(), walk.needs.size()});
+  // Parts go to renders that can take them about as soon as the least loaded
+  // could take the whole tile; one that stopped drawing soon falls out.
+  const double tileSeconds = static_cast<double>(walk.splats) * model_.secondsPerSplat();
+  return std::min<std::size_t>(
+      {walk.splats / partSplats, model_.rendersForParts(tileSeconds, now), walk.needs.size()});
 }
 
 std::vector<PacketPlan> PacketPlanner::planPackets(const v1::TileTask& task, const TileWalk& walk,
@@ -163,16 +168,21 @@ std::vector<PacketPlan> PacketPlanner::planPackets(const v1::TileTask& task, con
     }
   }
   std::vector<WalkPart> parts;
-  if (const std::size_t count = partsFor(task, walk); count > 1) parts = splitWalk(walk, count);
+  if (const std::size_t count = partsFor(task, walk, now); count > 1) {
+    parts = splitWalk(walk, count);
+  }
   if (parts.size() < 2) {
     parts.assign(1, WalkPart{0, walk.needs.size(), 0, walk.ranges.size(), walk.splats});
   }
   std::vector<PacketPlan> plans;
   plans.reserve(parts.size());
   const auto count = static_cast<std::uint32_t>(parts.size());
+  // The parts are split to be drawn at once: each on a render without another.
+  std::vector<std::size_t> taken;
   for (std::uint32_t index = 0; index < count; ++index) {
     plans.push_back(planPart(task, walk, parts[index], index, count,
-                             index == 0 ? ahead : std::span<const CellPrefix>(), now, out));
+                             index == 0 ? ahead : std::span<const CellPrefix>(), taken, now, out));
+    taken.push_back(plans.back().choice.render);
   }
   if (count > 1) {
     ++tilesSplit_;
@@ -187,7 +197,7 @@ std::vector<PacketPlan> PacketPlanner::planPackets(const v1::TileTask& task, con
 PacketPlan PacketPlanner::planPart(const v1::TileTask& task, const TileWalk& walk,
                                    const WalkPart& part, std::uint32_t partIndex,
                                    std::uint32_t partCount, std::span<const CellPrefix> ahead,
-                                   TimePoint now, Outbox& out) {
+                                   std::span<const std::size_t> taken, TimePoint now, Outbox& out) {
   PacketPlan plan;
   plan.splats = part.splats;
   plan.partIndex = partIndex;
@@ -202,6 +212,20 @@ PacketPlan PacketPlanner::planPart(const v1::TileTask& task, const TileWalk& wal
     // The parts after the first go where the cost function sends them: the
     // region's render already has the first.
     plan.choice = model_.choose(plan.needs, part.splats, now);
+    if (std::find(taken.begin(), taken.end(), plan.choice.render) != taken.end()) {
+      // Stacked on a render that draws another part, this part waits about
+      // its own drawing time; elsewhere it runs beside it. So another render
+      // (one that could start before the least loaded could draw the tile
+      // whole) wins if it costs at most that much more, data included.
+      const double partSeconds = static_cast<double>(part.splats) * model_.secondsPerSplat();
+      RenderChoice spread =
+          model_.choose(plan.needs, part.splats, now, taken,
+                        static_cast<double>(walk.splats) * model_.secondsPerSplat());
+      if (std::find(taken.begin(), taken.end(), spread.render) == taken.end() &&
+          spread.cost <= plan.choice.cost + partSeconds) {
+        plan.choice = std::move(spread);
+      }
+    }
   } else if (scheduler == v1::SCHEDULER_REGIONS) {
     plan.choice = model_.chooseNearHome(task.assigned_render(), plan.needs, part.splats, now);
   } else {

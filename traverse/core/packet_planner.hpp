@@ -92,11 +92,12 @@ class PacketPlanner {
   std::optional<Camera> lookaheadCamera(const v1::TileTask& task) const;
   // How many parts a tile's walk is cut into: walk.splats / task.part_splats
   // when at least two, as far as the frame may be split (tileSplitAllowed),
-  // the walk has cells and live renders enough; else 1.
-  std::size_t partsFor(const v1::TileTask& task, const TileWalk& walk) const;
+  // the walk has cells, and renders can take them (RenderModel::rendersWithin
+  // the whole tile's time); else 1.
+  std::size_t partsFor(const v1::TileTask& task, const TileWalk& walk, TimePoint now) const;
   // One walked tile: cut into parts (partsFor, splitWalk), each rounds its
-  // needs up to layer ends, chooses its render process (a part that follows
-  // sees the earlier ones' work queued), orders what that process lacks of
+  // needs up to layer ends, chooses its render process (one that draws no
+  // other part of the tile while there is such a live one), orders what that process lacks of
   // them and, for the first, the prefetch (`ahead`: the lookahead walk's cells
   // and estimated prefixes), and sends its render packet; then asks the
   // display for the next tile. One plan per packet sent, in part order.
@@ -126,7 +127,8 @@ class PacketPlanner {
   RenderModel model_;
   PacketPlan planPart(const v1::TileTask& task, const TileWalk& walk, const WalkPart& part,
                       std::uint32_t partIndex, std::uint32_t partCount,
-                      std::span<const CellPrefix> ahead, TimePoint now, Outbox& out);
+                      std::span<const CellPrefix> ahead, std::span<const std::size_t> taken,
+                      TimePoint now, Outbox& out);
 
   std::uint64_t tasksDone_ = 0;
   std::uint64_t tilesSplit_ = 0;

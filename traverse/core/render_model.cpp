@@ -110,8 +110,42 @@ bool RenderModel::suspectedStalled(std::size_t render, Clock::time_point now) co
   return waited > std::max(1.0, 4.0 * expected);
 }
 
+double RenderModel::leastQueuedSeconds(Clock::time_point now) const {
+  double least = std::numeric_limits<double>::infinity();
+  for (std::size_t render = 0; render < renders_.size(); ++render) {
+    if (renders_[render].retired || suspectedStalled(render, now)) continue;
+    least = std::min(least, queuedSeconds(render));
+  }
+  return least;
+}
+
+bool RenderModel::canTakePart(std::size_t render, double least, double slack,
+                              Clock::time_point now) const {
+  const RenderState& state = renders_.at(render);
+  if (state.retired || suspectedStalled(render, now)) return false;
+  const double queued = queuedSeconds(render);
+  if (queued > least + slack) return false;
+  // Finishing nothing for twice its queue's time and the slack: do not count
+  // on it for work meant to run at once (long before it is suspected stalled).
+  if (state.waitingSince &&
+      std::chrono::duration<double>(now - *state.waitingSince).count() > 2.0 * queued + slack) {
+    return false;
+  }
+  return true;
+}
+
+std::size_t RenderModel::rendersForParts(double slack, Clock::time_point now) const {
+  const double least = leastQueuedSeconds(now);
+  std::size_t count = 0;
+  for (std::size_t render = 0; render < renders_.size(); ++render) {
+    if (canTakePart(render, least, slack, now)) ++count;
+  }
+  return count;
+}
+
 RenderChoice RenderModel::choose(std::span<const CellPrefix> needs, std::uint64_t splats,
-                                 Clock::time_point now) const {
+                                 Clock::time_point now, std::span<const std::size_t> avoid,
+                                 double avoidSlack) const {
   RenderChoice best;
   best.cost = std::numeric_limits<double>::infinity();
   std::uint64_t bestWorkload = std::numeric_limits<std::uint64_t>::max();
@@ -123,20 +157,31 @@ RenderChoice RenderModel::choose(std::span<const CellPrefix> needs, std::uint64_
     if (renders_[render].retired) continue;
     allStalled = allStalled && suspectedStalled(render, now);
   }
-  for (std::size_t step = 0; step < count; ++step) {
-    const std::size_t render = (rotation_ + step) % count;
-    if (renders_[render].retired) continue;
-    if (!allStalled && suspectedStalled(render, now)) continue;
-    std::uint64_t missing = 0;
-    const double value = cost(render, needs, splats, &missing);
-    const std::uint64_t load = workload(render);
-    const bool tie = value == best.cost;
-    if (value < best.cost || (tie && missing < best.missingBytes) ||
-        (tie && missing == best.missingBytes && load < bestWorkload)) {
-      best.render = render;
-      best.cost = value;
-      best.missingBytes = missing;
-      bestWorkload = load;
+  const double least = avoid.empty() ? 0.0 : leastQueuedSeconds(now);
+  bool found = false;
+  for (const bool avoiding : {true, false}) {
+    if (avoiding && avoid.empty()) continue;
+    if (!avoiding && found) break;
+    for (std::size_t step = 0; step < count; ++step) {
+      const std::size_t render = (rotation_ + step) % count;
+      if (renders_[render].retired) continue;
+      if (!allStalled && suspectedStalled(render, now)) continue;
+      if (avoiding && (std::find(avoid.begin(), avoid.end(), render) != avoid.end() ||
+                       !canTakePart(render, least, avoidSlack, now))) {
+        continue;
+      }
+      std::uint64_t missing = 0;
+      const double value = cost(render, needs, splats, &missing);
+      const std::uint64_t load = workload(render);
+      const bool tie = value == best.cost;
+      if (!found || value < best.cost || (tie && missing < best.missingBytes) ||
+          (tie && missing == best.missingBytes && load < bestWorkload)) {
+        best.render = render;
+        best.cost = value;
+        best.missingBytes = missing;
+        bestWorkload = load;
+        found = true;
+      }
     }
   }
   rotation_ = (best.render + 1) % count;

@@ -73,10 +73,19 @@ class RenderModel {
   // share the first frames.
   // A render that has had work for much longer than that work should take
   // without finishing a packet is suspected stalled and only chosen when every
-  // render is.
+  // render is. With `avoid` (the renders drawing the other parts of a split
+  // tile), the choice is first made among the others that may take a part
+  // (rendersForParts with `avoidSlack`), and among all only when there is
+  // none such.
   RenderChoice choose(std::span<const CellPrefix> needs, std::uint64_t splats,
-                      Clock::time_point now) const;
+                      Clock::time_point now, std::span<const std::size_t> avoid = {},
+                      double avoidSlack = 0.0) const;
   bool suspectedStalled(std::size_t render, Clock::time_point now) const;
+  // Renders a split tile's parts may go to: live, not suspected stalled,
+  // whose queue holds at most `slack` seconds more than the least loaded
+  // one's and that finished a packet within twice their queue's time and the
+  // slack (one that stopped drawing falls out at once, not after a second).
+  std::size_t rendersForParts(double slack, Clock::time_point now) const;
   // The regions scheduler: the tile's own region's render `home`, unless its
   // queue holds more than kHomeSlackPackets of this packet's time beyond the
   // least loaded live render's, or it is suspected stalled; then the cost
@@ -118,6 +127,9 @@ class RenderModel {
   std::size_t liveCount() const;
 
  private:
+  double leastQueuedSeconds(Clock::time_point now) const;
+  bool canTakePart(std::size_t render, double least, double slack, Clock::time_point now) const;
+
   struct RenderState {
     std::uint64_t reportedWorkload = 0;
     std::uint64_t lastPacketSeen = 0;

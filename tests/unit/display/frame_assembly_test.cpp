@@ -456,7 +456,7 @@ TEST(FrameAssembly, ARetriedSplitTileTakesTheAttemptThatCompletesFirst) {
   EXPECT_TRUE(assembly.done());
 }
 
-TEST(FrameAssembly, TasksAskForSplitsOnlyOnceAFrameWasMeasuredAndWhereComposingIsExact) {
+TEST(FrameAssembly, TasksAskForSplitsFromLastFramesWorkAndOnlyWhereComposingIsExact) {
   const auto partSplats = [](FrameAssemblyConfig c) {
     FrameAssembly assembly(c, kPeers, kStart);
     std::vector<std::uint64_t> perFrame;
@@ -468,22 +468,30 @@ TEST(FrameAssembly, TasksAskForSplitsOnlyOnceAFrameWasMeasuredAndWhereComposingI
     }
     return perFrame;
   };
-  // Four tiles of 20k splats for two renders at two tiles each: 20k a tile.
-  EXPECT_EQ(partSplats(config(2)), (std::vector<std::uint64_t>{0, 20'000}));
+  // Tiles of at most 64 px a side cannot be halved: the frame is two 64 x 64
+  // tiles. Before a measured frame, a splat per pixel (128 x 64) over the
+  // two renders, at least the floor; then the two tiles' 40k over two renders.
+  const auto unsplittable = [](FrameAssemblyConfig c) {
+    c.plan.minTileSize = 64;
+    return c;
+  };
+  EXPECT_EQ(partSplats(unsplittable(config(2))), (std::vector<std::uint64_t>{4096, 20'000}));
+  EXPECT_EQ(partSplats(unsplittable(config(2, 3, SchedulerKind::Regions))),
+            (std::vector<std::uint64_t>{4096, 20'000}));
+  // Tiles the next plan can still halve are not split by their data.
+  EXPECT_EQ(partSplats(config(2)), (std::vector<std::uint64_t>{0, 0}));
+  // A part size the run fixes holds for every tile.
   FrameAssemblyConfig fixed = config(2);
   fixed.run.set_tile_part_splats(3000);
   EXPECT_EQ(partSplats(fixed), (std::vector<std::uint64_t>{3000, 3000}));
-  FrameAssemblyConfig off = config(2);
+  FrameAssemblyConfig off = unsplittable(config(2));
   off.run.set_no_tile_split(true);
   EXPECT_EQ(partSplats(off), (std::vector<std::uint64_t>{0, 0}));
-  FrameAssemblyConfig gl = config(2);
+  FrameAssemblyConfig gl = unsplittable(config(2));
   gl.run.set_renderer(v1::RENDERER_GL);
   EXPECT_EQ(partSplats(gl), (std::vector<std::uint64_t>{0, 0}));
-  EXPECT_EQ(partSplats(config(2, 3, SchedulerKind::RoundRobin)),
+  EXPECT_EQ(partSplats(unsplittable(config(2, 3, SchedulerKind::RoundRobin))),
             (std::vector<std::uint64_t>{0, 0}));
-  // Regions plans one tile per render: 40k over the four tiles' shares.
-  EXPECT_EQ(partSplats(config(2, 3, SchedulerKind::Regions)),
-            (std::vector<std::uint64_t>{0, 10'000}));
 }
 
 }  // namespace

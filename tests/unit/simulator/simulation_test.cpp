@@ -257,11 +257,15 @@ TEST(Simulator, TileTasksAheadHideTheRequestRoundTrip) {
 TEST(Simulator, TheDisplaysOwnLinkCanBeFasterThanTheOthers) {
   ModelParameters p = fixedParameters();
   p.bandwidthBytesPerSecond = 1e7;  // 10 MB/s: tile images alone fill the display's link
-  const auto shared = simulate(cityScene(), config(SchedulerKind::Cost, 8, 2, 2), p);
+  // Whole tiles: parts of split ones spread cells over more renders, which
+  // on links this slow makes the data the bottleneck instead.
+  SimulationConfig c = config(SchedulerKind::Cost, 8, 2, 2);
+  c.tileSplit = false;
+  const auto shared = simulate(cityScene(), c, p);
   EXPECT_EQ(shared.bottleneck, "display") << shared.bottleneck;
   EXPECT_GT(shared.utilisation.displayLink, 0.5);
   p.displayBandwidthBytesPerSecond = 1e10;
-  const auto fast = simulate(cityScene(), config(SchedulerKind::Cost, 8, 2, 2), p);
+  const auto fast = simulate(cityScene(), c, p);
   EXPECT_LT(fast.utilisation.displayLink, 0.1);
   EXPECT_GT(fast.figures.framesPerSecondSteady, shared.figures.framesPerSecondSteady);
 }
@@ -306,6 +310,9 @@ TEST(Simulator, AStalledRenderHoldsUpOnlyItsOwnTilesAndEveryFrameCompletes) {
   SimulationConfig c = config(SchedulerKind::Cost, 3, 2, 1);
   c.stalledRender = 0;
   c.stallAfterPackets = 2;
+  // Unsplit tiles: split ones spread over every render by design, so more of
+  // the first frames' work meets the stall (the next test).
+  c.tileSplit = false;
   const auto result = simulate(cityScene(), c, p);
   ASSERT_EQ(result.frames.size(), cityScene().cameras().size());
   std::uint64_t reissued = 0;
@@ -329,6 +336,33 @@ TEST(Simulator, AStalledRenderHoldsUpOnlyItsOwnTilesAndEveryFrameCompletes) {
   for (std::size_t i = result.frames.size() - lastFrames; i < result.frames.size(); ++i) {
     EXPECT_EQ(result.stats.frames[i].reissuedTiles, 0u) << "frame " << i;
   }
+}
+
+// Parts of split tiles go to every render that can take them at once; those
+// that meet the stall are re-issued, and no frame loses a tile.
+TEST(Simulator, SplitTilesMeetingAStalledRenderStillCompleteEveryFrame) {
+  ModelParameters p = fixedParameters();
+  p.tileTimeoutSeconds = 0.5;
+  SimulationConfig c = config(SchedulerKind::Cost, 3, 2, 1);
+  c.stalledRender = 0;
+  c.stallAfterPackets = 2;
+  c.tilePartSplats = 2000;
+  const auto result = simulate(cityScene(), c, p);
+  ASSERT_EQ(result.frames.size(), cityScene().cameras().size());
+  std::uint64_t reissued = 0, extraParts = 0;
+  for (std::size_t i = 0; i < result.frames.size(); ++i) {
+    EXPECT_EQ(result.stats.frames[i].failedTiles, 0u) << "frame " << i;
+    EXPECT_EQ(result.frames[i].tilesComposed, result.frames[i].tilesPlanned);
+    reissued += result.stats.frames[i].reissuedTiles;
+    extraParts += result.frames[i].extraParts;
+  }
+  EXPECT_GT(reissued, 0u);
+  EXPECT_GT(extraParts, 0u);
+  EXPECT_GT(result.stats.splitTiles, 0u);
+  const int stalledRank = 1 + 2 + 1;
+  std::size_t fromStalled = 0;
+  for (const auto& tile : result.stats.tiles) fromStalled += tile.renderRank == stalledRank;
+  EXPECT_EQ(fromStalled, 2u);
 }
 
 // One default cost model, shared with the runtime's command line and core.
