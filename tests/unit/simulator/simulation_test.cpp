@@ -304,17 +304,16 @@ TEST(Simulator, ManyFramesInFlightAndShortTimeoutsReissueButNeverDoubleCompose) 
 // stops drawing holds up its tiles until they are re-issued, gets no more work
 // once its queue (or, sooner, its silence: PacketPlanner tests) gives it
 // away, and every frame completes.
-TEST(Simulator, AStalledRenderHoldsUpOnlyItsOwnTilesAndEveryFrameCompletes) {
+// Render 0 of three stops after two packets; tiles time out after 0.5 s.
+// Every frame completes with no tile lost, some were re-issued, and nothing
+// came from the stalled process after its two packets. Returns the re-issues.
+std::uint64_t expectStallSurvived(SimulationConfig c, SimulationResult& result) {
   ModelParameters p = fixedParameters();
   p.tileTimeoutSeconds = 0.5;
-  SimulationConfig c = config(SchedulerKind::Cost, 3, 2, 1);
   c.stalledRender = 0;
   c.stallAfterPackets = 2;
-  // Unsplit tiles: split ones spread over every render by design, so more of
-  // the first frames' work meets the stall (the next test).
-  c.tileSplit = false;
-  const auto result = simulate(cityScene(), c, p);
-  ASSERT_EQ(result.frames.size(), cityScene().cameras().size());
+  result = simulate(cityScene(), c, p);
+  EXPECT_EQ(result.frames.size(), cityScene().cameras().size());
   std::uint64_t reissued = 0;
   for (std::size_t i = 0; i < result.frames.size(); ++i) {
     EXPECT_EQ(result.stats.frames[i].failedTiles, 0u) << "frame " << i;
@@ -322,11 +321,20 @@ TEST(Simulator, AStalledRenderHoldsUpOnlyItsOwnTilesAndEveryFrameCompletes) {
     reissued += result.stats.frames[i].reissuedTiles;
   }
   EXPECT_GT(reissued, 0u);
-  // The stalled process drew its two packets and nothing else arrived from it.
   const int stalledRank = 1 + 2 + 1;
   std::size_t fromStalled = 0;
   for (const auto& tile : result.stats.tiles) fromStalled += tile.renderRank == stalledRank;
   EXPECT_EQ(fromStalled, 2u);
+  return reissued;
+}
+
+TEST(Simulator, AStalledRenderHoldsUpOnlyItsOwnTilesAndEveryFrameCompletes) {
+  SimulationConfig c = config(SchedulerKind::Cost, 3, 2, 1);
+  // Unsplit tiles: split ones spread over every render by design, so more of
+  // the first frames' work meets the stall (the next test).
+  c.tileSplit = false;
+  SimulationResult result;
+  const std::uint64_t reissued = expectStallSurvived(c, result);
   // Without that, a third of every frame's tiles would go to it and be
   // re-issued, frame after frame.
   std::uint64_t tiles = 0;
@@ -341,28 +349,14 @@ TEST(Simulator, AStalledRenderHoldsUpOnlyItsOwnTilesAndEveryFrameCompletes) {
 // Parts of split tiles go to every render that can take them at once; those
 // that meet the stall are re-issued, and no frame loses a tile.
 TEST(Simulator, SplitTilesMeetingAStalledRenderStillCompleteEveryFrame) {
-  ModelParameters p = fixedParameters();
-  p.tileTimeoutSeconds = 0.5;
   SimulationConfig c = config(SchedulerKind::Cost, 3, 2, 1);
-  c.stalledRender = 0;
-  c.stallAfterPackets = 2;
   c.tilePartSplats = 2000;
-  const auto result = simulate(cityScene(), c, p);
-  ASSERT_EQ(result.frames.size(), cityScene().cameras().size());
-  std::uint64_t reissued = 0, extraParts = 0;
-  for (std::size_t i = 0; i < result.frames.size(); ++i) {
-    EXPECT_EQ(result.stats.frames[i].failedTiles, 0u) << "frame " << i;
-    EXPECT_EQ(result.frames[i].tilesComposed, result.frames[i].tilesPlanned);
-    reissued += result.stats.frames[i].reissuedTiles;
-    extraParts += result.frames[i].extraParts;
-  }
-  EXPECT_GT(reissued, 0u);
+  SimulationResult result;
+  expectStallSurvived(c, result);
+  std::uint64_t extraParts = 0;
+  for (const FrameTrace& frame : result.frames) extraParts += frame.extraParts;
   EXPECT_GT(extraParts, 0u);
   EXPECT_GT(result.stats.splitTiles, 0u);
-  const int stalledRank = 1 + 2 + 1;
-  std::size_t fromStalled = 0;
-  for (const auto& tile : result.stats.tiles) fromStalled += tile.renderRank == stalledRank;
-  EXPECT_EQ(fromStalled, 2u);
 }
 
 // One default cost model, shared with the runtime's command line and core.
