@@ -698,8 +698,10 @@ int runDisplayMain(int argc, char** argv) {
                  "Cost and regions schedulers, points drawn by the cpu kernel without EDL: a tile "
                  "whose walk draws at least twice the part size is split by its cells into parts "
                  "drawn by several render processes and composed by depth here (exact). auto: "
-                 "the part size is last frame's splats per tile, at least " +
-                     std::to_string(kDefaultMinTilePartSplats) + "; off; or a part size in splats")
+                 "only tiles too small to cut further, parts of one render's share of last "
+                 "frame's splats, at least " +
+                     std::to_string(kDefaultMinTilePartSplats) +
+                     "; off; or a part size in splats for every tile")
       ->capture_default_str();
   app.add_option("--cost-model", options.costModel,
                  "Cost scheduler: paper (seed 003: transfer time adds to the queue, default) or "

@@ -301,7 +301,8 @@ Assumptions describeAssumptions(const Scene& scene, const ViewOptions& view,
                      (!options.tileSplit ? std::string("off")
                       : options.tilePartSplats > 0
                           ? "parts of " + std::to_string(options.tilePartSplats) + " splats"
-                          : "parts of last frame's splats per tile, at least " +
+                          : "tiles too small to cut further, parts of one render's share "
+                            "of last frame's splats, at least " +
                                 std::to_string(kDefaultMinTilePartSplats))},
       {"sweep", "renders " + joinCounts(options.renders) + "; traverses " +
                     joinCounts(options.traverses) + "; data-sends " +

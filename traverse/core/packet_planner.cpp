@@ -133,9 +133,6 @@ std::vector<WalkPart> splitWalk(const TileWalk& walk, std::size_t parts) {
     }
     first = end;
   }
-  if (walk.ranges.empty()) {
-    for (WalkPart& part : result) part.firstRange = part.endRange = 0;
-  }
   return result;
 }
 
@@ -177,7 +174,7 @@ std::vector<PacketPlan> PacketPlanner::planPackets(const v1::TileTask& task, con
   std::vector<PacketPlan> plans;
   plans.reserve(parts.size());
   const auto count = static_cast<std::uint32_t>(parts.size());
-  // The parts are split to be drawn at once: each on a render without another.
+  // Renders already drawing a part of this tile (planPart prefers others).
   std::vector<std::size_t> taken;
   for (std::uint32_t index = 0; index < count; ++index) {
     plans.push_back(planPart(task, walk, parts[index], index, count,
@@ -218,13 +215,10 @@ PacketPlan PacketPlanner::planPart(const v1::TileTask& task, const TileWalk& wal
       // (one that could start before the least loaded could draw the tile
       // whole) wins if it costs at most that much more, data included.
       const double partSeconds = static_cast<double>(part.splats) * model_.secondsPerSplat();
-      RenderChoice spread =
-          model_.choose(plan.needs, part.splats, now, taken,
-                        static_cast<double>(walk.splats) * model_.secondsPerSplat());
-      if (std::find(taken.begin(), taken.end(), spread.render) == taken.end() &&
-          spread.cost <= plan.choice.cost + partSeconds) {
-        plan.choice = std::move(spread);
-      }
+      auto spread = model_.chooseApart(plan.needs, part.splats, now, taken,
+                                       static_cast<double>(walk.splats) * model_.secondsPerSplat());
+      if (spread && spread->cost <= plan.choice.cost + partSeconds)
+        plan.choice = std::move(*spread);
     }
   } else if (scheduler == v1::SCHEDULER_REGIONS) {
     plan.choice = model_.chooseNearHome(task.assigned_render(), plan.needs, part.splats, now);

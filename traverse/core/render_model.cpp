@@ -143,13 +143,9 @@ std::size_t RenderModel::rendersForParts(double slack, Clock::time_point now) co
   return count;
 }
 
-RenderChoice RenderModel::choose(std::span<const CellPrefix> needs, std::uint64_t splats,
-                                 Clock::time_point now, std::span<const std::size_t> avoid,
-                                 double avoidSlack) const {
-  RenderChoice best;
-  best.cost = std::numeric_limits<double>::infinity();
-  std::uint64_t bestWorkload = std::numeric_limits<std::uint64_t>::max();
-  best.missingBytes = std::numeric_limits<std::uint64_t>::max();
+std::optional<RenderChoice> RenderModel::chooseAmong(
+    std::span<const CellPrefix> needs, std::uint64_t splats, Clock::time_point now,
+    const std::function<bool(std::size_t)>& candidate) const {
   const std::size_t count = renders_.size();
   if (liveCount() == 0) throw ProtocolError("no render process is left to draw a packet");
   bool allStalled = true;
@@ -157,36 +153,45 @@ RenderChoice RenderModel::choose(std::span<const CellPrefix> needs, std::uint64_
     if (renders_[render].retired) continue;
     allStalled = allStalled && suspectedStalled(render, now);
   }
-  const double least = avoid.empty() ? 0.0 : leastQueuedSeconds(now);
-  bool found = false;
-  for (const bool avoiding : {true, false}) {
-    if (avoiding && avoid.empty()) continue;
-    if (!avoiding && found) break;
-    for (std::size_t step = 0; step < count; ++step) {
-      const std::size_t render = (rotation_ + step) % count;
-      if (renders_[render].retired) continue;
-      if (!allStalled && suspectedStalled(render, now)) continue;
-      if (avoiding && (std::find(avoid.begin(), avoid.end(), render) != avoid.end() ||
-                       !canTakePart(render, least, avoidSlack, now))) {
-        continue;
-      }
-      std::uint64_t missing = 0;
-      const double value = cost(render, needs, splats, &missing);
-      const std::uint64_t load = workload(render);
-      const bool tie = value == best.cost;
-      if (!found || value < best.cost || (tie && missing < best.missingBytes) ||
-          (tie && missing == best.missingBytes && load < bestWorkload)) {
-        best.render = render;
-        best.cost = value;
-        best.missingBytes = missing;
-        bestWorkload = load;
-        found = true;
-      }
+  std::optional<RenderChoice> best;
+  std::uint64_t bestWorkload = 0;
+  for (std::size_t step = 0; step < count; ++step) {
+    const std::size_t render = (rotation_ + step) % count;
+    if (renders_[render].retired) continue;
+    if (!allStalled && suspectedStalled(render, now)) continue;
+    if (candidate && !candidate(render)) continue;
+    std::uint64_t missing = 0;
+    const double value = cost(render, needs, splats, &missing);
+    const std::uint64_t load = workload(render);
+    const bool tie = best && value == best->cost;
+    if (!best || value < best->cost || (tie && missing < best->missingBytes) ||
+        (tie && missing == best->missingBytes && load < bestWorkload)) {
+      best = RenderChoice{render, value, missing, {}};
+      bestWorkload = load;
     }
   }
-  rotation_ = (best.render + 1) % count;
-  best.missing = missing(best.render, needs);
+  if (best) {
+    rotation_ = (best->render + 1) % count;
+    best->missing = this->missing(best->render, needs);
+  }
   return best;
+}
+
+RenderChoice RenderModel::choose(std::span<const CellPrefix> needs, std::uint64_t splats,
+                                 Clock::time_point now) const {
+  // Some live render is always a candidate (stalled ones too when all are).
+  return *chooseAmong(needs, splats, now, {});
+}
+
+std::optional<RenderChoice> RenderModel::chooseApart(std::span<const CellPrefix> needs,
+                                                     std::uint64_t splats, Clock::time_point now,
+                                                     std::span<const std::size_t> avoid,
+                                                     double slack) const {
+  const double least = leastQueuedSeconds(now);
+  return chooseAmong(needs, splats, now, [&](std::size_t render) {
+    return std::find(avoid.begin(), avoid.end(), render) == avoid.end() &&
+           canTakePart(render, least, slack, now);
+  });
 }
 
 RenderChoice RenderModel::chooseNearHome(std::size_t home, std::span<const CellPrefix> needs,

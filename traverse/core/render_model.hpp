@@ -16,6 +16,7 @@
 // that are (a stale figure must not keep work from it for good).
 #include <chrono>
 #include <cstdint>
+#include <functional>
 #include <optional>
 #include <span>
 #include <unordered_map>
@@ -73,13 +74,15 @@ class RenderModel {
   // share the first frames.
   // A render that has had work for much longer than that work should take
   // without finishing a packet is suspected stalled and only chosen when every
-  // render is. With `avoid` (the renders drawing the other parts of a split
-  // tile), the choice is first made among the others that may take a part
-  // (rendersForParts with `avoidSlack`), and among all only when there is
-  // none such.
+  // render is.
   RenderChoice choose(std::span<const CellPrefix> needs, std::uint64_t splats,
-                      Clock::time_point now, std::span<const std::size_t> avoid = {},
-                      double avoidSlack = 0.0) const;
+                      Clock::time_point now) const;
+  // The same choice among the renders not in `avoid` (those drawing the other
+  // parts of a split tile) that may take a part (rendersForParts with
+  // `slack`); nullopt when there is none.
+  std::optional<RenderChoice> chooseApart(std::span<const CellPrefix> needs, std::uint64_t splats,
+                                          Clock::time_point now, std::span<const std::size_t> avoid,
+                                          double slack) const;
   bool suspectedStalled(std::size_t render, Clock::time_point now) const;
   // Renders a split tile's parts may go to: live, not suspected stalled,
   // whose queue holds at most `slack` seconds more than the least loaded
@@ -127,6 +130,11 @@ class RenderModel {
   std::size_t liveCount() const;
 
  private:
+  // The lowest-cost render for which `candidate` holds (every live one when
+  // empty); nullopt when none does.
+  std::optional<RenderChoice> chooseAmong(std::span<const CellPrefix> needs, std::uint64_t splats,
+                                          Clock::time_point now,
+                                          const std::function<bool(std::size_t)>& candidate) const;
   double leastQueuedSeconds(Clock::time_point now) const;
   bool canTakePart(std::size_t render, double least, double slack, Clock::time_point now) const;
 
