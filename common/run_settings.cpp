@@ -80,6 +80,28 @@ std::uint32_t tileTasksAhead(const v1::RunSettings& settings) {
   return settings.tile_tasks_ahead() > 0 ? settings.tile_tasks_ahead() : kDefaultTileTasksAhead;
 }
 
+std::uint32_t autoTileTasksAhead(double tilesPerFrame, std::uint32_t traverses) {
+  const double perTraverse =
+      tilesPerFrame / static_cast<double>(std::max<std::uint32_t>(1, traverses));
+  const double count = std::ceil(perTraverse / 64.0);
+  return static_cast<std::uint32_t>(std::clamp(count, static_cast<double>(kDefaultTileTasksAhead),
+                                               static_cast<double>(kMaxAutoTileTasksAhead)));
+}
+
+std::uint32_t parseTileTasksAhead(const std::string& text) {
+  if (text == "auto") return 0;
+  std::uint32_t count = 0;
+  const auto [end, error] = std::from_chars(text.data(), text.data() + text.size(), count);
+  if (error != std::errc() || end != text.data() + text.size() || count == 0 || count > 64) {
+    throw UsageError("--tile-tasks-ahead takes auto or a count from 1 to 64, not '" + text + "'");
+  }
+  return count;
+}
+
+std::string tileTasksAheadName(std::uint32_t count) {
+  return count == 0 ? "auto" : std::to_string(count);
+}
+
 const char* schedulerName(v1::Scheduler scheduler) {
   switch (scheduler) {
     case v1::SCHEDULER_COST:

@@ -19,11 +19,21 @@ const char* costModelName(v1::CostModel model);
 // "cost" | "regions" | "round-robin" | "static" | "equalizer"; a UsageError names the accepted
 // ones.
 v1::Scheduler parseScheduler(const std::string& name);
-// Tile requests a traverse process keeps at the display: with one, every tile
-// waits a request's round trip, which caps a job at T / (round trip + walk)
-// tiles per second (docs/scheduling.md).
+// Tile requests a traverse process keeps at the display: with k, a traverse
+// walks at most k tiles per request round trip, so it stands idle unless
+// k >= 1 + round trip / walk (docs/scheduling.md §8.1, §10).
 inline constexpr std::uint32_t kDefaultTileTasksAhead = 2;
+inline constexpr std::uint32_t kMaxAutoTileTasksAhead = 8;
+// The run's count (RunSettings.tile_tasks_ahead; 0: kDefaultTileTasksAhead).
 std::uint32_t tileTasksAhead(const v1::RunSettings& settings);
+// "auto": one request per 64 tiles a traverse walks per frame, from 2 to 8.
+// The more tiles per traverse, the smaller they are and the shorter each
+// walk, so the more requests it takes to cover a round trip; the fewer, the
+// more a frame's last tiles would wait at one traverse while another idles.
+std::uint32_t autoTileTasksAhead(double tilesPerFrame, std::uint32_t traverses);
+// "auto" (0) | a count from 1 to 64; a UsageError names the accepted ones.
+std::uint32_t parseTileTasksAhead(const std::string& text);
+std::string tileTasksAheadName(std::uint32_t count);
 const char* schedulerName(v1::Scheduler scheduler);
 
 // Heavy tiles split by their data (RunSettings.no_tile_split): a part holds

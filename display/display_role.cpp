@@ -56,7 +56,7 @@ struct DisplayOptions {
   bool equalTiles = false;
   std::string costModel = costModelName(kDefaultCostModel);
   std::uint32_t prefetchFrames = 0;
-  std::uint32_t tileTasksAhead = kDefaultTileTasksAhead;
+  std::string tileTasksAhead = "auto";
   std::string tileSplit = "auto";
   bool quiet = false;
   // Serve mode: frames are asked for by clients over ZeroMQ.
@@ -97,7 +97,8 @@ double since(Clock::time_point start, Clock::time_point now) {
 
 // What every process of the run is told once, in the handshake reply.
 // `manifest`: the dataset's, when the display has one.
-v1::RunSettings runSettings(const DisplayOptions& options, const DatasetManifest* manifest) {
+v1::RunSettings runSettings(const DisplayOptions& options, const DatasetManifest* manifest,
+                            const JobLayout& layout) {
   v1::RunSettings settings;
   if (manifest != nullptr) {
     settings.set_instanced_sections(manifest->file(kInstancedSectionsKey) != nullptr);
@@ -109,7 +110,10 @@ v1::RunSettings runSettings(const DisplayOptions& options, const DatasetManifest
   settings.set_backface_cull(!options.view.noBackfaceCull);
   settings.set_scheduler(schedulerMessage(parseSchedulerKind(options.scheduler)));
   settings.set_cost_model(parseCostModel(options.costModel));
-  settings.set_tile_tasks_ahead(options.tileTasksAhead);
+  const std::uint32_t ahead = parseTileTasksAhead(options.tileTasksAhead);
+  settings.set_tile_tasks_ahead(
+      ahead > 0 ? ahead
+                : autoTileTasksAhead(options.tilesPerRender * layout.render, layout.traverse));
   parseTileSplit(options.tileSplit, settings);
   settings.set_unlit(options.view.unlit);
   settings.set_renderer(parseRenderer(options.view.renderer));
@@ -161,7 +165,7 @@ class DisplayProcess {
     config_.maxAttempts = options.maxAttempts;
     config_.plan = tilePlanOptions(options, job.layout().render);
     config_.prefetchFrames = options.prefetchFrames;
-    config_.run = runSettings(options, &dataset_.manifest());
+    config_.run = runSettings(options, &dataset_.manifest(), job.layout());
   }
 
   const DatasetManifest& manifest() const { return dataset_.manifest(); }
@@ -172,7 +176,7 @@ class DisplayProcess {
     service::ServedDataset served;
     served.bounds = config_.bounds;
     served.up = parseUpAxis(options_.view.up, config_.bounds);
-    served.run = runSettings(options_, &dataset_.manifest());
+    served.run = runSettings(options_, &dataset_.manifest(), job_.layout());
     service::v1::DatasetInfo& info = served.info;
     info.set_name(
         std::filesystem::path(options_.datasetPath).lexically_normal().filename().string());
@@ -495,9 +499,12 @@ class DisplayProcess {
         if (image == images_.end()) {
           image = images_.emplace(header.frame_id(), blankImage(header.frame_id())).first;
         }
-        blit(composed.empty() ? std::span<const std::uint8_t>(bytes, pixelBytes)
-                              : std::span<const std::uint8_t>(composed),
-             rect.width(), rect.height(), image->second, rect.x(), rect.y());
+        // A background tile leaves the blank image and +infinity depth as they are.
+        if (header.format() != v1::PIXEL_FORMAT_BACKGROUND) {
+          blit(composed.empty() ? std::span<const std::uint8_t>(bytes, pixelBytes)
+                                : std::span<const std::uint8_t>(composed),
+               rect.width(), rect.height(), image->second, rect.x(), rect.y());
+        }
         if (withDepth && depthFrames_.contains(header.frame_id())) {
           composeDepth(header.frame_id(), image->second, rect, bytes + pixelBytes);
         }
@@ -691,8 +698,9 @@ int runDisplayMain(int argc, char** argv) {
                  "screen region per render, cut by last frame's work), round-robin, static, "
                  "equalizer");
   app.add_option("--tile-tasks-ahead", options.tileTasksAhead,
-                 "Tile requests each traverse process keeps at the display (1: one at a time)")
-      ->check(CLI::Range(1, 64))
+                 "Tile requests each traverse process keeps at the display (1: one at a time; "
+                 "auto: one per 64 tiles it walks per frame, from 2 to 8, so short walks do "
+                 "not wait a request's round trip)")
       ->capture_default_str();
   app.add_option("--tile-split", options.tileSplit,
                  "Cost and regions schedulers, points drawn by the cpu kernel without EDL: a tile "
@@ -770,7 +778,8 @@ int runDisplayMain(int argc, char** argv) {
     }
     if (!options.datasetPath.empty()) process = std::make_unique<DisplayProcess>(job, options);
     HandshakeOptions handshake = handshakeOptions(options.common);
-    handshake.settings = runSettings(options, process ? &process->manifest() : nullptr);
+    handshake.settings =
+        runSettings(options, process ? &process->manifest() : nullptr, job.layout());
     job.handshake(handshake);
     const auto ready = job.awaitReady(std::chrono::milliseconds(
         static_cast<long>(options.common.handshakeTimeoutSeconds * 1000.0)));

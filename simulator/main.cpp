@@ -134,8 +134,10 @@ int run(int argc, char** argv) {
                  "The display's link in MB/s, where tile images come in (1170: 10 GbE; 0: as "
                  "--bandwidth-mbs)")
       ->capture_default_str();
-  app.add_option("--tile-tasks-ahead", sweep.tileTasksAhead,
-                 "Tile requests each traverse process keeps at the display (1: one at a time)")
+  std::string tileTasksAhead = "auto";
+  app.add_option("--tile-tasks-ahead", tileTasksAhead,
+                 "Tile requests each traverse process keeps at the display (1: one at a time; "
+                 "auto: one per 64 tiles it walks per frame, from 2 to 8)")
       ->capture_default_str();
   std::string tileSplit = "auto";
   app.add_option("--tile-split", tileSplit,
@@ -195,6 +197,7 @@ int run(int argc, char** argv) {
   sweep.balancedTiles = !equalTiles;
   {
     v1::RunSettings split;
+    sweep.tileTasksAhead = parseTileTasksAhead(tileTasksAhead);
     parseTileSplit(tileSplit, split);
     sweep.tileSplit = !split.no_tile_split();
     sweep.tilePartSplats = split.tile_part_splats();

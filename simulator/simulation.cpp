@@ -165,7 +165,10 @@ v1::RunSettings runSettings(const Scene& scene, const SimulationConfig& config) 
   settings.set_backface_cull(scene.traversal().backfaceCull);
   settings.set_scheduler(display::schedulerMessage(config.scheduler));
   settings.set_cost_model(traverse::costModelMessage(config.costModel));
-  settings.set_tile_tasks_ahead(config.tileTasksAhead);
+  settings.set_tile_tasks_ahead(
+      config.tileTasksAhead > 0
+          ? config.tileTasksAhead
+          : autoTileTasksAhead(config.tilesPerRender * config.renders, config.traverses));
   settings.set_no_tile_split(!config.tileSplit);
   settings.set_tile_part_splats(config.tilePartSplats);
   return settings;
@@ -392,7 +395,11 @@ class Simulation {
         if (arrival == display::TileArrival::Complete) ++trace(header.frame_id()).tilesComposed;
         // The display blits on its one CPU, tiles in arrival order; a part
         // is merged by the minimum at about the same cost per pixel.
-        const double pixels = static_cast<double>(header.rect().width()) * header.rect().height();
+        // A background tile leaves the blank image as it is.
+        const double pixels =
+            header.format() == v1::PIXEL_FORMAT_BACKGROUND
+                ? 0.0
+                : static_cast<double>(header.rect().width()) * header.rect().height();
         const double start = std::max(now, displayCpuFree_);
         displayCpuFree_ = start + pixels * p_.composeSecondsPerPixel;
         displayCpu_.push_back({start, displayCpuFree_});
@@ -409,6 +416,14 @@ class Simulation {
     Outbox out;
     assembly_.dispatch(timeAfterEpoch(now), out);
     send(now, peers_.display, out);
+    // Spans when tiles wait for a traverse to ask (request round trips, or
+    // traverses busy walking).
+    if (assembly_.tilesWaitForRequests()) {
+      if (!requestWaitSince_) requestWaitSince_ = now;
+    } else if (requestWaitSince_) {
+      requestWait_.push_back({*requestWaitSince_, now});
+      requestWaitSince_.reset();
+    }
     // Wake at the earliest deadline of a tile that is out, to re-issue it.
     if (const auto deadline = assembly_.nextDeadline(); deadline && !checkPending_) {
       checkPending_ = true;
@@ -478,15 +493,19 @@ class Simulation {
         traverse.ahead != nullptr ? std::span<const CellPrefix>(*traverse.ahead)
                                   : std::span<const CellPrefix>(),
         timeAfterEpoch(now), out);
-    trace(task.frame_id()).extraParts += static_cast<std::uint32_t>(plans.size() - 1);
+    // No plan: the walk found nothing and the traverse sent the display the
+    // tile's background itself.
+    if (plans.empty()) ++trace(task.frame_id()).backgroundTiles;
+    if (plans.size() > 1)
+      trace(task.frame_id()).extraParts += static_cast<std::uint32_t>(plans.size() - 1);
     for (const traverse::PacketPlan& plan : plans) {
       trace(task.frame_id()).bytesOrdered += plan.choice.missingBytes + plan.prefetchBytes;
       trace(task.frame_id()).bytesPrefetched += plan.prefetchBytes;
     }
     // A render packet carries the camera, the cells and three numbers per
     // range; a split tile's parts share them.
-    const std::uint64_t packetBytes =
-        160 + (8 * work.needs.size() + 12ull * work.ranges) / plans.size();
+    const std::uint64_t packetBytes = 160 + (8 * work.needs.size() + 12ull * work.ranges) /
+                                                std::max<std::size_t>(1, plans.size());
     send(now, rankOf(traverse), out, packetBytes);
     traverse.busy = false;
     traverse.task.reset();
@@ -674,6 +693,8 @@ class Simulation {
     }
     u.displayLink = busyShare(inLinks_[0].busy, from, to);
     u.displayCpu = busyShare(displayCpu_, from, to);
+    if (requestWaitSince_) requestWait_.push_back({*requestWaitSince_, to});
+    u.requestWait = busyShare(requestWait_, from, to);
     const std::pair<const char*, double> candidates[] = {
         {"render", u.renderMax},
         {"traverse", u.traverseMax},
@@ -684,6 +705,12 @@ class Simulation {
         out.bottleneck = name;
         out.bottleneckUtilisation = share;
       }
+    }
+    // Tiles wait for requests while the traverses are not busy: each waits a
+    // request's round trip between tiles (too few --tile-tasks-ahead).
+    if (u.requestWait > 0.5 && u.traverseMax < 0.9 && u.requestWait > out.bottleneckUtilisation) {
+      out.bottleneck = "requests";
+      out.bottleneckUtilisation = u.requestWait;
     }
     // Nothing near saturation: the frames in flight wait on round trips.
     if (out.bottleneckUtilisation < 0.5) out.bottleneck = "latency";
@@ -708,6 +735,8 @@ class Simulation {
   bool checkPending_ = false;
   double displayCpuFree_ = 0.0;
   std::vector<Interval> displayCpu_;
+  std::optional<double> requestWaitSince_;
+  std::vector<Interval> requestWait_;  // tiles waiting for a traverse's request
   std::vector<std::uint64_t> completionOrder_;
   std::map<std::uint64_t, FrameTrace> traces_;
 

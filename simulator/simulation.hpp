@@ -61,8 +61,9 @@ struct SimulationConfig {
   // Cost scheduler: the traverse orders what each tile's rect needs this many
   // frames on for the render it chose (the display's --prefetch-frames; 0: off).
   std::uint32_t prefetchFrames = 0;
-  // Tile requests each traverse keeps at the display (the display's --tile-tasks-ahead).
-  std::uint32_t tileTasksAhead = kDefaultTileTasksAhead;
+  // Tile requests each traverse keeps at the display (the display's
+  // --tile-tasks-ahead; 0: auto, autoTileTasksAhead).
+  std::uint32_t tileTasksAhead = 0;
   // Heavy tiles split by their data (the display's --tile-split): off, or
   // the part size in splats (0: the display's choice per frame).
   bool tileSplit = true;
@@ -86,6 +87,7 @@ struct FrameTrace {
   std::uint32_t tilesComposed = 0;    // tile images the display accepted
   std::uint32_t packetsRendered = 0;  // render packets finished for this frame (re-issues count)
   std::uint32_t extraParts = 0;       // packets beyond one per tile: split tiles' other parts
+  std::uint32_t backgroundTiles = 0;  // tiles a traverse found empty: no packet, no pixels
   std::uint64_t bytesMoved = 0;       // cell data sent by data-send processes for this frame
   std::uint64_t bytesOrdered = 0;     // what the traverses ordered (missingBytes of their choices)
   std::uint64_t bytesPrefetched = 0;  // of what they ordered, ahead along the camera path
@@ -100,6 +102,8 @@ struct Utilisation {
   double networkMax = 0.0;   // busiest link of a traverse, data-send or render process
   double displayLink = 0.0;  // the display's incoming link (tile images)
   double displayCpu = 0.0;   // composing
+  // Tiles waited at the display for a traverse's request (none was in).
+  double requestWait = 0.0;
 };
 
 struct SimulationResult {
@@ -110,7 +114,9 @@ struct SimulationResult {
   display::KeyFigures figures;
   std::vector<FrameTrace> frames;  // in the order the display completed them
   Utilisation utilisation;
-  std::string bottleneck;  // render, traverse, network, display, or latency
+  // render, traverse, network, display, requests (traverses idle for a
+  // request's round trip while tiles wait), or latency
+  std::string bottleneck;
   double bottleneckUtilisation = 0.0;
   double meanFrameLatency = 0.0;  // steady frames: first tile handed out to composed
   double tilesPerFrame = 0.0;

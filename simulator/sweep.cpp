@@ -294,9 +294,11 @@ Assumptions describeAssumptions(const Scene& scene, const ViewOptions& view,
                       " s"},
       {"render cache", significant(p.cacheMegabytes) + " MiB, cells unused for " +
                            significant(p.cacheTimeoutSeconds) + " s expire"},
-      {"tiling", significant(options.tilesPerRender) +
-                     " tiles per render process, sides >= " + std::to_string(options.minTileSize) +
-                     " px; each traverse keeps " + std::to_string(options.tileTasksAhead) +
+      {"tiling", significant(options.tilesPerRender) + " tiles per render process, sides >= " +
+                     std::to_string(options.minTileSize) + " px; each traverse keeps " +
+                     (options.tileTasksAhead > 0
+                          ? std::to_string(options.tileTasksAhead)
+                          : std::string("auto (one per 64 tiles it walks per frame, 2 to 8)")) +
                      " tile requests at the display; heavy tiles split by their cells: " +
                      (!options.tileSplit ? std::string("off")
                       : options.tilePartSplats > 0
@@ -377,6 +379,10 @@ std::vector<LayoutRecommendation> recommendLayouts(const std::vector<SweepRow>& 
       r.advice = link ? "display-bound: its link carries the tile images; a faster display "
                         "link (--display-bandwidth-mbs) or a smaller frame raises the rate"
                       : "display-bound: composing tiles fills its CPU";
+    } else if (r.bottleneck == "requests") {
+      r.advice =
+          "request-bound: tiles wait at the display while each traverse waits a "
+          "request's round trip; more --tile-tasks-ahead (or traverse processes)";
     } else if (r.bottleneck == "network") {
       r.advice = "network-bound: more data-send processes or faster links";
     } else if (r.bottleneck == "render") {
@@ -424,8 +430,9 @@ std::string formatCsv(const std::vector<SweepRow>& rows) {
          "frame,"
          "cache_hit_rate,cache_hit_rate_steady,render_utilisation_mean,render_utilisation_max,"
          "traverse_utilisation_mean,traverse_utilisation_max,network_utilisation_max,"
-         "display_link_utilisation,display_cpu_utilisation,bottleneck,bottleneck_utilisation,"
-         "reissued_tiles,failed_tiles,packets_rendered,events,wall_seconds\n";
+         "display_link_utilisation,display_cpu_utilisation,request_wait,bottleneck,"
+         "bottleneck_utilisation,reissued_tiles,failed_tiles,packets_rendered,events,wall_"
+         "seconds\n";
   for (const SweepRow& row : rows) {
     const Utilisation& u = row.utilisation;
     out << configName(row.config) << ',' << row.config.renders << ',' << row.config.traverses << ','
@@ -438,10 +445,10 @@ std::string formatCsv(const std::vector<SweepRow>& rows) {
         << number(row.cacheHitRate) << ',' << number(row.cacheHitRateSteady) << ','
         << number(u.renderMean) << ',' << number(u.renderMax) << ',' << number(u.traverseMean)
         << ',' << number(u.traverseMax) << ',' << number(u.networkMax) << ','
-        << number(u.displayLink) << ',' << number(u.displayCpu) << ',' << row.bottleneck << ','
-        << number(row.bottleneckUtilisation) << ',' << row.reissuedTiles << ',' << row.failedTiles
-        << ',' << row.packetsRendered << ',' << row.events << ',' << number(row.wallSeconds)
-        << '\n';
+        << number(u.displayLink) << ',' << number(u.displayCpu) << ',' << number(u.requestWait)
+        << ',' << row.bottleneck << ',' << number(row.bottleneckUtilisation) << ','
+        << row.reissuedTiles << ',' << row.failedTiles << ',' << row.packetsRendered << ','
+        << row.events << ',' << number(row.wallSeconds) << '\n';
   }
   return out.str();
 }
@@ -468,7 +475,9 @@ std::string formatReport(const std::vector<SweepRow>& rows, const Assumptions& a
          "first frame, and per frame from frame 3 on.\n"
          "- render util: busy share mean/max over render processes; bottleneck: the resource "
          "with the highest busy share (network = links of traverse, data-send and render "
-         "processes; display = its CPU or its incoming link); latency = nothing above 50%.\n";
+         "processes; display = its CPU or its incoming link); requests = tiles waited at the "
+         "display for a traverse's request over half the time while no traverse was 90% busy "
+         "(request round trips); latency = nothing above 50%.\n";
   std::uint64_t reissued = 0, failed = 0;
   for (const SweepRow& row : rows) {
     reissued += row.reissuedTiles;

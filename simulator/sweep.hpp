@@ -26,7 +26,7 @@ struct SweepOptions {
   std::uint32_t prefetchFrames = 0;  // cost scheduler: order data this many frames ahead
   double tilesPerRender = 2.0;
   std::uint32_t minTileSize = 32;
-  std::uint32_t tileTasksAhead = kDefaultTileTasksAhead;
+  std::uint32_t tileTasksAhead = 0;  // 0: auto
   // Heavy tiles split by their data (--tile-split): off, or the part size
   // in splats (0: the display's choice per frame).
   bool tileSplit = true;

@@ -107,6 +107,7 @@ std::uint32_t FrameAssembly::dispatch(TimePoint now, Outbox& out) {
 }
 
 TileArrival FrameAssembly::tileArrived(const v1::TileImageHeader& header, TimePoint now) {
+  if (header.format() == v1::PIXEL_FORMAT_BACKGROUND) return backgroundArrived(header, now);
   const int render = header.render_rank();
   peers_.indexOf(v1::ROLE_RENDER, render);  // throws for a stranger
   const bool part = header.part_count() > 1;
@@ -195,6 +196,40 @@ TileArrival FrameAssembly::tileArrived(const v1::TileImageHeader& header, TimePo
   return TileArrival::Complete;
 }
 
+TileArrival FrameAssembly::backgroundArrived(const v1::TileImageHeader& header, TimePoint now) {
+  peers_.indexOf(v1::ROLE_TRAVERSE, header.traverse_rank());  // throws for a stranger
+  if (header.part_count() > 1) {
+    throw ProtocolError("background tile from traverse rank " +
+                        std::to_string(header.traverse_rank()) + " is a part of a split tile");
+  }
+  // A record for tiles.csv (render -1: no render drew it); no render's work.
+  TileRecord tile;
+  tile.frame = header.frame_id();
+  tile.tile = header.tile_id();
+  tile.attempt = header.attempt();
+  tile.renderRank = -1;
+  tile.traverseRank = header.traverse_rank();
+  tile.arrivedSeconds = since(now);
+  if (const auto found = dispatchedAt_.find({header.frame_id(), header.tile_id()});
+      found != dispatchedAt_.end()) {
+    tile.dispatchedSeconds = found->second;
+    dispatchedAt_.erase(found);
+  }
+  tile.pixels = static_cast<std::uint64_t>(header.rect().width()) * header.rect().height();
+  stats_.addTile(tile);
+  if (!frames_.tileWaiting(header.frame_id(), header.tile_id(), header.rect())) {
+    ++stats_.lateTiles;
+    return TileArrival::Late;
+  }
+  ++stats_.backgroundTiles;
+  // A re-issued tile's parts from an earlier attempt are late from now on.
+  parts_.erase(parts_.lower_bound({header.frame_id(), header.tile_id(), 0}),
+               parts_.upper_bound({header.frame_id(), header.tile_id(), ~std::uint32_t{0}}));
+  frames_.tileArrived(header.frame_id(), header.tile_id(), header.rect());
+  feedback_.at(header.frame_id()).at(header.tile_id()) = TileFeedback{header.rect(), 0.0, 0};
+  return TileArrival::Complete;
+}
+
 std::uint64_t FrameAssembly::partSplatsFor(std::uint64_t frame, const TileRect& rect) const {
   const SchedulerKind scheduler = planner_.options().scheduler;
   if (scheduler != SchedulerKind::Cost && scheduler != SchedulerKind::Regions) return 0;
@@ -277,6 +312,15 @@ std::uint64_t tileImagePixelBytes(const v1::TileImageHeader& header, std::size_t
   if (header.depth() != v1::DEPTH_FORMAT_NONE && !withDepth) {
     throw ProtocolError("tile image from rank " + std::to_string(sourceRank) +
                         " has an unknown depth format " + std::to_string(header.depth()));
+  }
+  if (header.format() == v1::PIXEL_FORMAT_BACKGROUND) {
+    if (payloadBytes != 0 || withDepth || header.part_count() > 1) {
+      throw ProtocolError(
+          "background tile from rank " + std::to_string(sourceRank) + " carries " +
+          std::to_string(payloadBytes) + " bytes" + (withDepth ? ", a depth image" : "") +
+          (header.part_count() > 1 ? ", a part count" : "") + "; it may carry none");
+    }
+    return 0;
   }
   const bool words = header.format() == v1::PIXEL_FORMAT_POINT_WORDS64;
   if (words && withDepth) {

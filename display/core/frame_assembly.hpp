@@ -96,6 +96,8 @@ class FrameAssembly {
   // (TilePartCompositor). Late for a late copy of a re-issued tile, or a part
   // of a tile already in, which is only counted. Each part counts as its
   // render's work. ProtocolError for a part index out of its count.
+  // A background tile (PIXEL_FORMAT_BACKGROUND) comes from the traverse
+  // that found nothing to draw there: complete, and no render's work.
   TileArrival tileArrived(const v1::TileImageHeader& header, TimePoint now);
   // The part size the traverse processes split this tile `rect` of a frame
   // into when it is heavy (TileTask.part_splats); 0: not split. A size the
@@ -120,12 +122,15 @@ class FrameAssembly {
   bool done() const { return framesAdded_ == config_.cameras.size() && frames_.finished(); }
   std::size_t frameCount() const { return config_.cameras.size(); }
   std::size_t idleTraverses() const { return idleTraverses_.size(); }
+  // Tiles wait to be handed out and no traverse has a request in (after dispatch).
+  bool tilesWaitForRequests() const { return idleTraverses_.empty() && frames_.tasksQueued(); }
   const RunStats& stats() const { return stats_; }
   RunStats& stats() { return stats_; }
   const TilePlanner& planner() const { return planner_; }
 
  private:
   void admitFrames();
+  TileArrival backgroundArrived(const v1::TileImageHeader& header, TimePoint now);
   double since(TimePoint time) const { return secondsBetween(start_, time); }
 
   FrameAssemblyConfig config_;

@@ -68,6 +68,8 @@ class FrameScheduler {
   // The oldest frame, when every tile of it is done or failed.
   std::optional<FrameState> popCompleteFrame();
   bool finished() const { return frames_.empty(); }
+  // Tiles are queued to be handed out (some may have come back meanwhile).
+  bool tasksQueued() const { return !queue_.empty(); }
   std::uint32_t reissued(std::uint64_t frame) const;
   std::uint32_t failed(std::uint64_t frame) const;
 

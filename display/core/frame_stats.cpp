@@ -113,6 +113,7 @@ std::vector<std::pair<std::string, std::string>> keyFigureFields(const KeyFigure
       {"late_tiles", count(k.lateTiles)},
       {"split_tiles", count(k.splitTiles)},
       {"tile_parts", count(k.tileParts)},
+      {"background_tiles", count(k.backgroundTiles)},
       {"cpu_per_frame_display", number(cpuOf(k, "display"))},
       {"cpu_per_frame_traverse", number(cpuOf(k, "traverse"))},
       {"cpu_per_frame_datasend", number(cpuOf(k, "datasend"))},
@@ -263,6 +264,7 @@ KeyFigures RunStats::keyFigures() const {
   k.lateTiles = lateTiles;
   k.splitTiles = splitTiles;
   k.tileParts = tileParts;
+  k.backgroundTiles = backgroundTiles;
   const FrameSums& all = totals.all;
   if (k.frames > 0) {
     const auto frameCount = static_cast<double>(k.frames);
@@ -555,10 +557,12 @@ std::string RunStats::summary() const {
   out << line;
   std::snprintf(
       line, sizeof line,
-      "tiles: %llu re-issued, %llu failed, %llu late, %llu split into %llu parts\n",
+      "tiles: %llu re-issued, %llu failed, %llu late, %llu split into %llu parts, %llu empty "
+      "(background from the traverse)\n",
       static_cast<unsigned long long>(k.reissuedTiles),
       static_cast<unsigned long long>(k.failedTiles), static_cast<unsigned long long>(k.lateTiles),
-      static_cast<unsigned long long>(k.splitTiles), static_cast<unsigned long long>(k.tileParts));
+      static_cast<unsigned long long>(k.splitTiles), static_cast<unsigned long long>(k.tileParts),
+      static_cast<unsigned long long>(k.backgroundTiles));
   out << line;
   for (const LostProcess& p : lost) {
     std::snprintf(line, sizeof line, "lost: %s rank %d at %.2f s (%s)%s\n", p.role.c_str(), p.rank,

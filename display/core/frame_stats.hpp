@@ -139,8 +139,9 @@ struct KeyFigures {
   std::uint64_t reissuedTiles = 0;
   std::uint64_t failedTiles = 0;
   std::uint64_t lateTiles = 0;
-  std::uint64_t splitTiles = 0;  // tiles drawn as parts by several renders
-  std::uint64_t tileParts = 0;   // their parts
+  std::uint64_t splitTiles = 0;       // tiles drawn as parts by several renders
+  std::uint64_t tileParts = 0;        // their parts
+  std::uint64_t backgroundTiles = 0;  // found empty by a traverse, drawn by no render
   // Core-seconds per frame by role over the whole run (0 when not known), and
   // of the render processes' time the part spent drawing.
   std::map<std::string, double> cpuPerFrame;
@@ -253,9 +254,10 @@ struct RunStats {
     sampleThinning[rank].append(renders[rank], sample, sampleLimit);
   }
   void addTile(const TileRecord& tile) { tileThinning.append(tiles, tile, tileLimit); }
-  std::uint64_t lateTiles = 0;   // arrived after their frame was done or re-issued
-  std::uint64_t splitTiles = 0;  // tiles drawn as parts by several renders, composed
-  std::uint64_t tileParts = 0;   // parts accepted
+  std::uint64_t lateTiles = 0;        // arrived after their frame was done or re-issued
+  std::uint64_t splitTiles = 0;       // tiles drawn as parts by several renders, composed
+  std::uint64_t tileParts = 0;        // parts accepted
+  std::uint64_t backgroundTiles = 0;  // answered by a traverse: nothing to draw
   double totalSeconds = 0.0;
   std::vector<ProcessCpu> processes;  // filled once the job has shut down
   std::vector<LostProcess> lost;

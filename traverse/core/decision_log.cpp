@@ -92,6 +92,9 @@ std::vector<v1::DecisionOutput> decisionOutputs(std::span<const Outgoing> output
         case MessageKind::WorkRequest:
           *record.mutable_work_request() = outgoing.as<v1::WorkRequest>();
           break;
+        case MessageKind::TileImage:
+          *record.mutable_tile_image() = outgoing.as<v1::TileImageHeader>();
+          break;
         default:
           throw ProtocolError(std::string("a traverse does not send ") +
                               messageKindName(outgoing.kind) + " messages");

@@ -164,6 +164,24 @@ std::vector<PacketPlan> PacketPlanner::planPackets(const v1::TileTask& task, con
                           ", beyond the dataset's packets");
     }
   }
+  if (walk.needs.empty() && walk.ranges.empty() && walk.splats == 0) {
+    // Nothing in this rect: a render would only clear it and send its pixels
+    // back. At a large R such tiles are a large share of the packets, and
+    // they pile onto renders whose queues hold few splats.
+    v1::TileImageHeader background;
+    background.set_frame_id(task.frame_id());
+    background.set_tile_id(task.tile_id());
+    *background.mutable_rect() = task.rect();
+    background.set_format(v1::PIXEL_FORMAT_BACKGROUND);
+    background.set_render_rank(-1);
+    background.set_attempt(task.attempt());
+    background.set_traverse_rank(selfRank_);
+    out.send(peers_.display, std::move(background));
+    ++emptyTiles_;
+    ++tasksDone_;
+    requestWork(out);
+    return {};
+  }
   std::vector<WalkPart> parts;
   if (const std::size_t count = partsFor(task, walk, now); count > 1) {
     parts = splitWalk(walk, count);
@@ -345,12 +363,12 @@ void PacketPlanner::renderLost(int renderRank) {
 }
 
 std::string PacketPlanner::summary() const {
-  char line[320];
+  char line[400];
   std::snprintf(
       line, sizeof line,
       "tasks=%llu splats=%llu ordered_cells=%llu ordered_bytes=%llu "
       "prefetched_cells=%llu prefetched_bytes=%llu largest_tile_data=%.2fMiB "
-      "tiles_split=%llu parts=%llu T_s=%.3gs/splat T_n=%.3gs/B",
+      "tiles_split=%llu parts=%llu empty_tiles=%llu T_s=%.3gs/splat T_n=%.3gs/B",
       static_cast<unsigned long long>(tasksDone_), static_cast<unsigned long long>(splatsPacked_),
       static_cast<unsigned long long>(cellsOrdered_),
       static_cast<unsigned long long>(bytesOrdered_),
@@ -358,7 +376,8 @@ std::string PacketPlanner::summary() const {
       static_cast<unsigned long long>(bytesPrefetched_),
       static_cast<double>(maxPacketBytes_) / 1048576.0,
       static_cast<unsigned long long>(tilesSplit_), static_cast<unsigned long long>(partsSent_),
-      model_.secondsPerSplat(), model_.secondsPerByte());
+      static_cast<unsigned long long>(emptyTiles_), model_.secondsPerSplat(),
+      model_.secondsPerByte());
   return line;
 }
 

@@ -100,7 +100,9 @@ class PacketPlanner {
   // other part of the tile while there is such a live one), orders what that process lacks of
   // them and, for the first, the prefetch (`ahead`: the lookahead walk's cells
   // and estimated prefixes), and sends its render packet; then asks the
-  // display for the next tile. One plan per packet sent, in part order.
+  // display for the next tile. One plan per packet sent, in part order; none
+  // for a walk that found nothing to draw: the display gets the tile's
+  // background image from here (PIXEL_FORMAT_BACKGROUND), no render a packet.
   std::vector<PacketPlan> planPackets(const v1::TileTask& task, const TileWalk& walk,
                                       std::span<const CellPrefix> ahead, TimePoint now,
                                       Outbox& out);
@@ -113,6 +115,7 @@ class PacketPlanner {
   const PacketLayers& layers() const { return *layers_; }
   std::uint64_t tasksDone() const { return tasksDone_; }
   std::uint64_t tilesSplit() const { return tilesSplit_; }
+  std::uint64_t emptyTiles() const { return emptyTiles_; }
   std::uint64_t largestTileBytes() const { return maxPacketBytes_; }
   std::string summary() const;
 
@@ -132,6 +135,7 @@ class PacketPlanner {
 
   std::uint64_t tasksDone_ = 0;
   std::uint64_t tilesSplit_ = 0;
+  std::uint64_t emptyTiles_ = 0;  // answered here as background
   std::uint64_t partsSent_ = 0;
   std::uint64_t packetsSent_ = 0;
   std::uint64_t ordersSent_ = 0;

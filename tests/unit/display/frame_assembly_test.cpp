@@ -435,6 +435,52 @@ TEST(FrameAssembly, ASplitTileIsInWhenEveryPartOfOneAttemptIs) {
   EXPECT_EQ(assembly.stats().lateTiles, 2u);
 }
 
+v1::TileImageHeader background(const v1::TileTask& task, int traverse = 1) {
+  v1::TileImageHeader header;
+  header.set_frame_id(task.frame_id());
+  header.set_tile_id(task.tile_id());
+  *header.mutable_rect() = task.rect();
+  header.set_attempt(task.attempt());
+  header.set_format(v1::PIXEL_FORMAT_BACKGROUND);
+  header.set_render_rank(-1);
+  header.set_traverse_rank(traverse);
+  return header;
+}
+
+// A traverse that found nothing in a tile answers it: the tile is in, no
+// render did any work for it, and only a traverse may say so.
+TEST(FrameAssembly, ABackgroundTileFromATraverseIsInAndNoRendersWork) {
+  FrameAssembly assembly(config(1), kPeers, kStart);
+  const auto tasks = takeAll(assembly, kStart);
+  ASSERT_EQ(tasks.size(), 4u);
+  EXPECT_THROW(assembly.tileArrived(background(tasks[0], 4), kStart), ProtocolError)
+      << "a render is not a traverse";
+  v1::TileImageHeader asPart = background(tasks[0]);
+  asPart.set_part_count(2);
+  EXPECT_THROW(assembly.tileArrived(asPart, kStart), ProtocolError);
+  EXPECT_EQ(assembly.tileArrived(background(tasks[0], 2), kStart + 1ms), TileArrival::Complete);
+  EXPECT_EQ(assembly.tileArrived(background(tasks[0], 2), kStart + 1ms), TileArrival::Late);
+  EXPECT_EQ(assembly.tileProgress(0), std::make_pair(1u, 4u));
+  for (std::size_t i = 1; i < 4; ++i) {
+    EXPECT_EQ(assembly.tileArrived(tile(tasks[i], 100), kStart + 2ms), TileArrival::Complete);
+  }
+  const auto finished = assembly.finishFrames(kStart + 2ms);
+  ASSERT_EQ(finished.size(), 1u);
+  EXPECT_EQ(finished[0].record.splats, 300u);
+  EXPECT_EQ(finished[0].record.splatsPerRender.at(4), 300u);
+  EXPECT_EQ(finished[0].record.splatsPerRender.at(5), 0u);
+  EXPECT_EQ(finished[0].record.failedTiles, 0u);
+  EXPECT_EQ(assembly.stats().backgroundTiles, 1u);
+  EXPECT_EQ(assembly.stats().lateTiles, 1u);
+
+  // It carries nothing: no pixels, no depth, no part.
+  v1::TileImageHeader header = background(tasks[0]);
+  EXPECT_EQ(tileImagePixelBytes(header, 0, 1), 0u);
+  EXPECT_THROW(tileImagePixelBytes(header, 4, 1), ProtocolError);
+  header.set_depth(v1::DEPTH_FORMAT_EYE_FLOAT32);
+  EXPECT_THROW(tileImagePixelBytes(header, 0, 1), ProtocolError);
+}
+
 TEST(FrameAssembly, ARetriedSplitTileTakesTheAttemptThatCompletesFirst) {
   FrameAssemblyConfig c = config(1);
   FrameAssembly assembly(c, kPeers, kStart);

@@ -10,6 +10,7 @@
 
 #include "common/splat.hpp"
 
+#include "traverse/core/decision_log.hpp"
 #include "traverse/core/packet_planner.hpp"
 
 namespace pointillist::traverse {
@@ -519,6 +520,47 @@ TEST(PacketPlanner, ATileIsSplitOnlyWhereComposingItsPartsIsExact) {
   v1::TileTask splats = splitTask(8000);
   splats.mutable_frame_settings()->set_mode(v1::RENDER_MODE_SPLATS);
   EXPECT_EQ(partsSent(settings(), splats), 1u) << "blended splats do not compose by a minimum";
+}
+
+// A walk that found nothing costs no render a packet: the display gets the
+// tile's background from the traverse, and the decision log keeps it.
+TEST(PacketPlanner, AnEmptyWalkIsAnsweredAsBackgroundWithoutARenderPacket) {
+  for (const v1::Scheduler scheduler :
+       {v1::SCHEDULER_COST, v1::SCHEDULER_REGIONS, v1::SCHEDULER_STATIC}) {
+    PacketPlanner p = planner(scheduler);
+    v1::TileTask empty = task(7, 3);
+    empty.set_attempt(2);
+    empty.mutable_rect()->set_x(128);
+    empty.set_assigned_render(1);
+    Outbox out;
+    EXPECT_TRUE(p.planPackets(empty, Walk({}, 0).view(), {}, kStart, out).empty());
+    ASSERT_EQ(out.entries().size(), 2u);
+    const Outgoing& answer = out.entries().front();
+    ASSERT_EQ(answer.kind, MessageKind::TileImage);
+    EXPECT_EQ(answer.destinations, (std::vector<int>{kPeers.display}));
+    const auto& header = answer.as<v1::TileImageHeader>();
+    EXPECT_EQ(header.format(), v1::PIXEL_FORMAT_BACKGROUND);
+    EXPECT_EQ(header.frame_id(), 7u);
+    EXPECT_EQ(header.tile_id(), 3u);
+    EXPECT_EQ(header.attempt(), 2u);
+    EXPECT_EQ(header.rect().x(), 128u);
+    EXPECT_EQ(header.rect().width(), 64u);
+    EXPECT_EQ(header.traverse_rank(), kSelf);
+    EXPECT_EQ(header.render_rank(), -1);
+    EXPECT_EQ(out.entries().back().kind, MessageKind::WorkRequest);
+    EXPECT_EQ(p.emptyTiles(), 1u);
+    EXPECT_EQ(p.tasksDone(), 1u);
+    const auto outputs = decisionOutputs(out.entries());
+    ASSERT_EQ(outputs.size(), 2u);
+    EXPECT_TRUE(outputs.front().has_tile_image());
+    EXPECT_EQ(outputs.front().tile_image().tile_id(), 3u);
+
+    // A walk with something to draw still goes to a render.
+    Outbox drawn;
+    EXPECT_EQ(p.planPackets(task(7, 4), Walk({0}, 1).view(), {}, kStart, drawn).size(), 1u);
+    EXPECT_NO_THROW(packetIn(drawn));
+    EXPECT_EQ(p.emptyTiles(), 1u);
+  }
 }
 
 }  // namespace
