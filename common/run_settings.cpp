@@ -83,7 +83,7 @@ std::uint32_t tileTasksAhead(const v1::RunSettings& settings) {
 std::uint32_t autoTileTasksAhead(double tilesPerFrame, std::uint32_t traverses) {
   const double perTraverse =
       tilesPerFrame / static_cast<double>(std::max<std::uint32_t>(1, traverses));
-  const double count = std::ceil(perTraverse / 64.0);
+  const double count = std::ceil(perTraverse / static_cast<double>(kTilesPerAutoTileTask));
   return static_cast<std::uint32_t>(std::clamp(count, static_cast<double>(kDefaultTileTasksAhead),
                                                static_cast<double>(kMaxAutoTileTasksAhead)));
 }
@@ -98,8 +98,10 @@ std::uint32_t parseTileTasksAhead(const std::string& text) {
   return count;
 }
 
-std::string tileTasksAheadName(std::uint32_t count) {
-  return count == 0 ? "auto" : std::to_string(count);
+std::string autoTileTasksAheadRule() {
+  return "one per " + std::to_string(kTilesPerAutoTileTask) +
+         " tiles a traverse walks per frame, from " + std::to_string(kDefaultTileTasksAhead) +
+         " to " + std::to_string(kMaxAutoTileTasksAhead);
 }
 
 const char* schedulerName(v1::Scheduler scheduler) {

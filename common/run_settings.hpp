@@ -24,6 +24,7 @@ v1::Scheduler parseScheduler(const std::string& name);
 // k >= 1 + round trip / walk (docs/scheduling.md §8.1, §10).
 inline constexpr std::uint32_t kDefaultTileTasksAhead = 2;
 inline constexpr std::uint32_t kMaxAutoTileTasksAhead = 8;
+inline constexpr std::uint32_t kTilesPerAutoTileTask = 64;
 // The run's count (RunSettings.tile_tasks_ahead; 0: kDefaultTileTasksAhead).
 std::uint32_t tileTasksAhead(const v1::RunSettings& settings);
 // "auto": one request per 64 tiles a traverse walks per frame, from 2 to 8.
@@ -31,9 +32,10 @@ std::uint32_t tileTasksAhead(const v1::RunSettings& settings);
 // walk, so the more requests it takes to cover a round trip; the fewer, the
 // more a frame's last tiles would wait at one traverse while another idles.
 std::uint32_t autoTileTasksAhead(double tilesPerFrame, std::uint32_t traverses);
+// The auto rule in words, for help texts and reports.
+std::string autoTileTasksAheadRule();
 // "auto" (0) | a count from 1 to 64; a UsageError names the accepted ones.
 std::uint32_t parseTileTasksAhead(const std::string& text);
-std::string tileTasksAheadName(std::uint32_t count);
 const char* schedulerName(v1::Scheduler scheduler);
 
 // Heavy tiles split by their data (RunSettings.no_tile_split): a part holds

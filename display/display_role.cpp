@@ -699,8 +699,9 @@ int runDisplayMain(int argc, char** argv) {
                  "equalizer");
   app.add_option("--tile-tasks-ahead", options.tileTasksAhead,
                  "Tile requests each traverse process keeps at the display (1: one at a time; "
-                 "auto: one per 64 tiles it walks per frame, from 2 to 8, so short walks do "
-                 "not wait a request's round trip)")
+                 "auto: " +
+                     autoTileTasksAheadRule() +
+                     ", so short walks do not wait a request's round trip)")
       ->capture_default_str();
   app.add_option("--tile-split", options.tileSplit,
                  "Cost and regions schedulers, points drawn by the cpu kernel without EDL: a tile "

@@ -137,7 +137,8 @@ int run(int argc, char** argv) {
   std::string tileTasksAhead = "auto";
   app.add_option("--tile-tasks-ahead", tileTasksAhead,
                  "Tile requests each traverse process keeps at the display (1: one at a time; "
-                 "auto: one per 64 tiles it walks per frame, from 2 to 8)")
+                 "auto: " +
+                     autoTileTasksAheadRule() + ")")
       ->capture_default_str();
   std::string tileSplit = "auto";
   app.add_option("--tile-split", tileSplit,

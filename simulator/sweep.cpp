@@ -296,9 +296,8 @@ Assumptions describeAssumptions(const Scene& scene, const ViewOptions& view,
                            significant(p.cacheTimeoutSeconds) + " s expire"},
       {"tiling", significant(options.tilesPerRender) + " tiles per render process, sides >= " +
                      std::to_string(options.minTileSize) + " px; each traverse keeps " +
-                     (options.tileTasksAhead > 0
-                          ? std::to_string(options.tileTasksAhead)
-                          : std::string("auto (one per 64 tiles it walks per frame, 2 to 8)")) +
+                     (options.tileTasksAhead > 0 ? std::to_string(options.tileTasksAhead)
+                                                 : "auto (" + autoTileTasksAheadRule() + ")") +
                      " tile requests at the display; heavy tiles split by their cells: " +
                      (!options.tileSplit ? std::string("off")
                       : options.tilePartSplats > 0

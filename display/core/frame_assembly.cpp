@@ -128,26 +128,7 @@ TileArrival FrameAssembly::tileArrived(const v1::TileImageHeader& header, TimePo
   sample.dataBytesReceived = header.data_bytes_received();
   stats_.addRenderSample(render, sample);
 
-  TileRecord tile;
-  tile.frame = header.frame_id();
-  tile.tile = header.tile_id();
-  tile.attempt = header.attempt();
-  tile.renderRank = render;
-  tile.traverseRank = header.traverse_rank();
-  tile.arrivedSeconds = sample.seconds;
-  if (const auto found = dispatchedAt_.find({header.frame_id(), header.tile_id()});
-      found != dispatchedAt_.end()) {
-    tile.dispatchedSeconds = found->second;
-    if (!part) dispatchedAt_.erase(found);
-  }
-  tile.queuedSeconds = static_cast<double>(header.queued_time_us()) * 1e-6;
-  tile.dataWaitSeconds = static_cast<double>(header.data_wait_us()) * 1e-6;
-  tile.renderSeconds = static_cast<double>(header.render_time_us()) * 1e-6;
-  tile.splats = header.splats_rendered();
-  tile.pixels = static_cast<std::uint64_t>(header.rect().width()) * header.rect().height();
-  tile.orderedBytes = header.ordered_bytes();
-  tile.prefetchBytes = header.prefetch_bytes();
-  stats_.addTile(tile);
+  const TileRecord tile = recordTile(header, render, /*keepDispatch=*/part, now);
 
   if (!frames_.tileWaiting(header.frame_id(), header.tile_id(), header.rect())) {
     ++stats_.lateTiles;
@@ -185,9 +166,7 @@ TileArrival FrameAssembly::tileArrived(const v1::TileImageHeader& header, TimePo
   }
   if (part) {
     ++stats_.splitTiles;
-    // Other attempts' parts are late from now on.
-    parts_.erase(parts_.lower_bound({header.frame_id(), header.tile_id(), 0}),
-                 parts_.upper_bound({header.frame_id(), header.tile_id(), ~std::uint32_t{0}}));
+    dropParts(header.frame_id(), header.tile_id());
     dispatchedAt_.erase({header.frame_id(), header.tile_id()});
   }
   frames_.tileArrived(header.frame_id(), header.tile_id(), header.rect());
@@ -202,32 +181,47 @@ TileArrival FrameAssembly::backgroundArrived(const v1::TileImageHeader& header, 
     throw ProtocolError("background tile from traverse rank " +
                         std::to_string(header.traverse_rank()) + " is a part of a split tile");
   }
-  // A record for tiles.csv (render -1: no render drew it); no render's work.
-  TileRecord tile;
-  tile.frame = header.frame_id();
-  tile.tile = header.tile_id();
-  tile.attempt = header.attempt();
-  tile.renderRank = -1;
-  tile.traverseRank = header.traverse_rank();
-  tile.arrivedSeconds = since(now);
-  if (const auto found = dispatchedAt_.find({header.frame_id(), header.tile_id()});
-      found != dispatchedAt_.end()) {
-    tile.dispatchedSeconds = found->second;
-    dispatchedAt_.erase(found);
-  }
-  tile.pixels = static_cast<std::uint64_t>(header.rect().width()) * header.rect().height();
-  stats_.addTile(tile);
+  // In tiles.csv as render -1 (no render drew it); no render's work.
+  recordTile(header, -1, /*keepDispatch=*/false, now);
   if (!frames_.tileWaiting(header.frame_id(), header.tile_id(), header.rect())) {
     ++stats_.lateTiles;
     return TileArrival::Late;
   }
   ++stats_.backgroundTiles;
-  // A re-issued tile's parts from an earlier attempt are late from now on.
-  parts_.erase(parts_.lower_bound({header.frame_id(), header.tile_id(), 0}),
-               parts_.upper_bound({header.frame_id(), header.tile_id(), ~std::uint32_t{0}}));
+  dropParts(header.frame_id(), header.tile_id());
   frames_.tileArrived(header.frame_id(), header.tile_id(), header.rect());
   feedback_.at(header.frame_id()).at(header.tile_id()) = TileFeedback{header.rect(), 0.0, 0};
   return TileArrival::Complete;
+}
+
+TileRecord FrameAssembly::recordTile(const v1::TileImageHeader& header, int render,
+                                     bool keepDispatch, TimePoint now) {
+  TileRecord tile;
+  tile.frame = header.frame_id();
+  tile.tile = header.tile_id();
+  tile.attempt = header.attempt();
+  tile.renderRank = render;
+  tile.traverseRank = header.traverse_rank();
+  tile.arrivedSeconds = since(now);
+  if (const auto found = dispatchedAt_.find({header.frame_id(), header.tile_id()});
+      found != dispatchedAt_.end()) {
+    tile.dispatchedSeconds = found->second;
+    if (!keepDispatch) dispatchedAt_.erase(found);
+  }
+  tile.queuedSeconds = static_cast<double>(header.queued_time_us()) * 1e-6;
+  tile.dataWaitSeconds = static_cast<double>(header.data_wait_us()) * 1e-6;
+  tile.renderSeconds = static_cast<double>(header.render_time_us()) * 1e-6;
+  tile.splats = header.splats_rendered();
+  tile.pixels = static_cast<std::uint64_t>(header.rect().width()) * header.rect().height();
+  tile.orderedBytes = header.ordered_bytes();
+  tile.prefetchBytes = header.prefetch_bytes();
+  stats_.addTile(tile);
+  return tile;
+}
+
+void FrameAssembly::dropParts(std::uint64_t frame, std::uint32_t tile) {
+  parts_.erase(parts_.lower_bound({frame, tile, 0}),
+               parts_.upper_bound({frame, tile, ~std::uint32_t{0}}));
 }
 
 std::uint64_t FrameAssembly::partSplatsFor(std::uint64_t frame, const TileRect& rect) const {

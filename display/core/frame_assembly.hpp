@@ -131,6 +131,12 @@ class FrameAssembly {
  private:
   void admitFrames();
   TileArrival backgroundArrived(const v1::TileImageHeader& header, TimePoint now);
+  // The tiles.csv record of an arrival, whatever becomes of it; the tile's
+  // dispatch time stays while more parts of it may come (`keepDispatch`).
+  TileRecord recordTile(const v1::TileImageHeader& header, int render, bool keepDispatch,
+                        TimePoint now);
+  // Parts of the tile from any attempt: late from now on, the tile is in.
+  void dropParts(std::uint64_t frame, std::uint32_t tile);
   double since(TimePoint time) const { return secondsBetween(start_, time); }
 
   FrameAssemblyConfig config_;

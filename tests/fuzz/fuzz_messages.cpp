@@ -94,10 +94,14 @@ void tileImage(const v1::TileImageHeader& header, std::span<const std::byte> pay
     if (arrival == display::TileArrival::Part) return;
     composed = parts.take(header.frame_id(), header.tile_id(), header.attempt(), 0xff000000u);
   }
-  Image frame(128, 64, {0, 0, 0, 255});
-  blit(composed.empty() ? std::span<const std::uint8_t>(bytes, pixelBytes)
-                        : std::span<const std::uint8_t>(composed),
-       header.rect().width(), header.rect().height(), frame, header.rect().x(), header.rect().y());
+  // A background tile leaves the frame as it is, as at the display.
+  if (header.format() != v1::PIXEL_FORMAT_BACKGROUND) {
+    Image frame(128, 64, {0, 0, 0, 255});
+    blit(composed.empty() ? std::span<const std::uint8_t>(bytes, pixelBytes)
+                          : std::span<const std::uint8_t>(composed),
+         header.rect().width(), header.rect().height(), frame, header.rect().x(),
+         header.rect().y());
+  }
   (void)assembly.finishFrames(kStart + 2ms);
 }
 

@@ -92,12 +92,14 @@ class PacketPlanner {
   std::optional<Camera> lookaheadCamera(const v1::TileTask& task) const;
   // How many parts a tile's walk is cut into: walk.splats / task.part_splats
   // when at least two, as far as the frame may be split (tileSplitAllowed),
-  // the walk has cells, and renders can take them (RenderModel::rendersWithin
-  // the whole tile's time); else 1.
+  // the walk has cells, and renders can take them (RenderModel::rendersForParts
+  // within the whole tile's time); else 1.
   std::size_t partsFor(const v1::TileTask& task, const TileWalk& walk, TimePoint now) const;
   // One walked tile: cut into parts (partsFor, splitWalk), each rounds its
-  // needs up to layer ends, chooses its render process (one that draws no
-  // other part of the tile while there is such a live one), orders what that process lacks of
+  // needs up to layer ends, chooses its render process (the cost function's;
+  // one already drawing another part of the tile only when every other that
+  // could take a part costs more than the part's own drawing time more),
+  // orders what that process lacks of
   // them and, for the first, the prefetch (`ahead`: the lookahead walk's cells
   // and estimated prefixes), and sends its render packet; then asks the
   // display for the next tile. One plan per packet sent, in part order; none

@@ -106,8 +106,6 @@ TEST(RunSettings, TileTasksAheadAutoGrowsWithTheTilesEachTraverseWalks) {
   for (const char* bad : {"0", "65", "-1", "two", "", "3x"}) {
     EXPECT_THROW(parseTileTasksAhead(bad), UsageError) << bad;
   }
-  EXPECT_EQ(tileTasksAheadName(0), "auto");
-  EXPECT_EQ(tileTasksAheadName(5), "5");
   v1::RunSettings settings;
   EXPECT_EQ(tileTasksAhead(settings), kDefaultTileTasksAhead);
   settings.set_tile_tasks_ahead(6);
