@@ -2,6 +2,7 @@
 
 #include <chrono>
 #include <cstdio>
+#include <cstring>
 #include <map>
 #include <memory>
 
@@ -63,7 +64,9 @@ class DataSendProcess final : public WorkerProcess {
   std::string summary() const override {
     char line[200];
     std::snprintf(line, sizeof line,
-                  "packets_sent=%llu extensions=%llu bytes_sent=%llu duplicates_skipped=%llu",
+                  "data_packets=%llu parts_sent=%llu extensions=%llu bytes_sent=%llu "
+                  "duplicates_skipped=%llu",
+                  static_cast<unsigned long long>(messagesSent_),
                   static_cast<unsigned long long>(packetsSent_),
                   static_cast<unsigned long long>(extensionsSent_),
                   static_cast<unsigned long long>(bytesSent_),
@@ -82,27 +85,57 @@ class DataSendProcess final : public WorkerProcess {
                             ", which holds " + std::to_string(found->second->size()));
       }
     }
-    for (const SplatRange& range : ledger_.rangesToSend(order)) {
+    const std::vector<SplatRange> ranges = ledger_.rangesToSend(order);
+    for (const std::span<const SplatRange> group : dataPacketGroups(ranges)) {
+      sendGroup(order.render_rank(), group);
+    }
+  }
+
+  // One data packet: a single range goes straight from the held packet, more
+  // are copied back to back into one payload.
+  void sendGroup(int renderRank, std::span<const SplatRange> group) {
+    v1::DataPacketHeader header;
+    header.set_record_size(sizeof(Splat));
+    header.set_datasend_rank(job_.worldRank());
+    std::uint64_t total = 0;
+    for (const SplatRange& range : group) {
       const auto& splats = packets_.at(range.cell);
       const std::span<const std::byte> bytes(
           reinterpret_cast<const std::byte*>(splats->data() + range.first),
           std::size_t{range.count} * sizeof(Splat));
-      v1::DataPacketHeader header;
-      header.set_top_level_cell(range.cell);
-      header.set_first_splat(range.first);
-      header.set_splat_count(range.count);
-      header.set_byte_size(bytes.size());
-      header.set_record_size(sizeof(Splat));
+      v1::DataPart& part = *header.add_parts();
+      part.set_top_level_cell(range.cell);
+      part.set_first_splat(range.first);
+      part.set_splat_count(range.count);
       // The whole packet's checksum was verified at load; a part gets its own.
-      header.set_checksum(range.first == 0 && range.count == splats->size()
-                              ? dataset_.packetChecksum(range.cell)
-                              : checksum64(bytes.data(), bytes.size()));
-      header.set_datasend_rank(job_.worldRank());
-      job_.sends().post(order.render_rank(), MessageKind::DataPacket, header, bytes, splats);
+      part.set_checksum(range.first == 0 && range.count == splats->size()
+                            ? dataset_.packetChecksum(range.cell)
+                            : checksum64(bytes.data(), bytes.size()));
+      total += bytes.size();
       ++packetsSent_;
       if (range.first > 0) ++extensionsSent_;
-      bytesSent_ += bytes.size();
     }
+    header.set_byte_size(total);
+    bytesSent_ += total;
+    ++messagesSent_;
+    if (group.size() == 1) {
+      const SplatRange& range = group.front();
+      const auto& splats = packets_.at(range.cell);
+      const std::span<const std::byte> bytes(
+          reinterpret_cast<const std::byte*>(splats->data() + range.first), total);
+      job_.sends().post(renderRank, MessageKind::DataPacket, header, bytes, splats);
+      return;
+    }
+    auto payload = std::make_shared<std::vector<std::byte>>(total);
+    std::byte* out = payload->data();
+    for (const SplatRange& range : group) {
+      const auto& splats = packets_.at(range.cell);
+      const std::size_t size = std::size_t{range.count} * sizeof(Splat);
+      std::memcpy(out, splats->data() + range.first, size);
+      out += size;
+    }
+    const std::span<const std::byte> bytes(*payload);
+    job_.sends().post(renderRank, MessageKind::DataPacket, header, bytes, std::move(payload));
   }
 
   Job& job_;
@@ -111,7 +144,8 @@ class DataSendProcess final : public WorkerProcess {
   std::map<std::uint32_t, std::shared_ptr<const std::vector<Splat>>> packets_;
   std::uint64_t bytesHeld_ = 0;
   double loadSeconds_ = 0.0;
-  std::uint64_t packetsSent_ = 0;
+  std::uint64_t messagesSent_ = 0;
+  std::uint64_t packetsSent_ = 0;  // parts: ranges of cells
   std::uint64_t extensionsSent_ = 0;
   std::uint64_t bytesSent_ = 0;
 };

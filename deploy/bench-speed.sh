@@ -54,7 +54,7 @@ if [[ ! -f "$POINTILLIST_BUILD/CMakeCache.txt" ]]; then
     -DPOINTILLIST_BUILD_TESTS=OFF >/dev/null
 fi
 cmake --build "$POINTILLIST_BUILD" -j "$(nproc)" >/dev/null
-use_malloc_tuning  # for the job and the reference alike
+use_malloc_tuning  # the job's; the reference runs with reference_malloc_tunables
 
 mkdir -p "$out"
 report="$out/goals.md"
@@ -76,7 +76,8 @@ for scene in "${scene_list[@]}"; do
       { cat "$dir/job-$run.log" >&2; die "$scene: the job failed (log above)"; }
   done
   log "$scene: reference, then its frames at full detail for the quality figures"
-  "$POINTILLIST_BIN/pointillist-reference" --dataset "$dataset" --camera-path "$camera_path" \
+  GLIBC_TUNABLES="$(reference_malloc_tunables)" \
+    "$POINTILLIST_BIN/pointillist-reference" --dataset "$dataset" --camera-path "$camera_path" \
     --frames "$frames" --size "$size" "${extra[@]}" >"$dir/reference.log" 2>&1 ||
     { cat "$dir/reference.log" >&2; die "$scene: the reference failed"; }
   "$POINTILLIST_BIN/pointillist-reference" --dataset "$dataset" --camera-path "$camera_path" \

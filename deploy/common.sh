@@ -19,18 +19,30 @@ POINTILLIST_PACKAGES=(
 # Open MPI refuses to run as root unless told that it is intended.
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
 
-# glibc's heap for the role processes and the reference: backed by transparent
-# huge pages, and freed memory kept for reuse instead of handed back and faulted
-# in again. Render processes receive and store hundreds of MiB; on a VM a page
-# fault on fresh memory costs more than the copy into it (measured: about a
-# third of the job's CPU per frame on the bunny orbit). Set
-# POINTILLIST_MALLOC_TUNING=0 to run with glibc's defaults.
-POINTILLIST_MALLOC_TUNABLES="glibc.malloc.hugetlb=1:glibc.malloc.mmap_threshold=33554432"
+# glibc's heap for the role processes: freed memory kept for reuse instead of
+# handed back and faulted in again. Render processes receive and store
+# hundreds of MiB; on a VM a page fault on fresh memory costs more than the
+# copy into it. Transparent huge pages cost the job more than they save: a
+# render's cache grows into fresh memory, and zeroing fresh 2 MiB pages took
+# half of the render processes' CPU on the bunny orbit (measured with perf,
+# 2026-11-26: render CPU per frame 67 -> 35 core-ms without them). The
+# reference, one process that reads the whole dataset once and then draws
+# from it, keeps them (5-9 % more frames/s). Set POINTILLIST_MALLOC_TUNING=0
+# to run with glibc's defaults.
+POINTILLIST_MALLOC_TUNABLES="glibc.malloc.mmap_threshold=33554432"
 POINTILLIST_MALLOC_TUNABLES+=":glibc.malloc.trim_threshold=1073741824:glibc.malloc.top_pad=67108864"
 use_malloc_tuning() {
   [[ "${POINTILLIST_MALLOC_TUNING:-1}" == 0 ]] && return 0
   [[ "${GLIBC_TUNABLES:-}" == *"$POINTILLIST_MALLOC_TUNABLES"* ]] && return 0
   export GLIBC_TUNABLES="${GLIBC_TUNABLES:+$GLIBC_TUNABLES:}$POINTILLIST_MALLOC_TUNABLES"
+}
+# GLIBC_TUNABLES for pointillist-reference: the job's, plus huge pages.
+reference_malloc_tunables() {
+  if [[ "${POINTILLIST_MALLOC_TUNING:-1}" == 0 ]]; then
+    echo "${GLIBC_TUNABLES:-}"
+  else
+    echo "glibc.malloc.hugetlb=1:$POINTILLIST_MALLOC_TUNABLES"
+  fi
 }
 
 # True when one process may read another's memory with process_vm_readv (what

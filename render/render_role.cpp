@@ -113,28 +113,39 @@ class RenderProcess final : public WorkerProcess {
  private:
   void receiveData(const Envelope& envelope, RenderEffects& effects) {
     const auto header = envelope.as<v1::DataPacketHeader>();
-    const std::uint32_t cell = header.top_level_cell();
-    const std::string what = "data packet for top-level cell " + std::to_string(cell) +
-                             " from rank " + std::to_string(envelope.source);
     checkDataPacketHeader(header, envelope.payload.size(), envelope.source);
-    const auto first = static_cast<std::uint32_t>(header.first_splat());
-    const auto count = static_cast<std::uint32_t>(header.splat_count());
+    const auto* splats = reinterpret_cast<const Splat*>(envelope.payload.data());
+    // The transfer time is shared among the parts by their size.
+    const double secondsPerSplat =
+        envelope.payloadSeconds / static_cast<double>(envelope.payload.size() / sizeof(Splat));
+    for (const v1::DataPart& part : header.parts()) {
+      receivePart(part, {splats, static_cast<std::size_t>(part.splat_count())},
+                  secondsPerSplat * static_cast<double>(part.splat_count()), envelope.source,
+                  effects);
+      splats += part.splat_count();
+    }
+  }
+
+  void receivePart(const v1::DataPart& part, std::span<const Splat> splats, double seconds,
+                   int source, RenderEffects& effects) {
+    const std::uint32_t cell = part.top_level_cell();
+    const auto first = static_cast<std::uint32_t>(part.first_splat());
+    const auto count = static_cast<std::uint32_t>(part.splat_count());
     const bool wholePacket =
         cell < dataset_.packetCount() && first == 0 && count == core_.packetSplats(cell);
-    if (checksum64(envelope.payload.data(), envelope.payload.size()) != header.checksum() ||
-        (wholePacket && header.checksum() != dataset_.packetChecksum(cell))) {
-      throw ProtocolError(what + " (splats " + std::to_string(first) + "+" + std::to_string(count) +
-                          ") fails its checksum");
+    if (checksum64(splats.data(), splats.size_bytes()) != part.checksum() ||
+        (wholePacket && part.checksum() != dataset_.packetChecksum(cell))) {
+      throw ProtocolError("data packet for top-level cell " + std::to_string(cell) + " from rank " +
+                          std::to_string(source) + " (splats " + std::to_string(first) + "+" +
+                          std::to_string(count) + ") fails its checksum");
     }
-    const DataIntake intake =
-        core_.receiveData(cell, first, count, envelope.payloadSeconds, Clock::now(), effects);
+    const DataIntake intake = core_.receiveData(cell, first, count, seconds, Clock::now(), effects);
     // Evicted cells' buffers go first (the cell itself when it was dropped).
     for (std::uint32_t victim : effects.released) releaseEverywhere(victim);
     effects.released.clear();
     if (intake.verdict != DataVerdict::Store) return;
-    const auto* splats = reinterpret_cast<const Splat*>(envelope.payload.data());
     for (const auto& renderer : renderers_) {
-      renderer->appendToCell(cell, {splats + intake.skip, intake.count});
+      renderer->appendToCell(cell, splats.subspan(intake.skip, intake.count));
     }
   }
 

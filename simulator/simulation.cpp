@@ -529,14 +529,21 @@ class Simulation {
     switch (delivery.kind) {
       case MessageKind::SendOrder: {
         const auto& order = delivery.as<v1::SendOrder>();
-        for (const datasend::SplatRange& range : ledger.rangesToSend(order)) {
-          const std::uint64_t bytes = std::uint64_t{range.count} * sizeof(Splat);
+        const std::vector<datasend::SplatRange> ranges = ledger.rangesToSend(order);
+        for (const std::span<const datasend::SplatRange> group :
+             datasend::dataPacketGroups(ranges)) {
+          std::uint64_t bytes = 0;
           v1::DataPacketHeader header;
-          header.set_top_level_cell(range.cell);
-          header.set_first_splat(range.first);
-          header.set_splat_count(range.count);
-          header.set_byte_size(bytes);
+          header.set_record_size(sizeof(Splat));
           header.set_datasend_rank(peers_.datasends[s]);
+          for (const datasend::SplatRange& range : group) {
+            v1::DataPart& part = *header.add_parts();
+            part.set_top_level_cell(range.cell);
+            part.set_first_splat(range.first);
+            part.set_splat_count(range.count);
+            bytes += std::uint64_t{range.count} * sizeof(Splat);
+          }
+          header.set_byte_size(bytes);
           const double arrival = bulk(now, peers_.datasends[s], order.render_rank(), bytes);
           schedule(arrival, Step::Deliver, order.render_rank(),
                    Delivery{peers_.datasends[s], MessageKind::DataPacket,
@@ -574,10 +581,16 @@ class Simulation {
         break;
       case MessageKind::DataPacket: {
         const auto& header = delivery.as<v1::DataPacketHeader>();
-        process.core.receiveData(header.top_level_cell(),
-                                 static_cast<std::uint32_t>(header.first_splat()),
-                                 static_cast<std::uint32_t>(header.splat_count()),
-                                 delivery.transferSeconds, timeAfterEpoch(now), effects);
+        const double secondsPerByte =
+            delivery.transferSeconds /
+            static_cast<double>(std::max<std::uint64_t>(header.byte_size(), 1));
+        for (const v1::DataPart& part : header.parts()) {
+          process.core.receiveData(
+              part.top_level_cell(), static_cast<std::uint32_t>(part.first_splat()),
+              static_cast<std::uint32_t>(part.splat_count()),
+              secondsPerByte * static_cast<double>(part.splat_count() * sizeof(Splat)),
+              timeAfterEpoch(now), effects);
+        }
         break;
       }
       default:

@@ -3,8 +3,27 @@
 #include <string>
 
 #include "common/errors.hpp"
+#include "common/splat.hpp"
 
 namespace pointillist::datasend {
+
+std::vector<std::span<const SplatRange>> dataPacketGroups(std::span<const SplatRange> ranges,
+                                                          std::uint64_t targetBytes) {
+  std::vector<std::span<const SplatRange>> groups;
+  std::size_t begin = 0;
+  std::uint64_t bytes = 0;
+  for (std::size_t i = 0; i < ranges.size(); ++i) {
+    const std::uint64_t rangeBytes = std::uint64_t{ranges[i].count} * sizeof(Splat);
+    if (i > begin && bytes + rangeBytes > targetBytes) {
+      groups.push_back(ranges.subspan(begin, i - begin));
+      begin = i;
+      bytes = 0;
+    }
+    bytes += rangeBytes;
+  }
+  if (begin < ranges.size()) groups.push_back(ranges.subspan(begin));
+  return groups;
+}
 
 SendLedger::SendLedger(PeerRanks peers, std::vector<std::uint32_t> owners, std::uint32_t selfIndex)
     : peers_(std::move(peers)),

@@ -39,6 +39,7 @@ std::vector<std::uint32_t> CellCache::insert(std::uint32_t cell, std::uint64_t b
     entries_[cell] = Entry{bytes, now, std::prev(recency_.end())};
   }
   bytes_ += growth;
+  if (pinned(cell)) pinnedBytes_ += growth;
   peakBytes_ = std::max(peakBytes_, bytes_);
   return evicted;
 }
@@ -68,23 +69,20 @@ std::vector<std::uint32_t> CellCache::expire(Clock::time_point now) {
 }
 
 bool CellCache::canFit(std::uint64_t bytes) const {
-  std::uint64_t pinnedBytes = 0;
-  for (const auto& [cell, count] : pins_) {
-    if (const auto found = entries_.find(cell); found != entries_.end()) {
-      pinnedBytes += found->second.bytes;
-    }
-  }
-  return pinnedBytes + bytes <= capBytes_;
+  return pinnedBytes_ + bytes <= capBytes_;
 }
 
 void CellCache::pin(std::uint32_t cell) {
-  ++pins_[cell];
+  if (++pins_[cell] == 1) pinnedBytes_ += bytesOf(cell);
 }
 
 void CellCache::unpin(std::uint32_t cell) {
   auto found = pins_.find(cell);
   if (found == pins_.end()) return;
-  if (--found->second == 0) pins_.erase(found);
+  if (--found->second == 0) {
+    pins_.erase(found);
+    pinnedBytes_ -= bytesOf(cell);
+  }
 }
 
 bool CellCache::pinned(std::uint32_t cell) const {
@@ -103,6 +101,7 @@ std::optional<CellCache::Clock::time_point> CellCache::oldestUse() const {
 void CellCache::erase(std::uint32_t cell) {
   auto found = entries_.find(cell);
   bytes_ -= found->second.bytes;
+  if (pinned(cell)) pinnedBytes_ -= found->second.bytes;
   recency_.erase(found->second.position);
   entries_.erase(found);
   ++evictions_;

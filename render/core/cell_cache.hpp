@@ -67,6 +67,7 @@ class CellCache {
   std::unordered_map<std::uint32_t, Entry> entries_;
   std::unordered_map<std::uint32_t, std::uint32_t> pins_;
   std::uint64_t bytes_ = 0;
+  std::uint64_t pinnedBytes_ = 0;  // of the cached cells that are pinned
   std::uint64_t peakBytes_ = 0;
   std::uint64_t evictions_ = 0;
   std::uint64_t overCapInsertions_ = 0;

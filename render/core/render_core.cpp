@@ -39,11 +39,44 @@ std::uint32_t RenderCore::heldSplats(std::uint32_t cell) const {
   return found == held_.end() ? 0 : found->second;
 }
 
-bool RenderCore::ready(const v1::RenderPacket& packet) const {
-  for (int i = 0; i < packet.top_level_cells_size(); ++i) {
-    if (heldSplats(packet.top_level_cells(i)) < packet.top_level_splats(i)) return false;
+RenderCore::QueuedPacket& RenderCore::queuedPacket(std::uint64_t sequence) {
+  // The queue stays in arrival order: packets leave it, none is inserted.
+  const auto found = std::lower_bound(
+      queue_.begin(), queue_.end(), sequence,
+      [](const QueuedPacket& queued, std::uint64_t wanted) { return queued.sequence < wanted; });
+  return *found;
+}
+
+void RenderCore::setHeld(std::uint32_t cell, std::uint32_t splats, TimePoint now) {
+  const std::uint32_t before = heldSplats(cell);
+  if (splats == 0) {
+    held_.erase(cell);
+  } else {
+    held_[cell] = splats;
   }
-  return true;
+  const auto found = needs_.find(cell);
+  if (found == needs_.end()) return;
+  for (const Need& need : found->second) {
+    const bool had = before >= need.splats;
+    const bool has = splats >= need.splats;
+    if (had == has) continue;
+    QueuedPacket& queued = queuedPacket(need.sequence);
+    if (has) {
+      if (--queued.missing == 0 && !queued.dataComplete) queued.dataComplete = now;
+    } else {
+      ++queued.missing;
+    }
+  }
+}
+
+void RenderCore::forgetNeeds(const QueuedPacket& queued) {
+  for (std::uint32_t cell : queued.packet.top_level_cells()) {
+    const auto found = needs_.find(cell);
+    if (found == needs_.end()) continue;
+    std::erase_if(found->second,
+                  [&queued](const Need& need) { return need.sequence == queued.sequence; });
+    if (found->second.empty()) needs_.erase(found);
+  }
 }
 
 void RenderCore::ask(CellPrefix need, std::uint64_t frame, TimePoint now, Requests& requests) {
@@ -130,7 +163,12 @@ void RenderCore::receivePacket(int sourceRank, v1::RenderPacket packet, TimePoin
   QueuedPacket& queued = queue_.emplace_back();
   queued.arrived = now;
   queued.sequence = ++packetsQueued_;
-  if (ready(packet)) queued.dataComplete = now;
+  for (int i = 0; i < packet.top_level_cells_size(); ++i) {
+    const CellPrefix need{packet.top_level_cells(i), packet.top_level_splats(i)};
+    needs_[need.cell].push_back({queued.sequence, need.splats});
+    if (heldSplats(need.cell) < need.splats) ++queued.missing;
+  }
+  if (queued.missing == 0) queued.dataComplete = now;
   queued.packet = std::move(packet);
   reportDirty_ = true;
 }
@@ -199,17 +237,13 @@ DataIntake RenderCore::receiveData(std::uint32_t cell, std::uint32_t first, std:
   }
   for (std::uint32_t victim : cache_.insert(cell, newBytes, now)) evict(victim, effects);
   if (held > 0) ++extensions_;
-  held_[cell] = end;
+  setHeld(cell, end, now);
   settle();
-  for (QueuedPacket& queued : queue_) {
-    if (!queued.dataComplete && ready(queued.packet)) queued.dataComplete = now;
-  }
   // One entry per cell in a report: the longest prefix held.
-  const auto listed = std::find_if(loaded_.begin(), loaded_.end(),
-                                   [cell](const CellPrefix& p) { return p.cell == cell; });
-  if (listed != loaded_.end()) {
-    listed->splats = end;
+  if (const auto listed = loadedIndex_.find(cell); listed != loadedIndex_.end()) {
+    loaded_[listed->second].splats = end;
   } else {
+    loadedIndex_.emplace(cell, loaded_.size());
     loaded_.push_back({cell, end});
   }
   reportDirty_ = true;
@@ -227,7 +261,8 @@ std::optional<ReadyPacket> RenderCore::nextPacket(TimePoint now, RenderEffects& 
   pinHeadPacket(now, effects);
   if (!stalled()) {
     for (auto it = queue_.begin(); it != queue_.end(); ++it) {
-      if (!ready(it->packet)) continue;
+      if (it->missing > 0) continue;
+      forgetNeeds(*it);
       ReadyPacket packet{std::move(it->packet), it->arrived, it->dataComplete.value_or(now)};
       queue_.erase(it);
       return packet;
@@ -298,7 +333,7 @@ void RenderCore::rerequestLateCells(TimePoint now, RenderEffects& effects) {
 }
 
 void RenderCore::evict(std::uint32_t cell, RenderEffects& effects) {
-  held_.erase(cell);
+  setHeld(cell, 0, TimePoint{});
   effects.released.push_back(cell);
   evicted_.push_back(cell);
   reportDirty_ = true;
@@ -375,6 +410,7 @@ void RenderCore::sendReport(RenderEffects& effects) {
   for (std::uint64_t id : lastPacketFrom_) report.add_last_packet_from_traverse(id);
   const bool evictions = !evicted_.empty();
   loaded_.clear();
+  loadedIndex_.clear();
   evicted_.clear();
   std::vector<int> recipients = peers_.traverses;
   if (evictions)
@@ -412,16 +448,36 @@ std::string RenderCore::summary() const {
 
 void checkDataPacketHeader(const v1::DataPacketHeader& header, std::size_t payloadBytes,
                            int sourceRank) {
-  if (header.byte_size() != payloadBytes || header.record_size() != sizeof(Splat) ||
-      header.splat_count() > std::numeric_limits<std::uint32_t>::max() ||
-      header.splat_count() * sizeof(Splat) != header.byte_size() ||
-      header.first_splat() > std::numeric_limits<std::uint32_t>::max()) {
-    throw ProtocolError(
-        "data packet for top-level cell " + std::to_string(header.top_level_cell()) +
-        " from rank " + std::to_string(sourceRank) + " has " + std::to_string(payloadBytes) +
-        " bytes of " + std::to_string(header.record_size()) + "-byte records; its header says " +
-        std::to_string(header.splat_count()) + " splats, " + std::to_string(header.byte_size()) +
-        " bytes of " + std::to_string(sizeof(Splat)));
+  const auto fail = [&](const std::string& what) {
+    const std::string cell =
+        header.parts_size() > 0
+            ? "top-level cell " + std::to_string(header.parts(0).top_level_cell())
+            : "no top-level cell";
+    throw ProtocolError("data packet for " + cell + " from rank " + std::to_string(sourceRank) +
+                        " with " + std::to_string(payloadBytes) + " bytes: " + what);
+  };
+  if (header.record_size() != sizeof(Splat)) {
+    fail("records of " + std::to_string(header.record_size()) + " bytes, not " +
+         std::to_string(sizeof(Splat)));
+  }
+  if (header.byte_size() != payloadBytes) {
+    fail("its header says " + std::to_string(header.byte_size()) + " bytes");
+  }
+  if (header.parts_size() == 0) fail("no parts");
+  // Counts past 32 bits are refused before anything is multiplied or summed.
+  std::uint64_t splats = 0;
+  for (const v1::DataPart& part : header.parts()) {
+    if (part.splat_count() == 0 || part.splat_count() > std::numeric_limits<std::uint32_t>::max() ||
+        part.first_splat() > std::numeric_limits<std::uint32_t>::max()) {
+      fail("the part of top-level cell " + std::to_string(part.top_level_cell()) +
+           " names splats " + std::to_string(part.first_splat()) + "+" +
+           std::to_string(part.splat_count()));
+    }
+    splats += part.splat_count();
+  }
+  if (splats * sizeof(Splat) != payloadBytes) {
+    fail("its parts hold " + std::to_string(splats) + " splats of " +
+         std::to_string(sizeof(Splat)) + " bytes");
   }
 }
 

@@ -143,6 +143,13 @@ class RenderCore {
     TimePoint arrived;
     std::optional<TimePoint> dataComplete;
     std::uint64_t sequence = 0;
+    std::uint32_t missing = 0;  // its cells held shorter than it needs
+  };
+  // A queued packet's need of one cell, so a change of what is held updates
+  // only the packets naming that cell (a packet may name thousands of cells).
+  struct Need {
+    std::uint64_t sequence = 0;
+    std::uint32_t splats = 0;
   };
   // Per data-send index: the prefixes to ask it for.
   using Requests = std::unordered_map<std::uint32_t, std::vector<CellPrefix>>;
@@ -153,7 +160,11 @@ class RenderCore {
   };
 
   void pinHeadPacket(TimePoint now, RenderEffects& effects);
-  bool ready(const v1::RenderPacket& packet) const;
+  // Sets what is held of `cell` (0: nothing) and the missing counts of the
+  // queued packets that need it; one that now has all its data is complete.
+  void setHeld(std::uint32_t cell, std::uint32_t splats, TimePoint now);
+  QueuedPacket& queuedPacket(std::uint64_t sequence);
+  void forgetNeeds(const QueuedPacket& queued);
   // Asks for the prefix unless it is held or already asked for.
   void askUnlessPending(CellPrefix need, std::uint64_t frame, TimePoint now, Requests& requests);
   void ask(CellPrefix need, std::uint64_t frame, TimePoint now, Requests& requests);
@@ -174,10 +185,12 @@ class RenderCore {
   std::uint64_t packetsQueued_ = 0;
   std::uint64_t pinnedSequence_ = 0;
   std::vector<std::uint32_t> pinnedCells_;
-  std::unordered_map<std::uint32_t, std::uint32_t> held_;  // cell -> prefix held
+  std::unordered_map<std::uint32_t, std::uint32_t> held_;       // cell -> prefix held
+  std::unordered_map<std::uint32_t, std::vector<Need>> needs_;  // cell -> queued packets' needs
   // cell -> the prefix asked for, when and for which frame
   std::unordered_map<std::uint32_t, Request> requestedAt_;
   std::vector<CellPrefix> loaded_;
+  std::unordered_map<std::uint32_t, std::size_t> loadedIndex_;  // cell -> its entry in loaded_
   std::vector<std::uint32_t> evicted_;
   std::vector<std::uint64_t> lastPacketFrom_;  // per traverse
   std::optional<TimePoint> lastMaintenance_;

@@ -129,8 +129,10 @@ void dataPacket(const v1::DataPacketHeader& header, std::span<const std::byte> p
   render::checkDataPacketHeader(header, payload.size(), 3);
   auto core = renderCore();
   render::RenderEffects effects;
-  (void)core.receiveData(header.top_level_cell(), static_cast<std::uint32_t>(header.first_splat()),
-                         static_cast<std::uint32_t>(header.splat_count()), 0.001, kStart, effects);
+  for (const v1::DataPart& part : header.parts()) {
+    (void)core.receiveData(part.top_level_cell(), static_cast<std::uint32_t>(part.first_splat()),
+                           static_cast<std::uint32_t>(part.splat_count()), 0.001, kStart, effects);
+  }
   drainPackets(core);
 }
 

@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include "common/errors.hpp"
+#include "common/splat.hpp"
 
 namespace pointillist::datasend {
 namespace {
@@ -66,6 +67,32 @@ TEST(SendLedger, RefusesCellsItDoesNotOwnNamingTheRequester) {
   EXPECT_THROW(ledger.rangesToSend(withoutPrefix), ProtocolError);
   v1::RenderReport report;
   EXPECT_THROW(ledger.applyReport(1, report), ProtocolError);
+}
+
+// An order's ranges go in few data packets: consecutive groups, in order,
+// every range once, each group under the target unless one range alone is
+// larger.
+TEST(SendLedger, RangesGoInDataPacketsOfAboutTheTargetSize) {
+  const std::uint64_t target = 100 * sizeof(Splat);
+  const Ranges ranges{{1, 0, 30}, {2, 0, 30}, {3, 0, 40}, {4, 10, 250}, {5, 0, 60}, {6, 0, 50}};
+  const auto groups = dataPacketGroups(ranges, target);
+  ASSERT_EQ(groups.size(), 4u);
+  EXPECT_EQ(groups[0].size(), 3u);  // 30 + 30 + 40 splats: exactly the target
+  EXPECT_EQ(groups[1].size(), 1u);  // 250 splats, alone
+  EXPECT_EQ(groups[2].size(), 1u);  // 60 + 50 would pass the target
+  EXPECT_EQ(groups[3].size(), 1u);
+  Ranges joined;
+  for (const auto group : groups) {
+    std::uint64_t bytes = 0;
+    for (const SplatRange& range : group) {
+      joined.push_back(range);
+      bytes += std::uint64_t{range.count} * sizeof(Splat);
+    }
+    EXPECT_TRUE(bytes <= target || group.size() == 1);
+  }
+  EXPECT_EQ(joined, ranges);
+  EXPECT_TRUE(dataPacketGroups({}, target).empty());
+  EXPECT_EQ(dataPacketGroups(ranges).size(), 1u);  // the default target holds them all
 }
 
 }  // namespace

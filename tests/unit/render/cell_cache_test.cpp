@@ -121,11 +121,16 @@ TEST(CellCache, RandomWorkloadKeepsItsInvariants) {
     }
     std::uint64_t held = 0;
     std::uint64_t evictable = 0;  // unpinned, and not the cell just inserted
+    std::uint64_t pinnedHeld = 0;
     for (const auto& [id, bytes] : sizes) {
       ASSERT_TRUE(cache.contains(id)) << "cell " << id;
       held += bytes;
+      if (cache.pinned(id)) pinnedHeld += bytes;
       if (!cache.pinned(id) && !(inserted && id == cell)) evictable += bytes;
     }
+    // canFit keeps its pinned bytes as pins, growths and evictions come.
+    const std::uint64_t probe = random() % 6000;
+    ASSERT_EQ(cache.canFit(probe), pinnedHeld + probe <= cache.capBytes()) << "step " << step;
     ASSERT_EQ(cache.bytes(), held);
     ASSERT_EQ(cache.size(), sizes.size());
     ASSERT_EQ(cache.lruOrder().size(), cache.size());

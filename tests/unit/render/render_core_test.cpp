@@ -141,6 +141,37 @@ TEST(RenderCore, DrawsAPacketOnlyOnceAllItsDataIsHereAndStampsTheWait) {
   EXPECT_THROW(core.receiveData(2, kCellSplats, 1, 1e-4, kStart, effects), ProtocolError);
 }
 
+// Readiness is kept per packet as cells come and go: a queued packet whose
+// cell is evicted (only the head packet's cells are pinned) waits again.
+TEST(RenderCore, AQueuedPacketWaitsAgainWhenACellItNeedsIsEvicted) {
+  RenderCore core = makeCore(2);  // room for two cells
+  RenderEffects effects;
+  core.receivePacket(kTraverse, packet(1, {0}), kStart, effects);     // the head
+  core.receivePacket(kTraverse, packet(2, {1, 2}), kStart, effects);  // not pinned
+  EXPECT_FALSE(core.nextPacket(kStart, effects));
+  EXPECT_TRUE(core.pinned(0));
+  EXPECT_FALSE(core.pinned(1));
+  EXPECT_EQ(whole(core, 1, 0.0, kStart + 1ms, effects), DataVerdict::Store);
+  EXPECT_EQ(whole(core, 2, 0.0, kStart + 2ms, effects), DataVerdict::Store);
+  // The head's cell comes last and evicts the least recently used: cell 1.
+  RenderEffects loaded;
+  EXPECT_EQ(whole(core, 0, 0.0, kStart + 3ms, loaded), DataVerdict::Store);
+  EXPECT_EQ(loaded.released, (std::vector<std::uint32_t>{1}));
+  auto ready = core.nextPacket(kStart + 4ms, effects);
+  ASSERT_TRUE(ready);
+  EXPECT_EQ(ready->packet.packet_id(), 1u);
+  core.packetDrawn(*ready, 5000, 0.01, kStart + 5ms, effects);
+  EXPECT_FALSE(core.nextPacket(kStart + 6ms, effects));  // cell 1 is gone
+  EXPECT_TRUE(core.pinned(1));
+  EXPECT_TRUE(core.requested(1));
+  EXPECT_EQ(whole(core, 1, 0.0, kStart + 7ms, effects), DataVerdict::Store);
+  ready = core.nextPacket(kStart + 8ms, effects);
+  ASSERT_TRUE(ready);
+  EXPECT_EQ(ready->packet.packet_id(), 2u);
+  EXPECT_EQ(ready->dataComplete, kStart + 2ms);  // first complete, before the eviction
+  EXPECT_FALSE(core.nextPacket(kStart + 9ms, effects));
+}
+
 TEST(RenderCore, ReportsEvictionsToDataSendBeforeARequestForTheSameCell) {
   // Room for one cell: loading cell 1 evicts cell 0.
   RenderCore core = makeCore(1);
@@ -406,30 +437,43 @@ TEST(RenderCore, RefusesPacketsWhoseRangesReachBeyondThePrefixTheyWaitFor) {
   EXPECT_EQ(core.queuedPackets(), 0u);
 }
 
-// A data packet's header must describe its payload exactly; counts past 32
-// bits are refused before anything is multiplied.
+// A data packet's header must describe its payload exactly: its parts' splats
+// fill the payload; counts past 32 bits are refused before anything is
+// multiplied or summed.
 TEST(RenderCore, ADataPacketHeaderMustDescribeItsPayload) {
   v1::DataPacketHeader header;
-  header.set_top_level_cell(3);
-  header.set_splat_count(10);
   header.set_byte_size(10 * sizeof(Splat));
   header.set_record_size(sizeof(Splat));
+  EXPECT_THROW(checkDataPacketHeader(header, 10 * sizeof(Splat), 3), ProtocolError);  // no part
+  v1::DataPart& first = *header.add_parts();
+  first.set_top_level_cell(3);
+  first.set_splat_count(4);
+  v1::DataPart& second = *header.add_parts();
+  second.set_top_level_cell(5);
+  second.set_first_splat(2);
+  second.set_splat_count(6);
   EXPECT_NO_THROW(checkDataPacketHeader(header, 10 * sizeof(Splat), 3));
   EXPECT_THROW(checkDataPacketHeader(header, 9 * sizeof(Splat), 3), ProtocolError);
+  header.set_byte_size(9 * sizeof(Splat));
+  EXPECT_THROW(checkDataPacketHeader(header, 9 * sizeof(Splat), 3), ProtocolError);  // parts: 10
+  header.set_byte_size(10 * sizeof(Splat));
   header.set_record_size(16);
   EXPECT_THROW(checkDataPacketHeader(header, 10 * sizeof(Splat), 3), ProtocolError);
   header.set_record_size(sizeof(Splat));
-  header.set_splat_count(std::uint64_t{1} << 59);  // times 32 wraps to 0
-  header.set_byte_size(0);
-  EXPECT_THROW(checkDataPacketHeader(header, 0, 3), ProtocolError);
-  header.set_splat_count(10);
+  header.mutable_parts(1)->set_splat_count(0);
+  EXPECT_THROW(checkDataPacketHeader(header, 4 * sizeof(Splat), 3), ProtocolError);
+  header.mutable_parts(1)->set_splat_count(std::uint64_t{1} << 59);  // times 32 wraps to 0
+  header.set_byte_size(4 * sizeof(Splat));
+  EXPECT_THROW(checkDataPacketHeader(header, 4 * sizeof(Splat), 3), ProtocolError);
+  header.mutable_parts(1)->set_splat_count(6);
   header.set_byte_size(10 * sizeof(Splat));
-  header.set_first_splat(std::uint64_t{1} << 33);
+  header.mutable_parts(1)->set_first_splat(std::uint64_t{1} << 33);
   try {
     checkDataPacketHeader(header, 10 * sizeof(Splat), 3);
     FAIL() << "a first splat past 32 bits was taken";
   } catch (const ProtocolError& error) {
     EXPECT_NE(std::string(error.what()).find("top-level cell 3 from rank 3"), std::string::npos);
+    EXPECT_NE(std::string(error.what()).find("cell 5 names splats"), std::string::npos);
   }
 }
 
