@@ -291,6 +291,17 @@ void RasterizeCell(const PointRaster& r, const PointCell& c, std::size_t from, s
   scatter.flush();
 }
 
+void RasterizeRanges(const PointRaster& r, const PointRange* ranges, std::size_t count,
+                     std::uint64_t* buffer) {
+  Scatter scatter(buffer, r.tileWidth);
+  for (std::size_t k = 0; k < count; ++k) {
+    if (ranges[k].from < ranges[k].to) {
+      projectAll(r, *ranges[k].cell, ranges[k].from, ranges[k].to, scatter);
+    }
+  }
+  scatter.flush();
+}
+
 void CellFootprints(const PointRaster& r, const PointCell& c, std::size_t from, std::size_t to,
                     PointFootprint* out) {
   Record record(from, to, out);
@@ -360,6 +371,7 @@ HWY_AFTER_NAMESPACE();
 namespace pointillist::render {
 
 HWY_EXPORT(RasterizeCell);
+HWY_EXPORT(RasterizeRanges);
 HWY_EXPORT(CellFootprints);
 HWY_EXPORT(WordsToRgba);
 HWY_EXPORT(WordsToDepth);
@@ -505,6 +517,12 @@ void rasterizePoints(const PointRaster& raster, const PointCell& cell, std::size
   HWY_DYNAMIC_DISPATCH(RasterizeCell)(raster, cell, from, to, buffer);
 }
 
+void rasterizePointRanges(const PointRaster& raster, std::span<const PointRange> ranges,
+                          std::uint64_t* buffer) {
+  if (ranges.empty()) return;
+  HWY_DYNAMIC_DISPATCH(RasterizeRanges)(raster, ranges.data(), ranges.size(), buffer);
+}
+
 std::vector<PointFootprint> pointFootprints(const PointRaster& raster, const PointCell& cell,
                                             std::size_t from, std::size_t to) {
   std::vector<PointFootprint> out(to > from ? to - from : 0);
@@ -611,16 +629,19 @@ RenderStats CpuPointRenderer::render(const Camera& camera, const TileRect& rect,
     // Splats [begin, end) of the whole list, cut across parts.
     const std::uint64_t begin = stats.splats * share / threads;
     const std::uint64_t end = stats.splats * (share + 1) / threads;
+    std::vector<PointRange> shareRanges;
+    shareRanges.reserve(parts.size());
     std::uint64_t at = 0;
     for (const Part& part : parts) {
       const std::uint64_t partEnd = at + part.count;
       if (partEnd > begin && at < end) {
         const std::uint64_t from = std::max(begin, at) - at;
         const std::uint64_t to = std::min(end, partEnd) - at;
-        rasterizePoints(raster, *part.cell, part.offset + from, part.offset + to, buffer);
+        shareRanges.push_back({part.cell, part.offset + from, part.offset + to});
       }
       at = partEnd;
     }
+    rasterizePointRanges(raster, shareRanges, buffer);
   };
   if (threads == 1) {
     drawShare(0);

@@ -101,6 +101,20 @@ void appendToPointCell(PointCell& cell, std::span<const Splat> splats);
 void rasterizePoints(const PointRaster& raster, const PointCell& cell, std::size_t from,
                      std::size_t to, std::uint64_t* buffer);
 
+// Splats [from, to) of one cached cell.
+struct PointRange {
+  const PointCell* cell = nullptr;
+  std::size_t from = 0;
+  std::size_t to = 0;
+};
+// Draws every range as rasterizePoints would one after the other (the same
+// pixels: each keeps the minimum word), in one pass of the kernel whose
+// batches of footprints run across ranges. A tile holds thousands of short
+// ranges (a cell's own level-splats); a batch per range cost more than
+// drawing them.
+void rasterizePointRanges(const PointRaster& raster, std::span<const PointRange> ranges,
+                          std::uint64_t* buffer);
+
 // What the SIMD kernel computes for splats [from, to) of `cell`, one per
 // splat, before drawing (for tests).
 std::vector<PointFootprint> pointFootprints(const PointRaster& raster, const PointCell& cell,

@@ -222,6 +222,44 @@ TEST(CpuPointKernel, SubTilesDrawAsTheReference) {
   });
 }
 
+// Many short ranges of several cells in one pass draw what the scalar
+// reference draws for the same splats: batches run across ranges, empty ranges
+// and ranges of one splat included.
+TEST(CpuPointKernel, ManyShortRangesInOnePassDrawAsTheReference) {
+  const std::vector<Splat> splats = edgeScene(40000, 41);
+  std::vector<PointCell> cells;
+  for (std::size_t begin = 0; begin < splats.size(); begin += 10000) {
+    cells.push_back(makePointCell({splats.data() + begin, 10000}));
+  }
+  std::mt19937 rng(43);
+  std::vector<PointRange> ranges;
+  std::vector<Splat> drawn;
+  for (int k = 0; k < 600; ++k) {
+    const std::size_t which = rng() % cells.size();
+    const std::size_t from = rng() % 9990;
+    const std::size_t count = k % 7 == 0 ? 0 : 1 + rng() % (k % 3 == 0 ? 9 : 70);
+    const std::size_t to = std::min<std::size_t>(from + count, 10000);
+    ranges.push_back({&cells[which], from, to});
+    drawn.insert(drawn.end(), splats.begin() + static_cast<std::ptrdiff_t>(which * 10000 + from),
+                 splats.begin() + static_cast<std::ptrdiff_t>(which * 10000 + to));
+  }
+  const Camera camera = kernelCamera();
+  forEachTarget([&] {
+    for (const RenderSettings& settings : {settingsVariants()[0], settingsVariants()[4]}) {
+      const PointRaster raster = pointRaster(camera, fullFrameRect(camera), settings);
+      std::vector<std::uint64_t> buffer(
+          static_cast<std::size_t>(raster.tileWidth) * static_cast<std::size_t>(raster.tileHeight),
+          kEmptyPixel);
+      rasterizePointRanges(raster, ranges, buffer.data());
+      const auto expected = drawScalar(raster, drawn);
+      EXPECT_TRUE(buffer == expected);
+      EXPECT_GT(std::count_if(buffer.begin(), buffer.end(),
+                              [](std::uint64_t word) { return word != kEmptyPixel; }),
+                1000);
+    }
+  });
+}
+
 // One pixel per point everywhere: the batched 1x1 path.
 TEST(CpuPointKernel, ConstantOnePixelDrawsAsTheReference) {
   const std::vector<Splat> splats = edgeScene(50001, 37);
