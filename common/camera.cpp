@@ -179,6 +179,24 @@ bool boxOutside(const FrustumPlanes& planes, const glm::vec3& boxMin, const glm:
   });
 }
 
+int boxInsidePlanes(const FrustumPlanes& planes, const glm::vec3& boxMin, const glm::vec3& boxMax,
+                    int inside) {
+  for (std::size_t i = 0; i < planes.size(); ++i) {
+    const int bit = 1 << i;
+    if ((inside & bit) != 0) continue;
+    const glm::vec4& p = planes[i];
+    const glm::vec3 far(p.x >= 0 ? boxMax.x : boxMin.x, p.y >= 0 ? boxMax.y : boxMin.y,
+                        p.z >= 0 ? boxMax.z : boxMin.z);
+    if (planeDistance(p, far) < 0.0f) return -1;
+    const glm::vec3 near(p.x >= 0 ? boxMin.x : boxMax.x, p.y >= 0 ? boxMin.y : boxMax.y,
+                         p.z >= 0 ? boxMin.z : boxMax.z);
+    const float scale =
+        std::abs(p.x * near.x) + std::abs(p.y * near.y) + std::abs(p.z * near.z) + std::abs(p.w);
+    if (planeDistance(p, near) > 1e-5f * scale) inside |= bit;
+  }
+  return inside;
+}
+
 double focalLengthPixels(const Camera& camera) {
   return 0.5 * camera.image_height() /
          std::tan(glm::radians(static_cast<double>(camera.fov_y_degrees())) * 0.5);

@@ -73,6 +73,14 @@ inline float planeDistance(const glm::vec4& plane, const glm::vec3& p) {
 bool sphereOutside(const FrustumPlanes& planes, const glm::vec3& centre, float radius);
 // Same for an axis-aligned box (tests the box corner farthest along each normal).
 bool boxOutside(const FrustumPlanes& planes, const glm::vec3& boxMin, const glm::vec3& boxMax);
+// boxOutside for a walk down a hierarchy of nested boxes: planes whose bits
+// are set in `inside` (an enclosing box lies wholly inside them) are not
+// tested. Returns -1 when the box is outside a plane, else `inside` with the
+// bits of the planes the box lies wholly inside (by a margin that covers the
+// rounding of a nested box's own test).
+int boxInsidePlanes(const FrustumPlanes& planes, const glm::vec3& boxMin, const glm::vec3& boxMax,
+                    int inside);
+inline constexpr int kInsideAllPlanes = (1 << 6) - 1;
 
 // Pixels per world unit for a length facing the camera at eye-space depth
 // `distance` (distance along the view axis): imageHeight / (2 tan(fovY / 2)) /

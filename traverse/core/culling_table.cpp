@@ -27,20 +27,45 @@ CullingTable::CullingTable(std::span<const OctreeCell> cells, float sizeScale)
     : cells_(cells), sizeScale_(sizeScale) {
   culling_.reserve(cells.size());
   for (const OctreeCell& cell : cells) culling_.push_back(cellCulling(cell, sizeScale));
+  // Depth-first order: a cell's children follow it up to its next sibling.
+  withinParent_.assign(cells.size(), 0);
+  struct Open {
+    std::size_t end;
+    std::size_t index;
+  };
+  std::vector<Open> ancestors;
+  for (std::size_t i = 0; i < cells.size(); ++i) {
+    while (!ancestors.empty() && i >= ancestors.back().end) ancestors.pop_back();
+    if (!ancestors.empty()) {
+      const CellCulling& parent = culling_[ancestors.back().index];
+      const CellCulling& child = culling_[i];
+      withinParent_[i] = glm::all(glm::greaterThanEqual(child.low, parent.low)) &&
+                         glm::all(glm::lessThanEqual(child.high, parent.high));
+    }
+    if (!cells[i].isLeaf()) {
+      ancestors.push_back(
+          {cells[i].nextSibling == kNoIndex ? cells.size() : cells[i].nextSibling, i});
+    }
+  }
 }
 
 bool cellBackfacing(const CellCulling& cell, const glm::vec3& eye) {
-  if (cell.cosCone <= 0.0) return false;
+  return cellFacing(cell, eye) == Facing::Away;
+}
+
+Facing cellFacing(const CellCulling& cell, const glm::vec3& eye) {
+  if (cell.cosCone <= 0.0) return Facing::Mixed;
   const glm::vec3 toCell = cell.centre - eye;
   const float distance = glm::length(toCell);
-  if (distance <= cell.radius * 1.0001f) return false;  // eye inside: some splat may face it
+  if (distance <= cell.radius * 1.0001f) return Facing::Mixed;  // eye inside
   // Every splat normal n lies within the cone's half angle C of the axis;
   // every direction from the eye to a splat lies within V of toCell, with
   // sin V = radius / distance. The splat faces away when angle(n, direction)
   // < 90 deg, guaranteed when A + C + V + s < 90 deg, A being the angle from
   // the axis to toCell and s a safety margin. Tested with cosines and sines
   // instead of angles: X = C + V + s must stay below 90 deg (cos X > 0), and
-  // then A < 90 deg - X exactly when cos A > sin X.
+  // then A < 90 deg - X exactly when cos A > sin X. Every splat faces the eye
+  // when the angle from the axis to -toCell passes the same test.
   constexpr double kSafety = 1e-3;  // radians, covers float rounding of bounds and normals
   static const double cosSafety = std::cos(kSafety);
   static const double sinSafety = std::sin(kSafety);
@@ -52,10 +77,12 @@ bool cellBackfacing(const CellCulling& cell, const glm::vec3& eye) {
   const double sinCV = sinC * cosV + cosC * sinV;
   const double cosX = cosCV * cosSafety - sinCV * sinSafety;
   const double sinX = sinCV * cosSafety + cosCV * sinSafety;
-  if (cosX <= 0.0) return false;
+  if (cosX <= 0.0) return Facing::Mixed;
   const double cosA =
       std::clamp(glm::dot(cell.coneAxis, glm::normalize(glm::dvec3(toCell))), -1.0, 1.0);
-  return cosA > sinX;
+  if (cosA > sinX) return Facing::Away;
+  if (-cosA > sinX) return Facing::Toward;
+  return Facing::Mixed;
 }
 
 float distanceToCell(const CellCulling& cell, const glm::vec3& eye) {

@@ -239,24 +239,49 @@ TraversalResult traverseTile(const CullingTable& table, const Camera& camera, co
   const double focal = focalLengthPixels(camera);
   const auto size = static_cast<std::uint32_t>(cells.size());
 
+  // What the cells being descended into are known to satisfy, innermost last.
+  struct Known {
+    std::uint32_t end;  // first index after the subtree
+    int insidePlanes;   // boxInsidePlanes bits of the cell's bounds
+    bool facingEye;     // cellFacing was Toward
+  };
+  std::vector<Known> known;
   std::uint32_t index = 0;
   while (index != kNoIndex && index < size) {
     const OctreeCell& cell = cells[index];
     const CellCulling& culling = table[index];
     ++result.cellsVisited;
-    if (boxOutside(planes, culling.low, culling.high)) {
+    while (!known.empty() && index >= known.back().end) known.pop_back();
+    const bool inherit = settings.inheritCulling && !known.empty();
+    const int inside =
+        boxInsidePlanes(planes, culling.low, culling.high,
+                        inherit && table.withinParent(index) ? known.back().insidePlanes : 0);
+    if (inside < 0) {
       ++result.cellsCulledFrustum;
       index = cell.nextSibling;
       continue;
     }
-    if (settings.backfaceCull && cellBackfacing(culling, eye)) {
-      ++result.cellsCulledBackface;
-      index = cell.nextSibling;
-      continue;
+    bool facingEye = inherit && known.back().facingEye;
+    if (settings.backfaceCull && !facingEye) {
+      const Facing facing = cellFacing(culling, eye);
+      if (facing == Facing::Away) {
+        ++result.cellsCulledBackface;
+        index = cell.nextSibling;
+        continue;
+      }
+      facingEye = facing == Facing::Toward;
     }
+    const auto descend = [&] {
+      known.push_back({cell.nextSibling == kNoIndex ? size : cell.nextSibling, inside, facingEye});
+      ++index;  // the first child follows its parent in depth-first order
+    };
     if (cell.topLevel == kNoIndex) {
       // Above the top-level depth there is no data: examine the children.
-      index = cell.isLeaf() ? cell.nextSibling : index + 1;
+      if (cell.isLeaf()) {
+        index = cell.nextSibling;
+      } else {
+        descend();
+      }
       continue;
     }
     const float distance = distanceToCell(culling, eye);
@@ -280,7 +305,7 @@ TraversalResult traverseTile(const CullingTable& table, const Camera& camera, co
       result.ranges.push_back({cell.topLevel, cell.splatsOffset, cell.splatsCount});
       index = cell.nextSibling;
     } else {
-      index = index + 1;  // the first child follows its parent in depth-first order
+      descend();
     }
   }
 

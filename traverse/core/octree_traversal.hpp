@@ -73,6 +73,11 @@ struct TraversalSettings {
   // beyond its projected radius (rounding of point sizes, minimum sizes).
   float marginPixels = 1.0f;
   bool backfaceCull = true;
+  // A cell whose parent lies wholly inside some of the tile's planes, or
+  // whose splats all face the eye, is not tested against those planes, or for
+  // facing away: the answers are known. Off only to test that it decides the
+  // same.
+  bool inheritCulling = true;
   // --mode instanced: an instancing unit of which a whole-frame walk would
   // draw any point draws its whole section instead. The frustum plays no part
   // in that choice (a camera-only decision, like level of detail), so tiles

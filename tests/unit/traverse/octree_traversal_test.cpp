@@ -126,6 +126,46 @@ TEST(OctreeTraversal, SiblingSkipMatchesRecursiveWalk) {
   }
 }
 
+// Skipping the planes a parent lies wholly inside, and the facing test below
+// a cell whose splats all face the eye, decides exactly as testing every
+// cell: the same ranges, needs and counts, on whole frames and small tiles.
+TEST(OctreeTraversal, InheritedCullingDecidesAsTestingEveryCell) {
+  const Fixture& f = cityFixture();
+  const CullingTable table(f.content.cells, 1.0f);
+  std::size_t within = 0;
+  for (std::uint32_t i = 1; i < f.content.cells.size(); ++i) within += table.withinParent(i);
+  EXPECT_GT(within, f.content.cells.size() * 9 / 10);  // octree cells nest
+  std::vector<Camera> cameras = testCameras(f);
+  cameras.push_back(cameraForBounds(f.boundsMin, f.boundsMax, 320, 200, 10.0f, 20.0f, 0.2f));
+  std::mt19937 rng(3);
+  const auto below = [&rng](std::uint32_t n) { return static_cast<std::uint32_t>(rng() % n); };
+  std::size_t toward = 0;
+  for (const Camera& camera : cameras) {
+    const glm::vec3 eye = cameraEye(camera);
+    for (std::uint32_t i = 0; i < f.content.cells.size(); ++i) {
+      toward += cellFacing(table[i], eye) == Facing::Toward;
+    }
+    for (int t = 0; t < 12; ++t) {
+      const std::uint32_t w = 8 + below(200), h = 8 + below(150);
+      const TileRect rect = t == 0 ? fullFrameRect(camera)
+                                   : makeTileRect(below(camera.image_width() - w),
+                                                  below(camera.image_height() - h), w, h);
+      TraversalSettings settings;
+      settings.backfaceCull = t % 4 != 3;
+      const TraversalResult inherited = traverseTile(table, camera, rect, settings);
+      settings.inheritCulling = false;
+      const TraversalResult tested = traverseTile(table, camera, rect, settings);
+      EXPECT_EQ(inherited.ranges, tested.ranges);
+      EXPECT_EQ(inherited.needs, tested.needs);
+      EXPECT_EQ(inherited.splats, tested.splats);
+      EXPECT_EQ(inherited.cellsVisited, tested.cellsVisited);
+      EXPECT_EQ(inherited.cellsCulledFrustum, tested.cellsCulledFrustum);
+      EXPECT_EQ(inherited.cellsCulledBackface, tested.cellsCulledBackface);
+    }
+  }
+  EXPECT_GT(toward, 0u);  // the facing shortcut is exercised
+}
+
 TEST(OctreeTraversal, TilesDrawOnlyWhatTheFullFrameDrawsAndLoseNothingThatTouchesThem) {
   const Fixture& f = cityFixture();
   std::mt19937 random(3);
