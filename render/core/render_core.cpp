@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cstdio>
 #include <limits>
+#include <stdexcept>
 #include <string>
 
 #include "common/splat.hpp"
@@ -44,39 +45,35 @@ RenderCore::QueuedPacket& RenderCore::queuedPacket(std::uint64_t sequence) {
   const auto found = std::lower_bound(
       queue_.begin(), queue_.end(), sequence,
       [](const QueuedPacket& queued, std::uint64_t wanted) { return queued.sequence < wanted; });
+  if (found == queue_.end() || found->sequence != sequence) {
+    throw std::logic_error("render core: packet " + std::to_string(sequence) +
+                           " waits for data but is not queued");
+  }
   return *found;
 }
 
-void RenderCore::setHeld(std::uint32_t cell, std::uint32_t splats, TimePoint now) {
-  const std::uint32_t before = heldSplats(cell);
-  if (splats == 0) {
-    held_.erase(cell);
-  } else {
-    held_[cell] = splats;
-  }
-  const auto found = needs_.find(cell);
-  if (found == needs_.end()) return;
-  for (const Need& need : found->second) {
-    const bool had = before >= need.splats;
-    const bool has = splats >= need.splats;
-    if (had == has) continue;
-    QueuedPacket& queued = queuedPacket(need.sequence);
-    if (has) {
-      if (--queued.missing == 0 && !queued.dataComplete) queued.dataComplete = now;
-    } else {
-      ++queued.missing;
-    }
+void RenderCore::countMissing(QueuedPacket& queued) {
+  queued.missing = 0;
+  const v1::RenderPacket& packet = queued.packet;
+  for (int i = 0; i < packet.top_level_cells_size(); ++i) {
+    const CellPrefix need{packet.top_level_cells(i), packet.top_level_splats(i)};
+    if (heldSplats(need.cell) >= need.splats) continue;
+    ++queued.missing;
+    waiting_[need.cell].push_back({queued.sequence, need.splats});
   }
 }
 
-void RenderCore::forgetNeeds(const QueuedPacket& queued) {
-  for (std::uint32_t cell : queued.packet.top_level_cells()) {
-    const auto found = needs_.find(cell);
-    if (found == needs_.end()) continue;
-    std::erase_if(found->second,
-                  [&queued](const Need& need) { return need.sequence == queued.sequence; });
-    if (found->second.empty()) needs_.erase(found);
-  }
+void RenderCore::heldGrew(std::uint32_t cell, std::uint32_t splats, TimePoint now) {
+  held_[cell] = splats;
+  const auto found = waiting_.find(cell);
+  if (found == waiting_.end()) return;
+  std::erase_if(found->second, [&](const Need& need) {
+    if (need.splats > splats) return false;
+    QueuedPacket& queued = queuedPacket(need.sequence);
+    if (--queued.missing == 0 && !queued.dataComplete) queued.dataComplete = now;
+    return true;
+  });
+  if (found->second.empty()) waiting_.erase(found);
 }
 
 void RenderCore::ask(CellPrefix need, std::uint64_t frame, TimePoint now, Requests& requests) {
@@ -163,13 +160,9 @@ void RenderCore::receivePacket(int sourceRank, v1::RenderPacket packet, TimePoin
   QueuedPacket& queued = queue_.emplace_back();
   queued.arrived = now;
   queued.sequence = ++packetsQueued_;
-  for (int i = 0; i < packet.top_level_cells_size(); ++i) {
-    const CellPrefix need{packet.top_level_cells(i), packet.top_level_splats(i)};
-    needs_[need.cell].push_back({queued.sequence, need.splats});
-    if (heldSplats(need.cell) < need.splats) ++queued.missing;
-  }
-  if (queued.missing == 0) queued.dataComplete = now;
   queued.packet = std::move(packet);
+  countMissing(queued);
+  if (queued.missing == 0) queued.dataComplete = now;
   reportDirty_ = true;
 }
 
@@ -237,7 +230,7 @@ DataIntake RenderCore::receiveData(std::uint32_t cell, std::uint32_t first, std:
   }
   for (std::uint32_t victim : cache_.insert(cell, newBytes, now)) evict(victim, effects);
   if (held > 0) ++extensions_;
-  setHeld(cell, end, now);
+  heldGrew(cell, end, now);
   settle();
   // One entry per cell in a report: the longest prefix held.
   if (const auto listed = loadedIndex_.find(cell); listed != loadedIndex_.end()) {
@@ -259,10 +252,14 @@ std::optional<ReadyPacket> RenderCore::nextPacket(TimePoint now, RenderEffects& 
     rerequestLateCells(now, effects);
   }
   pinHeadPacket(now, effects);
+  if (recountMissing_) {
+    recountMissing_ = false;
+    waiting_.clear();
+    for (QueuedPacket& queued : queue_) countMissing(queued);
+  }
   if (!stalled()) {
     for (auto it = queue_.begin(); it != queue_.end(); ++it) {
       if (it->missing > 0) continue;
-      forgetNeeds(*it);
       ReadyPacket packet{std::move(it->packet), it->arrived, it->dataComplete.value_or(now)};
       queue_.erase(it);
       return packet;
@@ -333,7 +330,8 @@ void RenderCore::rerequestLateCells(TimePoint now, RenderEffects& effects) {
 }
 
 void RenderCore::evict(std::uint32_t cell, RenderEffects& effects) {
-  setHeld(cell, 0, TimePoint{});
+  held_.erase(cell);
+  recountMissing_ = true;
   effects.released.push_back(cell);
   evicted_.push_back(cell);
   reportDirty_ = true;

@@ -145,8 +145,8 @@ class RenderCore {
     std::uint64_t sequence = 0;
     std::uint32_t missing = 0;  // its cells held shorter than it needs
   };
-  // A queued packet's need of one cell, so a change of what is held updates
-  // only the packets naming that cell (a packet may name thousands of cells).
+  // A queued packet's need of a cell it lacks, so data that arrives updates
+  // only the packets waiting for that cell (a packet may name thousands).
   struct Need {
     std::uint64_t sequence = 0;
     std::uint32_t splats = 0;
@@ -160,11 +160,12 @@ class RenderCore {
   };
 
   void pinHeadPacket(TimePoint now, RenderEffects& effects);
-  // Sets what is held of `cell` (0: nothing) and the missing counts of the
-  // queued packets that need it; one that now has all its data is complete.
-  void setHeld(std::uint32_t cell, std::uint32_t splats, TimePoint now);
+  // Counts and lists what a queued packet lacks (it must not be listed yet).
+  void countMissing(QueuedPacket& queued);
+  // More of `cell` is held: the packets waiting for no more than that lack one
+  // cell less; one that now has all its data is complete.
+  void heldGrew(std::uint32_t cell, std::uint32_t splats, TimePoint now);
   QueuedPacket& queuedPacket(std::uint64_t sequence);
-  void forgetNeeds(const QueuedPacket& queued);
   // Asks for the prefix unless it is held or already asked for.
   void askUnlessPending(CellPrefix need, std::uint64_t frame, TimePoint now, Requests& requests);
   void ask(CellPrefix need, std::uint64_t frame, TimePoint now, Requests& requests);
@@ -185,8 +186,11 @@ class RenderCore {
   std::uint64_t packetsQueued_ = 0;
   std::uint64_t pinnedSequence_ = 0;
   std::vector<std::uint32_t> pinnedCells_;
-  std::unordered_map<std::uint32_t, std::uint32_t> held_;       // cell -> prefix held
-  std::unordered_map<std::uint32_t, std::vector<Need>> needs_;  // cell -> queued packets' needs
+  std::unordered_map<std::uint32_t, std::uint32_t> held_;  // cell -> prefix held
+  // cell -> the queued packets that lack it. Evictions are rare: one makes the
+  // next nextPacket() count every queued packet again (recountMissing_).
+  std::unordered_map<std::uint32_t, std::vector<Need>> waiting_;
+  bool recountMissing_ = false;
   // cell -> the prefix asked for, when and for which frame
   std::unordered_map<std::uint32_t, Request> requestedAt_;
   std::vector<CellPrefix> loaded_;

@@ -18,6 +18,7 @@
 // pixel for pixel with a full frame drawn elsewhere.
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <new>
 #include <span>
 #include <string>
@@ -68,29 +69,49 @@ PointFootprint pointFootprintScalar(const PointRaster& raster, const Splat& spla
 void rasterizePointsScalar(const PointRaster& raster, std::span<const Splat> splats,
                            std::uint64_t* buffer);
 
-template <class T>
-struct CacheLineAllocator {
-  using value_type = T;
-  CacheLineAllocator() = default;
-  template <class U>
-  explicit CacheLineAllocator(const CacheLineAllocator<U>&) {}
-  T* allocate(std::size_t n) {
-    return static_cast<T*>(::operator new (n * sizeof(T), std::align_val_t{64}));
-  }
-  void deallocate(T* p, std::size_t) { ::operator delete (p, std::align_val_t{64}); }
-  bool operator==(const CacheLineAllocator&) const = default;
-};
-template <class T>
-using CacheLineVector = std::vector<T, CacheLineAllocator<T>>;
-
 // A cell as the SIMD kernel streams it: one array per field, each padded to a
-// multiple of kPad (the widest vector) with zeros.
-struct PointCell {
+// multiple of kPad (the widest vector) with zeros, the eight of them in one
+// block: a cell costs one allocation, and a short range of it is near in memory
+// (a tile draws thousands of ranges of small cells).
+class PointCell {
+ public:
   static constexpr std::size_t kPad = 16;
+
   std::size_t count = 0;
   bool hasNormals = false;  // any normal long enough to shade with
-  CacheLineVector<float> x, y, z, radius, nx, ny, nz;
-  CacheLineVector<std::uint32_t> color;  // RGBA8, R in the low byte
+
+  const float* x() const { return field<float>(0); }
+  const float* y() const { return field<float>(1); }
+  const float* z() const { return field<float>(2); }
+  const float* radius() const { return field<float>(3); }
+  const float* nx() const { return field<float>(4); }
+  const float* ny() const { return field<float>(5); }
+  const float* nz() const { return field<float>(6); }
+  const std::uint32_t* color() const { return field<std::uint32_t>(7); }  // RGBA8, R low
+  float* x() { return field<float>(0); }
+  float* y() { return field<float>(1); }
+  float* z() { return field<float>(2); }
+  float* radius() { return field<float>(3); }
+  float* nx() { return field<float>(4); }
+  float* ny() { return field<float>(5); }
+  float* nz() { return field<float>(6); }
+  std::uint32_t* color() { return field<std::uint32_t>(7); }
+
+  // Room for `splats` (and the padding after them), keeping the fields held;
+  // new entries are zero.
+  void reserve(std::size_t splats);
+
+ private:
+  static constexpr std::size_t kFields = 8;  // 4-byte values each
+  struct BlockDeleter {
+    void operator()(std::byte* block) const { ::operator delete (block, std::align_val_t{64}); }
+  };
+  template <class T>
+  T* field(std::size_t k) const {
+    return reinterpret_cast<T*>(block_.get() + k * capacity_ * 4);
+  }
+  std::size_t capacity_ = 0;  // per field, a multiple of kPad
+  std::unique_ptr<std::byte[], BlockDeleter> block_;
 };
 
 PointCell makePointCell(std::span<const Splat> splats);

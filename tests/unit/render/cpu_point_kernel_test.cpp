@@ -260,6 +260,35 @@ TEST(CpuPointKernel, ManyShortRangesInOnePassDrawAsTheReference) {
   });
 }
 
+// A cell grown part by part (as layered packets arrive) holds what one upload
+// of the same splats holds, padding zeros included, and draws the same.
+TEST(CpuPointKernel, ACellGrownInPartsEqualsOneUpload) {
+  const std::vector<Splat> splats = edgeScene(5000, 47);
+  const PointCell whole = makePointCell(splats);
+  PointCell grown;
+  std::size_t at = 0;
+  for (const std::size_t part : std::initializer_list<std::size_t>{1, 15, 16, 17, 200, 751, 4000}) {
+    appendToPointCell(grown, {splats.data() + at, part});
+    at += part;
+  }
+  ASSERT_EQ(at, splats.size());
+  ASSERT_EQ(grown.count, whole.count);
+  EXPECT_EQ(grown.hasNormals, whole.hasNormals);
+  const std::size_t padded =
+      (whole.count + PointCell::kPad - 1) / PointCell::kPad * PointCell::kPad;
+  for (std::size_t i = 0; i < padded; ++i) {
+    ASSERT_EQ(grown.x()[i], whole.x()[i]) << i;
+    ASSERT_EQ(grown.z()[i], whole.z()[i]) << i;
+    ASSERT_EQ(grown.radius()[i], whole.radius()[i]) << i;
+    ASSERT_EQ(grown.nz()[i], whole.nz()[i]) << i;
+    ASSERT_EQ(grown.color()[i], whole.color()[i]) << i;
+  }
+  EXPECT_EQ(whole.x()[padded - 1] == 0.0f, whole.count < padded);
+  const Camera camera = kernelCamera();
+  const PointRaster raster = pointRaster(camera, fullFrameRect(camera), settingsVariants()[0]);
+  EXPECT_TRUE(drawSimd(raster, grown, 0, grown.count) == drawScalar(raster, splats));
+}
+
 // One pixel per point everywhere: the batched 1x1 path.
 TEST(CpuPointKernel, ConstantOnePixelDrawsAsTheReference) {
   const std::vector<Splat> splats = edgeScene(50001, 37);
