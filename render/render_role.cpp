@@ -6,6 +6,7 @@
 #include <thread>
 
 #include "common/checksum.hpp"
+#include "common/cpu_activity.hpp"
 #include "common/dataset.hpp"
 #include "common/mpi/worker.hpp"
 #include "common/ownership.hpp"
@@ -115,14 +116,26 @@ class RenderProcess final : public WorkerProcess {
     const auto header = envelope.as<v1::DataPacketHeader>();
     checkDataPacketHeader(header, envelope.payload.size(), envelope.source);
     const auto* splats = reinterpret_cast<const Splat*>(envelope.payload.data());
-    // The transfer time is shared among the parts by their size.
+    // What a byte cost this process before it can be drawn (T_n): its
+    // transfer, shared among the parts by their size, and the CPU time that
+    // checking and storing a byte took on the last data packets. Between
+    // processes on one machine the transfer is a fast copy and the storing
+    // is most of the cost; leaving it out made the cost function send tiles
+    // wherever queues were shortest, and every render process ended up
+    // holding most of the data (docs/scheduling.md §11).
+    const double cpuStart = threadCpuSeconds();
+    const double bytes = static_cast<double>(envelope.payload.size());
     const double secondsPerSplat =
-        envelope.payloadSeconds / static_cast<double>(envelope.payload.size() / sizeof(Splat));
+        (envelope.payloadSeconds / bytes + storeSecondsPerByte_) * sizeof(Splat);
     for (const v1::DataPart& part : header.parts()) {
       receivePart(part, {splats, static_cast<std::size_t>(part.splat_count())},
                   secondsPerSplat * static_cast<double>(part.splat_count()), envelope.source,
                   effects);
       splats += part.splat_count();
+    }
+    if (envelope.payload.size() >= kMinTransferSampleBytes) {
+      storeSecondsPerByte_ =
+          movingAverage(storeSecondsPerByte_, (threadCpuSeconds() - cpuStart) / bytes);
     }
   }
 
@@ -248,6 +261,7 @@ class RenderProcess final : public WorkerProcess {
   RenderOptions options_;
   Dataset dataset_;
   RenderCore core_;
+  double storeSecondsPerByte_ = 0.0;  // CPU to check and store a byte of data
   // Made once the run's settings are known; a second one when a served frame
   // asks for a mode the first cannot draw. renderer_ drew the last tile.
   std::vector<std::unique_ptr<TileRenderer>> renderers_;

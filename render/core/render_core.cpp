@@ -432,7 +432,8 @@ std::string RenderCore::summary() const {
   char line[300];
   std::snprintf(line, sizeof line,
                 "packets=%llu splats=%llu busy=%.3fs hits=%llu misses=%llu evictions=%llu "
-                "peak_cache=%.1fMiB data_in=%.1fMiB extensions=%llu dropped_prefetches=%llu",
+                "peak_cache=%.1fMiB data_in=%.1fMiB extensions=%llu dropped_prefetches=%llu "
+                "t_s=%.3gns/splat t_n=%.3gns/byte",
                 static_cast<unsigned long long>(packetsDone_),
                 static_cast<unsigned long long>(splatsDone_), busySeconds_,
                 static_cast<unsigned long long>(hits_), static_cast<unsigned long long>(misses_),
@@ -440,7 +441,8 @@ std::string RenderCore::summary() const {
                 static_cast<double>(cache_.peakBytes()) / 1048576.0,
                 static_cast<double>(dataBytesReceived_) / 1048576.0,
                 static_cast<unsigned long long>(extensions_),
-                static_cast<unsigned long long>(droppedPrefetches_));
+                static_cast<unsigned long long>(droppedPrefetches_), secondsPerSplat_ * 1e9,
+                secondsPerByte_ * 1e9);
   return line;
 }
 
