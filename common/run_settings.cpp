@@ -98,6 +98,17 @@ std::uint32_t parseTileTasksAhead(const std::string& text) {
   return count;
 }
 
+float parseRenderCoreShare(const std::string& text) {
+  if (text == "auto") return 0.0f;
+  float share = 0.0f;
+  const auto [end, error] = std::from_chars(text.data(), text.data() + text.size(), share);
+  if (error != std::errc() || end != text.data() + text.size() || !(share > 0.0f) || share > 1.0f) {
+    throw UsageError("--render-core-share takes auto or a share above 0 and at most 1, not '" +
+                     text + "'");
+  }
+  return share;
+}
+
 std::string autoTileTasksAheadRule() {
   return "one per " + std::to_string(kTilesPerAutoTileTask) +
          " tiles a traverse walks per frame, from " + std::to_string(kDefaultTileTasksAhead) +

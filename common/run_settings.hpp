@@ -36,6 +36,10 @@ std::uint32_t autoTileTasksAhead(double tilesPerFrame, std::uint32_t traverses);
 std::string autoTileTasksAheadRule();
 // "auto" (0) | a count from 1 to 64; a UsageError names the accepted ones.
 std::uint32_t parseTileTasksAhead(const std::string& text);
+// --render-core-share: "auto" (0: from the machines the job runs on, see
+// common/core_share.hpp) or a share in (0, 1] for every render process
+// (1: each its own node, seed 003's cost function as written).
+float parseRenderCoreShare(const std::string& text);
 const char* schedulerName(v1::Scheduler scheduler);
 
 // Heavy tiles split by their data (RunSettings.no_tile_split): a part holds

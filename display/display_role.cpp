@@ -57,6 +57,7 @@ struct DisplayOptions {
   std::string costModel = costModelName(kDefaultCostModel);
   std::uint32_t prefetchFrames = 0;
   std::string tileTasksAhead = "auto";
+  std::string renderCoreShare = "auto";
   std::string tileSplit = "auto";
   bool quiet = false;
   // Serve mode: frames are asked for by clients over ZeroMQ.
@@ -115,6 +116,12 @@ v1::RunSettings runSettings(const DisplayOptions& options, const DatasetManifest
       ahead > 0 ? ahead
                 : autoTileTasksAhead(options.tilesPerRender * layout.render, layout.traverse));
   parseTileSplit(options.tileSplit, settings);
+  // A number here; auto is filled in at the handshake, from every process's host.
+  if (const float share = parseRenderCoreShare(options.renderCoreShare); share > 0.0f) {
+    for (std::uint32_t render = 0; render < layout.render; ++render) {
+      settings.add_render_core_share(share);
+    }
+  }
   settings.set_unlit(options.view.unlit);
   settings.set_renderer(parseRenderer(options.view.renderer));
   (void)resolveRenderer(settings.renderer(), settings.mode());  // a mismatch fails here
@@ -703,6 +710,11 @@ int runDisplayMain(int argc, char** argv) {
                      autoTileTasksAheadRule() +
                      ", so short walks do not wait a request's round trip)")
       ->capture_default_str();
+  app.add_option("--render-core-share", options.renderCoreShare,
+                 "Cost scheduler: how much a render process's queue counts against moving data "
+                 "to another (auto: the share of a core each job process has on its machine, "
+                 "at most 1; 1: each render its own node, as seed 003 writes the cost)")
+      ->capture_default_str();
   app.add_option("--tile-split", options.tileSplit,
                  "Cost and regions schedulers, points drawn by the cpu kernel without EDL: a tile "
                  "whose walk draws at least twice the part size is split by its cells into parts "
@@ -786,6 +798,17 @@ int runDisplayMain(int argc, char** argv) {
         static_cast<long>(options.common.handshakeTimeoutSeconds * 1000.0)));
     std::printf("display: job %s ready (%zu peers) in %.2f s\n", job.layout().toString().c_str(),
                 ready.size(), since(start, Clock::now()));
+    const auto& shares = job.runSettings().render_core_share();
+    if (!shares.empty() && *std::min_element(shares.begin(), shares.end()) < 1.0f) {
+      const auto [least, most] = std::minmax_element(shares.begin(), shares.end());
+      char weight[64];
+      std::snprintf(weight, sizeof weight, *most > *least ? "%.2g-%.2g" : "%.2g",
+                    static_cast<double>(*least), static_cast<double>(*most));
+      std::printf(
+          "display: processes outnumber cores: render queues count at %s of their time (a "
+          "core's share each), so tiles stay with their data\n",
+          weight);
+    }
     for (const auto& peer : ready) {
       if (!peer.detail().empty() && !options.quiet) {
         std::printf("  %s rank %d: %s\n", executableName(peer.role()).c_str(), peer.world_rank(),

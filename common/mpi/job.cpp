@@ -1,5 +1,6 @@
 #include "common/mpi/job.hpp"
 
+#include "common/core_share.hpp"
 #include "common/peer_watch.hpp"
 
 #include <sys/resource.h>
@@ -166,6 +167,7 @@ void Job::handshake(const HandshakeOptions& options) {
     hello.set_app_number(appNumber_);
     hello.set_hostname(hostName());
     hello.set_pid(static_cast<std::int64_t>(getpid()));
+    for (std::uint32_t cpu : allowedCpus()) hello.add_cpus(cpu);
     for (std::uint32_t count : layoutVector(layout_)) hello.add_layout(count);
     channel.send(displayRank(), MessageKind::Handshake, hello);
     const auto reply =
@@ -189,6 +191,7 @@ void Job::handshake(const HandshakeOptions& options) {
   for (int rank = 0; rank < worldSize_; ++rank) {
     if (rank != worldRank_) peers.push_back(rank);
   }
+  std::vector<ProcessPlacement> placements{{worldRank_, role_, hostName(), allowedCpus()}};
   const auto deadline = std::chrono::steady_clock::now() + options.timeout;
   std::size_t received = 0;
   while (received < peers.size()) {
@@ -222,6 +225,10 @@ void Job::handshake(const HandshakeOptions& options) {
                     expected.end())) {
       problems.push_back(who + " sees a different job layout");
     }
+    placements.push_back({envelope->source,
+                          hello.role(),
+                          hello.hostname(),
+                          {hello.cpus().begin(), hello.cpus().end()}});
   }
   v1::HandshakeReply reply;
   reply.set_accepted(problems.empty());
@@ -230,8 +237,12 @@ void Job::handshake(const HandshakeOptions& options) {
   std::string reason;
   for (const auto& problem : problems) reason += (reason.empty() ? "" : "; ") + problem;
   reply.set_reason(reason);
-  *reply.mutable_settings() = options.settings;
-  runSettings_ = options.settings;
+  v1::RunSettings settings = options.settings;
+  if (settings.render_core_share().empty()) {  // auto: from where the processes run
+    for (float share : renderCoreShares(placements)) settings.add_render_core_share(share);
+  }
+  *reply.mutable_settings() = settings;
+  runSettings_ = settings;
   channel_->setPayloadTimeout(livenessOf(runSettings_).peerTimeout);
   std::vector<SendHandle> sends;
   for (int peer : peers) sends.push_back(channel.post(peer, MessageKind::HandshakeReply, reply));

@@ -9,6 +9,9 @@
 # processes, and the traverse may hand a re-issued tile to the other one
 # behind the cut (CI saw 2.01 s once in four runs); re-issues do not yet avoid
 # a render process that has a tile overdue.
+# The hosts share this machine's cores, so auto would weigh render queues by
+# 2/3 and work may stay off host 3 altogether; --render-core-share 1 spreads
+# tiles as over separate machines.
 # Exits 77 (ctest SKIP_RETURN_CODE) when this machine allows no namespaces.
 set -uo pipefail
 bin="$1" dataset="$2"
@@ -20,7 +23,7 @@ export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
 POINTILLIST_BUILD="$(dirname "$bin")" timeout --kill-after=20 240 \
   bash "$root/deploy/netns-cluster.sh" --hosts 3 --layout 1,2,1,4 --cut-link 3:6:3 -- \
   --dataset "$dataset" --camera-path orbit --frames 600 --size 480x270 --quiet \
-  --tile-timeout 1 --out "$work/job" >"$work/job.log" 2>&1
+  --tile-timeout 1 --render-core-share 1 --out "$work/job" >"$work/job.log" 2>&1
 code=$?
 cat "$work/job.log"
 if ((code == 77)); then

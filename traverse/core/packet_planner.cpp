@@ -35,6 +35,8 @@ PacketPlanner::PacketPlanner(PeerRanks peers, int selfRank, const v1::RunSetting
       layers_(std::move(layers)),
       owners_(std::move(owners)),
       model_(peers_.renders.size(), costModelOf(settings.cost_model())) {
+  model_.setCoreShares({settings.render_core_share().data(),
+                        static_cast<std::size_t>(settings.render_core_share_size())});
   if (!layers_ || owners_.size() != layers_->cellCount()) {
     throw UsageError("packet planner: " + std::to_string(owners_.size()) + " owners for " +
                      std::to_string(layers_ ? layers_->cellCount() : 0) + " top-level cells");

@@ -22,6 +22,14 @@ RenderModel::RenderModel(std::size_t renderCount, CostModel costModel)
   if (renderCount == 0) throw UsageError("a render model needs at least one render process");
 }
 
+void RenderModel::setCoreShares(std::span<const float> shares) {
+  for (std::size_t render = 0; render < renders_.size(); ++render) {
+    const double share = render < shares.size() ? static_cast<double>(shares[render]) : 1.0;
+    // A share outside (0, 1] is not one a display sends: take a node each.
+    renders_[render].coreShare = share > 0.0 && share <= 1.0 ? share : 1.0;
+  }
+}
+
 std::uint64_t RenderModel::workload(std::size_t render) const {
   const RenderState& state = renders_.at(render);
   std::uint64_t total = state.reportedWorkload;
@@ -95,7 +103,8 @@ double RenderModel::cost(std::size_t render, std::span<const CellPrefix> needs,
   // The packet's own splats cost the same everywhere; they are included so the
   // figure reads as the expected completion time on that render.
   const double splatSeconds = secondsPerSplat(render);
-  const double queued = static_cast<double>(workload(render)) * splatSeconds;
+  const double queued =
+      static_cast<double>(workload(render)) * splatSeconds * renders_[render].coreShare;
   const double transfer = static_cast<double>(missing) * secondsPerByte(render);
   const double own = static_cast<double>(splats) * splatSeconds;
   if (costModel_ == CostModel::Paper) return queued + transfer + own;

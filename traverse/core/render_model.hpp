@@ -9,6 +9,8 @@
 // As an option the transfer is taken to overlap the work already queued there
 // (data-send streams the cells while the render draws), see docs/scheduling.md:
 //   Cost(i) = max(workload(i) * T_s, missing_bytes(i) * T_n) + packet_splats * T_s
+// Where processes outnumber a machine's cores, workload(i) * T_s is weighed by
+// the share of a core each has (common/core_share.hpp, docs/scheduling.md §11).
 // T_s (seconds per splat) and T_n (seconds per byte) are measured by each
 // render process while running and kept per process, so a render process on a
 // slower node (or behind a slower link) gets proportionally less work while it
@@ -64,6 +66,10 @@ class RenderModel {
 
   RenderModel(std::size_t renderCount, CostModel costModel = costModelOf(kDefaultCostModel));
   void setCostModel(CostModel model) { costModel_ = model; }
+  // Per render process: the share of a core each job process has on its
+  // machine (common/core_share.hpp); the cost function weighs the render's
+  // queue by it. Empty or missing entries: 1 (seed 003: a node each).
+  void setCoreShares(std::span<const float> shares);
   CostModel costModel() const { return costModel_; }
 
   // Cost of sending a packet of `splats` splats that needs `needs` to render i.
@@ -150,6 +156,7 @@ class RenderModel {
     std::optional<Clock::time_point> waitingSince;
     double secondsPerSplat = 0.0;  // as last reported; 0: not measured yet
     double secondsPerByte = 0.0;
+    double coreShare = 1.0;
     bool retired = false;
   };
   static constexpr double kDefaultSecondsPerSplat = 2e-7;  // until measured: 5 M splats/s

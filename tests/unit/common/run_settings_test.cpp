@@ -112,5 +112,14 @@ TEST(RunSettings, TileTasksAheadAutoGrowsWithTheTilesEachTraverseWalks) {
   EXPECT_EQ(tileTasksAhead(settings), 6u);
 }
 
+TEST(RunSettings, RenderCoreShareIsAutoOrAShareAboveZeroUpToOne) {
+  EXPECT_EQ(parseRenderCoreShare("auto"), 0.0f);
+  EXPECT_EQ(parseRenderCoreShare("1"), 1.0f);
+  EXPECT_EQ(parseRenderCoreShare("0.25"), 0.25f);
+  for (const char* bad : {"0", "1.5", "-0.5", "nan", "", "half", "0.5x"}) {
+    EXPECT_THROW(parseRenderCoreShare(bad), UsageError) << bad;
+  }
+}
+
 }  // namespace
 }  // namespace pointillist

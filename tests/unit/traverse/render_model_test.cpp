@@ -69,6 +69,46 @@ TEST(RenderModel, PaperCostIsWorkloadTimesTsPlusMissingBytesTimesTn) {
   EXPECT_NEAR(cost, (500 + 100) * 1e-6 + 9600 * 1e-5, 1e-9);
 }
 
+// Where processes outnumber a machine's cores, a render's queue counts by the
+// share of a core each process has: a shorter queue elsewhere does not draw
+// sooner, while moving the data costs CPU all of them share.
+TEST(RenderModel, ACoreShareWeighsTheQueueAndKeepsTilesWithTheirData) {
+  const Table cells{320'000, 3200};  // 10 000 splats and 100 splats
+  const auto needed = whole(cells, {0});
+  const auto measured = [&](RenderModel& model) {
+    for (int i = 0; i < 200; ++i) {
+      for (std::size_t render : {0u, 1u}) {
+        model.applyReport(render,
+                          {.workloadSplats = render == 0 ? 3000u : 1u,
+                           .loaded = render == 0 ? std::span<const CellPrefix>(needed)
+                                                 : std::span<const CellPrefix>(),
+                           .secondsPerSplat = 1e-8,
+                           .secondsPerByte = 1e-9},
+                          kNow);
+      }
+    }
+  };
+  // Render 0 holds the cell and 3000 splats of queue (30 us); moving 320 KB
+  // to the idle render 1 costs 320 us... unless the queue is much longer.
+  RenderModel dedicated(2);
+  measured(dedicated);
+  dedicated.applyReport(0, {.workloadSplats = 100'000, .secondsPerSplat = 1e-8}, kNow);
+  EXPECT_EQ(dedicated.choose(needed, 1000, kNow).render, 1u);  // 1 ms of queue > 0.32 ms
+  RenderModel shared(2);
+  measured(shared);
+  shared.applyReport(0, {.workloadSplats = 100'000, .secondsPerSplat = 1e-8}, kNow);
+  const std::vector<float> shares{0.25f, 0.25f};
+  shared.setCoreShares(shares);
+  EXPECT_EQ(shared.choose(needed, 1000, kNow).render, 0u);  // 0.25 ms of queue < 0.32 ms
+  std::uint64_t missing = 0;
+  EXPECT_NEAR(shared.cost(0, needed, 1000, &missing), (100'000 * 0.25 + 1000) * 1e-8, 1e-12);
+  EXPECT_EQ(missing, 0u);
+  // Shares a display would not send count as a node each.
+  const std::vector<float> odd{0.0f, 2.0f};
+  shared.setCoreShares(odd);
+  EXPECT_EQ(shared.choose(needed, 1000, kNow).render, 1u);
+}
+
 TEST(RenderModel, OverlapCostLetsTheTransferHideBehindQueuedWork) {
   const Table cells{3200, 6400};
   RenderModel model(2, CostModel::Overlap);
