@@ -171,11 +171,20 @@ bool sphereOutside(const FrustumPlanes& planes, const glm::vec3& centre, float r
                      [&](const glm::vec4& p) { return planeDistance(p, centre) < -radius; });
 }
 
+namespace {
+
+// The box corner farthest along the plane's normal (`toward`), or nearest.
+glm::vec3 boxCorner(const glm::vec4& p, const glm::vec3& boxMin, const glm::vec3& boxMax,
+                    bool toward) {
+  return {(p.x >= 0) == toward ? boxMax.x : boxMin.x, (p.y >= 0) == toward ? boxMax.y : boxMin.y,
+          (p.z >= 0) == toward ? boxMax.z : boxMin.z};
+}
+
+}  // namespace
+
 bool boxOutside(const FrustumPlanes& planes, const glm::vec3& boxMin, const glm::vec3& boxMax) {
   return std::any_of(planes.begin(), planes.end(), [&](const glm::vec4& p) {
-    const glm::vec3 far(p.x >= 0 ? boxMax.x : boxMin.x, p.y >= 0 ? boxMax.y : boxMin.y,
-                        p.z >= 0 ? boxMax.z : boxMin.z);
-    return planeDistance(p, far) < 0.0f;
+    return planeDistance(p, boxCorner(p, boxMin, boxMax, true)) < 0.0f;
   });
 }
 
@@ -185,11 +194,8 @@ int boxInsidePlanes(const FrustumPlanes& planes, const glm::vec3& boxMin, const 
     const int bit = 1 << i;
     if ((inside & bit) != 0) continue;
     const glm::vec4& p = planes[i];
-    const glm::vec3 far(p.x >= 0 ? boxMax.x : boxMin.x, p.y >= 0 ? boxMax.y : boxMin.y,
-                        p.z >= 0 ? boxMax.z : boxMin.z);
-    if (planeDistance(p, far) < 0.0f) return -1;
-    const glm::vec3 near(p.x >= 0 ? boxMin.x : boxMax.x, p.y >= 0 ? boxMin.y : boxMax.y,
-                         p.z >= 0 ? boxMin.z : boxMax.z);
+    if (planeDistance(p, boxCorner(p, boxMin, boxMax, true)) < 0.0f) return -1;
+    const glm::vec3 near = boxCorner(p, boxMin, boxMax, false);
     const float scale =
         std::abs(p.x * near.x) + std::abs(p.y * near.y) + std::abs(p.z * near.z) + std::abs(p.w);
     if (planeDistance(p, near) > 1e-5f * scale) inside |= bit;

@@ -80,7 +80,6 @@ bool boxOutside(const FrustumPlanes& planes, const glm::vec3& boxMin, const glm:
 // rounding of a nested box's own test).
 int boxInsidePlanes(const FrustumPlanes& planes, const glm::vec3& boxMin, const glm::vec3& boxMax,
                     int inside);
-inline constexpr int kInsideAllPlanes = (1 << 6) - 1;
 
 // Pixels per world unit for a length facing the camera at eye-space depth
 // `distance` (distance along the view axis): imageHeight / (2 tan(fovY / 2)) /
