@@ -104,16 +104,32 @@ SmallestEigen3 smallestEigen3(const Sym3& m) {
   return {{lo, mid, hi}, v};
 }
 
+namespace {
+Sym3 squared(const Sym3& a) {
+  return {a[0] * a[0] + a[1] * a[1] + a[2] * a[2], a[0] * a[1] + a[1] * a[3] + a[2] * a[4],
+          a[0] * a[2] + a[1] * a[4] + a[2] * a[5], a[1] * a[1] + a[3] * a[3] + a[4] * a[4],
+          a[1] * a[2] + a[3] * a[4] + a[4] * a[5], a[2] * a[2] + a[4] * a[4] + a[5] * a[5]};
+}
+}  // namespace
+
 Vec3d majorAxis(const Sym3& m) {
   const Vec3d cols[3] = {{m[0], m[1], m[2]}, {m[1], m[3], m[4]}, {m[2], m[4], m[5]}};
   Vec3d v = cols[0];
   for (const Vec3d& col : cols)
     if (dot(col, col) > dot(v, v)) v = col;
-  for (int it = 0; it < 8; ++it) {
-    const Vec3d w = {dot(cols[0], v), dot(cols[1], v), dot(cols[2], v)};
-    const double largest = std::max({std::abs(w[0]), std::abs(w[1]), std::abs(w[2])});
-    if (!(largest > 0.0)) break;
-    v = scale(w, 1.0 / largest);
+  // Eight power-iteration steps from the largest column as one product with
+  // M^8, which three squarings make: no chain of eight dependent divisions.
+  // Scaled so the largest entry is 1 (entries of the eighth power stay below
+  // 3^7, far from overflow).
+  double largest = 0.0;
+  for (const double e : m) largest = std::max(largest, std::abs(e));
+  if (largest > 0.0 && std::isfinite(largest)) {
+    Sym3 a;
+    for (std::size_t i = 0; i < 6; ++i) a[i] = m[i] / largest;
+    a = squared(squared(squared(a)));
+    for (double& c : v) c /= largest;
+    v = {a[0] * v[0] + a[1] * v[1] + a[2] * v[2], a[1] * v[0] + a[3] * v[1] + a[4] * v[2],
+         a[2] * v[0] + a[4] * v[1] + a[5] * v[2]};
   }
   const Vec3d n = normalized(v);
   return length(n) > 0.0 ? n : eigenSymmetric3(m).vectors[2];

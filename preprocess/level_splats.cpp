@@ -7,6 +7,7 @@
 #include <cmath>
 #include <condition_variable>
 #include <exception>
+#include <limits>
 #include <mutex>
 #include <numeric>
 #include <thread>
@@ -97,6 +98,19 @@ Gaussian makeGaussian(const Moments& acc, double eps) {
   return g;
 }
 
+// What clusterSplats needs besides its output, kept per thread between calls.
+struct ClusterScratch {
+  std::vector<Vec3d> positions;
+  std::vector<std::uint32_t> order, partitioned, heap, done, candidates, remap;
+  std::vector<Range> ranges;
+  std::vector<Moments> moments;
+  std::vector<Gaussian> gaussians;
+  std::vector<double> meanX, meanY, meanZ, distances, radii;
+  std::vector<std::uint8_t> alive, anyNormal;
+  std::vector<Vec3d> normalSums;
+  std::vector<std::array<double, 4>> colorSums;
+};
+
 // Clusters an input may move to in the refinement besides its own.
 constexpr std::size_t kRefineCandidates = 8;
 
@@ -123,9 +137,13 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
   if (m == 0) return out;
   target = std::clamp<std::size_t>(target, 1, m);
 
+  // Buffers kept between calls on this thread: a preprocess clusters millions
+  // of small cells, and their allocations cost more than some of the steps.
+  thread_local ClusterScratch scratch;
   // Positions relative to the first input keep doubles precise far from the origin.
   const Vec3d origin = {input[0].position[0], input[0].position[1], input[0].position[2]};
-  std::vector<Vec3d> pos(m);
+  std::vector<Vec3d>& pos = scratch.positions;
+  pos.resize(m);
   double radiusSum = 0.0;
   for (std::size_t i = 0; i < m; ++i) {
     pos[i] = sub({input[i].position[0], input[i].position[1], input[i].position[2]}, origin);
@@ -133,7 +151,8 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
   }
 
   // 1. Hierarchical covariance split.
-  std::vector<std::uint32_t> order(m);
+  std::vector<std::uint32_t>& order = scratch.order;
+  order.resize(m);
   std::iota(order.begin(), order.end(), 0u);
   auto sum = [&](std::uint32_t b, std::uint32_t e) {
     Moments moments;
@@ -142,13 +161,17 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
   };
   const auto all = static_cast<std::uint32_t>(m);
   // The heap holds indices: a Range is too big to move around in sift-downs.
-  std::vector<Range> ranges{makeRange(0, all, sum(0, all))};
-  std::vector<std::uint32_t> heap{0};
-  std::vector<std::uint32_t> done;
+  std::vector<Range>& ranges = scratch.ranges;
+  ranges.assign(1, makeRange(0, all, sum(0, all)));
+  std::vector<std::uint32_t>& heap = scratch.heap;
+  heap.assign(1, 0);
+  std::vector<std::uint32_t>& done = scratch.done;
+  done.clear();
   const auto lessIndex = [&](std::uint32_t a, std::uint32_t b) {
     return lessSpread(ranges[a], ranges[b]);
   };
-  std::vector<std::uint32_t> scratch(m);
+  std::vector<std::uint32_t>& partitioned = scratch.partitioned;
+  partitioned.resize(m);
   const double rootSpread = ranges[0].spread;
   while (!heap.empty() && heap.size() + done.size() < target) {
     std::pop_heap(heap.begin(), heap.end(), lessIndex);
@@ -167,11 +190,12 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
     for (std::uint32_t j = r.begin; j < r.end; ++j) {
       const std::uint32_t i = order[j];
       const bool isLow = proj(i) < 0.0;
-      scratch[isLow ? low : high - 1] = i;
+      partitioned[isLow ? low : high - 1] = i;
       low += isLow;
       high -= !isLow;
     }
-    std::copy(scratch.begin(), scratch.begin() + (r.end - r.begin), order.begin() + r.begin);
+    std::copy(partitioned.begin(), partitioned.begin() + (r.end - r.begin),
+              order.begin() + r.begin);
     auto* first = order.data() + r.begin;
     auto* last = order.data() + r.end;
     auto* mid = first + low;
@@ -209,29 +233,63 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
   if (!(eps > 0.0)) eps = 1e-12;
   for (int it = 0; it < options.refineIterations && k > 1 && m * k <= (std::size_t{1} << 22);
        ++it) {
-    std::vector<Moments> acc(k);
+    std::vector<Moments>& acc = scratch.moments;
+    acc.assign(k, Moments{});
     for (std::size_t i = 0; i < m; ++i) acc[out.assignment[i]].add(pos[i]);
-    std::vector<Gaussian> g;
-    g.reserve(k);
+    std::vector<Gaussian>& g = scratch.gaussians;
+    g.clear();
     for (const auto& a : acc) g.push_back(makeGaussian(a, eps));
     // An input moves only to one of its cluster's nearest clusters (by mean):
     // the likeliest Gaussian is a near one, and all k would cost m * k.
     const std::size_t near = std::min<std::size_t>(k - 1, kRefineCandidates);
     // The `near` closest by (distance, index), kept sorted by insertion: k is
     // small, and sorting all k - 1 pairs per cluster cost more than the refinement.
-    std::vector<std::uint32_t> candidates(k * near);
+    std::vector<std::uint32_t>& candidates = scratch.candidates;
+    candidates.resize(k * near);
     {
+      // The means as columns: one cluster's distances to all are a loop the
+      // compiler vectorizes, with the bits of dot(d, d).
+      std::vector<double>& mx = scratch.meanX;
+      std::vector<double>& my = scratch.meanY;
+      std::vector<double>& mz = scratch.meanZ;
+      std::vector<double>& distances = scratch.distances;
+      mx.resize(k);
+      my.resize(k);
+      mz.resize(k);
+      distances.resize(k);
+      for (std::size_t c = 0; c < k; ++c) {
+        mx[c] = g[c].mean[0];
+        my[c] = g[c].mean[1];
+        mz[c] = g[c].mean[2];
+      }
       std::array<double, kRefineCandidates> bestDistance{};
       for (std::uint32_t c = 0; c < k; ++c) {
+        const double cx = mx[c], cy = my[c], cz = mz[c];
+        for (std::size_t o = 0; o < k; ++o) {
+          const double dx = mx[o] - cx, dy = my[o] - cy, dz = mz[o] - cz;
+          distances[o] = dx * dx + dy * dy + dz * dz;
+        }
+        distances[c] = std::numeric_limits<double>::infinity();  // never its own candidate
         std::uint32_t* best = candidates.data() + std::size_t{c} * near;
+        // The first `near` others, sorted; then only those that beat the last.
         std::size_t filled = 0;
-        for (std::uint32_t o = 0; o < k; ++o) {
+        std::uint32_t o = 0;
+        for (; filled < near; ++o) {
           if (o == c) continue;
-          const Vec3d d = sub(g[o].mean, g[c].mean);
-          const double distance = dot(d, d);
-          // Equal distances keep the smaller index first: o only grows.
-          if (filled == near && !(distance < bestDistance[near - 1])) continue;
-          std::size_t j = filled < near ? filled++ : near - 1;
+          const double distance = distances[o];
+          std::size_t j = filled++;
+          for (; j > 0 && distance < bestDistance[j - 1]; --j) {
+            bestDistance[j] = bestDistance[j - 1];
+            best[j] = best[j - 1];
+          }
+          bestDistance[j] = distance;
+          best[j] = o;
+        }
+        // Equal distances keep the smaller index first: o only grows.
+        for (; o < k; ++o) {
+          const double distance = distances[o];
+          if (!(distance < bestDistance[near - 1])) continue;
+          std::size_t j = near - 1;
           for (; j > 0 && distance < bestDistance[j - 1]; --j) {
             bestDistance[j] = bestDistance[j - 1];
             best[j] = best[j - 1];
@@ -258,9 +316,11 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
       out.assignment[i] = best;
     }
     // Drop clusters that lost all their members.
-    std::vector<bool> alive(k, false);
-    for (const std::uint32_t a : out.assignment) alive[a] = true;
-    std::vector<std::uint32_t> remap(k, kNoIndex);
+    std::vector<std::uint8_t>& alive = scratch.alive;
+    alive.assign(k, 0);
+    for (const std::uint32_t a : out.assignment) alive[a] = 1;
+    std::vector<std::uint32_t>& remap = scratch.remap;
+    remap.assign(k, kNoIndex);
     std::uint32_t used = 0;
     for (std::size_t c = 0; c < k; ++c)
       if (alive[c]) remap[c] = used++;
@@ -270,10 +330,14 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
   }
 
   // 3. One splat per cluster.
-  std::vector<Moments> acc(k);
-  std::vector<Vec3d> normalSum(k, Vec3d{});
-  std::vector<std::array<double, 4>> colorSum(k, std::array<double, 4>{});
-  std::vector<std::uint8_t> anyNormal(k, 0);
+  std::vector<Moments>& acc = scratch.moments;
+  acc.assign(k, Moments{});
+  std::vector<Vec3d>& normalSum = scratch.normalSums;
+  normalSum.assign(k, Vec3d{});
+  std::vector<std::array<double, 4>>& colorSum = scratch.colorSums;
+  colorSum.assign(k, std::array<double, 4>{});
+  std::vector<std::uint8_t>& anyNormal = scratch.anyNormal;
+  anyNormal.assign(k, 0);
   for (std::size_t i = 0; i < m; ++i) {
     const std::uint32_t c = out.assignment[i];
     acc[c].add(pos[i]);
@@ -309,7 +373,8 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
     s.radius = 0.0f;
   }
   // Radius from the stored (float) centre so the coverage property holds exactly.
-  std::vector<double> radius(k, 0.0);
+  std::vector<double>& radius = scratch.radii;
+  radius.assign(k, 0.0);
   for (std::size_t i = 0; i < m; ++i) {
     const std::uint32_t c = out.assignment[i];
     const Splat& s = out.splats[c];

@@ -1,5 +1,7 @@
 #include "preprocess/octree_builder.hpp"
 
+#include "common/uninitialized_allocator.hpp"
+
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -17,12 +19,16 @@ struct Keyed {
   std::uint64_t code;
   std::uint64_t index;
 };
+// Written in full by the threads that fill them: zeroing them first would be
+// a pass over hundreds of megabytes on one thread.
+using KeyedVector = std::vector<Keyed, UninitializedAllocator<Keyed>>;
+using CodeVector = std::vector<std::uint64_t, UninitializedAllocator<std::uint64_t>>;
 
 // Orders points by Morton code. Only the top 8 levels are radix sorted; a run
 // sharing that prefix is sorted further only if it holds more than a leaf's
 // worth of points (otherwise it is one leaf and its inner order is free).
 // Ties keep input order, so the result is deterministic.
-void mortonSort(std::vector<Keyed>& items, unsigned totalBits, std::uint32_t leafPoints,
+void mortonSort(KeyedVector& items, unsigned totalBits, std::uint32_t leafPoints,
                 const ProgressFn& progress, unsigned threads) {
   const unsigned lowBit = totalBits > 24 ? totalBits - 24 : 0;
   radixSort(
@@ -44,7 +50,7 @@ void mortonSort(std::vector<Keyed>& items, unsigned totalBits, std::uint32_t lea
 
 class TreeBuilder {
  public:
-  TreeBuilder(Octree& tree, const std::vector<std::uint64_t>& codes, const OctreeOptions& o,
+  TreeBuilder(Octree& tree, std::span<const std::uint64_t> codes, const OctreeOptions& o,
               const OctreeFrame* frame)
       : tree_(tree), codes_(codes), options_(o), frame_(frame) {}
 
@@ -111,7 +117,7 @@ class TreeBuilder {
   }
 
   Octree& tree_;
-  const std::vector<std::uint64_t>& codes_;
+  std::span<const std::uint64_t> codes_;
   const OctreeOptions& options_;
   const OctreeFrame* frame_;
 };
@@ -147,18 +153,50 @@ Octree buildOctree(std::vector<Splat> points, const OctreeOptions& options,
   if (frame != nullptr) {
     cube = frame->cube;
   } else {
+    // Bounds per block on all threads, then combined.
+    constexpr std::size_t kBoundsBlock = std::size_t{1} << 18;
+    const std::size_t blocks = (points.size() + kBoundsBlock - 1) / kBoundsBlock;
+    struct Bounds {
+      float lo[3], hi[3];
+      bool finite = true;
+    };
+    std::vector<Bounds> bounds(blocks);
+    parallelFor(
+        blocks, options.threads,
+        [&](std::size_t b) {
+          Bounds& r = bounds[b];
+          const Splat& first = points[b * kBoundsBlock];
+          for (int a = 0; a < 3; ++a) r.lo[a] = r.hi[a] = first.position[a];
+          bool finite = true;
+          const std::size_t end = std::min(points.size(), (b + 1) * kBoundsBlock);
+          for (std::size_t i = b * kBoundsBlock; i < end; ++i) {
+            for (int a = 0; a < 3; ++a) {
+              const float v = points[i].position[a];
+              finite = finite && std::isfinite(v);
+              r.lo[a] = std::min(r.lo[a], v);
+              r.hi[a] = std::max(r.hi[a], v);
+            }
+          }
+          r.finite = finite;
+        },
+        1);
     double lo[3], hi[3];
     for (int a = 0; a < 3; ++a) {
       lo[a] = std::numeric_limits<double>::infinity();
       hi[a] = -std::numeric_limits<double>::infinity();
     }
-    for (std::size_t i = 0; i < points.size(); ++i) {
+    for (std::size_t b = 0; b < blocks; ++b) {
+      if (!bounds[b].finite) {
+        // The first offender, for the message.
+        for (std::size_t i = b * kBoundsBlock;; ++i) {
+          const float* v = points[i].position;
+          if (!std::isfinite(v[0]) || !std::isfinite(v[1]) || !std::isfinite(v[2]))
+            throw InputError("point " + std::to_string(i) + " has a non-finite coordinate");
+        }
+      }
       for (int a = 0; a < 3; ++a) {
-        const double v = points[i].position[a];
-        if (!std::isfinite(v))
-          throw InputError("point " + std::to_string(i) + " has a non-finite coordinate");
-        lo[a] = std::min(lo[a], v);
-        hi[a] = std::max(hi[a], v);
+        lo[a] = std::min(lo[a], static_cast<double>(bounds[b].lo[a]));
+        hi[a] = std::max(hi[a], static_cast<double>(bounds[b].hi[a]));
       }
     }
     cube = boundingCube(lo, hi);
@@ -169,7 +207,7 @@ Octree buildOctree(std::vector<Splat> points, const OctreeOptions& options,
   // Codes and the gather on all threads: the gather's reads are scattered,
   // so it waits on memory, and two cores wait in parallel.
   constexpr std::size_t kChunk = std::size_t{1} << 16;
-  std::vector<Keyed> keyed(points.size());
+  KeyedVector keyed(points.size());
   const MortonCoder morton(cube, options.maxDepth);
   parallelFor(
       points.size(), options.threads,
@@ -180,7 +218,7 @@ Octree buildOctree(std::vector<Splat> points, const OctreeOptions& options,
   mortonSort(keyed, 3 * options.maxDepth, options.leafPoints, progress, options.threads);
 
   tree.points.resize(points.size());
-  std::vector<std::uint64_t> codes(points.size());
+  CodeVector codes(points.size());
   parallelFor(
       keyed.size(), options.threads,
       [&](std::size_t i) {

@@ -128,14 +128,14 @@ struct OctreeFrame {
 // pass: equal keys keep their order. Each of `threads` threads (0: all cores)
 // counts and scatters its own contiguous share, in share order, so the sort
 // stays stable. Reports progress as a share of the items.
-template <class Item, class KeyFn>
-void radixSort(std::vector<Item>& items, unsigned lowBit, unsigned highBit, KeyFn key,
+template <class Item, class Allocator, class KeyFn>
+void radixSort(std::vector<Item, Allocator>& items, unsigned lowBit, unsigned highBit, KeyFn key,
                const ProgressFn& progress = {}, unsigned threads = 1) {
   if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
   const std::size_t n = items.size();
   // Below a few blocks a thread costs more than it saves.
   const std::size_t shares = std::clamp<std::size_t>(n >> 18, 1, threads);
-  std::vector<Item> tmp(n);
+  std::vector<Item, Allocator> tmp(n);
   std::vector<std::array<std::size_t, 256>> count(shares);
   const auto shareBegin = [&](std::size_t s) { return n * s / shares; };
   const unsigned passes = (highBit - lowBit + 7) / 8;

@@ -7,9 +7,11 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <exception>
 #include <iostream>
 #include <limits>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "preprocess/mesh_sampler.hpp"
@@ -618,29 +620,58 @@ class PlyParser {
           out.radius = v;
       }
     };
+    // The next block is read while this one is decoded: the copy out of the
+    // page cache would otherwise leave the other cores waiting.
+    std::vector<unsigned char> next(kBlock * size);
+    const auto blockAt = [&](std::uint64_t i) {
+      return static_cast<std::size_t>(std::min<std::uint64_t>(kBlock, element.count - i));
+    };
+    std::uint64_t where = reader_.offset();
+    std::size_t got = element.count > 0 ? reader_.read(bytes.data(), blockAt(0) * size) : 0;
     for (std::uint64_t i = 0; i < element.count;) {
-      const auto n = static_cast<std::size_t>(std::min<std::uint64_t>(kBlock, element.count - i));
-      const std::uint64_t where = reader_.offset();
-      const std::size_t got = reader_.read(bytes.data(), n * size);
+      const std::size_t n = blockAt(i);
       if (got != n * size) truncated(element, i + got / size, where + got / size * size);
+      const std::uint64_t nextWhere = reader_.offset();
+      std::size_t nextGot = 0;
+      std::exception_ptr readError;
+      std::thread reading;
+      if (i + n < element.count) {
+        reading = std::thread([&, want = blockAt(i + n) * size] {
+          try {
+            nextGot = reader_.read(next.data(), want);
+          } catch (...) {
+            readError = std::current_exception();
+          }
+        });
+      }
       // Decoded, prepared and checked on all threads; runs of finite splats
       // (normally the whole block) are then handed over in one copy.
       std::atomic<bool> anyNonFinite{false};
-      parallelFor(
-          n, 0,
-          [&](std::size_t j) {
-            decodeRecord(bytes.data() + j * size, splats[j]);
-            detail::CloudBuilder::prepare(splats[j]);
-            if (!detail::isFinite(splats[j])) anyNonFinite.store(true, std::memory_order_relaxed);
-          },
-          4096);
-      if (!anyNonFinite.load()) {
-        builder_.addPreparedFinite(std::span<const Splat>(splats).first(n));
-      } else {
-        for (std::size_t j = 0; j < n; ++j) builder_.addPrepared(splats[j], 0, where + j * size);
+      try {
+        parallelFor(
+            n, 0,
+            [&](std::size_t j) {
+              decodeRecord(bytes.data() + j * size, splats[j]);
+              detail::CloudBuilder::prepare(splats[j]);
+              if (!detail::isFinite(splats[j])) anyNonFinite.store(true, std::memory_order_relaxed);
+            },
+            4096);
+        if (!anyNonFinite.load()) {
+          builder_.addPreparedFinite(std::span<const Splat>(splats).first(n));
+        } else {
+          for (std::size_t j = 0; j < n; ++j) builder_.addPrepared(splats[j], 0, where + j * size);
+        }
+      } catch (...) {
+        if (reading.joinable()) reading.join();
+        throw;
       }
+      if (reading.joinable()) reading.join();
+      if (readError) std::rethrow_exception(readError);
       i += n;
-      builder_.progress(reader_.offset(), reader_.size());
+      builder_.progress(nextWhere, reader_.size());
+      bytes.swap(next);
+      where = nextWhere;
+      got = nextGot;
     }
   }
 

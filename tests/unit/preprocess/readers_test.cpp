@@ -1237,6 +1237,47 @@ TEST(XyzReader, LongFilesReadInBlocksAsLineByLine) {
                    {"word.xyz", "line 41000", "not a number: 'two'"});
 }
 
+TEST(PlyReader, LongBinaryBodiesReadInBlocksAsRecordByRecord) {
+  // Records go in blocks of 65536, the next read while one is decoded: more
+  // than two blocks, whole, cut short in the third, and with a NaN in the second.
+  TempDir dir;
+  const std::vector<PlyProperty> properties = {{"float", "x"},     {"float", "y"},
+                                               {"float", "z"},     {"uchar", "red"},
+                                               {"uchar", "green"}, {"uchar", "blue"}};
+  std::vector<Splat> points(150000);
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    Splat& s = points[i];
+    s.position[0] = static_cast<float>(i % 1013);
+    s.position[1] = static_cast<float>(i) * 0.25f;
+    s.position[2] = -static_cast<float>(i % 37);
+    for (int c = 0; c < 3; ++c)
+      s.color[c] = static_cast<std::uint8_t>((i + 50u * static_cast<unsigned>(c)) % 256u);
+    s.color[3] = 255;
+  }
+  const std::string binary = makePly(PlyFormat::Little, properties, points);
+  const auto cloud = readPointCloud(dir.write("long.ply", binary), defaults());
+  expectSamePoints(cloud, points, false, true, false, false);
+
+  constexpr std::size_t kRecord = 15;
+  const std::size_t header = binary.size() - points.size() * kRecord;
+  const std::string cut = binary.substr(0, header + 140000 * kRecord + 7);
+  expectInputError([&] { readPointCloud(dir.write("cut.ply", cut), defaults()); },
+                   {"cut.ply", "byte " + std::to_string(header + 140000 * kRecord),
+                    "truncated vertex data (expected 150000 vertices, got 140000)"});
+
+  std::string nan = binary;
+  const float notANumber = std::numeric_limits<float>::quiet_NaN();
+  std::memcpy(nan.data() + header + 70000 * kRecord + 4, &notANumber, sizeof notANumber);
+  expectInputError([&] { readPointCloud(dir.write("nan.ply", nan), defaults()); },
+                   {"nan.ply", "byte " + std::to_string(header + 70000 * kRecord), "non-finite"});
+  ReadOptions drop = defaults();
+  drop.dropNonFinite = true;
+  const auto dropped = readPointCloud(dir.write("nan.ply", nan), drop);
+  ASSERT_EQ(dropped.splats.size(), points.size() - 1);
+  EXPECT_EQ(dropped.splats[69999].position[1], points[69999].position[1]);
+  EXPECT_EQ(dropped.splats[70000].position[1], points[70001].position[1]);
+}
+
 TEST(BadInput, Meshes) {
   TempDir dir;
   const auto bad = [&](const std::string& name, const std::string& text,
