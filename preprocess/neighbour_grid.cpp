@@ -125,9 +125,15 @@ void NeighbourGrid::nearestInCube(std::size_t cube, std::size_t k, const Neighbo
   groups.clear();
   thread_local std::vector<std::uint32_t> index;
   thread_local std::vector<float> distance2;
+  // The nearest so far as one key each: a squared distance (never negative,
+  // so its bits order as the value does) above the index, which breaks ties.
+  // One integer comparison where a float and an index took two, and a branch
+  // for unordered floats.
+  thread_local std::vector<std::uint64_t> nearestKeys;
   candidates.clear();
   index.resize(want + 1);
   distance2.resize(want + 1);
+  nearestKeys.resize(want + 1);
   // Own cube first, then faces, edges and corners: the near candidates fill
   // the list early and most far ones fail at the first comparison.
   static constexpr auto kBlockOrder = [] {
@@ -166,6 +172,7 @@ void NeighbourGrid::nearestInCube(std::size_t cube, std::size_t k, const Neighbo
     const float p[3] = {xyz_[3 * self], xyz_[3 * self + 1], xyz_[3 * self + 2]};
     const std::uint32_t selfId = original_[self];
     std::size_t found = 0;
+    std::uint64_t* keys = nearestKeys.data();
     for (const Group& g : groups) {
       if (found == want) {
         // A cube wholly beyond the k-th so far is skipped (a margin for rounding).
@@ -174,7 +181,9 @@ void NeighbourGrid::nearestInCube(std::size_t cube, std::size_t k, const Neighbo
           const float gap = std::max({0.0f, g.lo[a] - p[a], p[a] - g.hi[a]});
           gap2 += gap * gap;
         }
-        if (gap2 * (1.0f - 1e-4f) > distance2[want - 1]) continue;
+        if (gap2 * (1.0f - 1e-4f) >
+            std::bit_cast<float>(static_cast<std::uint32_t>(keys[want - 1] >> 32)))
+          continue;
       }
       for (std::uint32_t ci = g.begin; ci < g.end; ++ci) {
         const Candidate& cand = candidates[ci];
@@ -182,19 +191,16 @@ void NeighbourGrid::nearestInCube(std::size_t cube, std::size_t k, const Neighbo
         const float d = dx * dx + dy * dy + dz * dz;
         const std::uint32_t id = cand.id;
         if (id == selfId) continue;
-        if (found == want &&
-            (d > distance2[want - 1] || (d == distance2[want - 1] && id > index[want - 1])))
-          continue;
+        const std::uint64_t key = std::uint64_t{std::bit_cast<std::uint32_t>(d)} << 32 | id;
+        if (found == want && key > keys[want - 1]) continue;
         std::size_t at = found < want ? found++ : want - 1;
-        while (at > 0 &&
-               (distance2[at - 1] > d || (distance2[at - 1] == d && index[at - 1] > id))) {
-          distance2[at] = distance2[at - 1];
-          index[at] = index[at - 1];
-          --at;
-        }
-        distance2[at] = d;
-        index[at] = id;
+        for (; at > 0 && keys[at - 1] > key; --at) keys[at] = keys[at - 1];
+        keys[at] = key;
       }
+    }
+    for (std::size_t j = 0; j < found; ++j) {
+      distance2[j] = std::bit_cast<float>(static_cast<std::uint32_t>(keys[j] >> 32));
+      index[j] = static_cast<std::uint32_t>(keys[j]);
     }
     // Exact when the k-th is nearer than anything outside the block.
     double bound = std::numeric_limits<double>::infinity();
