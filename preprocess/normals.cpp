@@ -82,143 +82,315 @@ class BucketQueue {
   std::size_t size_ = 0;
 };
 
-// Consistent orientation (see normals.hpp). owner: 0 unvisited, 1 anchors and
-// what they reach, c >= 2 the c-th component grown from a seed.
+// Consistent orientation (see normals.hpp), in blocks of orientBlockPoints
+// consecutive points (spatial blocks: the points are in Morton order when
+// a preprocess gets here), so the blocks run on all cores:
+//  1. Each block alone: Prim's algorithm over the reliable edges inside it,
+//     from the block's anchors, then from its highest unreached point, and so
+//     on, each piece keeping the sign of where it started. The figures the
+//     turning rules need are sums over a piece's points, so pieces combine.
+//  2. The pieces as a graph, joined by every reliable edge between two of
+//     them (across blocks, and inside one where a neighbour list named a
+//     point its Prim did not reach): Prim's algorithm again, most parallel
+//     edge first, from the anchored pieces, then from the highest unreached
+//     piece, each whole component of pieces then turned by the rules.
+// A cloud within one block is oriented as by one pass of Prim's algorithm.
+
+// A block's piece: what the turning rules need, as sums over its points.
+struct Piece {
+  std::uint32_t seed = 0;  // its highest point (where it was grown from)
+  bool anchored = false;   // reached from anchors: its side is fixed
+  double size = 0.0, up = 0.0, flatness = 0.0;
+  Vec3d offset{};        // sum of (position - centroid)
+  Vec3d normals{};       // sum of normals
+  double outward = 0.0;  // sum of (position - centroid) . normal
+};
+
+// Edges between pieces (both ways), with the dot product of the two normals
+// as phase 1 left them.
+struct PieceEdge {
+  std::uint32_t from, to;
+  float dot;
+};
+
+struct OrientContext {
+  std::vector<Splat>& splats;
+  const std::vector<std::uint8_t>& needNormal;
+  const std::vector<std::uint8_t>& isAnchor;  // side fixed from the start
+  const std::vector<std::uint32_t>& neighbours;
+  std::size_t k;
+  Vec3d centroid;
+};
+
+// Phase 1 for points [begin, end): piece[i] = the block's piece index + 1.
+// seeds: the block's points, highest first.
+std::vector<Piece> orientBlock(const OrientContext& c, std::uint32_t begin, std::uint32_t end,
+                               std::span<const std::uint32_t> seeds,
+                               std::vector<std::uint32_t>& piece) {
+  std::vector<Splat>& splats = c.splats;
+  const std::size_t k = c.k;
+  const auto inBlock = [&](std::uint32_t i) { return i >= begin && i < end; };
+  std::vector<float> best(end - begin, std::numeric_limits<float>::infinity());
+  BucketQueue heap;
+  const auto offer = [&](std::uint32_t from, std::uint32_t to) {
+    const float w = 1.0f - std::abs(dotNormals(splats[from], splats[to]));
+    if (w <= BucketQueue::kMaxWeight && w < best[to - begin]) {
+      best[to - begin] = w;
+      heap.push(w, {to, from});
+    }
+  };
+  const auto pushEdges = [&](std::uint32_t from) {
+    if (!c.needNormal[from]) return;  // only estimated points have neighbour lists
+    for (std::size_t j = 0; j < k; ++j) {
+      const std::uint32_t to = c.neighbours[from * k + j];
+      if (inBlock(to) && piece[to] == 0) offer(from, to);
+    }
+  };
+  const auto grow = [&](std::uint32_t mark) {
+    while (!heap.empty()) {
+      const Edge e = heap.pop();
+      if (piece[e.to] != 0) continue;
+      if (dotNormals(splats[e.to], splats[e.from]) < 0.0f) flip(splats[e.to]);
+      piece[e.to] = mark;
+      pushEdges(e.to);
+    }
+  };
+
+  std::vector<Piece> pieces;
+  // Anchors first: they reach out through their own lists and through the
+  // lists of points that name them (neighbour lists are not symmetric).
+  bool anyAnchor = false;
+  for (std::uint32_t i = begin; i < end; ++i) {
+    if (c.isAnchor[i]) {
+      piece[i] = 1;
+      anyAnchor = true;
+    }
+  }
+  if (anyAnchor) {
+    pieces.push_back({});
+    pieces.back().anchored = true;
+    for (std::uint32_t i = begin; i < end; ++i) {
+      if (piece[i] == 1) {
+        pushEdges(i);
+        continue;
+      }
+      for (std::size_t j = 0; c.needNormal[i] && j < k; ++j) {
+        const std::uint32_t from = c.neighbours[i * k + j];
+        if (inBlock(from) && piece[from] == 1) offer(from, i);
+      }
+    }
+    grow(1);
+  }
+  for (const std::uint32_t seed : seeds) {
+    if (piece[seed] != 0) continue;
+    pieces.push_back({});
+    pieces.back().seed = seed;
+    const auto mark = static_cast<std::uint32_t>(pieces.size());
+    piece[seed] = mark;
+    pushEdges(seed);
+    grow(mark);
+  }
+  for (std::uint32_t i = begin; i < end; ++i) {
+    Piece& p = pieces[piece[i] - 1];
+    const Splat& s = splats[i];
+    const Vec3d offset = sub(position(s), c.centroid);
+    const Vec3d normal = {s.normal[0], s.normal[1], s.normal[2]};
+    p.size += 1.0;
+    p.up += normal[2];
+    p.flatness += std::abs(normal[2]);
+    p.offset = add(p.offset, offset);
+    p.normals = add(p.normals, normal);
+    p.outward += dot(offset, normal);
+  }
+  return pieces;
+}
+
 void orient(std::vector<Splat>& splats, const std::vector<std::uint8_t>& needNormal,
             const std::vector<std::uint8_t>& anchored, bool recomputed,
             const std::vector<std::uint32_t>& neighbours, std::size_t k,
             const NormalOptions& options, std::uint64_t total) {
   const std::size_t n = splats.size();
-  std::vector<std::uint32_t> owner(n, 0);
-  for (std::size_t i = 0; i < n; ++i) {
-    // Recomputed normals already took the side of their old ones.
-    if (recomputed ? anchored[i] : !needNormal[i]) owner[i] = 1;
-  }
-  BucketQueue heap;
-  std::vector<float> best(n, std::numeric_limits<float>::infinity());
-  const auto offer = [&](std::uint32_t from, std::uint32_t to) {
-    const float w = 1.0f - std::abs(dotNormals(splats[from], splats[to]));
-    if (w <= BucketQueue::kMaxWeight && w < best[to]) {
-      best[to] = w;
-      heap.push(w, {to, from});
-    }
-  };
-  const auto pushEdges = [&](std::uint32_t from) {
-    if (!needNormal[from]) return;  // only estimated points have neighbour lists
-    for (std::size_t j = 0; j < k; ++j) {
-      const std::uint32_t to = neighbours[from * k + j];
-      if (owner[to] == 0) offer(from, to);
-    }
-  };
-  std::uint64_t oriented = 0;
-  std::vector<std::uint32_t> members;
-  // Prim's algorithm: the most parallel edge first (Hoppe's 1 - |n_i . n_j|).
-  const auto grow = [&](std::uint32_t mark) {
-    while (!heap.empty()) {
-      const Edge e = heap.pop();
-      if (owner[e.to] != 0) continue;
-      if (dotNormals(splats[e.to], splats[e.from]) < 0.0f) flip(splats[e.to]);
-      owner[e.to] = mark;
-      members.push_back(e.to);
-      pushEdges(e.to);
-      if ((++oriented & 65535) == 0 && options.progress) {
-        options.progress(n + oriented, total);
-      }
-    }
-  };
+  std::vector<std::uint8_t> isAnchor(n);
+  // Recomputed normals already took the side of their old ones.
+  for (std::size_t i = 0; i < n; ++i) isAnchor[i] = recomputed ? anchored[i] : !needNormal[i];
+  Vec3d centroid{};
+  for (const Splat& s : splats) centroid = add(centroid, position(s));
+  centroid = scale(centroid, 1.0 / static_cast<double>(n));
+  const OrientContext context{splats, needNormal, isAnchor, neighbours, k, centroid};
 
-  // Anchors first: they reach out through their own lists and through the
-  // lists of points that name them (kNN lists are not symmetric). A cloud
-  // without any (a plain scan) skips the pass over every list.
-  const bool anyAnchor = std::find(owner.begin(), owner.end(), 1u) != owner.end();
-  for (std::size_t i = 0; anyAnchor && i < n; ++i) {
-    const auto u = static_cast<std::uint32_t>(i);
-    if (owner[i] == 1) {
-      pushEdges(u);
-      continue;
-    }
-    for (std::size_t j = 0; j < k; ++j) {
-      const std::uint32_t from = neighbours[i * k + j];
-      if (owner[from] == 1) offer(from, u);
-    }
-  }
-  grow(1);
-
-  double centroid[3] = {0, 0, 0};
-  for (const Splat& s : splats) {
-    for (std::size_t d = 0; d < 3; ++d) centroid[d] += static_cast<double>(s.position[d]);
-  }
-  for (double& c : centroid) c /= static_cast<double>(n);
-  const auto outwardness = [&](const double* centre) {
-    double sum = 0;
-    for (const std::uint32_t i : members) {
-      for (std::size_t d = 0; d < 3; ++d) {
-        sum += (static_cast<double>(splats[i].position[d]) - centre[d]) *
-               static_cast<double>(splats[i].normal[d]);
-      }
-    }
-    return sum;
-  };
-
-  // The rest: components over reliable edges, each grown from its highest point
-  // with arbitrary sign, then turned as a whole.
   // Seeds highest first, equal heights by index: a stable radix sort of
-  // (z as an order-preserving integer, index) packed in 64 bits (a comparison
-  // sort was a fifth of the stage).
-  std::vector<std::uint64_t> order(n);
-  for (std::size_t i = 0; i < n; ++i) {
+  // (z as an order-preserving integer, index) packed in 64 bits.
+  const auto seedKey = [&](std::size_t i) {
     const float z = splats[i].position[2] == 0.0f ? 0.0f : splats[i].position[2];  // no -0
     const auto bits = std::bit_cast<std::uint32_t>(z);
     const std::uint32_t ascending = (bits & 0x80000000u) != 0 ? ~bits : bits | 0x80000000u;
-    order[i] = std::uint64_t{~ascending} << 32 | i;
-  }
+    return std::uint64_t{~ascending} << 32 | i;
+  };
+  std::vector<std::uint64_t> order(n);
+  for (std::size_t i = 0; i < n; ++i) order[i] = seedKey(i);
   radixSort(
       order, 32, 64, [](std::uint64_t item) { return item; }, {}, options.threads);
-  std::uint32_t mark = 1;
-  for (const std::uint64_t item : order) {
-    const auto seed = static_cast<std::uint32_t>(item);
-    if (owner[seed] != 0) continue;
-    ++mark;
-    members.assign(1, seed);
-    owner[seed] = mark;
-    pushEdges(seed);
-    grow(mark);
 
-    // 1. Reliable edges to points oriented earlier decide, if there are any
-    // (the first component of a cloud without anchors has none to ask).
-    float vote = 0.0f;
-    double up = 0, flatness = 0;
-    double centre[3] = {0, 0, 0};
-    const bool anyEarlier = anyAnchor || mark > 2;
-    for (const std::uint32_t i : members) {
-      for (std::size_t j = 0; anyEarlier && j < k; ++j) {
-        const std::uint32_t other = neighbours[i * k + j];
-        if (owner[other] == 0 || owner[other] == mark) continue;
-        const float d = dotNormals(splats[i], splats[other]);
-        if (std::abs(d) >= kReliable) vote += d;
-      }
-      up += static_cast<double>(splats[i].normal[2]);
-      flatness += std::abs(static_cast<double>(splats[i].normal[2]));
-      for (std::size_t d = 0; d < 3; ++d) centre[d] += static_cast<double>(splats[i].position[d]);
-    }
-    const auto size = static_cast<double>(members.size());
-    for (double& c : centre) c /= size;
-    bool turn = false;
-    if (vote != 0.0f) {
-      turn = vote < 0.0f;
-    } else if (flatness > 0.6 * size) {
-      turn = up < 0;  // 2. mostly horizontal (terrain, floors, roofs): up
-    } else {
-      // 3. away from the component's own centre (closed objects: outward),
-      // for flat pieces away from the centre of the whole cloud.
-      const double own = outwardness(centre);
-      turn = std::abs(own) > 1e-9 * size ? own < 0 : outwardness(centroid) < 0;
-    }
-    if (turn) {
-      for (const std::uint32_t i : members) flip(splats[i]);
-    }
-    oriented += 1;
+  const std::size_t blockPoints = std::max<std::size_t>(1, options.orientBlockPoints);
+  const std::size_t blocks = (n + blockPoints - 1) / blockPoints;
+  std::vector<std::vector<std::uint32_t>> seeds(blocks);
+  for (const std::uint64_t item : order) {
+    const auto i = static_cast<std::uint32_t>(item);
+    seeds[i / blockPoints].push_back(i);
   }
+  order = {};
+
+  // Phase 1, on all threads; progress from this thread.
+  std::vector<std::uint32_t> piece(n, 0);
+  std::vector<std::vector<Piece>> blockPieces(blocks);
+  std::atomic<std::uint64_t> oriented{0};
+  const auto caller = std::this_thread::get_id();
+  parallelFor(
+      blocks, options.threads,
+      [&](std::size_t b) {
+        const auto begin = static_cast<std::uint32_t>(b * blockPoints);
+        const auto end = static_cast<std::uint32_t>(std::min(n, (b + 1) * blockPoints));
+        blockPieces[b] = orientBlock(context, begin, end, seeds[b], piece);
+        seeds[b] = {};
+        const std::uint64_t done = oriented += end - begin;
+        if (options.progress && std::this_thread::get_id() == caller)
+          options.progress(n + done * 9 / 10, total);
+      },
+      1);
+
+  // Pieces numbered across blocks.
+  std::vector<std::uint32_t> firstPiece(blocks + 1, 0);
+  for (std::size_t b = 0; b < blocks; ++b)
+    firstPiece[b + 1] = firstPiece[b] + static_cast<std::uint32_t>(blockPieces[b].size());
+  std::vector<Piece> pieces;
+  pieces.reserve(firstPiece[blocks]);
+  for (auto& list : blockPieces) {
+    pieces.insert(pieces.end(), list.begin(), list.end());
+    list = {};
+  }
+  parallelFor(
+      n, options.threads, [&](std::size_t i) { piece[i] += firstPiece[i / blockPoints] - 1; },
+      std::size_t{1} << 16);
+
+  // Reliable edges between pieces, per block on all threads, then both ways
+  // in one list sorted by the piece they leave.
+  std::vector<std::vector<PieceEdge>> blockEdges(blocks);
+  parallelFor(
+      blocks, options.threads,
+      [&](std::size_t b) {
+        const std::size_t end = std::min(n, (b + 1) * blockPoints);
+        for (std::size_t i = b * blockPoints; i < end; ++i) {
+          if (!needNormal[i]) continue;
+          for (std::size_t j = 0; j < k; ++j) {
+            const std::uint32_t to = neighbours[i * k + j];
+            if (piece[to] == piece[i]) continue;
+            const float d = dotNormals(splats[i], splats[to]);
+            if (1.0f - std::abs(d) <= BucketQueue::kMaxWeight)
+              blockEdges[b].push_back({piece[i], piece[to], d});
+          }
+        }
+      },
+      1);
+  std::vector<std::uint32_t> edgeStart(pieces.size() + 1, 0);
+  for (const auto& list : blockEdges)
+    for (const PieceEdge& e : list) {
+      ++edgeStart[e.from + 1];
+      ++edgeStart[e.to + 1];
+    }
+  for (std::size_t p = 0; p < pieces.size(); ++p) edgeStart[p + 1] += edgeStart[p];
+  std::vector<PieceEdge> edges(edgeStart.back());
+  {
+    std::vector<std::uint32_t> at(edgeStart.begin(), edgeStart.end() - 1);
+    for (auto& list : blockEdges) {
+      for (const PieceEdge& e : list) {
+        edges[at[e.from]++] = e;
+        edges[at[e.to]++] = {e.to, e.from, e.dot};
+      }
+      list = {};
+    }
+  }
+
+  // Phase 2: Prim over the pieces. side[p]: +1 or -1 to phase 1's normals,
+  // 0 while unreached.
+  std::vector<std::int8_t> side(pieces.size(), 0);
+  std::vector<float> best(pieces.size(), std::numeric_limits<float>::infinity());
+  BucketQueue heap;
+  std::vector<std::uint32_t> members;
+  const auto pushPieceEdges = [&](std::uint32_t from) {
+    for (std::uint32_t e = edgeStart[from]; e < edgeStart[from + 1]; ++e) {
+      const std::uint32_t to = edges[e].to;
+      const float w = 1.0f - std::abs(edges[e].dot);
+      if (side[to] == 0 && w < best[to]) {
+        best[to] = w;
+        heap.push(w, {to, e});  // `from` holds the edge's index
+      }
+    }
+  };
+  const auto grow = [&] {
+    while (!heap.empty()) {
+      const Edge step = heap.pop();
+      if (side[step.to] != 0) continue;
+      const PieceEdge& e = edges[step.from];
+      side[step.to] = static_cast<std::int8_t>(e.dot < 0.0f ? -side[e.from] : side[e.from]);
+      members.push_back(step.to);
+      pushPieceEdges(step.to);
+    }
+  };
+  for (std::uint32_t p = 0; p < pieces.size(); ++p) {
+    if (pieces[p].anchored) side[p] = 1;
+  }
+  for (std::uint32_t p = 0; p < pieces.size(); ++p) {
+    if (pieces[p].anchored) pushPieceEdges(p);
+  }
+  grow();
+
+  // The rest: components of pieces, each grown from its highest piece with
+  // the sign phase 1 gave it, then turned as a whole:
+  //  1. mostly horizontal (terrain, floors, roofs): up;
+  //  2. else away from its own centre (closed objects get outward normals),
+  //     for flat pieces away from the centre of the whole cloud.
+  std::vector<std::uint32_t> byHeight;
+  for (std::uint32_t p = 0; p < pieces.size(); ++p)
+    if (!pieces[p].anchored) byHeight.push_back(p);
+  std::sort(byHeight.begin(), byHeight.end(), [&](std::uint32_t a, std::uint32_t b) {
+    return seedKey(pieces[a].seed) < seedKey(pieces[b].seed);
+  });
+  for (const std::uint32_t start : byHeight) {
+    if (side[start] != 0) continue;
+    side[start] = 1;
+    members.assign(1, start);
+    pushPieceEdges(start);
+    grow();
+    double size = 0.0, up = 0.0, flatness = 0.0, outward = 0.0;
+    Vec3d offset{}, normals{};
+    for (const std::uint32_t p : members) {
+      const Piece& q = pieces[p];
+      const double sign = side[p];
+      size += q.size;
+      up += sign * q.up;
+      flatness += q.flatness;
+      offset = add(offset, q.offset);
+      normals = add(normals, scale(q.normals, sign));
+      outward += sign * q.outward;
+    }
+    bool turn = false;
+    if (flatness > 0.6 * size) {
+      turn = up < 0;
+    } else {
+      const Vec3d centre = scale(offset, 1.0 / size);  // from the cloud's centroid
+      const double own = outward - dot(centre, normals);
+      turn = std::abs(own) > 1e-9 * size ? own < 0 : outward < 0;
+    }
+    if (turn)
+      for (const std::uint32_t p : members) side[p] = static_cast<std::int8_t>(-side[p]);
+  }
+  parallelFor(
+      n, options.threads,
+      [&](std::size_t i) {
+        if (side[piece[i]] < 0) flip(splats[i]);
+      },
+      std::size_t{1} << 16);
+  if (options.progress) options.progress(total, total);
 }
 
 }  // namespace

@@ -12,11 +12,12 @@
 //    surfaces cross (a trunk through the ground) the sign would be a coin toss.
 //    Points that already had a normal are anchors and the points they reach
 //    agree with them. Every other connected piece is grown with arbitrary
-//    sign and then turned as a whole: to agree with reliable neighbours
-//    oriented before it if any; else, when mostly horizontal (terrain, floors,
-//    roofs), to point up; else away from its own centroid (closed objects get
-//    outward normals). Known weakness: surfaces that touch face to face or
-//    interpenetrate can pass on a wrong sign.
+//    sign and then turned as a whole: when mostly horizontal (terrain,
+//    floors, roofs), to point up; else away from its own centroid (closed
+//    objects get outward normals). The tree is grown in spatial blocks on all
+//    cores and the blocks' pieces joined by a second tree over them.
+//    Known weakness: surfaces that touch face to face or interpenetrate can
+//    pass on a wrong sign.
 //  - radius: r = d_k * sqrt(3 / k), d_k the distance to the k-th neighbour.
 //    With local density rho, pi d_k^2 rho ~= k, so pi r^2 ~= 3 / rho: each disk
 //    has three times the area per point and the disks cover the surface
@@ -42,7 +43,11 @@ struct NormalOptions {
   // every normal and radius is recomputed (new normals keep the side of old ones).
   bool onlyWhereMissing = true;
   unsigned threads = 0;  // for the neighbour search; 0: all cores (at most 8)
-  ProgressFn progress;   // (points done, 2 * points): neighbour search, then orientation
+  // Orientation runs in blocks of this many consecutive points on all cores,
+  // then joins the blocks' pieces (see normals.cpp); the result does not
+  // depend on the thread count.
+  std::size_t orientBlockPoints = std::size_t{1} << 18;
+  ProgressFn progress;  // (points done, 2 * points): neighbour search, then orientation
 };
 
 // Afterwards hasNormals and hasRadii are true.

@@ -2,6 +2,8 @@
 // orientation on closed shapes, upward on open ones, radii from spacing.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -177,6 +179,72 @@ TEST(Normals, OnlyWhereMissingKeepsGivenValuesAndAgreesWithThem) {
   for (const Splat& s : cloud.splats) {
     EXPECT_LT(angleDegrees(s, {-s.position[0], -s.position[1], -s.position[2]}), 30);
   }
+}
+
+// Orientation in blocks (on all cores) joins the blocks' pieces: with blocks
+// far smaller than the cloud, and points in no spatial order (so a block is
+// scattered over the whole shape), the sides are those of one pass, and the
+// thread count still changes nothing.
+TEST(Normals, OrientationInSmallBlocksKeepsEverySide) {
+  PointCloud sphere = stripped(generateScene("sphere", 20000, 3));
+  for (Splat& s : sphere.splats) s.position[2] += 30.0f;  // off the origin
+  PointCloud twoShapes = stripped(generateScene("torus", 15000, 1));
+  {
+    PointCloud b = stripped(generateScene("sphere", 6000, 2));
+    for (Splat& s : b.splats) s.position[0] += 4.0f;
+    twoShapes.splats.insert(twoShapes.splats.end(), b.splats.begin(), b.splats.end());
+  }
+  const auto outwardOnTwoShapes = [](const Splat& s, std::size_t i) -> std::array<double, 3> {
+    if (i < 15000) {
+      const double x = s.position[0], y = s.position[1], r = std::hypot(x, y);
+      return {x - x / r, y - y / r, s.position[2]};
+    }
+    return {static_cast<double>(s.position[0]) - 4.0, s.position[1], s.position[2]};
+  };
+  for (const std::size_t block : {std::size_t{997}, std::size_t{5000}}) {
+    NormalOptions options;
+    options.orientBlockPoints = block;
+    PointCloud a = sphere;
+    estimateNormalsAndRadii(a, options);
+    std::size_t inward = 0;
+    for (const Splat& s : a.splats) {
+      const double angle = angleDegrees(
+          s, {s.position[0], s.position[1], static_cast<double>(s.position[2]) - 30.0});
+      inward += angle > 90.0 ? 1u : 0u;
+    }
+    EXPECT_EQ(inward, 0u) << "blocks of " << block;
+
+    PointCloud b = twoShapes;
+    estimateNormalsAndRadii(b, options);
+    std::size_t bad = 0;
+    for (std::size_t i = 0; i < b.splats.size(); ++i)
+      bad += angleDegrees(b.splats[i], outwardOnTwoShapes(b.splats[i], i)) > 20.0 ? 1u : 0u;
+    EXPECT_LT(bad, b.splats.size() / 100) << "blocks of " << block;
+
+    // Anchors (inward normals given on the top) still decide for the rest.
+    PointCloud anchored = stripped(generateScene("sphere", 8000, 9));
+    for (Splat& s : anchored.splats)
+      if (s.position[2] > 0.3f)
+        for (int c = 0; c < 3; ++c) s.normal[c] = -s.position[c];
+    estimateNormalsAndRadii(anchored, options);
+    std::size_t agree = 0;
+    for (const Splat& s : anchored.splats)
+      agree += angleDegrees(s, {-s.position[0], -s.position[1], -s.position[2]}) < 30 ? 1u : 0u;
+    EXPECT_GT(agree, anchored.splats.size() * 98 / 100) << "blocks of " << block;
+  }
+  // The thread count changes nothing, in blocks either.
+  const PointCloud city = stripped(generateScene("city", 60000, 5));
+  std::vector<std::vector<Splat>> results;
+  for (const unsigned threads : {1u, 3u}) {
+    PointCloud cloud = city;
+    NormalOptions options;
+    options.threads = threads;
+    options.orientBlockPoints = 4096;
+    estimateNormalsAndRadii(cloud, options);
+    results.push_back(cloud.splats);
+  }
+  EXPECT_EQ(0,
+            std::memcmp(results[0].data(), results[1].data(), results[0].size() * sizeof(Splat)));
 }
 
 TEST(Normals, DuplicatesAndTinyClouds) {
