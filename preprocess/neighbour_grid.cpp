@@ -7,10 +7,12 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <functional>
 #include <limits>
 #include <utility>
 
 #include "preprocess/octree_builder.hpp"
+#include "preprocess/parallel.hpp"
 
 namespace pointillist::preprocess {
 
@@ -31,40 +33,88 @@ std::uint64_t hashKey(std::uint64_t key) {
 
 }  // namespace
 
-NeighbourGrid::NeighbourGrid(std::span<const Splat> points, double pointsPerCube)
+NeighbourGrid::NeighbourGrid(std::span<const Splat> points, double pointsPerCube, unsigned threads)
     : n_(points.size()) {
   if (n_ == 0) return;
+  // Blocks of points on all threads: bounds, codes and whether they are
+  // already in order (a preprocess hands them over in Morton order, sorted
+  // down to its octree's leaves).
+  constexpr std::size_t kBlock = std::size_t{1} << 16;
+  const std::size_t blocks = (n_ + kBlock - 1) / kBlock;
+  const auto blockEnd = [&](std::size_t b) { return std::min(n_, (b + 1) * kBlock); };
+  struct BlockFigures {
+    double lo[3], hi[3];
+    bool sorted = true;
+    std::array<std::size_t, kCodeLevels + 1> parts{};
+  };
+  std::vector<BlockFigures> figures(blocks);
+  parallelFor(
+      blocks, threads,
+      [&](std::size_t b) {
+        BlockFigures& f = figures[b];
+        for (int a = 0; a < 3; ++a) {
+          f.lo[a] = std::numeric_limits<double>::infinity();
+          f.hi[a] = -std::numeric_limits<double>::infinity();
+        }
+        for (std::size_t i = b * kBlock; i < blockEnd(b); ++i)
+          for (int a = 0; a < 3; ++a) {
+            f.lo[a] = std::min(f.lo[a], static_cast<double>(points[i].position[a]));
+            f.hi[a] = std::max(f.hi[a], static_cast<double>(points[i].position[a]));
+          }
+      },
+      1);
   double lo[3], hi[3];
   for (int a = 0; a < 3; ++a) {
     lo[a] = std::numeric_limits<double>::infinity();
     hi[a] = -std::numeric_limits<double>::infinity();
-  }
-  for (const Splat& s : points)
-    for (int a = 0; a < 3; ++a) {
-      lo[a] = std::min(lo[a], static_cast<double>(s.position[a]));
-      hi[a] = std::max(hi[a], static_cast<double>(s.position[a]));
+    for (const BlockFigures& f : figures) {
+      lo[a] = std::min(lo[a], f.lo[a]);
+      hi[a] = std::max(hi[a], f.hi[a]);
     }
+  }
   const OctreeCube cube = boundingCube(lo, hi);
   const MortonCoder morton(cube, kCodeLevels);
-  std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed(n_);
+  struct Keyed {
+    std::uint64_t code;
+    std::uint32_t index;
+    bool operator<(const Keyed& o) const {
+      return code != o.code ? code < o.code : index < o.index;
+    }
+  };
+  std::vector<Keyed, UninitializedAllocator<Keyed>> keyed(n_);
+  parallelFor(
+      blocks, threads,
+      [&](std::size_t b) {
+        bool sorted = true;
+        for (std::size_t i = b * kBlock; i < blockEnd(b); ++i) {
+          keyed[i] = {morton(points[i].position), static_cast<std::uint32_t>(i)};
+          sorted = sorted && (i == b * kBlock || keyed[i - 1].code <= keyed[i].code);
+        }
+        figures[b].sorted = sorted;
+      },
+      1);
   bool sorted = true;
-  for (std::size_t i = 0; i < n_; ++i) {
-    keyed[i] = {morton(points[i].position), static_cast<std::uint32_t>(i)};
-    sorted = sorted && (i == 0 || keyed[i - 1].first <= keyed[i].first);
-  }
-  if (!sorted) std::sort(keyed.begin(), keyed.end());
+  for (std::size_t b = 0; b < blocks; ++b)
+    sorted = sorted && figures[b].sorted &&
+             (b == 0 || keyed[b * kBlock - 1].code <= keyed[b * kBlock].code);
+  if (!sorted) parallelSort(keyed.begin(), keyed.end(), threads, std::less<Keyed>());
 
   // Occupied cubes at every level from where neighbours in that order part.
-  std::vector<std::size_t> parts(kCodeLevels + 1, 0);
-  for (std::size_t i = 1; i < n_; ++i) {
-    const std::uint64_t x = keyed[i - 1].first ^ keyed[i].first;
-    if (x == 0) continue;
-    const unsigned highBit = 63u - static_cast<unsigned>(std::countl_zero(x));
-    ++parts[kCodeLevels - highBit / 3];
-  }
+  parallelFor(
+      blocks, threads,
+      [&](std::size_t b) {
+        auto& parts = figures[b].parts;
+        for (std::size_t i = std::max<std::size_t>(1, b * kBlock); i < blockEnd(b); ++i) {
+          const std::uint64_t x = keyed[i - 1].code ^ keyed[i].code;
+          if (x == 0) continue;
+          const unsigned highBit = 63u - static_cast<unsigned>(std::countl_zero(x));
+          ++parts[kCodeLevels - highBit / 3];
+        }
+      },
+      1);
   std::size_t occupied = 1;
   for (unsigned d = 0; d <= kCodeLevels; ++d) {
-    occupied += parts[d];
+    for (const BlockFigures& f : figures) occupied += f.parts[d];
     if (static_cast<double>(n_) / static_cast<double>(occupied) < pointsPerCube) break;
     level_ = d;
   }
@@ -75,12 +125,18 @@ NeighbourGrid::NeighbourGrid(std::span<const Splat> points, double pointsPerCube
   xyz_.resize(3 * n_);
   original_.resize(n_);
   slot_.resize(n_);
+  parallelFor(
+      n_, threads,
+      [&](std::size_t j) {
+        const std::uint32_t i = keyed[j].index;
+        for (int a = 0; a < 3; ++a)
+          xyz_[3 * j + static_cast<std::size_t>(a)] = points[i].position[a];
+        original_[j] = i;
+        slot_[i] = static_cast<std::uint32_t>(j);
+      },
+      kBlock);
   for (std::size_t j = 0; j < n_; ++j) {
-    const std::uint32_t i = keyed[j].second;
-    for (int a = 0; a < 3; ++a) xyz_[3 * j + static_cast<std::size_t>(a)] = points[i].position[a];
-    original_[j] = i;
-    slot_[i] = static_cast<std::uint32_t>(j);
-    const std::uint64_t key = keyed[j].first >> shift;
+    const std::uint64_t key = keyed[j].code >> shift;
     if (cubeKey_.empty() || cubeKey_.back() != key) {
       cubeKey_.push_back(key);
       cubeStart_.push_back(static_cast<std::uint32_t>(j));

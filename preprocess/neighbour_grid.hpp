@@ -15,13 +15,16 @@
 #include <vector>
 
 #include "common/splat.hpp"
+#include "common/uninitialized_allocator.hpp"
 
 namespace pointillist::preprocess {
 
 class NeighbourGrid {
  public:
   // pointsPerCube: the least mean occupancy of an occupied cube to aim for.
-  explicit NeighbourGrid(std::span<const Splat> points, double pointsPerCube = 6.0);
+  // Built on `threads` threads (0: all cores).
+  explicit NeighbourGrid(std::span<const Splat> points, double pointsPerCube = 6.0,
+                         unsigned threads = 0);
 
   // The k nearest points to points[i] other than i itself, nearest first
   // (equal distances by index), as indices into `points` and squared
@@ -44,11 +47,14 @@ class NeighbourGrid {
   std::size_t n_ = 0;
   unsigned level_ = 0;
   double min_[3] = {0, 0, 0};
-  double scale_ = 1.0;                   // cubes per unit length
-  std::vector<float> xyz_;               // positions cube by cube
-  std::vector<std::uint32_t> original_;  // their indices in `points`
-  std::vector<std::uint32_t> slot_;      // points[i] sits at slot_[i]
-  std::vector<std::uint64_t> cubeKey_;   // occupied cubes, ascending Morton key
+  double scale_ = 1.0;  // cubes per unit length
+  // Written in full on all threads: not zeroed first.
+  template <class T>
+  using Filled = std::vector<T, UninitializedAllocator<T>>;
+  Filled<float> xyz_;                   // positions cube by cube
+  Filled<std::uint32_t> original_;      // their indices in `points`
+  Filled<std::uint32_t> slot_;          // points[i] sits at slot_[i]
+  std::vector<std::uint64_t> cubeKey_;  // occupied cubes, ascending Morton key
   std::vector<std::uint32_t> cubeStart_;
   std::vector<std::uint32_t> table_;  // open addressing: cube index + 1, 0 empty
   std::uint64_t tableMask_ = 0;

@@ -442,7 +442,7 @@ void estimateNormalsAndRadii(PointCloud& cloud, const NormalOptions& options) {
   if (options.search == NeighbourSearch::KdTree)
     tree.emplace(3, adaptor, nanoflann::KDTreeSingleIndexAdaptorParams(16));
   else
-    grid.emplace(splats);
+    grid.emplace(splats, 6.0, options.threads);
 
   // Neighbour lists (without the point itself) are kept for the orientation pass.
   std::vector<std::uint32_t> neighbours(anyNormal ? n * k : 0);
@@ -538,7 +538,10 @@ void estimateNormalsAndRadii(PointCloud& cloud, const NormalOptions& options) {
   if (options.progress) options.progress(n, total);
 
   // Points whose neighbours all coincide got radius 0: use the median of the rest.
-  if (anyRadius) {
+  const bool anyZeroRadius =
+      anyRadius &&
+      std::any_of(splats.begin(), splats.end(), [](const Splat& s) { return !(s.radius > 0.0f); });
+  if (anyZeroRadius) {
     std::vector<float> radii;
     for (const Splat& s : splats) {
       if (s.radius > 0.0f) radii.push_back(s.radius);

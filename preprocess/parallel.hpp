@@ -25,4 +25,34 @@ void parallelFor(std::size_t n, unsigned threads, Fn fn, std::size_t chunk = 64)
   for (auto& t : pool) t.join();
 }
 
+// std::sort on `threads` threads (0: all cores): pieces sorted apart, then
+// merged pairwise. The order is the one std::sort gives wherever `less` is a
+// strict total order (no two items equal).
+template <class Iterator, class Less>
+void parallelSort(Iterator first, Iterator last, unsigned threads, Less less) {
+  if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
+  const auto n = static_cast<std::size_t>(last - first);
+  if (threads < 2 || n < (std::size_t{1} << 16)) {
+    std::sort(first, last, less);
+    return;
+  }
+  const std::size_t pieces = threads;
+  std::vector<Iterator> bound(pieces + 1);
+  for (std::size_t p = 0; p <= pieces; ++p)
+    bound[p] = first + static_cast<std::ptrdiff_t>(n * p / pieces);
+  parallelFor(
+      pieces, threads, [&](std::size_t p) { std::sort(bound[p], bound[p + 1], less); }, 1);
+  for (std::size_t width = 1; width < pieces; width *= 2) {
+    parallelFor((pieces + 2 * width - 1) / (2 * width), threads,
+                [&](std::size_t pair) {
+                  const std::size_t left = pair * 2 * width;
+                  const std::size_t middle = std::min(pieces, left + width);
+                  const std::size_t right = std::min(pieces, left + 2 * width);
+                  if (middle < right)
+                    std::inplace_merge(bound[left], bound[middle], bound[right], less);
+                },
+                1);
+  }
+}
+
 }  // namespace pointillist::preprocess
