@@ -37,15 +37,22 @@ void mortonSort(KeyedVector& items, unsigned totalBits, std::uint32_t leafPoints
   auto less = [](const Keyed& a, const Keyed& b) {
     return a.code < b.code || (a.code == b.code && a.index < b.index);
   };
+  // The runs to sort, found on one thread, sorted on all.
+  std::vector<std::pair<std::size_t, std::size_t>> runs;
   for (std::size_t b = 0; b < items.size();) {
     const std::uint64_t prefix = items[b].code >> lowBit;
     std::size_t e = b + 1;
     while (e < items.size() && (items[e].code >> lowBit) == prefix) ++e;
-    if (e - b > leafPoints)
-      std::sort(items.begin() + static_cast<std::ptrdiff_t>(b),
-                items.begin() + static_cast<std::ptrdiff_t>(e), less);
+    if (e - b > leafPoints) runs.emplace_back(b, e);
     b = e;
   }
+  parallelFor(
+      runs.size(), threads,
+      [&](std::size_t r) {
+        std::sort(items.begin() + static_cast<std::ptrdiff_t>(runs[r].first),
+                  items.begin() + static_cast<std::ptrdiff_t>(runs[r].second), less);
+      },
+      16);
 }
 
 class TreeBuilder {
@@ -68,8 +75,7 @@ class TreeBuilder {
     tree_.treeDepth = std::max(tree_.treeDepth, depth);
     if ((end - begin <= options_.leafPoints && !forcedSplit(begin, depth)) ||
         depth >= options_.maxDepth) {
-      computeLeafBounds(tree_.cells[index]);
-      return index;
+      return index;  // a leaf: its bounds come after, on all threads
     }
     const unsigned shift = 3 * (options_.maxDepth - 1 - depth);
     const auto* first = codes_.data();
@@ -97,6 +103,7 @@ class TreeBuilder {
     return std::binary_search(split.begin(), split.end(), prefix);
   }
 
+ public:
   void computeLeafBounds(BuildCell& cell) const {
     float lo[3], hi[3];
     for (int a = 0; a < 3; ++a) {
@@ -116,6 +123,7 @@ class TreeBuilder {
     }
   }
 
+ private:
   Octree& tree_;
   std::span<const std::uint64_t> codes_;
   const OctreeOptions& options_;
@@ -229,8 +237,15 @@ Octree buildOctree(std::vector<Splat> points, const OctreeOptions& options,
   keyed = {};
   points = {};
 
-  TreeBuilder(tree, codes, options, frame).build(0, tree.points.size(), 0, kNoIndex);
+  TreeBuilder builder(tree, codes, options, frame);
+  builder.build(0, tree.points.size(), 0, kNoIndex);
   if (tree.cells.size() >= kNoIndex) throw InputError("octree too large for 32-bit cell indices");
+  parallelFor(
+      tree.cells.size(), options.threads,
+      [&](std::size_t i) {
+        if (tree.cells[i].childCount == 0) builder.computeLeafBounds(tree.cells[i]);
+      },
+      256);
 
   // Bottom-up: inner bounds are the union of their children's; levels.
   auto& cells = tree.cells;
