@@ -13,6 +13,7 @@
 #include <thread>
 
 #include "common/geometry.hpp"
+#include "preprocess/parallel.hpp"
 
 namespace pointillist::preprocess {
 
@@ -492,19 +493,26 @@ LevelSplats buildLevelSplats(const Octree& tree, const LevelSplatOptions& option
   out.cellCount.assign(cells.size(), 0);
   out.topLevelBegin.resize(nTop + 1);
   std::size_t total = 0;
-  for (const auto& r : results) total += r.splats.size();
-  out.splats.reserve(total);
   for (std::size_t k = 0; k < nTop; ++k) {
-    out.topLevelBegin[k] = out.splats.size();
-    const std::uint32_t root = tree.topLevelCells[k];
-    for (std::size_t j = 0; j < results[k].begin.size(); ++j) {
-      out.cellBegin[root + j] = out.topLevelBegin[k] + results[k].begin[j];
-      out.cellCount[root + j] = results[k].count[j];
-    }
-    out.splats.insert(out.splats.end(), results[k].splats.begin(), results[k].splats.end());
-    results[k] = {};
+    out.topLevelBegin[k] = total;
+    total += results[k].splats.size();
   }
-  out.topLevelBegin[nTop] = out.splats.size();
+  out.topLevelBegin[nTop] = total;
+  // Gathered on all threads: a copy of a third of the points' bytes.
+  out.splats.resize(total);
+  parallelFor(
+      nTop, threads,
+      [&](std::size_t k) {
+        const std::uint32_t root = tree.topLevelCells[k];
+        for (std::size_t j = 0; j < results[k].begin.size(); ++j) {
+          out.cellBegin[root + j] = out.topLevelBegin[k] + results[k].begin[j];
+          out.cellCount[root + j] = results[k].count[j];
+        }
+        std::copy(results[k].splats.begin(), results[k].splats.end(),
+                  out.splats.begin() + static_cast<std::ptrdiff_t>(out.topLevelBegin[k]));
+        results[k] = {};
+      },
+      16);
   // Cells above the top-level depth: their subtree's splats start with their first child's.
   for (std::size_t i = cells.size(); i-- > 0;)
     if (cells[i].topLevel == kNoIndex) out.cellBegin[i] = out.cellBegin[i + 1];
