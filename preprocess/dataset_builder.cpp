@@ -232,14 +232,19 @@ DatasetContent buildDatasetContent(std::vector<Splat> points, const PreprocessOp
   if (options.estimateNormals) {
     PointCloud cloud;
     cloud.splats = std::move(tree.points);
+    const std::size_t own = cloud.splats.size();
+    cloud.splats.insert(cloud.splats.end(), options.neighbourAnchors.begin(),
+                        options.neighbourAnchors.end());
     cloud.hasColors = true;  // readers gave colourless points their grey already
     NormalOptions no;
     no.neighbours = options.radiusNeighbours;
     no.search = options.neighbourSearch;
     no.onlyWhereMissing = true;
     no.threads = options.threads;
+    no.sideReference = options.sideReference;
     no.progress = stage("normals and radii");
     estimateNormalsAndRadii(cloud, no);
+    cloud.splats.resize(own);
     tree.points = std::move(cloud.splats);
   }
   const unsigned depth = options.topLevelDepth >= 0

@@ -32,6 +32,12 @@ struct PreprocessOptions {
   // neighbours (estimateNormalsAndRadii) once the points are in Morton order:
   // neighbours are then near in memory too.
   bool estimateNormals = false;
+  // Points beside the cloud (out of core: of chunks built before, near this
+  // one) with their final normals and radii: they count as neighbours and
+  // their side carries over, as if the cloud went on; they are not written.
+  std::span<const Splat> neighbourAnchors;
+  // NormalOptions::sideReference.
+  std::function<bool(const Splat&, float[3])> sideReference;
   NeighbourSearch neighbourSearch = NeighbourSearch::Grid;
   unsigned threads = 0;  // 0: all cores
   std::string source;    // recorded in the manifest

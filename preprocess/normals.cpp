@@ -101,9 +101,10 @@ struct Piece {
   std::uint32_t seed = 0;  // its highest point (where it was grown from)
   bool anchored = false;   // reached from anchors: its side is fixed
   double size = 0.0, up = 0.0, flatness = 0.0;
-  Vec3d offset{};        // sum of (position - centroid)
-  Vec3d normals{};       // sum of normals
-  double outward = 0.0;  // sum of (position - centroid) . normal
+  Vec3d offset{};              // sum of (position - centroid)
+  Vec3d normals{};             // sum of normals
+  double outward = 0.0;        // sum of (position - centroid) . normal
+  double referenceVote = 0.0;  // points agreeing with their reference side, less those that do not
 };
 
 // Edges between pieces (both ways), with the dot product of the two normals
@@ -120,6 +121,7 @@ struct OrientContext {
   const std::vector<std::uint32_t>& neighbours;
   std::size_t k;
   Vec3d centroid;
+  const std::function<bool(const Splat&, float[3])>* sideReference;
 };
 
 // Phase 1 for points [begin, end): piece[i] = the block's piece index + 1.
@@ -201,6 +203,13 @@ std::vector<Piece> orientBlock(const OrientContext& c, std::uint32_t begin, std:
     p.offset = add(p.offset, offset);
     p.normals = add(p.normals, normal);
     p.outward += dot(offset, normal);
+    float reference[3];
+    if (c.sideReference && (*c.sideReference) && (*c.sideReference)(s, reference)) {
+      const double agree = normal[0] * static_cast<double>(reference[0]) +
+                           normal[1] * static_cast<double>(reference[1]) +
+                           normal[2] * static_cast<double>(reference[2]);
+      p.referenceVote += agree > 0.0 ? 1.0 : agree < 0.0 ? -1.0 : 0.0;
+    }
   }
   return pieces;
 }
@@ -216,7 +225,8 @@ void orient(std::vector<Splat>& splats, const std::vector<std::uint8_t>& needNor
   Vec3d centroid{};
   for (const Splat& s : splats) centroid = add(centroid, position(s));
   centroid = scale(centroid, 1.0 / static_cast<double>(n));
-  const OrientContext context{splats, needNormal, isAnchor, neighbours, k, centroid};
+  const OrientContext context{
+      splats, needNormal, isAnchor, neighbours, k, centroid, &options.sideReference};
 
   // Seeds highest first, equal heights by index: a stable radix sort of
   // (z as an order-preserving integer, index) packed in 64 bits.
@@ -346,7 +356,8 @@ void orient(std::vector<Splat>& splats, const std::vector<std::uint8_t>& needNor
 
   // The rest: components of pieces, each grown from its highest piece with
   // the sign phase 1 gave it, then turned as a whole:
-  //  1. mostly horizontal (terrain, floors, roofs): up;
+  //  1. mostly horizontal and facing one way (terrain, floors, roofs): up
+  //     (a closed surface, such as a flat torus, faces both ways: rule 2);
   //  2. else away from its own centre (closed objects get outward normals),
   //     for flat pieces away from the centre of the whole cloud.
   std::vector<std::uint32_t> byHeight;
@@ -361,11 +372,12 @@ void orient(std::vector<Splat>& splats, const std::vector<std::uint8_t>& needNor
     members.assign(1, start);
     pushPieceEdges(start);
     grow();
-    double size = 0.0, up = 0.0, flatness = 0.0, outward = 0.0;
+    double size = 0.0, up = 0.0, flatness = 0.0, outward = 0.0, vote = 0.0;
     Vec3d offset{}, normals{};
     for (const std::uint32_t p : members) {
       const Piece& q = pieces[p];
       const double sign = side[p];
+      vote += sign * q.referenceVote;
       size += q.size;
       up += sign * q.up;
       flatness += q.flatness;
@@ -374,7 +386,9 @@ void orient(std::vector<Splat>& splats, const std::vector<std::uint8_t>& needNor
       outward += sign * q.outward;
     }
     bool turn = false;
-    if (flatness > 0.6 * size) {
+    if (vote != 0.0) {
+      turn = vote < 0.0;  // 0. the side a reference gives, if any
+    } else if (flatness > 0.6 * size && std::abs(up) > 0.5 * flatness) {
       turn = up < 0;
     } else {
       const Vec3d centre = scale(offset, 1.0 / size);  // from the cloud's centroid

@@ -12,9 +12,10 @@
 //    surfaces cross (a trunk through the ground) the sign would be a coin toss.
 //    Points that already had a normal are anchors and the points they reach
 //    agree with them. Every other connected piece is grown with arbitrary
-//    sign and then turned as a whole: when mostly horizontal (terrain,
-//    floors, roofs), to point up; else away from its own centroid (closed
-//    objects get outward normals). The tree is grown in spatial blocks on all
+//    sign and then turned as a whole: when mostly horizontal and facing one
+//    way (terrain, floors, roofs), to point up; else away from its own
+//    centroid (closed objects get outward normals, a flat torus too: it faces
+//    up and down alike). The tree is grown in spatial blocks on all
 //    cores and the blocks' pieces joined by a second tree over them.
 //    Known weakness: surfaces that touch face to face or interpenetrate can
 //    pass on a wrong sign.
@@ -27,6 +28,10 @@
 // Colours: readers already give grey to points without colour; when the cloud
 // has no colours, splats left all zero (RGBA 0,0,0,0, never written) get that
 // grey too.
+#include <functional>
+#include <optional>
+
+#include "common/geometry.hpp"
 #include "preprocess/octree_builder.hpp"
 #include "preprocess/point_cloud.hpp"
 
@@ -47,6 +52,10 @@ struct NormalOptions {
   // then joins the blocks' pieces (see normals.cpp); the result does not
   // depend on the thread count.
   std::size_t orientBlockPoints = std::size_t{1} << 18;
+  // Where set, a piece that no anchor reaches takes the side most of its
+  // points with a reference normal (given here) agree with, before the
+  // rules: out of core, from the whole cloud oriented at a coarser sampling.
+  std::function<bool(const Splat&, float normal[3])> sideReference;
   ProgressFn progress;  // (points done, 2 * points): neighbour search, then orientation
 };
 

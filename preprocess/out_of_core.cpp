@@ -3,13 +3,17 @@
 #include <stdlib.h>  // mkdtemp
 
 #include <algorithm>
+#include <array>
+#include <bit>
 #include <cerrno>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <limits>
 #include <map>
 #include <memory>
+#include <optional>
 #include <span>
 #include <system_error>
 #include <unordered_map>
@@ -19,6 +23,7 @@
 #include "common/errors.hpp"
 #include "common/geometry.hpp"
 #include "common/instanced_section.hpp"
+#include "preprocess/normals.hpp"
 #include "preprocess/octree_builder.hpp"
 #include "preprocess/readers.hpp"
 
@@ -397,6 +402,169 @@ std::vector<Splat> loadChunk(const Layout& layout, std::pair<std::size_t, std::s
   return points;
 }
 
+// At most this many points of the whole cloud are oriented in memory first
+// (out of core, when normals are estimated).
+constexpr std::uint64_t kSidePoints = std::uint64_t{1} << 20;
+
+// A hash of a point's position: the sample below is the points whose hash
+// falls in one residue class, so a chunk finds its sampled points without a
+// look-up for every point.
+std::uint64_t positionHash(const Splat& s) {
+  std::uint64_t h = 0x9E3779B97F4A7C15ull;
+  for (const float c : s.position)
+    h = (h ^ std::bit_cast<std::uint32_t>(c)) * 0xC2B2AE3D27D4EB4Full;
+  return h ^ (h >> 29);
+}
+
+// The sides of normals for the whole cloud, from an even sample of it whose
+// normals are estimated and oriented in memory (whole surfaces, so the
+// turning rules see them whole). A point of the sample is found again by its
+// position: the sample holds points of the cloud itself.
+class SideReference {
+ public:
+  // every: a point is in the sample when positionHash % every == 0.
+  SideReference(std::vector<Splat> sample, std::uint64_t every, int neighbours, unsigned threads)
+      : every_(every) {
+    PointCloud cloud;
+    cloud.splats = std::move(sample);
+    cloud.hasColors = true;
+    NormalOptions no;
+    no.neighbours = neighbours;
+    no.threads = threads;
+    estimateNormalsAndRadii(cloud, no);
+    entries_.reserve(cloud.splats.size());
+    for (const Splat& s : cloud.splats)
+      entries_.push_back({key(s), {s.normal[0], s.normal[1], s.normal[2]}});
+    std::sort(entries_.begin(), entries_.end(),
+              [](const Entry& a, const Entry& b) { return a.key < b.key; });
+  }
+  bool inSample(const Splat& s) const { return positionHash(s) % every_ == 0; }
+  bool normalOf(const Splat& s, float normal[3]) const {
+    if (!inSample(s)) return false;
+    const Key k = key(s);
+    const auto found = std::lower_bound(entries_.begin(), entries_.end(), k,
+                                        [](const Entry& e, const Key& x) { return e.key < x; });
+    if (found == entries_.end() || found->key != k) return false;
+    std::copy(found->normal.begin(), found->normal.end(), normal);
+    return true;
+  }
+
+ private:
+  using Key = std::array<std::uint32_t, 3>;
+  struct Entry {
+    Key key;
+    std::array<float, 3> normal;
+  };
+  static Key key(const Splat& s) {
+    return {std::bit_cast<std::uint32_t>(s.position[0]),
+            std::bit_cast<std::uint32_t>(s.position[1]),
+            std::bit_cast<std::uint32_t>(s.position[2])};
+  }
+  std::uint64_t every_;
+  std::vector<Entry> entries_;  // by key
+};
+
+// Normals out of core: a chunk's own points alone would give its border
+// points one-sided neighbours, and turn each piece of a closed surface by the
+// piece's own shape (a piece can come out inside out). So a chunk's points
+// within reach of a later chunk's units are handed to that chunk, with their
+// final normals and radii, as neighbour anchors (PreprocessOptions): there
+// they are neighbours of its border points and pass their side on, as the
+// in-memory spanning tree would across the border.
+class BorderForwarder {
+ public:
+  BorderForwarder(const Layout& layout, std::span<const std::pair<std::size_t, std::size_t>> chunks,
+                  const OctreeCube& cube, unsigned maxDepth)
+      : cube_(cube), maxDepth_(maxDepth), waiting_(chunks.size()) {
+    for (std::size_t c = 0; c < chunks.size(); ++c)
+      for (std::size_t i = chunks[c].first; i < chunks[c].second; ++i) {
+        const Item& it = layout.items[i];
+        if (it.upper) continue;
+        units_.push_back({firstCode(it.depth, it.prefix, maxDepth),
+                          firstCode(it.depth, it.prefix + 1, maxDepth), it.depth, c});
+      }
+  }
+
+  // The anchors handed to `chunk` so far (all of them, once every chunk
+  // before it was forwarded); they are given up.
+  std::vector<Splat> take(std::size_t chunk) { return std::move(waiting_[chunk]); }
+
+  // Hands the points of `chunk` (with their normals and radii) that lie
+  // within reach of a later chunk to it. Reach: twice the k-th neighbour
+  // distance of nearly all of them (r = d_k sqrt(3 / k), normals.hpp).
+  void forward(std::size_t chunk, std::span<const Splat> points, int neighbours) {
+    if (points.empty() || chunk + 1 >= waiting_.size()) return;
+    std::vector<float> radii;
+    for (std::size_t i = 0; i < points.size(); i += 16) radii.push_back(points[i].radius);
+    const auto high = radii.begin() + static_cast<std::ptrdiff_t>(radii.size() * 95 / 100);
+    std::nth_element(radii.begin(), high, radii.end());
+    const double reach =
+        2.0 * static_cast<double>(*high) * std::sqrt(static_cast<double>(neighbours) / 3.0);
+    if (!(reach > 0.0)) return;
+    std::size_t own = kNone;
+    std::size_t sentTo[8];
+    for (const Splat& p : points) {
+      const std::uint64_t code = mortonCode(p.position, cube_, maxDepth_);
+      if (own == kNone || code < units_[own].first || code >= units_[own].end) own = unitAt(code);
+      if (own == kNone) continue;
+      const Unit& u = units_[own];
+      // Which faces of its unit it is near, per axis: -1, 0 or +1.
+      int near[3];
+      const double side = cube_.size / static_cast<double>(std::uint64_t{1} << u.depth);
+      bool any = false;
+      for (int a = 0; a < 3; ++a) {
+        const auto q = compactBits((u.first >> (3 * (maxDepth_ - u.depth))) >> (2 - a));
+        const double lo = cube_.min[a] + static_cast<double>(q) * side;
+        const double x = static_cast<double>(p.position[a]);
+        near[a] = x - lo < reach ? -1 : lo + side - x < reach ? 1 : 0;
+        any = any || near[a] != 0;
+      }
+      if (!any) continue;
+      std::size_t sent = 0;
+      // Every combination of the near faces: across faces, edges, corners.
+      for (int mask = 1; mask < 8; ++mask) {
+        float probe[3];
+        bool valid = true;
+        for (int a = 0; a < 3; ++a) {
+          const bool use = (mask >> a & 1) != 0;
+          if (use && near[a] == 0) valid = false;
+          probe[a] = p.position[a] + (use ? static_cast<float>(near[a] * reach) : 0.0f);
+          if (static_cast<double>(probe[a]) < cube_.min[a] ||
+              static_cast<double>(probe[a]) >= cube_.min[a] + cube_.size)
+            valid = false;
+        }
+        if (!valid) continue;
+        const std::size_t other = unitAt(mortonCode(probe, cube_, maxDepth_));
+        if (other == kNone || units_[other].chunk <= chunk) continue;
+        const std::size_t to = units_[other].chunk;
+        if (std::find(sentTo, sentTo + sent, to) != sentTo + sent) continue;
+        sentTo[sent++] = to;
+        waiting_[to].push_back(p);
+      }
+    }
+  }
+
+ private:
+  static constexpr std::size_t kNone = std::numeric_limits<std::size_t>::max();
+  struct Unit {
+    std::uint64_t first, end;  // its Morton codes at the finest depth
+    unsigned depth;
+    std::size_t chunk;
+  };
+  std::size_t unitAt(std::uint64_t code) const {
+    const auto after = std::upper_bound(units_.begin(), units_.end(), code,
+                                        [](std::uint64_t c, const Unit& u) { return c < u.first; });
+    if (after == units_.begin()) return kNone;
+    const auto at = static_cast<std::size_t>(after - units_.begin()) - 1;
+    return code < units_[at].end ? at : kNone;
+  }
+
+  OctreeCube cube_;
+  unsigned maxDepth_;
+  std::vector<Unit> units_;  // in Morton order
+  std::vector<std::vector<Splat>> waiting_;
+};
+
 OctreeFrame frameOf(const OctreeCube& cube, const Layout& layout) {
   OctreeFrame frame;
   frame.cube = cube;
@@ -491,6 +659,16 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
                      " MiB");
   result.chunkCapacity = capacity;
 
+  // Normals to estimate: an even sample of the whole cloud, oriented in
+  // memory before the chunks, tells each chunk the side its pieces take
+  // (SideReference), as the in-memory run decides it for whole surfaces.
+  const bool estimateNormals = !flags.hasNormals || (!flags.hasRadii && options.knnRadii);
+  std::vector<Splat> sample;
+  // 24 bytes a point while chunks are built: 6 a point of a chunk.
+  const std::uint64_t sampleSize = std::min<std::uint64_t>(kSidePoints, capacity / 4);
+  const std::uint64_t sampleEvery =
+      estimateNormals && sampleSize > 0 ? (count + sampleSize - 1) / sampleSize : 0;
+
   // 2. Spilling, then splitting files that hold more than a chunk.
   read.progress = [&](std::uint64_t done, std::uint64_t total) { report("spilling", done, total); };
   const unsigned spillDepth = std::min(kSpillDepth, octree.maxDepth);
@@ -505,7 +683,14 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
                          options.build.topLevelDepth < 0 ? &shape : nullptr);
     std::uint64_t again = 0;
     streamPointClouds(
-        inputs, read, [&](std::span<const Splat> block) { writer0.add(block); }, again);
+        inputs, read,
+        [&](std::span<const Splat> block) {
+          writer0.add(block);
+          if (sampleEvery > 0)
+            for (const Splat& s : block)
+              if (positionHash(s) % sampleEvery == 0) sample.push_back(s);
+        },
+        again);
     if (again != count)
       throw InputError("the input changed while it was read: " + std::to_string(count) +
                        " points, then " + std::to_string(again));
@@ -612,7 +797,6 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
   DatasetContent content;
   std::vector<InstancedCellSection> sectionsPerCell;  // --instanced, by global cell
   std::vector<Merged> merged(layout.items.size());
-  const bool estimateNormals = !flags.hasNormals || (!flags.hasRadii && options.knnRadii);
   build.radiiInLeaves = flags.hasNormals && !flags.hasRadii && !options.knnRadii;
   build.estimateNormals = estimateNormals;
   build.radiusNeighbours = options.neighbours;
@@ -620,7 +804,17 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
   std::uint64_t builtChunks = 0;
   std::size_t nextItem = 0;
   unsigned treeDepth = 0;
-  for (const auto& chunk : chunks) {
+  std::optional<BorderForwarder> borders;
+  std::optional<SideReference> sides;
+  if (estimateNormals && !sample.empty()) {
+    sides.emplace(std::move(sample), sampleEvery, options.neighbours, build.threads);
+    build.sideReference = [&](const Splat& s, float normal[3]) {
+      return sides->normalOf(s, normal);
+    };
+  }
+  if (estimateNormals) borders.emplace(layout, chunks, cube, octree.maxDepth);
+  for (std::size_t chunkIndex = 0; chunkIndex < chunks.size(); ++chunkIndex) {
+    const auto& chunk = chunks[chunkIndex];
     std::vector<Splat> points = loadChunk(layout, chunk, buckets);
     const std::uint64_t n = points.size();
     result.largestChunkPoints = std::max(result.largestChunkPoints, n);
@@ -656,7 +850,11 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
              count);
     };
     std::vector<CellNormals> normals;
+    const std::vector<Splat> anchors = borders ? borders->take(chunkIndex) : std::vector<Splat>{};
+    build.neighbourAnchors = anchors;
     DatasetContent local = buildDatasetContent(std::move(points), build, inner, &frame, &normals);
+    build.neighbourAnchors = {};
+    if (borders) borders->forward(chunkIndex, local.points, options.neighbours);
 
     // The chunk's units, in order, each a subtree of the local tree.
     const auto localCount = static_cast<std::uint32_t>(local.cells.size());

@@ -289,3 +289,59 @@ TEST(StreamPointClouds, BlocksHoldWhatTheWholeReaderReads) {
   EXPECT_EQ(flags.hasRadii, whole.hasRadii);
   EXPECT_EQ(flags.source, whole.source);
 }
+
+// Without normals in the input, each chunk estimates its own; its border
+// points take neighbours and sides from the chunks before it, and pieces no
+// border reaches take the side of the whole cloud oriented at a coarser
+// sampling. Every point keeps the side the in-memory build gives it (a
+// chunk's piece of a closed surface turned by its own shape came out inside
+// out before), and directions differ only near chunk borders.
+TEST(OutOfCore, WithoutNormalsTheSidesAreTheInMemoryOnes) {
+  TempDir dir;
+  std::vector<Splat> splats = generateScene("torus", 40000, 1).splats;
+  for (const Splat& s : generateScene("sphere", 20000, 2).splats) {
+    Splat moved = s;
+    moved.position[0] += 4.0f;
+    splats.push_back(moved);
+  }
+  for (Splat& s : splats) s.normal[0] = s.normal[1] = s.normal[2] = 0.0f;
+  const fs::path input = dir.path() / "in.ply";
+  writePly(input, splats, false);
+
+  PointCloud cloud = readPointCloud(input, ReadOptions{});
+  ASSERT_FALSE(cloud.hasNormals);
+  PreprocessOptions build;
+  build.estimateNormals = true;
+  build.source = cloud.source;
+  DatasetContent content = buildDatasetContent(std::move(cloud.splats), build);
+  pointillist::writeDataset(dir.path() / "memory", content);
+
+  for (const std::uint64_t chunkPoints : {std::uint64_t{6000}, std::uint64_t{20000}}) {
+    OutOfCoreOptions oc;
+    oc.build = build;
+    oc.memoryBytes = capFor(splats.size(), chunkPoints);
+    const fs::path out = dir.path() / ("chunked-" + std::to_string(chunkPoints));
+    const OutOfCoreResult r = preprocessOutOfCore({input}, out, oc, {});
+    EXPECT_GE(r.chunks, 3u);
+    const auto memory = pointillist::Dataset::open(dir.path() / "memory");
+    const auto chunked = pointillist::Dataset::open(out);
+    const auto top = memory.topLevelCells();
+    ASSERT_EQ(top.size(), chunked.topLevelCells().size());
+    std::size_t points = 0, opposite = 0, apart = 0;
+    for (std::uint32_t k = 0; k < top.size(); ++k) {
+      const auto a = memory.packet(k), b = chunked.packet(k);
+      ASSERT_EQ(a.size(), b.size());
+      for (std::size_t i = a.size() - top[k].pointCount; i < a.size(); ++i) {
+        ASSERT_EQ(std::memcmp(a[i].position, b[i].position, sizeof a[i].position), 0);
+        float d = 0.0f;
+        for (int c = 0; c < 3; ++c) d += a[i].normal[c] * b[i].normal[c];
+        ++points;
+        opposite += d < 0.0f ? 1u : 0u;
+        apart += d < 0.999f ? 1u : 0u;
+      }
+    }
+    EXPECT_EQ(points, splats.size());
+    EXPECT_EQ(opposite, 0u) << "chunks of " << chunkPoints;
+    EXPECT_LT(apart, points / 50) << "chunks of " << chunkPoints;
+  }
+}
