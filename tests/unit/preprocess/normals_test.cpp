@@ -80,20 +80,25 @@ TEST(Normals, SphereNormalsPointOutward) {
   EXPECT_NEAR(mean, expected, 0.2 * expected);
 }
 
-// --threads must not change the dataset: every point's search is its own.
+// --threads must not change the dataset: every point's search is its own,
+// and orientation blocks do not depend on the threads (one block, or many).
 TEST(Normals, ThreadCountDoesNotChangeTheResult) {
   const PointCloud input = stripped(generateScene("city", 60000, 5));
-  std::vector<std::vector<Splat>> results;
-  for (const unsigned threads : {1u, 3u}) {
-    PointCloud cloud = input;
-    NormalOptions options;
-    options.threads = threads;
-    estimateNormalsAndRadii(cloud, options);
-    results.push_back(cloud.splats);
+  for (const std::size_t block : {NormalOptions{}.orientBlockPoints, std::size_t{4096}}) {
+    std::vector<std::vector<Splat>> results;
+    for (const unsigned threads : {1u, 3u}) {
+      PointCloud cloud = input;
+      NormalOptions options;
+      options.threads = threads;
+      options.orientBlockPoints = block;
+      estimateNormalsAndRadii(cloud, options);
+      results.push_back(cloud.splats);
+    }
+    ASSERT_EQ(results[0].size(), results[1].size());
+    EXPECT_EQ(0,
+              std::memcmp(results[0].data(), results[1].data(), results[0].size() * sizeof(Splat)))
+        << "blocks of " << block;
   }
-  ASSERT_EQ(results[0].size(), results[1].size());
-  EXPECT_EQ(0,
-            std::memcmp(results[0].data(), results[1].data(), results[0].size() * sizeof(Splat)));
 }
 
 TEST(Normals, TwoSeparateClosedShapesBothOutward) {
@@ -183,8 +188,7 @@ TEST(Normals, OnlyWhereMissingKeepsGivenValuesAndAgreesWithThem) {
 
 // Orientation in blocks (on all cores) joins the blocks' pieces: with blocks
 // far smaller than the cloud, and points in no spatial order (so a block is
-// scattered over the whole shape), the sides are those of one pass, and the
-// thread count still changes nothing.
+// scattered over the whole shape), the sides are those of one pass.
 TEST(Normals, OrientationInSmallBlocksKeepsEverySide) {
   PointCloud sphere = stripped(generateScene("sphere", 20000, 3));
   for (Splat& s : sphere.splats) s.position[2] += 30.0f;  // off the origin
@@ -232,19 +236,6 @@ TEST(Normals, OrientationInSmallBlocksKeepsEverySide) {
       agree += angleDegrees(s, {-s.position[0], -s.position[1], -s.position[2]}) < 30 ? 1u : 0u;
     EXPECT_GT(agree, anchored.splats.size() * 98 / 100) << "blocks of " << block;
   }
-  // The thread count changes nothing, in blocks either.
-  const PointCloud city = stripped(generateScene("city", 60000, 5));
-  std::vector<std::vector<Splat>> results;
-  for (const unsigned threads : {1u, 3u}) {
-    PointCloud cloud = city;
-    NormalOptions options;
-    options.threads = threads;
-    options.orientBlockPoints = 4096;
-    estimateNormalsAndRadii(cloud, options);
-    results.push_back(cloud.splats);
-  }
-  EXPECT_EQ(0,
-            std::memcmp(results[0].data(), results[1].data(), results[0].size() * sizeof(Splat)));
 }
 
 TEST(Normals, DuplicatesAndTinyClouds) {
