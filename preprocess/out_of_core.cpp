@@ -647,7 +647,18 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
                      std::to_string(kNoIndex - 1));
   result.points = count;
   const OctreeCube cube = boundingCube(lo, hi);
-  const std::uint64_t capacity = chunkCapacity(options.memoryBytes, count);
+  const bool estimateNormals = !flags.hasNormals || (!flags.hasRadii && options.knnRadii);
+  std::uint64_t capacity = chunkCapacity(options.memoryBytes, count);
+  // Estimating normals keeps a side reference (below) while chunks are built:
+  // an even sample of a quarter of a chunk, but at least one point in 64 up
+  // to 64 Ki points (sparser ones lose thin parts), at most kSidePoints; 24
+  // bytes a point.
+  const std::uint64_t sampleSize =
+      estimateNormals
+          ? std::min({kSidePoints, count,
+                      std::max(capacity / 4, std::min<std::uint64_t>(65536, count / 64))})
+          : 0;
+  capacity -= std::min(capacity, sampleSize * 24 / kBuildBytesPerPoint);
   if (capacity < std::uint64_t{octree.leafPoints} * 8)
     throw UsageError("--memory-mb " + std::to_string(options.memoryBytes >> 20) +
                      " is too small for " + std::to_string(count) +
@@ -662,12 +673,8 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
   // Normals to estimate: an even sample of the whole cloud, oriented in
   // memory before the chunks, tells each chunk the side its pieces take
   // (SideReference), as the in-memory run decides it for whole surfaces.
-  const bool estimateNormals = !flags.hasNormals || (!flags.hasRadii && options.knnRadii);
   std::vector<Splat> sample;
-  // 24 bytes a point while chunks are built: 6 a point of a chunk.
-  const std::uint64_t sampleSize = std::min<std::uint64_t>(kSidePoints, capacity / 4);
-  const std::uint64_t sampleEvery =
-      estimateNormals && sampleSize > 0 ? (count + sampleSize - 1) / sampleSize : 0;
+  const std::uint64_t sampleEvery = sampleSize > 0 ? (count + sampleSize - 1) / sampleSize : 0;
 
   // 2. Spilling, then splitting files that hold more than a chunk.
   read.progress = [&](std::uint64_t done, std::uint64_t total) { report("spilling", done, total); };
