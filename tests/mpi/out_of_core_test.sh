@@ -47,6 +47,27 @@ MIN_LIT_FRACTION=0.1 MIN_SPLATS=30000 bash "$compare" "$bin" "$work/chunked" 1,1
 leftovers() { find "$work" -maxdepth 1 \( -name '*.spill-*' -o -name '*.tmp-*' \) | wc -l; }
 test "$(leftovers)" -eq 0
 
+# A scan without normals (XYZ text): its normals are estimated chunk by chunk,
+# with neighbours across chunk borders and a side reference, still under the
+# cap (unit tests compare the sides with the in-memory run's).
+"$bin/pointillist-make-points" --generate city --points 400000 --format xyz --no-normals \
+  -o "$work/scan.xyz" 2>/dev/null
+python3 -c '
+import resource, subprocess, sys
+with open(sys.argv[1], "w") as log:
+    subprocess.run(sys.argv[2:], check=True, stdout=log)
+print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss // 1024)
+' "$work/scan.log" "$bin/pointillist-preprocess" -q "$work/scan.xyz" -o "$work/scan" \
+  --memory-mb "$cap" > "$work/scan-peak"
+cat "$work/scan.log"
+scanChunks=$(sed -n 's/.*out of core: \([0-9]*\) chunks.*/\1/p' "$work/scan.log")
+echo "scan without normals: $scanChunks chunks, peak $(cat "$work/scan-peak") MiB under --memory-mb $cap"
+test "$scanChunks" -ge 3
+test "$(cat "$work/scan-peak")" -le "$cap"
+"$bin/pointillist-preprocess" --check "$work/scan" | grep -q "400000 points"
+rm -rf "$work/scan" "$work/scan.xyz"
+test "$(leftovers)" -eq 0
+
 # A failure midway (after two chunks) leaves nothing.
 if POINTILLIST_PREPROCESS_FAIL_AFTER_CHUNKS=2 "$bin/pointillist-preprocess" -q "$work/city.ply" \
   -o "$work/failed" --memory-mb "$cap" 2> "$work/failed.log"; then
