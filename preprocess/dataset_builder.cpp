@@ -228,21 +228,15 @@ DatasetContent buildDatasetContent(std::vector<Splat> points, const PreprocessOp
   const std::uint64_t total = points.size();
   OctreeOptions octree = options.octree;
   octree.threads = options.threads;
+  if (options.estimateNormals) octree.spareCapacity = options.neighbourAnchors.size();
   Octree tree = buildOctree(std::move(points), octree, stage("octree"), frame);
   if (options.estimateNormals) {
     PointCloud cloud;
     const std::size_t own = tree.points.size();
-    if (options.neighbourAnchors.empty()) {
-      cloud.splats = std::move(tree.points);
-    } else {
-      // Exactly as long as needed: a grown vector would hold twice the
-      // points' memory through the estimate, which the memory cap counts.
-      cloud.splats.reserve(own + options.neighbourAnchors.size());
-      cloud.splats.insert(cloud.splats.end(), tree.points.begin(), tree.points.end());
-      tree.points = {};
-      cloud.splats.insert(cloud.splats.end(), options.neighbourAnchors.begin(),
-                          options.neighbourAnchors.end());
-    }
+    cloud.splats = std::move(tree.points);
+    // Into the room the octree left: moving the points would hold them twice.
+    cloud.splats.insert(cloud.splats.end(), options.neighbourAnchors.begin(),
+                        options.neighbourAnchors.end());
     cloud.hasColors = true;  // readers gave colourless points their grey already
     NormalOptions no;
     no.neighbours = options.radiusNeighbours;
@@ -252,13 +246,8 @@ DatasetContent buildDatasetContent(std::vector<Splat> points, const PreprocessOp
     no.sideReference = options.sideReference;
     no.progress = stage("normals and radii");
     estimateNormalsAndRadii(cloud, no);
-    if (cloud.splats.size() == own) {
-      tree.points = std::move(cloud.splats);
-    } else {
-      tree.points.assign(cloud.splats.begin(),
-                         cloud.splats.begin() + static_cast<std::ptrdiff_t>(own));
-      cloud.splats = {};
-    }
+    cloud.splats.resize(own);
+    tree.points = std::move(cloud.splats);
   }
   const unsigned depth = options.topLevelDepth >= 0
                              ? static_cast<unsigned>(options.topLevelDepth)

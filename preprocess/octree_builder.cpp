@@ -225,6 +225,7 @@ Octree buildOctree(std::vector<Splat> points, const OctreeOptions& options,
       kChunk);
   mortonSort(keyed, 3 * options.maxDepth, options.leafPoints, progress, options.threads);
 
+  tree.points.reserve(points.size() + options.spareCapacity);
   tree.points.resize(points.size());
   CodeVector codes(points.size());
   parallelFor(

@@ -27,6 +27,9 @@ struct OctreeOptions {
   // stay small enough for fine culling and level of detail.
   std::uint32_t leafPoints = 128;
   unsigned threads = 0;  // for the Morton codes, their sort and the gather; 0: all cores
+  // Room for this many more points after the tree's (PreprocessOptions::
+  // neighbourAnchors are appended there without moving the points).
+  std::size_t spareCapacity = 0;
 };
 
 // One cell while preprocessing, in depth-first (pre-order) position.
