@@ -423,7 +423,8 @@ std::uint64_t positionHash(const Splat& s) {
 class SideReference {
  public:
   // every: a point is in the sample when positionHash % every == 0.
-  SideReference(std::vector<Splat> sample, std::uint64_t every, int neighbours, unsigned threads)
+  SideReference(std::vector<Splat> sample, std::uint64_t every, int neighbours, unsigned threads,
+                ProgressFn progress)
       : every_(every) {
     PointCloud cloud;
     cloud.splats = std::move(sample);
@@ -431,6 +432,7 @@ class SideReference {
     NormalOptions no;
     no.neighbours = neighbours;
     no.threads = threads;
+    no.progress = std::move(progress);
     estimateNormalsAndRadii(cloud, no);
     entries_.reserve(cloud.splats.size());
     for (const Splat& s : cloud.splats)
@@ -814,7 +816,10 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
   std::optional<BorderForwarder> borders;
   std::optional<SideReference> sides;
   if (estimateNormals && !sample.empty()) {
-    sides.emplace(std::move(sample), sampleEvery, options.neighbours, build.threads);
+    sides.emplace(std::move(sample), sampleEvery, options.neighbours, build.threads,
+                  [&](std::uint64_t sampled, std::uint64_t total) {
+                    report("normals of a sample", sampled, total);
+                  });
     build.sideReference = [&](const Splat& s, float normal[3]) {
       return sides->normalOf(s, normal);
     };
