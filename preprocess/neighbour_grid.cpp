@@ -36,43 +36,19 @@ std::uint64_t hashKey(std::uint64_t key) {
 NeighbourGrid::NeighbourGrid(std::span<const Splat> points, double pointsPerCube, unsigned threads)
     : n_(points.size()) {
   if (n_ == 0) return;
-  // Blocks of points on all threads: bounds, codes and whether they are
-  // already in order (a preprocess hands them over in Morton order, sorted
-  // down to its octree's leaves).
+  const PointBounds bounds = pointBounds(points, threads);
+  const OctreeCube cube = boundingCube(bounds.lo, bounds.hi);
+  // Blocks of points on all threads: codes and whether they are already in
+  // order (a preprocess hands them over in Morton order, sorted down to its
+  // octree's leaves).
   constexpr std::size_t kBlock = std::size_t{1} << 16;
   const std::size_t blocks = (n_ + kBlock - 1) / kBlock;
   const auto blockEnd = [&](std::size_t b) { return std::min(n_, (b + 1) * kBlock); };
   struct BlockFigures {
-    double lo[3], hi[3];
     bool sorted = true;
     std::array<std::size_t, kCodeLevels + 1> parts{};
   };
   std::vector<BlockFigures> figures(blocks);
-  parallelFor(
-      blocks, threads,
-      [&](std::size_t b) {
-        BlockFigures& f = figures[b];
-        for (int a = 0; a < 3; ++a) {
-          f.lo[a] = std::numeric_limits<double>::infinity();
-          f.hi[a] = -std::numeric_limits<double>::infinity();
-        }
-        for (std::size_t i = b * kBlock; i < blockEnd(b); ++i)
-          for (int a = 0; a < 3; ++a) {
-            f.lo[a] = std::min(f.lo[a], static_cast<double>(points[i].position[a]));
-            f.hi[a] = std::max(f.hi[a], static_cast<double>(points[i].position[a]));
-          }
-      },
-      1);
-  double lo[3], hi[3];
-  for (int a = 0; a < 3; ++a) {
-    lo[a] = std::numeric_limits<double>::infinity();
-    hi[a] = -std::numeric_limits<double>::infinity();
-    for (const BlockFigures& f : figures) {
-      lo[a] = std::min(lo[a], f.lo[a]);
-      hi[a] = std::max(hi[a], f.hi[a]);
-    }
-  }
-  const OctreeCube cube = boundingCube(lo, hi);
   const MortonCoder morton(cube, kCodeLevels);
   struct Keyed {
     std::uint64_t code;

@@ -121,7 +121,7 @@ struct OrientContext {
   const std::vector<std::uint32_t>& neighbours;
   std::size_t k;
   Vec3d centroid;
-  const std::function<bool(const Splat&, float[3])>* sideReference;
+  const std::function<bool(const Splat&, float[3])>& sideReference;
 };
 
 // Phase 1 for points [begin, end): piece[i] = the block's piece index + 1.
@@ -204,7 +204,7 @@ std::vector<Piece> orientBlock(const OrientContext& c, std::uint32_t begin, std:
     p.normals = add(p.normals, normal);
     p.outward += dot(offset, normal);
     float reference[3];
-    if (c.sideReference && (*c.sideReference) && (*c.sideReference)(s, reference)) {
+    if (c.sideReference && c.sideReference(s, reference)) {
       const double agree = normal[0] * static_cast<double>(reference[0]) +
                            normal[1] * static_cast<double>(reference[1]) +
                            normal[2] * static_cast<double>(reference[2]);
@@ -225,8 +225,8 @@ void orient(std::vector<Splat>& splats, const std::vector<std::uint8_t>& needNor
   Vec3d centroid{};
   for (const Splat& s : splats) centroid = add(centroid, position(s));
   centroid = scale(centroid, 1.0 / static_cast<double>(n));
-  const OrientContext context{
-      splats, needNormal, isAnchor, neighbours, k, centroid, &options.sideReference};
+  const OrientContext context{splats,   needNormal,           isAnchor, neighbours, k,
+                              centroid, options.sideReference};
 
   // Seeds highest first, equal heights by index: a stable radix sort of
   // (z as an order-preserving integer, index) packed in 64 bits.

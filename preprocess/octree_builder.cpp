@@ -132,6 +132,53 @@ class TreeBuilder {
 
 }  // namespace
 
+PointBounds pointBounds(std::span<const Splat> points, unsigned threads) {
+  PointBounds result;
+  for (int a = 0; a < 3; ++a) {
+    result.lo[a] = std::numeric_limits<double>::infinity();
+    result.hi[a] = -std::numeric_limits<double>::infinity();
+  }
+  constexpr std::size_t kBlock = std::size_t{1} << 18;
+  const std::size_t blocks = (points.size() + kBlock - 1) / kBlock;
+  struct Block {
+    float lo[3], hi[3];
+    bool finite = true;
+  };
+  std::vector<Block> block(blocks);
+  parallelFor(
+      blocks, threads,
+      [&](std::size_t b) {
+        Block& r = block[b];
+        for (int a = 0; a < 3; ++a) r.lo[a] = r.hi[a] = points[b * kBlock].position[a];
+        bool finite = true;
+        for (std::size_t i = b * kBlock; i < std::min(points.size(), (b + 1) * kBlock); ++i)
+          for (int a = 0; a < 3; ++a) {
+            const float v = points[i].position[a];
+            finite = finite && std::isfinite(v);
+            r.lo[a] = std::min(r.lo[a], v);
+            r.hi[a] = std::max(r.hi[a], v);
+          }
+        r.finite = finite;
+      },
+      1);
+  for (std::size_t b = 0; b < blocks; ++b) {
+    if (!block[b].finite) {
+      for (std::size_t i = b * kBlock;; ++i) {  // the first offender, for messages
+        const float* v = points[i].position;
+        if (!std::isfinite(v[0]) || !std::isfinite(v[1]) || !std::isfinite(v[2])) {
+          result.firstNonFinite = i;
+          return result;
+        }
+      }
+    }
+    for (int a = 0; a < 3; ++a) {
+      result.lo[a] = std::min(result.lo[a], static_cast<double>(block[b].lo[a]));
+      result.hi[a] = std::max(result.hi[a], static_cast<double>(block[b].hi[a]));
+    }
+  }
+  return result;
+}
+
 OctreeCube boundingCube(const double lo[3], const double hi[3]) {
   OctreeCube cube;
   double size = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]});
@@ -161,52 +208,12 @@ Octree buildOctree(std::vector<Splat> points, const OctreeOptions& options,
   if (frame != nullptr) {
     cube = frame->cube;
   } else {
-    // Bounds per block on all threads, then combined.
-    constexpr std::size_t kBoundsBlock = std::size_t{1} << 18;
-    const std::size_t blocks = (points.size() + kBoundsBlock - 1) / kBoundsBlock;
-    struct Bounds {
-      float lo[3], hi[3];
-      bool finite = true;
-    };
-    std::vector<Bounds> bounds(blocks);
-    parallelFor(
-        blocks, options.threads,
-        [&](std::size_t b) {
-          Bounds& r = bounds[b];
-          const Splat& first = points[b * kBoundsBlock];
-          for (int a = 0; a < 3; ++a) r.lo[a] = r.hi[a] = first.position[a];
-          bool finite = true;
-          const std::size_t end = std::min(points.size(), (b + 1) * kBoundsBlock);
-          for (std::size_t i = b * kBoundsBlock; i < end; ++i) {
-            for (int a = 0; a < 3; ++a) {
-              const float v = points[i].position[a];
-              finite = finite && std::isfinite(v);
-              r.lo[a] = std::min(r.lo[a], v);
-              r.hi[a] = std::max(r.hi[a], v);
-            }
-          }
-          r.finite = finite;
-        },
-        1);
-    double lo[3], hi[3];
-    for (int a = 0; a < 3; ++a) {
-      lo[a] = std::numeric_limits<double>::infinity();
-      hi[a] = -std::numeric_limits<double>::infinity();
-    }
-    for (std::size_t b = 0; b < blocks; ++b) {
-      if (!bounds[b].finite) {
-        // The first offender, for the message.
-        for (std::size_t i = b * kBoundsBlock;; ++i) {
-          const float* v = points[i].position;
-          if (!std::isfinite(v[0]) || !std::isfinite(v[1]) || !std::isfinite(v[2]))
-            throw InputError("point " + std::to_string(i) + " has a non-finite coordinate");
-        }
-      }
-      for (int a = 0; a < 3; ++a) {
-        lo[a] = std::min(lo[a], static_cast<double>(bounds[b].lo[a]));
-        hi[a] = std::max(hi[a], static_cast<double>(bounds[b].hi[a]));
-      }
-    }
+    const PointBounds bounds = pointBounds(points, options.threads);
+    if (bounds.firstNonFinite != PointBounds::kAllFinite)
+      throw InputError("point " + std::to_string(bounds.firstNonFinite) +
+                       " has a non-finite coordinate");
+    const double* lo = bounds.lo;
+    const double* hi = bounds.hi;
     cube = boundingCube(lo, hi);
   }
   for (int a = 0; a < 3; ++a) tree.cubeMin[a] = cube.min[a];

@@ -67,6 +67,16 @@ struct OctreeCube {
 };
 // lo/hi: the bounds of the point positions (as doubles of the stored floats).
 OctreeCube boundingCube(const double lo[3], const double hi[3]);
+
+// The points' bounds, in blocks on `threads` threads (0: all cores).
+// firstNonFinite: the first point with a NaN or infinite coordinate (the
+// bounds then mean nothing), or kAllFinite.
+struct PointBounds {
+  static constexpr std::size_t kAllFinite = static_cast<std::size_t>(-1);
+  double lo[3], hi[3];
+  std::size_t firstNonFinite = kAllFinite;
+};
+PointBounds pointBounds(std::span<const Splat> points, unsigned threads);
 // Morton code of a position at maxDepth resolution; x is the most significant
 // of each triple, so a cell's octant is 4x + 2y + z. The prefix of a cell at
 // depth d is code >> 3 * (maxDepth - d).

@@ -18,13 +18,17 @@ cap=40
 "$bin/pointillist-preprocess" -q "$work/city.ply" -o "$work/memory" > "$work/memory.log"
 if grep -q "out of core" "$work/memory.log"; then exit 1; fi
 
-# Peak resident memory of the child, in MiB, from outside.
-python3 -c '
+# Runs a command with its output in LOG and prints its peak resident memory
+# in MiB, measured from outside:  peakMiB LOG COMMAND...
+peakMiB() {
+  python3 -c '
 import resource, subprocess, sys
 with open(sys.argv[1], "w") as log:
     subprocess.run(sys.argv[2:], check=True, stdout=log)
 print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss // 1024)
-' "$work/chunked.log" "$bin/pointillist-preprocess" -q "$work/city.ply" -o "$work/chunked" \
+' "$@"
+}
+peakMiB "$work/chunked.log" "$bin/pointillist-preprocess" -q "$work/city.ply" -o "$work/chunked" \
   --memory-mb "$cap" > "$work/peak"
 cat "$work/chunked.log"
 chunks=$(sed -n 's/.*out of core: \([0-9]*\) chunks.*/\1/p' "$work/chunked.log")
@@ -52,12 +56,7 @@ test "$(leftovers)" -eq 0
 # cap (unit tests compare the sides with the in-memory run's).
 "$bin/pointillist-make-points" --generate city --points 400000 --format xyz --no-normals \
   -o "$work/scan.xyz" 2>/dev/null
-python3 -c '
-import resource, subprocess, sys
-with open(sys.argv[1], "w") as log:
-    subprocess.run(sys.argv[2:], check=True, stdout=log)
-print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss // 1024)
-' "$work/scan.log" "$bin/pointillist-preprocess" -q "$work/scan.xyz" -o "$work/scan" \
+peakMiB "$work/scan.log" "$bin/pointillist-preprocess" -q "$work/scan.xyz" -o "$work/scan" \
   --memory-mb "$cap" > "$work/scan-peak"
 cat "$work/scan.log"
 scanChunks=$(sed -n 's/.*out of core: \([0-9]*\) chunks.*/\1/p' "$work/scan.log")
