@@ -57,13 +57,6 @@ Range makeRange(std::uint32_t begin, std::uint32_t end, const Moments& m) {
   return {begin, end, end - begin >= 2 ? c[0] + c[3] + c[5] : 0.0, m.mean(), c, m};
 }
 
-// Max-heap on spread; ties by position so the result does not depend on the
-// heap implementation.
-bool lessSpread(const Range& a, const Range& b) {
-  if (a.spread != b.spread) return a.spread < b.spread;
-  return a.begin > b.begin;
-}
-
 struct Gaussian {
   Vec3d mean;
   Sym3 inverse;
@@ -102,7 +95,8 @@ Gaussian makeGaussian(const Moments& acc, double eps) {
 // What clusterSplats needs besides its output, kept per thread between calls.
 struct ClusterScratch {
   std::vector<Vec3d> positions;
-  std::vector<std::uint32_t> order, partitioned, heap, done, candidates, remap;
+  std::vector<std::uint32_t> order, partitioned, active, activeBegin, done, candidates, remap;
+  std::vector<double> activeSpread;
   std::vector<Range> ranges;
   std::vector<Moments> moments;
   std::vector<Gaussian> gaussians;
@@ -161,25 +155,40 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
     return moments;
   };
   const auto all = static_cast<std::uint32_t>(m);
-  // The heap holds indices: a Range is too big to move around in sift-downs.
   std::vector<Range>& ranges = scratch.ranges;
   ranges.assign(1, makeRange(0, all, sum(0, all)));
-  std::vector<std::uint32_t>& heap = scratch.heap;
-  heap.assign(1, 0);
+  // The ranges still to split, by index, and their spread and begin side by
+  // side: a cell has a dozen or so, and a scan for the widest beats a heap,
+  // whose sifts the branch predictor cannot guess.
+  std::vector<std::uint32_t>& active = scratch.active;
+  std::vector<double>& activeSpread = scratch.activeSpread;
+  std::vector<std::uint32_t>& activeBegin = scratch.activeBegin;
+  active.assign(1, 0);
+  activeSpread.assign(1, ranges[0].spread);
+  activeBegin.assign(1, 0);
   std::vector<std::uint32_t>& done = scratch.done;
   done.clear();
-  const auto lessIndex = [&](std::uint32_t a, std::uint32_t b) {
-    return lessSpread(ranges[a], ranges[b]);
-  };
   std::vector<std::uint32_t>& partitioned = scratch.partitioned;
   partitioned.resize(m);
   const double rootSpread = ranges[0].spread;
-  while (!heap.empty() && heap.size() + done.size() < target) {
-    std::pop_heap(heap.begin(), heap.end(), lessIndex);
-    const Range r = ranges[heap.back()];
+  while (!active.empty() && active.size() + done.size() < target) {
+    // The largest spread; equal spreads by position, so the result does
+    // not depend on the scan's order.
+    std::size_t w = 0;
+    for (std::size_t j = 1; j < active.size(); ++j)
+      if (activeSpread[j] > activeSpread[w] ||
+          (activeSpread[j] == activeSpread[w] && activeBegin[j] < activeBegin[w]))
+        w = j;
+    const std::uint32_t index = active[w];
+    const Range r = ranges[index];
     if (!(r.spread > 0.0)) {
-      done.push_back(heap.back());
-      heap.pop_back();
+      done.push_back(index);
+      active[w] = active.back();
+      activeSpread[w] = activeSpread.back();
+      activeBegin[w] = activeBegin.back();
+      active.pop_back();
+      activeSpread.pop_back();
+      activeBegin.pop_back();
       continue;
     }
     // Cut through the centroid, normal to the direction of largest variance.
@@ -187,11 +196,14 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
     auto proj = [&](std::uint32_t i) { return dot(sub(pos[i], r.mean), axis); };
     // Partition without branches (the side is a coin toss to the predictor):
     // the low side fills scratch from the front, the high side from the back.
+    // Each input is written to both free ends, and only one end advances:
+    // the other write lands in a free slot that a later input overwrites.
     std::size_t low = 0, high = r.end - r.begin;
     for (std::uint32_t j = r.begin; j < r.end; ++j) {
       const std::uint32_t i = order[j];
       const bool isLow = proj(i) < 0.0;
-      partitioned[isLow ? low : high - 1] = i;
+      partitioned[low] = i;
+      partitioned[high - 1] = i;
       low += isLow;
       high -= !isLow;
     }
@@ -210,14 +222,15 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
     const bool lowSmaller = cut - r.begin <= r.end - cut;
     const Moments small = lowSmaller ? sum(r.begin, cut) : sum(cut, r.end);
     const Moments large = r.moments.minus(small);
-    // The popped range's slot takes the low half; the high half is appended.
-    ranges[heap.back()] = makeRange(r.begin, cut, lowSmaller ? small : large);
-    std::push_heap(heap.begin(), heap.end(), lessIndex);
-    heap.push_back(static_cast<std::uint32_t>(ranges.size()));
+    // The split range's slot takes the low half; the high half is appended.
+    ranges[index] = makeRange(r.begin, cut, lowSmaller ? small : large);
+    activeSpread[w] = ranges[index].spread;
+    active.push_back(static_cast<std::uint32_t>(ranges.size()));
     ranges.push_back(makeRange(cut, r.end, lowSmaller ? large : small));
-    std::push_heap(heap.begin(), heap.end(), lessIndex);
+    activeSpread.push_back(ranges.back().spread);
+    activeBegin.push_back(cut);
   }
-  done.insert(done.end(), heap.begin(), heap.end());
+  done.insert(done.end(), active.begin(), active.end());
   std::sort(done.begin(), done.end(),
             [&](std::uint32_t a, std::uint32_t b) { return ranges[a].begin < ranges[b].begin; });
 
@@ -243,13 +256,20 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
     // An input moves only to one of its cluster's nearest clusters (by mean):
     // the likeliest Gaussian is a near one, and all k would cost m * k.
     const std::size_t near = std::min<std::size_t>(k - 1, kRefineCandidates);
-    // The `near` closest by (distance, index), kept sorted by insertion: k is
-    // small, and sorting all k - 1 pairs per cluster cost more than the refinement.
+    // The `near` closest by (distance, index). Only the set matters: the
+    // reassignment takes the lowest (cost, index) whatever the order.
     std::vector<std::uint32_t>& candidates = scratch.candidates;
     candidates.resize(k * near);
-    {
+    if (near == k - 1) {
+      // Every other cluster is a candidate: no distances needed.
+      for (std::uint32_t c = 0; c < k; ++c) {
+        std::uint32_t* best = candidates.data() + std::size_t{c} * near;
+        for (std::uint32_t o = 0; o < k; ++o)
+          if (o != c) *best++ = o;
+      }
+    } else {
       // The means as columns: one cluster's distances to all are a loop the
-      // compiler vectorizes, with the bits of dot(d, d).
+      // compiler vectorizes.
       std::vector<double>& mx = scratch.meanX;
       std::vector<double>& my = scratch.meanY;
       std::vector<double>& mz = scratch.meanZ;
@@ -272,31 +292,31 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
         }
         distances[c] = std::numeric_limits<double>::infinity();  // never its own candidate
         std::uint32_t* best = candidates.data() + std::size_t{c} * near;
-        // The first `near` others, sorted; then only those that beat the last.
+        // The first `near` others; then each closer than the farthest kept
+        // replaces it. A later index never beats an equal distance, so ties
+        // keep the smaller index, and the farthest kept is the one with the
+        // larger index among equals.
         std::size_t filled = 0;
         std::uint32_t o = 0;
         for (; filled < near; ++o) {
           if (o == c) continue;
-          const double distance = distances[o];
-          std::size_t j = filled++;
-          for (; j > 0 && distance < bestDistance[j - 1]; --j) {
-            bestDistance[j] = bestDistance[j - 1];
-            best[j] = best[j - 1];
-          }
-          bestDistance[j] = distance;
-          best[j] = o;
+          bestDistance[filled] = distances[o];
+          best[filled++] = o;
         }
-        // Equal distances keep the smaller index first: o only grows.
+        const auto farthest = [&] {
+          std::size_t f = 0;
+          for (std::size_t j = 1; j < near; ++j)
+            if (bestDistance[j] > bestDistance[f] ||
+                (bestDistance[j] == bestDistance[f] && best[j] > best[f]))
+              f = j;
+          return f;
+        };
+        std::size_t worst = farthest();
         for (; o < k; ++o) {
-          const double distance = distances[o];
-          if (!(distance < bestDistance[near - 1])) continue;
-          std::size_t j = near - 1;
-          for (; j > 0 && distance < bestDistance[j - 1]; --j) {
-            bestDistance[j] = bestDistance[j - 1];
-            best[j] = best[j - 1];
-          }
-          bestDistance[j] = distance;
-          best[j] = o;
+          if (!(distances[o] < bestDistance[worst])) continue;
+          bestDistance[worst] = distances[o];
+          best[worst] = o;
+          worst = farthest();
         }
       }
     }
