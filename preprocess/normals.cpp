@@ -1,6 +1,7 @@
 #include "preprocess/normals.hpp"
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <bit>
 #include <cmath>
@@ -18,6 +19,7 @@
 #include "common/geometry.hpp"
 #include "preprocess/neighbour_grid.hpp"
 #include "preprocess/parallel.hpp"
+#include "preprocess/selection.hpp"
 #include "preprocess/splat_kd_tree.hpp"
 
 namespace pointillist::preprocess {
@@ -594,20 +596,30 @@ float densityRadius(std::span<const Splat> points) {
       std::sqrt(3.0 * area / (std::numbers::pi * static_cast<double>(points.size()))));
 }
 
-// Squared distance to the k-th nearest of `candidates` (the point itself,
-// found at distance 0, counts as the 0-th); 0 when they coincide.
-float kthNearestSquared(const Splat& p, std::span<const Splat> candidates, std::size_t k,
-                        std::vector<float>& scratch) {
-  scratch.resize(candidates.size());
-  for (std::size_t i = 0; i < candidates.size(); ++i) {
-    const Splat& q = candidates[i];
-    const float dx = q.position[0] - p.position[0], dy = q.position[1] - p.position[1],
-                dz = q.position[2] - p.position[2];
-    scratch[i] = dx * dx + dy * dy + dz * dz;
+// sqrt(3 / k) times the median, over a few points spread through the leaf
+// (by index), of the distance to the k-th nearest of the leaf's own points
+// (the point itself, at distance 0, counts as the 0-th); 0 for leaves of at
+// most k points.
+float sampledRadius(std::span<const Splat> leaf, std::size_t k, float factor) {
+  const std::size_t m = leaf.size();
+  if (m <= k) return 0.0f;
+  const std::size_t samples = std::min(m, kLeafRadiusSamples);
+  thread_local std::vector<float> distances, spare;  // leaves are many: no allocation each
+  distances.resize(m);
+  spare.resize(m);
+  std::array<float, kLeafRadiusSamples> sampled{};
+  for (std::size_t s = 0; s < samples; ++s) {
+    const auto& p = leaf[(2 * s + 1) * m / (2 * samples)].position;
+    for (std::size_t i = 0; i < m; ++i) {
+      const auto& q = leaf[i].position;
+      const float dx = q[0] - p[0], dy = q[1] - p[1], dz = q[2] - p[2];
+      distances[i] = dx * dx + dy * dy + dz * dz;
+    }
+    sampled[s] = std::sqrt(kthSmallest(distances.data(), spare.data(), m, k)) * factor;
   }
-  const auto kth = scratch.begin() + static_cast<std::ptrdiff_t>(std::min(k, scratch.size() - 1));
-  std::nth_element(scratch.begin(), kth, scratch.end());
-  return *kth;
+  const auto middle = sampled.begin() + static_cast<std::ptrdiff_t>(samples / 2);
+  std::nth_element(sampled.begin(), middle, sampled.begin() + static_cast<std::ptrdiff_t>(samples));
+  return *middle;
 }
 
 }  // namespace
@@ -623,27 +635,13 @@ void estimateRadiiInLeaves(Octree& tree, int neighbours, unsigned threads,
     return points.subspan(static_cast<std::size_t>(c.begin),
                           static_cast<std::size_t>(c.end - c.begin));
   };
-  // The median of the k-th-neighbour radius at a few points spread through
-  // the leaf (by index), searched among the leaf's own points.
-  const auto sampledRadius = [&](std::span<const Splat> cellPoints) {
-    if (cellPoints.size() <= k) return 0.0f;
-    std::vector<float> scratch, sampled;
-    const std::size_t samples = std::min(cellPoints.size(), kLeafRadiusSamples);
-    for (std::size_t i = 0; i < samples; ++i) {
-      const Splat& p = cellPoints[(2 * i + 1) * cellPoints.size() / (2 * samples)];
-      sampled.push_back(std::sqrt(kthNearestSquared(p, cellPoints, k, scratch)) * factor);
-    }
-    const auto middle = sampled.begin() + static_cast<std::ptrdiff_t>(samples / 2);
-    std::nth_element(sampled.begin(), middle, sampled.end());
-    return *middle;
-  };
   const std::uint64_t total = points.size();
   if (progress) progress(0, total);
   std::vector<float> radius(cells.size(), 0.0f);
   parallelFor(
       cells.size(), threads,
       [&](std::size_t i) {
-        if (cells[i].isLeaf()) radius[i] = sampledRadius(range(cells[i]));
+        if (cells[i].isLeaf()) radius[i] = sampledRadius(range(cells[i]), k, factor);
       },
       64);
   // Leaves with at most k points take the mean of their measured sibling
