@@ -511,6 +511,19 @@ int run(const Options& o) {
   if (std::filesystem::exists(std::filesystem::symlink_status(output, ec)) && !o.force)
     throw UsageError("output '" + o.output + "' already exists (use --force to replace it)");
 
+  // A generated scene exists whole in memory (its points depend on the total
+  // count): over the cap it is refused before any work, not built past it.
+  if (!o.generate.empty()) {
+    const std::uint64_t total = estimatePoints(o.inputs, o.points) + o.points;
+    if (!pp::fitsInMemory(o.memoryMb << 20, total))
+      throw UsageError("--generate builds its scene in memory: " + std::to_string(total) +
+                       " points need about " + std::to_string(pp::inMemoryBytes(total) >> 20) +
+                       " MiB, more than --memory-mb " + std::to_string(o.memoryMb) +
+                       ". Lower --points, raise --memory-mb, or write the scene to a file in "
+                       "blocks (pointillist-make-points --generate " +
+                       o.generate + ") and preprocess that file, out of core");
+  }
+
   Progress progress(o.quiet);
   if (o.generate.empty() &&
       !pp::fitsInMemory(o.memoryMb << 20, estimatePoints(o.inputs, o.points))) {

@@ -605,6 +605,10 @@ std::uint64_t chunkCapacity(std::uint64_t memoryBytes, std::uint64_t pointCount)
   return (memoryBytes - fixed) / kBuildBytesPerPoint;
 }
 
+std::uint64_t inMemoryBytes(std::uint64_t pointCount) {
+  return kBaseBytes + pointCount * (kBuildBytesPerPoint + kCellBytesPerPoint);
+}
+
 bool fitsInMemory(std::uint64_t memoryBytes, std::uint64_t pointCount) {
   return memoryBytes > kBaseBytes &&
          pointCount <= (memoryBytes - kBaseBytes) / (kBuildBytesPerPoint + kCellBytesPerPoint);

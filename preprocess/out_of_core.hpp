@@ -49,6 +49,9 @@ inline constexpr std::uint64_t kBuildBytesPerPoint = 128;
 // the cap is too small to work at all.
 std::uint64_t chunkCapacity(std::uint64_t memoryBytes, std::uint64_t pointCount);
 
+// Memory a whole cloud of `pointCount` points needs when built in memory.
+std::uint64_t inMemoryBytes(std::uint64_t pointCount);
+
 // True when a cloud of `pointCount` points fits in memory whole under the cap.
 bool fitsInMemory(std::uint64_t memoryBytes, std::uint64_t pointCount);
 

@@ -67,6 +67,15 @@ test "$(cat "$work/scan-peak")" -le "$cap"
 rm -rf "$work/scan" "$work/scan.xyz"
 test "$(leftovers)" -eq 0
 
+# --generate builds its scene in memory: over the cap it is refused at once.
+if "$bin/pointillist-preprocess" -q --generate city --points 2000000 -o "$work/generated" \
+  --memory-mb "$cap" 2> "$work/generated.log"; then
+  exit 1
+fi
+grep -q "builds its scene in memory" "$work/generated.log"
+test ! -e "$work/generated"
+test "$(leftovers)" -eq 0
+
 # A failure midway (after two chunks) leaves nothing.
 if POINTILLIST_PREPROCESS_FAIL_AFTER_CHUNKS=2 "$bin/pointillist-preprocess" -q "$work/city.ply" \
   -o "$work/failed" --memory-mb "$cap" 2> "$work/failed.log"; then
