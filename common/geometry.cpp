@@ -6,16 +6,6 @@
 
 namespace pointillist {
 
-double length(const Vec3d& a) {
-  return std::sqrt(dot(a, a));
-}
-
-Vec3d normalized(const Vec3d& a) {
-  const double len = length(a);
-  if (!(len > 1e-300)) return {0.0, 0.0, 0.0};
-  return scale(a, 1.0 / len);
-}
-
 Eigen3 eigenSymmetric3(const Sym3& m) {
   std::array<std::array<double, 3>, 3> a{
       {{m[0], m[1], m[2]}, {m[1], m[3], m[4]}, {m[2], m[4], m[5]}}};

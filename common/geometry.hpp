@@ -3,6 +3,7 @@
 // helpers, the one 3x3 symmetric eigen solver (covariance analysis for normals
 // and level-splats) and running covariance sums.
 #include <array>
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 
@@ -91,9 +92,16 @@ inline void addOuterProduct(Sym3& m, const Vec3d& d, double weight = 1.0) {
   m[4] += weight * d[1] * d[2];
   m[5] += weight * d[2] * d[2];
 }
-double length(const Vec3d& a);
+// Inline: called per point in the preprocess's inner loops.
+inline double length(const Vec3d& a) {
+  return std::sqrt(dot(a, a));
+}
 // Unit vector along a; {0,0,0} when a is (nearly) zero.
-Vec3d normalized(const Vec3d& a);
+inline Vec3d normalized(const Vec3d& a) {
+  const double len = length(a);
+  if (!(len > 1e-300)) return {0.0, 0.0, 0.0};
+  return scale(a, 1.0 / len);
+}
 
 // Normal cones of OctreeCell: axis and cosine of the half angle as snorm16
 // (value / 32767). The axis is normalized after decoding; the stored cosine is

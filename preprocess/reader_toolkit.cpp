@@ -137,19 +137,6 @@ void CloudBuilder::reserve(std::uint64_t expected, std::uint64_t limit) {
   cloud_.splats.reserve(static_cast<std::size_t>(n));
 }
 
-void CloudBuilder::prepare(Splat& s) {
-  const auto nx = static_cast<double>(s.normal[0]), ny = static_cast<double>(s.normal[1]),
-             nz = static_cast<double>(s.normal[2]);
-  const double length = std::sqrt(nx * nx + ny * ny + nz * nz);
-  if (length > 0.0) {
-    s.normal[0] = static_cast<float>(nx / length);
-    s.normal[1] = static_cast<float>(ny / length);
-    s.normal[2] = static_cast<float>(nz / length);
-  }
-  // Non-finite radii stay for addPrepared to refuse.
-  if (std::isfinite(s.radius) && !(s.radius > 0.0f)) s.radius = 0.0f;
-}
-
 void CloudBuilder::addPrepared(const Splat& s, std::uint64_t line, std::uint64_t byte) {
   // prepare keeps a non-finite splat non-finite (an infinite normal component
   // turns into NaN), so the verdict is the input's.
@@ -230,13 +217,6 @@ PointCloud CloudBuilder::finish(bool hasNormals, bool hasColors, bool hasRadii) 
   cloud_.hasRadii = hasRadii && allRadii_ &&
                     std::all_of(v.begin(), v.end(), [](const Splat& x) { return x.radius > 0.0f; });
   return std::move(cloud_);
-}
-
-bool isFinite(const Splat& s) {
-  for (int i = 0; i < 3; ++i) {
-    if (!std::isfinite(s.position[i]) || !std::isfinite(s.normal[i])) return false;
-  }
-  return std::isfinite(s.radius);
 }
 
 bool fitsFloat(double value) {

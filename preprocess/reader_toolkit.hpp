@@ -3,6 +3,8 @@
 // file and the place, a buffered line/byte reader, strict number parsing,
 // colour conversion and the point collector. Dispatching on the file type is
 // readers.hpp's job; format readers include only this.
+#include <bit>
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <cstdio>
@@ -78,7 +80,18 @@ class CloudBuilder {
   // add in two halves, so readers can run the first on many threads: unit
   // normals and no negative radius (harmless on a non-finite splat), then the
   // finiteness check and the hand-over, in input order.
-  static void prepare(Splat& splat);
+  static void prepare(Splat& splat) {
+    const auto nx = static_cast<double>(splat.normal[0]), ny = static_cast<double>(splat.normal[1]),
+               nz = static_cast<double>(splat.normal[2]);
+    const double length = std::sqrt(nx * nx + ny * ny + nz * nz);
+    if (length > 0.0) {
+      splat.normal[0] = static_cast<float>(nx / length);
+      splat.normal[1] = static_cast<float>(ny / length);
+      splat.normal[2] = static_cast<float>(nz / length);
+    }
+    // Non-finite radii stay for addPrepared to refuse.
+    if (std::isfinite(splat.radius) && !(splat.radius > 0.0f)) splat.radius = 0.0f;
+  }
   void addPrepared(const Splat& splat, std::uint64_t line, std::uint64_t byte);
   // addPrepared for a run of prepared splats already known to be finite: one
   // copy, handed to the sink at the same points as one by one.
@@ -104,7 +117,15 @@ class CloudBuilder {
   std::uint64_t lastProgress_ = 0;
 };
 
-bool isFinite(const Splat& splat);
+// Inline, branch-free: the readers check every point.
+inline bool isFinite(const Splat& splat) {
+  const auto finite = [](float v) {
+    return (std::bit_cast<std::uint32_t>(v) & 0x7f800000u) != 0x7f800000u;
+  };
+  return finite(splat.position[0]) & finite(splat.position[1]) & finite(splat.position[2]) &
+         finite(splat.normal[0]) & finite(splat.normal[1]) & finite(splat.normal[2]) &
+         finite(splat.radius);
+}
 // A coordinate a float can hold: finite and within float range.
 bool fitsFloat(double value);
 // A count or index read as a number: true when `value` is a whole number in
