@@ -11,8 +11,10 @@
 #include <limits>
 #include <utility>
 
+#include "preprocess/neighbour_filter.hpp"
 #include "preprocess/octree_builder.hpp"
 #include "preprocess/parallel.hpp"
+#include "preprocess/selection.hpp"
 
 namespace pointillist::preprocess {
 
@@ -143,97 +145,93 @@ void NeighbourGrid::nearestInCube(std::size_t cube, std::size_t k, const Neighbo
   std::int64_t c[3];
   for (int a = 0; a < 3; ++a)
     c[a] = static_cast<std::int64_t>(compactBits(cubeKey_[cube] >> (2 - a)));
-  // The block of 3x3x3 cubes around, in slot order.
-  struct Candidate {
-    float x, y, z;
-    std::uint32_t id;  // index in the caller's points
-  };
-  struct Group {  // one cube's candidates and its box
-    float lo[3], hi[3];
-    std::uint32_t begin, end;
-  };
-  thread_local std::vector<Candidate> candidates;
-  thread_local std::vector<Group> groups;
-  groups.clear();
+  // The points of the block of 3x3x3 cubes around, as columns for the SIMD
+  // filter.
+  thread_local std::vector<float> cx, cy, cz, passedDistance;
+  thread_local std::vector<std::uint32_t> cid, passedId;
   thread_local std::vector<std::uint32_t> index;
   thread_local std::vector<float> distance2;
-  // The nearest so far as one key each: a squared distance (never negative,
-  // so its bits order as the value does) above the index, which breaks ties.
-  // One integer comparison where a float and an index took two, and a branch
-  // for unordered floats.
-  thread_local std::vector<std::uint64_t> nearestKeys;
-  candidates.clear();
+  // A neighbour as one key: its squared distance (never negative, so its bits
+  // order as the value does) above its index, which breaks ties. The k
+  // nearest are the k smallest keys.
+  thread_local std::vector<std::uint64_t> keys, spareKeys;
+  cx.clear();
+  cy.clear();
+  cz.clear();
+  cid.clear();
   index.resize(want + 1);
   distance2.resize(want + 1);
-  nearestKeys.resize(want + 1);
-  // Own cube first, then faces, edges and corners: the near candidates fill
-  // the list early and most far ones fail at the first comparison.
-  static constexpr auto kBlockOrder = [] {
-    std::array<std::array<std::int8_t, 3>, 27> order{};
-    std::size_t at = 0;
-    for (int ring = 0; ring <= 3; ++ring)
-      for (int dx = -1; dx <= 1; ++dx)
-        for (int dy = -1; dy <= 1; ++dy)
-          for (int dz = -1; dz <= 1; ++dz)
-            if ((dx != 0) + (dy != 0) + (dz != 0) == ring)
-              order[at++] = {static_cast<std::int8_t>(dx), static_cast<std::int8_t>(dy),
-                             static_cast<std::int8_t>(dz)};
-    return order;
-  }();
   std::int64_t q[3];
-  for (const auto& offset : kBlockOrder) {
-    q[0] = c[0] + offset[0];
-    q[1] = c[1] + offset[1];
-    q[2] = c[2] + offset[2];
-    if (q[0] < 0 || q[1] < 0 || q[2] < 0 || q[0] >= cubes || q[1] >= cubes || q[2] >= cubes)
-      continue;
-    const std::size_t other = findCube(interleave(q));
-    if (other == kNotFound) continue;
-    Group g;
-    for (int a = 0; a < 3; ++a) {
-      g.lo[a] = static_cast<float>(min_[a] + static_cast<double>(q[a]) / scale_);
-      g.hi[a] = static_cast<float>(min_[a] + static_cast<double>(q[a] + 1) / scale_);
-    }
-    g.begin = static_cast<std::uint32_t>(candidates.size());
-    for (std::uint32_t j = cubeStart_[other]; j < cubeStart_[other + 1]; ++j)
-      candidates.push_back({xyz_[3 * j], xyz_[3 * j + 1], xyz_[3 * j + 2], original_[j]});
-    g.end = static_cast<std::uint32_t>(candidates.size());
-    groups.push_back(g);
-  }
+  for (std::int64_t dx = -1; dx <= 1; ++dx)
+    for (std::int64_t dy = -1; dy <= 1; ++dy)
+      for (std::int64_t dz = -1; dz <= 1; ++dz) {
+        q[0] = c[0] + dx;
+        q[1] = c[1] + dy;
+        q[2] = c[2] + dz;
+        if (q[0] < 0 || q[1] < 0 || q[2] < 0 || q[0] >= cubes || q[1] >= cubes || q[2] >= cubes)
+          continue;
+        const std::size_t other = dx == 0 && dy == 0 && dz == 0 ? cube : findCube(interleave(q));
+        if (other == kNotFound) continue;
+        for (std::uint32_t j = cubeStart_[other]; j < cubeStart_[other + 1]; ++j) {
+          cx.push_back(xyz_[3 * j]);
+          cy.push_back(xyz_[3 * j + 1]);
+          cz.push_back(xyz_[3 * j + 2]);
+          cid.push_back(original_[j]);
+        }
+      }
+  const std::size_t n = cid.size();  // the queries themselves among them
+  passedDistance.resize(n);
+  passedId.resize(n);
+  keys.resize(n);
+  spareKeys.resize(n);
+  // The previous query's k-th distance bounds this one's: its k nearest and
+  // itself lie within that distance plus the step between the two.
+  double previousKth = std::numeric_limits<double>::infinity();
+  float previous[3] = {0.0f, 0.0f, 0.0f};
   for (std::uint32_t self = cubeStart_[cube]; self < cubeStart_[cube + 1]; ++self) {
     const float p[3] = {xyz_[3 * self], xyz_[3 * self + 1], xyz_[3 * self + 2]};
-    const std::uint32_t selfId = original_[self];
-    std::size_t found = 0;
-    std::uint64_t* keys = nearestKeys.data();
-    for (const Group& g : groups) {
-      if (found == want) {
-        // A cube wholly beyond the k-th so far is skipped (a margin for rounding).
-        float gap2 = 0.0f;
-        for (int a = 0; a < 3; ++a) {
-          const float gap = std::max({0.0f, g.lo[a] - p[a], p[a] - g.hi[a]});
-          gap2 += gap * gap;
-        }
-        if (gap2 * (1.0f - 1e-4f) >
-            std::bit_cast<float>(static_cast<std::uint32_t>(keys[want - 1] >> 32)))
-          continue;
+    const std::uint64_t selfKey = original_[self];  // at distance 0
+    std::size_t found = std::min(want, n - 1);
+    if (found > 0) {
+      double step = 0.0;
+      for (int a = 0; a < 3; ++a) {
+        const double t = static_cast<double>(p[a]) - static_cast<double>(previous[a]);
+        step += t * t;
       }
-      for (std::uint32_t ci = g.begin; ci < g.end; ++ci) {
-        const Candidate& cand = candidates[ci];
-        const float dx = cand.x - p[0], dy = cand.y - p[1], dz = cand.z - p[2];
-        const float d = dx * dx + dy * dy + dz * dz;
-        const std::uint32_t id = cand.id;
-        if (id == selfId) continue;
-        const std::uint64_t key = std::uint64_t{std::bit_cast<std::uint32_t>(d)} << 32 | id;
-        if (found == want && key > keys[want - 1]) continue;
-        std::size_t at = found < want ? found++ : want - 1;
-        for (; at > 0 && keys[at - 1] > key; --at) keys[at] = keys[at - 1];
-        keys[at] = key;
+      const double reach = std::sqrt(previousKth) + std::sqrt(step);
+      // A margin for the rounding of float distances. Any bound gives the
+      // exact neighbours as long as the query and `found` others pass it.
+      const auto bound = static_cast<float>(reach * reach * (1.0 + 1e-4));
+      std::size_t passed = candidatesWithin(cx.data(), cy.data(), cz.data(), cid.data(), n, p,
+                                            bound, passedDistance.data(), passedId.data());
+      if (passed <= found) {
+        passed = candidatesWithin(cx.data(), cy.data(), cz.data(), cid.data(), n, p,
+                                  std::numeric_limits<float>::infinity(), passedDistance.data(),
+                                  passedId.data());
       }
+      const auto keyOf = [&](std::size_t j) {
+        return std::uint64_t{std::bit_cast<std::uint32_t>(passedDistance[j])} << 32 | passedId[j];
+      };
+      for (std::size_t j = 0; j < passed; ++j) keys[j] = keyOf(j);
+      // The found + 1 smallest keys: the query's own and its neighbours. The
+      // keys are distinct, so exactly those are at most the last.
+      const std::uint64_t last = kthSmallest(keys.data(), spareKeys.data(), passed, found);
+      std::size_t kept = 0;
+      for (std::size_t j = 0; j < passed; ++j) {
+        const std::uint64_t key = keyOf(j);
+        keys[kept] = key;
+        kept += (key <= last) & (key != selfKey);
+      }
+      found = std::min(found, kept);
+      std::sort(keys.begin(), keys.begin() + static_cast<std::ptrdiff_t>(found));
     }
     for (std::size_t j = 0; j < found; ++j) {
       distance2[j] = std::bit_cast<float>(static_cast<std::uint32_t>(keys[j] >> 32));
       index[j] = static_cast<std::uint32_t>(keys[j]);
     }
+    previousKth = found == want && want > 0 ? static_cast<double>(distance2[want - 1])
+                                            : std::numeric_limits<double>::infinity();
+    for (int a = 0; a < 3; ++a) previous[a] = p[a];
     // Exact when the k-th is nearer than anything outside the block.
     double bound = std::numeric_limits<double>::infinity();
     for (int a = 0; a < 3; ++a) {

@@ -7,10 +7,12 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <random>
 #include <vector>
 
 #include "preprocess/generator.hpp"
+#include "preprocess/neighbour_filter.hpp"
 #include "preprocess/neighbour_grid.hpp"
 #include "preprocess/normals.hpp"
 
@@ -49,6 +51,26 @@ void expectExact(const std::vector<Splat>& pts, std::size_t k, std::size_t every
   }
 }
 
+// The same through nearestInCube, the batched search the normals use: every
+// point is reported once, with the brute-force neighbours.
+void expectExactInCubes(const std::vector<Splat>& pts, std::size_t k) {
+  const NeighbourGrid grid(pts);
+  std::vector<int> seen(pts.size(), 0);
+  for (std::size_t cube = 0; cube < grid.occupiedCubes(); ++cube) {
+    grid.nearestInCube(
+        cube, k, [&](std::size_t i, const std::uint32_t* index, const float* d2, std::size_t m) {
+          ++seen[i];
+          const auto want = bruteForce(pts, i, k);
+          ASSERT_EQ(m, want.size()) << "point " << i;
+          for (std::size_t j = 0; j < m; ++j) {
+            ASSERT_EQ(index[j], want[j].second) << "point " << i << " neighbour " << j;
+            ASSERT_EQ(d2[j], want[j].first);
+          }
+        });
+  }
+  for (std::size_t i = 0; i < pts.size(); ++i) ASSERT_EQ(seen[i], 1) << "point " << i;
+}
+
 Splat at(float x, float y, float z) {
   Splat s{};
   s.position[0] = x;
@@ -65,6 +87,7 @@ TEST(NeighbourGrid, SurfacePointsMatchBruteForce) {
   // Shuffled: the grid sorts what is not in Morton order.
   std::shuffle(pts.begin(), pts.end(), std::mt19937(2));
   expectExact(pts, 12, 7);
+  expectExactInCubes(pts, 12);
 }
 
 TEST(NeighbourGrid, VolumeStacksOutliersAndTinyClouds) {
@@ -79,10 +102,15 @@ TEST(NeighbourGrid, VolumeStacksOutliersAndTinyClouds) {
   volume.push_back(at(-300.0f, 480.0f, 2.0f));
   expectExact(volume, 12);
   expectExact(volume, 40, 5);
+  expectExactInCubes(volume, 12);
+  expectExactInCubes(volume, 40);
 
   expectExact({at(0, 0, 0)}, 12);
   expectExact({at(0, 0, 0), at(1, 0, 0), at(0, 2, 0)}, 12);
   expectExact(std::vector<Splat>(20, at(3, 3, 3)), 8);
+  expectExactInCubes({at(0, 0, 0)}, 12);
+  expectExactInCubes({at(0, 0, 0), at(1, 0, 0), at(0, 2, 0)}, 12);
+  expectExactInCubes(std::vector<Splat>(20, at(3, 3, 3)), 8);
 }
 
 TEST(NeighbourGrid, NormalsEqualTheKdTrees) {
@@ -100,4 +128,41 @@ TEST(NeighbourGrid, NormalsEqualTheKdTrees) {
     differ += std::memcmp(&a.splats[i], &b.splats[i], sizeof(Splat)) != 0;
   // Equal but for points whose k-th neighbour ties another one.
   EXPECT_LE(differ, a.splats.size() / 1000) << differ << " of " << a.splats.size();
+}
+
+// The SIMD filter keeps exactly the candidates the scalar test keeps, in
+// order, with the scalar code's distances bit for bit: every length up to
+// three vectors of the widest target (tails included), NaN positions, and
+// bounds from none to all.
+TEST(NeighbourGrid, FilterKeepsWhatTheScalarTestKeeps) {
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(-2.0f, 2.0f);
+  const float p[3] = {0.3f, -0.7f, 1.1f};
+  for (std::size_t n = 0; n <= 50; ++n) {
+    std::vector<float> x(n), y(n), z(n);
+    std::vector<std::uint32_t> id(n);
+    for (std::size_t i = 0; i < n; ++i) {
+      x[i] = u(rng);
+      y[i] = i % 7 == 3 ? std::numeric_limits<float>::quiet_NaN() : u(rng);
+      z[i] = u(rng);
+      id[i] = static_cast<std::uint32_t>(1000 + 3 * i);
+    }
+    for (const float bound : {-1.0f, 0.0f, 1.5f, 4.0f, std::numeric_limits<float>::infinity()}) {
+      std::vector<float> d(n);
+      std::vector<std::uint32_t> kept(n);
+      const std::size_t m = candidatesWithin(x.data(), y.data(), z.data(), id.data(), n, p, bound,
+                                             d.data(), kept.data());
+      std::size_t j = 0;
+      for (std::size_t i = 0; i < n; ++i) {
+        const float dx = x[i] - p[0], dy = y[i] - p[1], dz = z[i] - p[2];
+        const float want = dx * dx + dy * dy + dz * dz;
+        if (!(want <= bound)) continue;
+        ASSERT_LT(j, m) << "n " << n << " bound " << bound;
+        EXPECT_EQ(kept[j], id[i]);
+        EXPECT_EQ(std::memcmp(&d[j], &want, sizeof want), 0) << "candidate " << i;
+        ++j;
+      }
+      EXPECT_EQ(m, j) << "n " << n << " bound " << bound;
+    }
+  }
 }

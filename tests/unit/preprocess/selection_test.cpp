@@ -37,6 +37,24 @@ TEST(Selection, KthSmallestIsTheValueNthElementFinds) {
   }
 }
 
+// The neighbour search selects 64-bit keys (distance bits above an index).
+TEST(Selection, KthSmallestOfIntegerKeys) {
+  std::mt19937_64 rng(3);
+  std::vector<std::uint64_t> values, spare, expected;
+  for (std::size_t n = 1; n <= 150; ++n) {
+    for (std::size_t k = 0; k < n; k += 1 + n / 11) {
+      values.resize(n);
+      for (std::uint64_t& v : values) v = (rng() % 64) << 32 | (rng() % 1000);
+      expected = values;
+      std::nth_element(expected.begin(), expected.begin() + static_cast<std::ptrdiff_t>(k),
+                       expected.end());
+      spare.assign(n, 0);
+      ASSERT_EQ(kthSmallest(values.data(), spare.data(), n, k), expected[k])
+          << "n " << n << ", k " << k;
+    }
+  }
+}
+
 TEST(Selection, AllEqualValuesAndTheEnds) {
   std::vector<float> values(100, 2.5f), spare(100);
   EXPECT_EQ(kthSmallest(values.data(), spare.data(), 100, 0), 2.5f);
