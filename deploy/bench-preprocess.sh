@@ -3,7 +3,8 @@
 # in OUT/inputs) with pointillist-make-points from the Stanford bunny of
 # libcgal-demo, runs pointillist-preprocess from a Release build on each and
 # prints one table: wall time, points/s, points/s per core, CPU, peak memory,
-# and the time of each stage.
+# and the time of each stage. Plots (gnuplot): stages.png, each input's time
+# stacked by stage; rate.png, points/s per core against the goal of 2 M.
 #
 #   deploy/bench-preprocess.sh [--points N] [--inputs ply,xyz,mesh,big] [--out DIR]
 #                              [--big-points N] [--memory-mb MB]
@@ -39,6 +40,10 @@ while (($#)); do
   esac
 done
 
+command -v gnuplot >/dev/null || {
+  echo "bench-preprocess: gnuplot is missing (Debian package gnuplot-nox)" >&2
+  exit 1
+}
 mesh="$root/.cache/cgal-data/data/meshes/bunny00.off"
 [[ -f "$mesh" ]] || bash "$root/deploy/fetch-test-data.sh"
 [[ -f "$mesh" ]] || { echo "bench-preprocess: no mesh at $mesh" >&2; exit 1; }
@@ -57,6 +62,10 @@ table="$out/table.md"
   echo "| input | points | wall s | points/s | points/s per core | CPU s | peak MiB | stages (s) |"
   echo "|---|---:|---:|---:|---:|---:|---:|---|"
 } >"$table"
+stages_tsv="$out/stages.tsv"  # input, stage, seconds
+rates_tsv="$out/rates.tsv"    # input, points/s per core (M)
+: >"$stages_tsv"
+: >"$rates_tsv"
 IFS=',' read -ra kinds <<<"$inputs"
 for kind in "${kinds[@]}"; do
   n="$points"
@@ -81,11 +90,61 @@ for kind in "${kinds[@]}"; do
   /usr/bin/time -f '%e %M %U %S' -o "$log.time" "${cmd[@]}" "${extra[@]}" 2>"$log" >>"$log"
   read -r wall rss_kib user sys <"$log.time"
   stages=$(sed -n 's/^  \(.*\): done in \([0-9.]*\) s$/\1 \2/p' "$log" | awk '{ t = $NF; $NF = ""; sub(/ $/, ""); printf "%s%s %s", sep, $0, t; sep = ", " }')
+  sed -n 's/^  \(.*\): done in \([0-9.]*\) s$/\1\t\2/p' "$log" | sed "s/^/$kind\t/" >>"$stages_tsv"
+  awk -v k="$kind" -v p="$n" -v w="$wall" -v c="$cores" 'BEGIN { printf "%s\t%.3f\n", k, p / w / c / 1e6 }' >>"$rates_tsv"
   [[ "$kind" == big ]] && kind="big (--memory-mb $memory_mb)"
   awk -v k="$kind" -v p="$n" -v w="$wall" -v r="$rss_kib" -v u="$user" -v s="$sys" -v c="$cores" -v st="$stages" 'BEGIN {
     printf "| %s | %.1f M | %.2f | %.2f M | %.2f M | %.2f | %.0f | %s |\n", k, p / 1e6, w, p / w / 1e6, p / w / c / 1e6, u + s, r / 1024, st }' >>"$table"
   rm -f "$log.time"
 done
+
+# Stages as columns (in the order they first appear), inputs as rows.
+stages_dat="$out/stages.dat"
+awk -F'\t' '
+  !($2 in column) { column[$2] = ++columns; name[columns] = $2 }
+  !($1 in row) { row[$1] = ++rows; input[rows] = $1 }
+  { time[row[$1], column[$2]] = $3 }
+  END {
+    printf "input"
+    for (c = 1; c <= columns; ++c) printf "\t%s", name[c]
+    printf "\n"
+    for (r = 1; r <= rows; ++r) {
+      printf "%s", input[r]
+      for (c = 1; c <= columns; ++c) printf "\t%s", ((r, c) in time) ? time[r, c] : 0
+      printf "\n"
+    }
+  }' "$stages_tsv" >"$stages_dat"
+stage_columns=$(head -1 "$stages_dat" | awk -F'\t' '{ print NF }')
+gnuplot <<GNUPLOT
+set terminal pngcairo size 1000,560 noenhanced
+set output "$out/stages.png"
+set title "pointillist-preprocess, $cores cores: time by stage"
+set datafile separator "\t"
+set style data histograms
+set style histogram rowstacked
+set style fill solid 0.85 border -1
+set boxwidth 0.6
+set key outside right top
+set ylabel "seconds"
+set yrange [0:*]
+set grid ytics
+plot for [c=2:$stage_columns] "$stages_dat" using c:xtic(1) title columnheader(c)
+GNUPLOT
+gnuplot <<GNUPLOT
+set terminal pngcairo size 800,480 noenhanced
+set output "$out/rate.png"
+set title "pointillist-preprocess: points/s per core, reading to writing ($cores cores)"
+set datafile separator "\t"
+set style data histograms
+set style fill solid 0.85 border -1
+set boxwidth 0.6
+set ylabel "M points/s per core"
+set yrange [0:2.5<*]
+set grid ytics
+set key top right
+plot "$rates_tsv" using 2:xtic(1) title "measured", 2.0 with lines lw 2 dt 2 lc rgb "black" title "goal (2 M)"
+GNUPLOT
+
 echo
-echo "pointillist-preprocess, $cores cores ($build_type build); logs and datasets in $out"
+echo "pointillist-preprocess, $cores cores ($build_type build); logs, datasets and plots (stages.png, rate.png) in $out"
 cat "$table"
