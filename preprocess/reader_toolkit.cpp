@@ -240,11 +240,29 @@ Splat greySplat() {
   return s;
 }
 
+namespace {
+bool isBlank(char c) {
+  return c == ' ' || c == '\t' || c == '\r' || c == ',' || c == '\v' || c == '\f';
+}
+}  // namespace
+
+bool parseNumbers(std::string_view line, double* values, std::size_t count) {
+  const char* at = line.data();
+  const char* const end = at + line.size();
+  for (std::size_t i = 0; i < count; ++i) {
+    while (at < end && isBlank(*at)) ++at;
+    if (at < end && *at == '+') ++at;  // parseDouble allows one
+    const auto result = std::from_chars(at, end, values[i]);
+    // The number must be the whole field: a blank or the end follows it.
+    if (result.ec != std::errc() || (result.ptr < end && !isBlank(*result.ptr))) return false;
+    at = result.ptr;
+  }
+  while (at < end && isBlank(*at)) ++at;
+  return at == end;
+}
+
 void splitFields(std::string_view line, std::vector<std::string_view>& fields) {
   fields.clear();
-  const auto isBlank = [](char c) {
-    return c == ' ' || c == '\t' || c == '\r' || c == ',' || c == '\v' || c == '\f';
-  };
   std::size_t i = 0;
   const std::size_t n = line.size();
   while (i < n) {

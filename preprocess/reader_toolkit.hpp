@@ -137,6 +137,10 @@ Splat greySplat();  // zero normal, zero radius, grey colour
 void splitFields(std::string_view line, std::vector<std::string_view>& fields);
 // Strict number parsing of a whole field (accepts nan/inf so they can be refused).
 bool parseDouble(std::string_view field, double& value);
+// Exactly `count` numbers (as parseDouble reads them) separated by blanks,
+// and nothing else: the values splitFields and parseDouble would give, in
+// one pass over the line. False for anything else (the caller then splits).
+bool parseNumbers(std::string_view line, double* values, std::size_t count);
 bool parseUnsigned(std::string_view field, std::uint64_t& value);
 std::uint8_t colorFromUnit(double value);  // 0..1 -> 0..255, clamped
 std::uint8_t colorFromByte(double value);  // 0..255, rounded and clamped (NaN -> 0)

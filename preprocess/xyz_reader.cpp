@@ -234,6 +234,15 @@ class XyzParser {
             std::string_view l(text.data() + begin[j], begin[j + 1] - begin[j]);
             const std::size_t hash = l.find('#');
             if (hash != std::string_view::npos) l = l.substr(0, hash);
+            values.resize(columns_);
+            if (detail::parseNumbers(l, values.data(), columns_)) {
+              splats[j] = splatOf(values.data());
+              detail::CloudBuilder::prepare(splats[j]);
+              isData[j] = 1;
+              return;
+            }
+            // Anything else (a blank line, a bad value, another count) the
+            // slow way, which names what is wrong.
             detail::splitFields(l, fields);
             if (fields.empty()) return;
             std::string message;

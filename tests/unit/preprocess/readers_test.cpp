@@ -20,6 +20,7 @@
 
 #include "common/errors.hpp"
 #include "preprocess/mesh_sampler.hpp"
+#include "preprocess/reader_toolkit.hpp"
 #include "preprocess/readers.hpp"
 
 namespace fs = std::filesystem;
@@ -1235,6 +1236,35 @@ TEST(XyzReader, LongFilesReadInBlocksAsLineByLine) {
   drop.dropNonFinite = true;
   expectInputError([&] { readPointCloud(dir.write("word.xyz", bad), drop); },
                    {"word.xyz", "line 41000", "not a number: 'two'"});
+}
+
+// The XYZ blocks parse a line in one pass (parseNumbers) and fall back to
+// splitting it: whenever the one pass accepts a line, splitting gives the
+// same count and bit for bit the same values; lines it refuses are ones the
+// split way refuses too, or has a message for.
+TEST(XyzReader, OnePassParsingAgreesWithSplitting) {
+  using namespace pointillist::preprocess::detail;
+  const std::vector<std::string> lines = {
+      "1 2 3",     "+1 2 3",   "1,2,3",     "1 2 3 ",   "\t1\t2\t3\r", "  -0.5e3 7 8", "1 2",
+      "1 2 3 4",   "1e5x 2 3", "+ 1 2",     "++1 2 3",  "nan 1 2",     "inf -inf 0",   "",
+      "   ",       "1 2 3#",   "0x10 1 2",  "1. .5 5.", "1 2 3,",      ",1 2 3",       "1 2 +",
+      "1e400 1 2", "1 - 2",    "1.5.5 2 3", "3 4 5\v"};
+  for (const std::string& line : lines) {
+    double fast[3] = {0, 0, 0};
+    const bool accepted = parseNumbers(line, fast, 3);
+    std::vector<std::string_view> fields;
+    splitFields(line, fields);
+    bool split = fields.size() == 3;
+    double slow[3] = {0, 0, 0};
+    for (std::size_t i = 0; split && i < 3; ++i) split = parseDouble(fields[i], slow[i]);
+    EXPECT_EQ(accepted, split) << "'" << line << "'";
+    if (accepted && split) {
+      for (int i = 0; i < 3; ++i) {
+        EXPECT_EQ(std::bit_cast<std::uint64_t>(fast[i]), std::bit_cast<std::uint64_t>(slow[i]))
+            << "'" << line << "' value " << i;
+      }
+    }
+  }
 }
 
 TEST(PlyReader, LongBinaryBodiesReadInBlocksAsRecordByRecord) {
