@@ -120,6 +120,14 @@ class ShapeCounter {
   }
   bool gaveUp() const { return gaveUp_; }
   unsigned depth() const { return depth_; }
+  // Frees the table once the counts are used; counting is over.
+  void release() {
+    keys_ = {};
+    counts_ = {};
+    size_ = 0;
+    last_ = nullptr;
+    gaveUp_ = true;
+  }
   // (cell prefix, points) at the counting depth, sorted by prefix.
   std::vector<std::pair<std::uint64_t, std::uint64_t>> sorted() const {
     std::vector<std::pair<std::uint64_t, std::uint64_t>> v;
@@ -805,6 +813,7 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
                          std::min<unsigned>(deepest, unsigned(build.topLevelDepth)));
     }
   }
+  shape.release();  // its table would otherwise stay through the chunks' builds
   if (build.topLevelDepth < 0 && groupChunks(layout, capacity).size() > 1) {
     std::vector<std::size_t> atDepth(octree.maxDepth + 1, 0), leavesAt(octree.maxDepth + 1, 0);
     unsigned treeDepth = 0;
