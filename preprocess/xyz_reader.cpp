@@ -235,34 +235,29 @@ class XyzParser {
             const std::size_t hash = l.find('#');
             if (hash != std::string_view::npos) l = l.substr(0, hash);
             values.resize(columns_);
-            if (detail::parseNumbers(l, values.data(), columns_)) {
-              splats[j] = splatOf(values.data());
-              detail::CloudBuilder::prepare(splats[j]);
-              isData[j] = 1;
-              return;
-            }
-            // Anything else (a blank line, a bad value, another count) the
-            // slow way, which names what is wrong.
-            detail::splitFields(l, fields);
-            if (fields.empty()) return;
-            std::string message;
-            if (fields.size() != columns_) {
-              message = std::to_string(fields.size()) + " values, but line " +
-                        std::to_string(firstLine_) + " has " + std::to_string(columns_) +
-                        " (the layout is fixed by the first line)";
-            } else {
-              values.resize(columns_);
-              for (std::size_t i = 0; i < columns_ && message.empty(); ++i)
-                if (!detail::parseDouble(fields[i], values[i]))
-                  message = "not a number: '" + std::string(fields[i]) + "'";
-            }
-            if (!message.empty()) {
-              std::lock_guard lock(mutex);
-              if (j < bad) {
-                bad = j;
-                badMessage = std::move(message);
+            if (!detail::parseNumbers(l, values.data(), columns_)) {
+              // Anything else (a blank line, a bad value, another count) the
+              // slow way, which names what is wrong.
+              detail::splitFields(l, fields);
+              if (fields.empty()) return;
+              std::string message;
+              if (fields.size() != columns_) {
+                message = std::to_string(fields.size()) + " values, but line " +
+                          std::to_string(firstLine_) + " has " + std::to_string(columns_) +
+                          " (the layout is fixed by the first line)";
+              } else {
+                for (std::size_t i = 0; i < columns_ && message.empty(); ++i)
+                  if (!detail::parseDouble(fields[i], values[i]))
+                    message = "not a number: '" + std::string(fields[i]) + "'";
               }
-              return;
+              if (!message.empty()) {
+                std::lock_guard lock(mutex);
+                if (j < bad) {
+                  bad = j;
+                  badMessage = std::move(message);
+                }
+                return;
+              }
             }
             splats[j] = splatOf(values.data());
             detail::CloudBuilder::prepare(splats[j]);
