@@ -483,7 +483,7 @@ class DisplayProcess {
   void handle(FrameAssembly& assembly, Envelope& envelope) {
     switch (envelope.kind) {
       case MessageKind::WorkRequest:
-        assembly.workRequested(envelope.source);
+        assembly.workRequested(envelope.source, envelope.as<v1::WorkRequest>());
         break;
       case MessageKind::TileImage: {
         const auto header = envelope.as<v1::TileImageHeader>();

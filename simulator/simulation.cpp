@@ -385,7 +385,7 @@ class Simulation {
   void displayMessage(double now, const Delivery& delivery) {
     switch (delivery.kind) {
       case MessageKind::WorkRequest:
-        assembly_.workRequested(delivery.source);
+        assembly_.workRequested(delivery.source, delivery.as<v1::WorkRequest>());
         dispatch(now);
         break;
       case MessageKind::TileImage: {

@@ -59,13 +59,24 @@ void FrameAssembly::appendCamera(const Camera& camera, const v1::FrameSettings& 
   admitFrames();
 }
 
-void FrameAssembly::workRequested(int traverseRank) {
+void FrameAssembly::workRequested(int traverseRank, const v1::WorkRequest& request) {
   peers_.indexOf(v1::ROLE_TRAVERSE, traverseRank);  // throws for a stranger
+  for (const v1::TilePlacement& placement : request.placements()) {
+    if (placement.render() >= peers_.renders.size()) {
+      throw ProtocolError("traverse rank " + std::to_string(traverseRank) + " placed tile " +
+                          std::to_string(placement.tile_id()) + " on render " +
+                          std::to_string(placement.render()) + " of " +
+                          std::to_string(peers_.renders.size()));
+    }
+    frames_.tilePlaced(placement.frame_id(), placement.tile_id(), placement.attempt(),
+                       placement.render());
+  }
   idleTraverses_.push_back(traverseRank);
 }
 
 std::uint32_t FrameAssembly::dispatch(TimePoint now, Outbox& out) {
   const std::uint32_t requeued = frames_.checkTimeouts(now);
+  const std::vector<std::uint32_t> suspects = frames_.suspectRenders(now);
   while (!idleTraverses_.empty()) {
     const auto task = frames_.nextTask(now);
     if (!task) break;
@@ -99,6 +110,7 @@ std::uint32_t FrameAssembly::dispatch(TimePoint now, Outbox& out) {
     message.set_assigned_render(homes != homes_.end() ? homes->second.at(task->tile)
                                                       : planner_.assign(task->tile).value_or(0));
     message.set_part_splats(partSplatsFor(task->frame, message.rect()));
+    for (const std::uint32_t render : suspects) message.add_avoid_renders(render);
     dispatchedAt_[{task->frame, task->tile}] = since(now);
     out.send(idleTraverses_.front(), std::move(message));
     idleTraverses_.pop_front();
@@ -109,7 +121,8 @@ std::uint32_t FrameAssembly::dispatch(TimePoint now, Outbox& out) {
 TileArrival FrameAssembly::tileArrived(const v1::TileImageHeader& header, TimePoint now) {
   if (header.format() == v1::PIXEL_FORMAT_BACKGROUND) return backgroundArrived(header, now);
   const int render = header.render_rank();
-  peers_.indexOf(v1::ROLE_RENDER, render);  // throws for a stranger
+  frames_.renderAnswered(static_cast<std::uint32_t>(
+      peers_.indexOf(v1::ROLE_RENDER, render)));  // throws for a stranger
   const bool part = header.part_count() > 1;
   if (part && header.part_index() >= header.part_count()) {
     throw ProtocolError("tile image from rank " + std::to_string(render) + " is part " +

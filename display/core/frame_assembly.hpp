@@ -83,8 +83,8 @@ class FrameAssembly {
   // Frames admitted and not yet finished.
   std::size_t framesInFlight() const { return framesAdded_ - stats_.frameCount(); }
 
-  // A traverse process asked for work.
-  void workRequested(int traverseRank);
+  // A traverse process asked for work, telling where its last task went.
+  void workRequested(int traverseRank, const v1::WorkRequest& request = {});
   // Re-queues tiles past their deadline (or gives them up after maxAttempts),
   // then hands waiting tiles to idle traverse processes. Returns how many
   // tiles were re-queued.

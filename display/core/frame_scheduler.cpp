@@ -69,6 +69,7 @@ std::optional<TileTaskRef> FrameScheduler::nextTask(Clock::time_point now) {
     }
     task.attempt = tile.attempts++;
     tile.deadline = now + tileTimeout_;
+    tile.holders.clear();
     return task;
   }
   return std::nullopt;
@@ -104,6 +105,7 @@ std::uint32_t FrameScheduler::checkTimeouts(Clock::time_point now) {
         return task.frame == state.index && task.tile == index;
       });
       if (queued) continue;
+      for (const std::uint32_t render : tile.holders) suspects_[render] = now;
       if (tile.attempts >= maxAttempts_) {
         tile.failed = true;
         --state.remaining;
@@ -156,6 +158,29 @@ std::optional<FrameState> FrameScheduler::popCompleteFrame() {
   --admitted_;
   admitFrames();
   return state;
+}
+
+void FrameScheduler::tilePlaced(std::uint64_t frameIndex, std::uint32_t tileIndex,
+                                std::uint32_t attempt, std::uint32_t render) {
+  FrameState* state = frame(frameIndex);
+  if (state == nullptr || tileIndex >= state->tiles.size()) return;
+  TileState& tile = state->tiles[tileIndex];
+  if (tile.done || tile.failed || attempt + 1 != tile.attempts) return;
+  if (std::find(tile.holders.begin(), tile.holders.end(), render) == tile.holders.end()) {
+    tile.holders.push_back(render);
+  }
+}
+
+void FrameScheduler::renderAnswered(std::uint32_t render) {
+  suspects_.erase(render);
+}
+
+std::vector<std::uint32_t> FrameScheduler::suspectRenders(Clock::time_point now) const {
+  std::vector<std::uint32_t> renders;
+  for (const auto& [render, since] : suspects_) {
+    if (now - since < 2 * tileTimeout_) renders.push_back(render);
+  }
+  return renders;
 }
 
 std::uint32_t FrameScheduler::reissued(std::uint64_t frameIndex) const {

@@ -20,6 +20,7 @@ struct TileState {
   bool done = false;
   bool failed = false;
   std::chrono::steady_clock::time_point deadline;
+  std::vector<std::uint32_t> holders;  // renders given the latest attempt
 };
 
 struct FrameState {
@@ -70,6 +71,17 @@ class FrameScheduler {
   bool finished() const { return frames_.empty(); }
   // Tiles are queued to be handed out (some may have come back meanwhile).
   bool tasksQueued() const { return !queue_.empty(); }
+  // The traverse sent attempt `attempt` of a tile (or a part of it) to render
+  // `render`. Placements of an older attempt are ignored.
+  void tilePlaced(std::uint64_t frame, std::uint32_t tile, std::uint32_t attempt,
+                  std::uint32_t render);
+  // Something came back from `render`: it is answering again.
+  void renderAnswered(std::uint32_t render);
+  // Renders holding a tile that went past its deadline, and silent since.
+  // Suspicion lapses two tile timeouts after the last such tile, so that a
+  // render whose answer was lost gets work again (and is suspected again if
+  // it stays silent).
+  std::vector<std::uint32_t> suspectRenders(Clock::time_point now) const;
   std::uint32_t reissued(std::uint64_t frame) const;
   std::uint32_t failed(std::uint64_t frame) const;
 
@@ -84,6 +96,7 @@ class FrameScheduler {
   std::size_t admitted_ = 0;  // frames_[0..admitted_) have their tiles queued
   std::map<std::uint64_t, std::uint32_t> reissued_;
   std::map<std::uint64_t, std::uint32_t> failed_;
+  std::map<std::uint32_t, Clock::time_point> suspects_;  // render -> since
 };
 
 }  // namespace pointillist::display

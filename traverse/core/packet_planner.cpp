@@ -47,10 +47,18 @@ void PacketPlanner::startWork(Outbox& out) {
   for (std::uint32_t request = 0; request < tileTasksAhead(settings_); ++request) requestWork(out);
 }
 
-void PacketPlanner::requestWork(Outbox& out) {
+void PacketPlanner::requestWork(Outbox& out, std::span<const PacketPlan> placed,
+                                const v1::TileTask* task) {
   v1::WorkRequest request;
   request.set_traverse_rank(selfRank_);
   request.set_tasks_done(tasksDone_);
+  for (const PacketPlan& plan : placed) {
+    v1::TilePlacement* placement = request.add_placements();
+    placement->set_frame_id(task->frame_id());
+    placement->set_tile_id(task->tile_id());
+    placement->set_attempt(task->attempt());
+    placement->set_render(static_cast<std::uint32_t>(plan.choice.render));
+  }
   out.send(peers_.display, std::move(request));
 }
 
@@ -207,7 +215,7 @@ std::vector<PacketPlan> PacketPlanner::planPackets(const v1::TileTask& task, con
   }
   ++tasksDone_;
   splatsPacked_ += walk.splats;
-  requestWork(out);
+  requestWork(out, plans, &task);
   return plans;
 }
 
@@ -244,6 +252,16 @@ PacketPlan PacketPlanner::planPart(const v1::TileTask& task, const TileWalk& wal
     plan.choice = model_.chooseNearHome(task.assigned_render(), plan.needs, part.splats, now);
   } else {
     plan.choice = model_.assigned(task.assigned_render(), plan.needs, part.splats);
+  }
+  const auto& avoid = task.avoid_renders();
+  if (std::find(avoid.begin(), avoid.end(), plan.choice.render) != avoid.end()) {
+    // The display holds a tile of that render overdue: wherever else it can.
+    if (auto elsewhere = model_.chooseExcept(
+            plan.needs, part.splats, now,
+            std::span<const std::uint32_t>(avoid.data(), static_cast<std::size_t>(avoid.size())))) {
+      plan.choice = std::move(*elsewhere);
+      ++renderAvoided_;
+    }
   }
   const RenderChoice& choice = plan.choice;
   plan.renderRank = peers_.renders.at(choice.render);
@@ -370,7 +388,8 @@ std::string PacketPlanner::summary() const {
       line, sizeof line,
       "tasks=%llu splats=%llu ordered_cells=%llu ordered_bytes=%llu "
       "prefetched_cells=%llu prefetched_bytes=%llu largest_tile_data=%.2fMiB "
-      "tiles_split=%llu parts=%llu empty_tiles=%llu T_s=%.3gs/splat T_n=%.3gs/B",
+      "tiles_split=%llu parts=%llu empty_tiles=%llu avoided_suspects=%llu T_s=%.3gs/splat "
+      "T_n=%.3gs/B",
       static_cast<unsigned long long>(tasksDone_), static_cast<unsigned long long>(splatsPacked_),
       static_cast<unsigned long long>(cellsOrdered_),
       static_cast<unsigned long long>(bytesOrdered_),
@@ -378,8 +397,8 @@ std::string PacketPlanner::summary() const {
       static_cast<unsigned long long>(bytesPrefetched_),
       static_cast<double>(maxPacketBytes_) / 1048576.0,
       static_cast<unsigned long long>(tilesSplit_), static_cast<unsigned long long>(partsSent_),
-      static_cast<unsigned long long>(emptyTiles_), model_.secondsPerSplat(),
-      model_.secondsPerByte());
+      static_cast<unsigned long long>(emptyTiles_), static_cast<unsigned long long>(renderAvoided_),
+      model_.secondsPerSplat(), model_.secondsPerByte());
   return line;
 }
 

@@ -86,7 +86,10 @@ class PacketPlanner {
   // Asks the display for the run's tile tasks ahead (at start-up; planPacket
   // asks for one more after each tile, keeping that many on request).
   void startWork(Outbox& out);
-  void requestWork(Outbox& out);
+  // `placed`: the packets of `task` just sent, so the display knows which
+  // render holds the tile.
+  void requestWork(Outbox& out, std::span<const PacketPlan> placed = {},
+                   const v1::TileTask* task = nullptr);
   // The camera whose view of the task's rect should be ordered ahead, if the
   // run prefetches along the camera path; the caller walks it for planPacket.
   std::optional<Camera> lookaheadCamera(const v1::TileTask& task) const;
@@ -137,7 +140,8 @@ class PacketPlanner {
 
   std::uint64_t tasksDone_ = 0;
   std::uint64_t tilesSplit_ = 0;
-  std::uint64_t emptyTiles_ = 0;  // answered here as background
+  std::uint64_t emptyTiles_ = 0;     // answered here as background
+  std::uint64_t renderAvoided_ = 0;  // packets moved off a render the display suspects
   std::uint64_t partsSent_ = 0;
   std::uint64_t packetsSent_ = 0;
   std::uint64_t ordersSent_ = 0;

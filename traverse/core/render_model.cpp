@@ -203,6 +203,14 @@ std::optional<RenderChoice> RenderModel::chooseApart(std::span<const CellPrefix>
   });
 }
 
+std::optional<RenderChoice> RenderModel::chooseExcept(std::span<const CellPrefix> needs,
+                                                      std::uint64_t splats, Clock::time_point now,
+                                                      std::span<const std::uint32_t> avoid) const {
+  return chooseAmong(needs, splats, now, [&](std::size_t render) {
+    return std::find(avoid.begin(), avoid.end(), render) == avoid.end();
+  });
+}
+
 RenderChoice RenderModel::chooseNearHome(std::size_t home, std::span<const CellPrefix> needs,
                                          std::uint64_t splats, Clock::time_point now) const {
   if (liveCount() == 0) throw ProtocolError("no render process is left to draw a packet");

@@ -89,6 +89,12 @@ class RenderModel {
   std::optional<RenderChoice> chooseApart(std::span<const CellPrefix> needs, std::uint64_t splats,
                                           Clock::time_point now, std::span<const std::size_t> avoid,
                                           double slack) const;
+  // The cost function's choice among the renders not in `avoid` (the display
+  // suspects them: they hold a tile past its deadline); nullopt when none is
+  // left.
+  std::optional<RenderChoice> chooseExcept(std::span<const CellPrefix> needs, std::uint64_t splats,
+                                           Clock::time_point now,
+                                           std::span<const std::uint32_t> avoid) const;
   bool suspectedStalled(std::size_t render, Clock::time_point now) const;
   // Renders a split tile's parts may go to: live, not suspected stalled,
   // whose queue holds at most `slack` seconds more than the least loaded

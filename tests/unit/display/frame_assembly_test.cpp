@@ -175,6 +175,55 @@ TEST(FrameAssembly, ReissuesALateTileAndCountsTheLateCopyWithoutComposingIt) {
   EXPECT_TRUE(assembly.done());
 }
 
+// The traverse says where each tile went; a render holding an overdue tile
+// is named in every task handed out until it answers again.
+TEST(FrameAssembly, TasksAvoidARenderHoldingAnOverdueTileUntilItAnswers) {
+  FrameAssembly assembly(config(2), kPeers, kStart);
+  const auto first = takeAll(assembly, kStart);
+  ASSERT_EQ(first.size(), 4u);
+  for (const v1::TileTask& task : first) EXPECT_EQ(task.avoid_renders_size(), 0);
+  v1::WorkRequest placed;
+  for (std::size_t i = 0; i < first.size(); ++i) {
+    v1::TilePlacement* placement = placed.add_placements();
+    placement->set_frame_id(first[i].frame_id());
+    placement->set_tile_id(first[i].tile_id());
+    placement->set_attempt(first[i].attempt());
+    placement->set_render(i == 0 ? 1 : 0);
+  }
+  assembly.workRequested(1, placed);
+  for (std::size_t i = 1; i < first.size(); ++i) {
+    EXPECT_EQ(assembly.tileArrived(tile(first[i], 100, 4), kStart + 100ms), TileArrival::Complete);
+  }
+  Outbox late;
+  EXPECT_EQ(assembly.dispatch(kStart + 1100ms, late), 1u);
+  const auto again = tasksIn(late);
+  ASSERT_EQ(again.size(), 1u);
+  EXPECT_EQ(again[0].attempt(), 1u);
+  EXPECT_EQ(
+      std::vector<std::uint32_t>(again[0].avoid_renders().begin(), again[0].avoid_renders().end()),
+      (std::vector<std::uint32_t>{1}));
+  EXPECT_EQ(assembly.tileArrived(tile(again[0], 100, 4), kStart + 1200ms), TileArrival::Complete);
+  ASSERT_EQ(assembly.finishFrames(kStart + 1200ms).size(), 1u);
+  // Still silent: the next frame's tasks avoid it.
+  auto next = takeAll(assembly, kStart + 1200ms);
+  ASSERT_FALSE(next.empty());
+  EXPECT_EQ(next[0].avoid_renders_size(), 1);
+  // The late copy from render 1 (rank 5) clears it: later tasks avoid no one.
+  EXPECT_EQ(assembly.tileArrived(tile(first[0], 100, 5), kStart + 1300ms), TileArrival::Late);
+  for (const v1::TileTask& task : next) {
+    EXPECT_EQ(assembly.tileArrived(tile(task, 100, 4), kStart + 1300ms), TileArrival::Complete);
+  }
+  ASSERT_EQ(assembly.finishFrames(kStart + 1300ms).size(), 1u);
+  assembly.appendCamera(camera(2.0f));
+  next = takeAll(assembly, kStart + 1300ms);
+  ASSERT_FALSE(next.empty());
+  for (const v1::TileTask& task : next) EXPECT_EQ(task.avoid_renders_size(), 0);
+  // A placement on a render that does not exist is a protocol error.
+  v1::WorkRequest stranger;
+  stranger.add_placements()->set_render(2);
+  EXPECT_THROW(assembly.workRequested(1, stranger), ProtocolError);
+}
+
 TEST(FrameAssembly, GivesATileUpAfterMaxAttemptsAndDoesNotResplitFromThatFrame) {
   using Rects = decltype(rects({}));
   const auto run = [](bool lose) -> std::pair<Rects, Rects> {

@@ -57,6 +57,40 @@ TEST(FrameScheduler, ReissuesLateTilesThenGivesUp) {
   EXPECT_TRUE(scheduler.finished());
 }
 
+// A render holding an overdue tile is suspected until it answers, or until
+// two timeouts after the last of its tiles went overdue.
+TEST(FrameScheduler, SuspectsTheRenderHoldingAnOverdueTileUntilItAnswers) {
+  FrameScheduler scheduler(1, 100ms, 3);
+  const Camera camera = makeCamera({0, 0, 5}, {0, 0, 0}, {0, 1, 0}, 45.0f, 0.1f, 10.0f, 8, 8);
+  scheduler.addFrame(0, camera, {makeTileRect(0, 0, 4, 8), makeTileRect(4, 0, 4, 8)});
+  const auto t = FrameScheduler::Clock::now();
+  const auto a = scheduler.nextTask(t);
+  const auto b = scheduler.nextTask(t);
+  ASSERT_TRUE(a && b);
+  scheduler.tilePlaced(0, a->tile, 0, 2);
+  scheduler.tilePlaced(0, a->tile, 0, 3);  // split: parts on two renders
+  scheduler.tilePlaced(0, b->tile, 0, 1);
+  scheduler.tilePlaced(0, b->tile, 5, 0);  // no such attempt: ignored
+  EXPECT_TRUE(scheduler.tileArrived(0, b->tile, makeTileRect(4, 0, 4, 8)));
+  EXPECT_TRUE(scheduler.suspectRenders(t + 50ms).empty());
+  EXPECT_EQ(scheduler.checkTimeouts(t + 150ms), 1u);
+  EXPECT_EQ(scheduler.suspectRenders(t + 150ms), (std::vector<std::uint32_t>{2, 3}))
+      << "the tile that came back in time suspects no one";
+  // The re-issue goes to render 1 and is placed there; render 2 answers.
+  const auto again = scheduler.nextTask(t + 150ms);
+  ASSERT_TRUE(again.has_value());
+  scheduler.tilePlaced(0, again->tile, 0, 2);  // the old attempt: not a holder now
+  scheduler.tilePlaced(0, again->tile, 1, 1);
+  scheduler.renderAnswered(2);
+  EXPECT_EQ(scheduler.suspectRenders(t + 200ms), (std::vector<std::uint32_t>{3}));
+  // Render 3 never answers: its suspicion lapses two timeouts on.
+  EXPECT_EQ(scheduler.suspectRenders(t + 340ms), (std::vector<std::uint32_t>{3}));
+  EXPECT_TRUE(scheduler.suspectRenders(t + 360ms).empty());
+  // The second attempt goes overdue on render 1 alone.
+  EXPECT_EQ(scheduler.checkTimeouts(t + 260ms), 1u);
+  EXPECT_EQ(scheduler.suspectRenders(t + 260ms), (std::vector<std::uint32_t>{1, 3}));
+}
+
 TEST(FrameScheduler, AFrameWithNothingOnScreenCompletesAtOnce) {
   FrameScheduler scheduler(2, 100ms, 2);
   const Camera camera = makeCamera({0, 0, 5}, {0, 0, 0}, {0, 1, 0}, 45.0f, 0.1f, 10.0f, 8, 8);

@@ -217,6 +217,42 @@ TEST(PacketPlanner, AvoidsARenderThatHasStoppedFinishingWork) {
             kRender0);
 }
 
+// A render the display suspects (it holds an overdue tile) gets no packet,
+// whichever scheduler chose it, unless every live render is suspected; the
+// work request tells the display where the tile went.
+TEST(PacketPlanner, SendsNoPacketToARenderTheDisplaySuspectsAndSaysWhereTheTileWent) {
+  for (const v1::Scheduler scheduler :
+       {v1::SCHEDULER_COST, v1::SCHEDULER_REGIONS, v1::SCHEDULER_STATIC}) {
+    SCOPED_TRACE(v1::Scheduler_Name(scheduler));
+    PacketPlanner p = planner(scheduler);
+    p.applyReport(kRender0, report(0, {0, 1, 2, 3, 4, 5}), kStart);  // holds every cell
+    p.applyReport(kRender1, report(0), kStart);
+    v1::TileTask suspected = task(4, 2);
+    suspected.set_attempt(1);
+    suspected.set_assigned_render(0);
+    suspected.add_avoid_renders(0);
+    Outbox out;
+    const PacketPlan plan =
+        p.planPackets(suspected, Walk({1}, 1000).view(), {}, kStart, out).front();
+    EXPECT_EQ(plan.renderRank, kRender1);
+    EXPECT_EQ(plan.choice.missing, whole({1}));
+    const auto& request = out.entries().back();
+    ASSERT_EQ(request.kind, MessageKind::WorkRequest);
+    const auto& placements = request.as<v1::WorkRequest>().placements();
+    ASSERT_EQ(placements.size(), 1);
+    EXPECT_EQ(placements[0].frame_id(), 4u);
+    EXPECT_EQ(placements[0].tile_id(), 2u);
+    EXPECT_EQ(placements[0].attempt(), 1u);
+    EXPECT_EQ(placements[0].render(), 1u);
+    // Every render suspected: the choice stands.
+    suspected.add_avoid_renders(1);
+    Outbox all;
+    EXPECT_EQ(p.planPackets(suspected, Walk({1}, 1000).view(), {}, kStart, all).front().renderRank,
+              kRender0);
+    EXPECT_NE(p.summary().find("avoided_suspects=1 "), std::string::npos) << p.summary();
+  }
+}
+
 TEST(PacketPlanner, PrefetchesWhatTheRectNeedsLaterWithinTheBudgetWithoutDuplicates) {
   PacketPlanner p = planner();
   v1::TileTask withLookahead = task(0, 0);
