@@ -307,9 +307,10 @@ std::optional<TimePoint> FrameAssembly::nextDeadline() const {
 }
 
 std::uint32_t FrameAssembly::renderLost(int renderRank, TimePoint now, const std::string& reason) {
-  planner_.retireRender(static_cast<std::uint32_t>(peers_.indexOf(v1::ROLE_RENDER, renderRank)));
+  const auto render = static_cast<std::uint32_t>(peers_.indexOf(v1::ROLE_RENDER, renderRank));
+  planner_.retireRender(render);
   stats_.lost.push_back({"render", renderRank, since(now), reason, true});
-  return frames_.reissueOutstanding();
+  return frames_.renderLost(render);
 }
 
 std::uint64_t tileImagePixelBytes(const v1::TileImageHeader& header, std::size_t payloadBytes,

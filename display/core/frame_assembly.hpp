@@ -111,11 +111,11 @@ class FrameAssembly {
   // enter the window as these leave it.
   std::vector<FinishedFrame> finishFrames(TimePoint now);
 
-  // A render process is gone: it gets no more tiles, every tile out is
-  // re-issued at once (which of them it held is not known here; late copies
-  // from the others are counted and dropped), and the run's statistics
-  // record the loss. Returns the tiles re-issued. UsageError when it was the
-  // last render process.
+  // A render process is gone: it gets no more tiles, the tiles it holds (as
+  // the traverses' work requests placed them) are re-issued at once, and so
+  // is one placed on it after this (FrameScheduler::renderLost); the run's
+  // statistics record the loss. Returns the tiles re-issued now. UsageError
+  // when it was the last render process.
   std::uint32_t renderLost(int renderRank, TimePoint now, const std::string& reason);
   // When the oldest tile out is due back (the simulator wakes up then).
   std::optional<TimePoint> nextDeadline() const;

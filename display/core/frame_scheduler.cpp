@@ -101,10 +101,7 @@ std::uint32_t FrameScheduler::checkTimeouts(Clock::time_point now) {
     for (std::uint32_t index = 0; index < state.tiles.size(); ++index) {
       TileState& tile = state.tiles[index];
       if (tile.done || tile.failed || tile.attempts == 0 || now < tile.deadline) continue;
-      const bool queued = std::any_of(queue_.begin(), queue_.end(), [&](const TileTaskRef& task) {
-        return task.frame == state.index && task.tile == index;
-      });
-      if (queued) continue;
+      if (queued(state.index, index)) continue;
       for (const std::uint32_t render : tile.holders) suspects_[render] = now;
       if (tile.attempts >= maxAttempts_) {
         tile.failed = true;
@@ -112,28 +109,43 @@ std::uint32_t FrameScheduler::checkTimeouts(Clock::time_point now) {
         ++failed_[state.index];
         continue;
       }
-      // Re-issued tiles go first: their frame is the one holding everything up.
-      queue_.push_front({state.index, index, tile.attempts});
-      ++reissued_[state.index];
+      requeue(state, index);
       ++requeued;
     }
   }
   return requeued;
 }
 
-std::uint32_t FrameScheduler::reissueOutstanding() {
+bool FrameScheduler::queued(std::uint64_t frameIndex, std::uint32_t tile) const {
+  return std::any_of(queue_.begin(), queue_.end(), [&](const TileTaskRef& task) {
+    return task.frame == frameIndex && task.tile == tile;
+  });
+}
+
+void FrameScheduler::requeue(FrameState& state, std::uint32_t tile) {
+  // Re-issued tiles go ahead of fresh ones, oldest frame first: their frame
+  // is the one holding everything up.
+  const auto before = std::find_if(queue_.begin(), queue_.end(), [&](const TileTaskRef& task) {
+    return task.attempt == 0 || task.frame > state.index;
+  });
+  queue_.insert(before, {state.index, tile, state.tiles[tile].attempts});
+  ++reissued_[state.index];
+}
+
+std::uint32_t FrameScheduler::renderLost(std::uint32_t render) {
+  if (std::find(lost_.begin(), lost_.end(), render) == lost_.end()) lost_.push_back(render);
+  suspects_.erase(render);
   std::uint32_t requeued = 0;
   for (std::size_t i = 0; i < admitted_ && i < frames_.size(); ++i) {
     FrameState& state = frames_[i];
     for (std::uint32_t index = 0; index < state.tiles.size(); ++index) {
       const TileState& tile = state.tiles[index];
       if (tile.done || tile.failed || tile.attempts == 0) continue;
-      const bool queued = std::any_of(queue_.begin(), queue_.end(), [&](const TileTaskRef& task) {
-        return task.frame == state.index && task.tile == index;
-      });
-      if (queued) continue;
-      queue_.push_front({state.index, index, tile.attempts});
-      ++reissued_[state.index];
+      if (std::find(tile.holders.begin(), tile.holders.end(), render) == tile.holders.end()) {
+        continue;
+      }
+      if (queued(state.index, index)) continue;
+      requeue(state, index);
       ++requeued;
     }
   }
@@ -169,6 +181,8 @@ void FrameScheduler::tilePlaced(std::uint64_t frameIndex, std::uint32_t tileInde
   if (std::find(tile.holders.begin(), tile.holders.end(), render) == tile.holders.end()) {
     tile.holders.push_back(render);
   }
+  const bool gone = std::find(lost_.begin(), lost_.end(), render) != lost_.end();
+  if (gone && !queued(frameIndex, tileIndex)) requeue(*state, tileIndex);
 }
 
 void FrameScheduler::renderAnswered(std::uint32_t render) {

@@ -61,9 +61,11 @@ class FrameScheduler {
   // Tiles past their deadline go back to the queue, or fail after maxAttempts.
   // Returns how many were re-queued.
   std::uint32_t checkTimeouts(Clock::time_point now);
-  // Every tile that is out goes back to the queue at once (a render process
-  // was lost and which tiles it held is not known here). Returns how many.
-  std::uint32_t reissueOutstanding();
+  // A render process is gone: every tile out that it holds (tilePlaced) goes
+  // back to the queue at once, and so does a tile placed on it later (by a
+  // traverse that had not heard of the loss yet). Tiles on the others keep
+  // their deadline. Returns how many went back now.
+  std::uint32_t renderLost(std::uint32_t render);
   // The earliest deadline of a tile that is out; nullopt when none is.
   std::optional<Clock::time_point> nextDeadline() const;
   // The oldest frame, when every tile of it is done or failed.
@@ -72,7 +74,8 @@ class FrameScheduler {
   // Tiles are queued to be handed out (some may have come back meanwhile).
   bool tasksQueued() const { return !queue_.empty(); }
   // The traverse sent attempt `attempt` of a tile (or a part of it) to render
-  // `render`. Placements of an older attempt are ignored.
+  // `render`. Placements of an older attempt are ignored; one on a lost
+  // render sends the tile back to the queue.
   void tilePlaced(std::uint64_t frame, std::uint32_t tile, std::uint32_t attempt,
                   std::uint32_t render);
   // Something came back from `render`: it is answering again.
@@ -97,6 +100,10 @@ class FrameScheduler {
   std::map<std::uint64_t, std::uint32_t> reissued_;
   std::map<std::uint64_t, std::uint32_t> failed_;
   std::map<std::uint32_t, Clock::time_point> suspects_;  // render -> since
+  std::vector<std::uint32_t> lost_;                      // renders gone
+  // Puts a tile that is out back at the head of the queue (re-issued).
+  void requeue(FrameState& state, std::uint32_t tile);
+  bool queued(std::uint64_t frame, std::uint32_t tile) const;
 };
 
 }  // namespace pointillist::display

@@ -91,6 +91,36 @@ TEST(FrameScheduler, SuspectsTheRenderHoldingAnOverdueTileUntilItAnswers) {
   EXPECT_EQ(scheduler.suspectRenders(t + 260ms), (std::vector<std::uint32_t>{1, 3}));
 }
 
+// A lost render's tiles go back at once; the others' keep their deadline.
+TEST(FrameScheduler, ALostRendersTilesGoBackAndOnlyThose) {
+  FrameScheduler scheduler(2, 1000ms, 3);
+  const Camera camera = makeCamera({0, 0, 5}, {0, 0, 0}, {0, 1, 0}, 45.0f, 0.1f, 10.0f, 8, 8);
+  for (std::uint64_t f = 0; f < 2; ++f) {
+    scheduler.addFrame(f, camera, {makeTileRect(0, 0, 4, 8), makeTileRect(4, 0, 4, 8)});
+  }
+  const auto t = FrameScheduler::Clock::now();
+  std::vector<TileTaskRef> tasks;
+  while (auto task = scheduler.nextTask(t)) tasks.push_back(*task);
+  ASSERT_EQ(tasks.size(), 4u);
+  scheduler.tilePlaced(0, 0, 0, 0);
+  scheduler.tilePlaced(0, 1, 0, 1);
+  scheduler.tilePlaced(1, 0, 0, 0);
+  scheduler.tilePlaced(1, 0, 0, 1);  // split over both
+  scheduler.tilePlaced(1, 1, 0, 0);
+  EXPECT_EQ(scheduler.renderLost(1), 2u);
+  EXPECT_EQ(scheduler.reissued(0), 1u);
+  EXPECT_EQ(scheduler.reissued(1), 1u);
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> again;
+  while (auto task = scheduler.nextTask(t)) again.emplace_back(task->frame, task->tile);
+  EXPECT_EQ(again, (std::vector<std::pair<std::uint64_t, std::uint32_t>>{{0, 1}, {1, 0}}))
+      << "the oldest frame first";
+  EXPECT_EQ(scheduler.renderLost(1), 0u) << "nothing is held by it any more";
+  // A placement on it that was on its way goes back at once.
+  scheduler.tilePlaced(0, 1, 1, 1);
+  EXPECT_EQ(scheduler.nextTask(t)->tile, 1u);
+  EXPECT_EQ(scheduler.checkTimeouts(t + 500ms), 0u);
+}
+
 TEST(FrameScheduler, AFrameWithNothingOnScreenCompletesAtOnce) {
   FrameScheduler scheduler(2, 100ms, 2);
   const Camera camera = makeCamera({0, 0, 5}, {0, 0, 0}, {0, 1, 0}, 45.0f, 0.1f, 10.0f, 8, 8);
