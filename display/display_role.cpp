@@ -568,11 +568,20 @@ class DisplayProcess {
       std::fflush(stdout);
     }
     if (record.failedTiles > 0) {
+      std::string holders;
+      for (const int rank : frame.failedTileRenders) {
+        holders += (holders.empty() ? "" : ", ") + std::to_string(rank);
+      }
+      if (!holders.empty()) {
+        holders = (frame.failedTileRenders.size() == 1 ? ", last sent to render rank "
+                                                       : ", last sent to render ranks ") +
+                  holders;
+      }
       std::fprintf(stderr,
-                   "display: frame %llu: %u tile(s) never arrived after %u attempts (drawn "
+                   "display: frame %llu: %u tile(s) never arrived after %u attempts%s (drawn "
                    "magenta)\n",
                    static_cast<unsigned long long>(record.frame), record.failedTiles,
-                   options_.maxAttempts);
+                   options_.maxAttempts, holders.c_str());
     }
     if (source_ != nullptr) {
       frameSizes_.erase(record.frame);

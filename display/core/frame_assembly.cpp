@@ -293,8 +293,16 @@ std::vector<FinishedFrame> FrameAssembly::finishFrames(TimePoint now) {
                  parts_.lower_bound({state->index + 1, 0, 0}));
     frameSettings_.erase(state->index);
     for (const TileState& tile : state->tiles) {
-      if (tile.failed) frame.failedTiles.push_back(tile.rect);
+      if (!tile.failed) continue;
+      frame.failedTiles.push_back(tile.rect);
+      for (const std::uint32_t holder : tile.holders) {
+        frame.failedTileRenders.push_back(peers_.renders.at(holder));
+      }
     }
+    std::sort(frame.failedTileRenders.begin(), frame.failedTileRenders.end());
+    frame.failedTileRenders.erase(
+        std::unique(frame.failedTileRenders.begin(), frame.failedTileRenders.end()),
+        frame.failedTileRenders.end());
     stats_.addFrame(record);
     finished.push_back(std::move(frame));
   }

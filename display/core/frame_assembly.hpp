@@ -58,6 +58,9 @@ using TilePriority = std::function<double(const TileRect&)>;
 struct FinishedFrame {
   FrameRecord record;                 // also appended to stats().frames
   std::vector<TileRect> failedTiles;  // never came back: the caller marks them
+  // World ranks of the render processes the failed tiles' last attempts went
+  // to, as the traverses said (sorted, once each; empty when none said).
+  std::vector<int> failedTileRenders;
 };
 
 // The bytes of a TileImage's pixels (RGBA8 rows of its rect, or the point

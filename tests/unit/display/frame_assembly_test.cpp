@@ -72,6 +72,17 @@ v1::TileImageHeader tile(const v1::TileTask& task, std::uint64_t splats, int ren
   return header;
 }
 
+// The traverse's word that a task went to `render` (an index among renders).
+v1::WorkRequest placed(const v1::TileTask& task, std::uint32_t render) {
+  v1::WorkRequest request;
+  v1::TilePlacement* placement = request.add_placements();
+  placement->set_frame_id(task.frame_id());
+  placement->set_tile_id(task.tile_id());
+  placement->set_attempt(task.attempt());
+  placement->set_render(render);
+  return request;
+}
+
 std::vector<std::tuple<std::uint32_t, std::uint32_t, std::uint32_t, std::uint32_t>> rects(
     const std::vector<v1::TileTask>& tasks) {
   std::vector<std::tuple<std::uint32_t, std::uint32_t, std::uint32_t, std::uint32_t>> result;
@@ -230,6 +241,8 @@ TEST(FrameAssembly, GivesATileUpAfterMaxAttemptsAndDoesNotResplitFromThatFrame) 
     FrameAssembly assembly(config(2, 1), kPeers, kStart);
     const auto frame0 = takeAll(assembly, kStart);
     // All the work sits in the first tile.
+    // The first tile went to render 1 (rank 5).
+    assembly.workRequested(1, placed(frame0[0], 1));
     for (std::size_t i = 0; i < frame0.size(); ++i) {
       if (lose && i == 0) continue;
       assembly.tileArrived(tile(frame0[i], i == 0 ? 1'000'000 : 10), kStart + 10ms);
@@ -241,6 +254,7 @@ TEST(FrameAssembly, GivesATileUpAfterMaxAttemptsAndDoesNotResplitFromThatFrame) 
     if (lose && !finished.empty()) {
       EXPECT_EQ(finished[0].record.failedTiles, 1u);
       EXPECT_EQ(finished[0].failedTiles.size(), 1u);
+      EXPECT_EQ(finished[0].failedTileRenders, std::vector<int>{5});
       if (!finished[0].failedTiles.empty()) {
         EXPECT_EQ(finished[0].failedTiles[0].x(), frame0[0].rect().x());
       }
@@ -277,16 +291,6 @@ TEST(FrameAssembly, FinishesFramesInOrderAndLetsTheNextOneIn) {
   EXPECT_FALSE(assembly.done());
   EXPECT_EQ(takeAll(assembly, kStart + 3ms).size(), 4u);  // frame 2 entered the window
   EXPECT_THROW(assembly.tileArrived(tile(tasks[0], 1, 3), kStart), ProtocolError);
-}
-
-v1::WorkRequest placed(const v1::TileTask& task, std::uint32_t render) {
-  v1::WorkRequest request;
-  v1::TilePlacement* placement = request.add_placements();
-  placement->set_frame_id(task.frame_id());
-  placement->set_tile_id(task.tile_id());
-  placement->set_attempt(task.attempt());
-  placement->set_render(render);
-  return request;
 }
 
 // A render process is lost: the tiles it holds go out again at once, and so
