@@ -111,6 +111,7 @@ std::uint32_t FrameAssembly::dispatch(TimePoint now, Outbox& out) {
                                                       : planner_.assign(task->tile).value_or(0));
     message.set_part_splats(partSplatsFor(task->frame, message.rect()));
     for (const std::uint32_t render : suspects) message.add_avoid_renders(render);
+    if (!suspects.empty()) ++stats_.avoidingTasks;
     dispatchedAt_[{task->frame, task->tile}] = since(now);
     out.send(idleTraverses_.front(), std::move(message));
     idleTraverses_.pop_front();

@@ -114,6 +114,7 @@ std::vector<std::pair<std::string, std::string>> keyFigureFields(const KeyFigure
       {"split_tiles", count(k.splitTiles)},
       {"tile_parts", count(k.tileParts)},
       {"background_tiles", count(k.backgroundTiles)},
+      {"tasks_avoiding_silent_renders", count(k.avoidingTasks)},
       {"cpu_per_frame_display", number(cpuOf(k, "display"))},
       {"cpu_per_frame_traverse", number(cpuOf(k, "traverse"))},
       {"cpu_per_frame_datasend", number(cpuOf(k, "datasend"))},
@@ -265,6 +266,7 @@ KeyFigures RunStats::keyFigures() const {
   k.splitTiles = splitTiles;
   k.tileParts = tileParts;
   k.backgroundTiles = backgroundTiles;
+  k.avoidingTasks = avoidingTasks;
   const FrameSums& all = totals.all;
   if (k.frames > 0) {
     const auto frameCount = static_cast<double>(k.frames);
@@ -558,11 +560,12 @@ std::string RunStats::summary() const {
   std::snprintf(
       line, sizeof line,
       "tiles: %llu re-issued, %llu failed, %llu late, %llu split into %llu parts, %llu empty "
-      "(background from the traverse)\n",
+      "(background from the traverse), %llu handed out avoiding a silent render\n",
       static_cast<unsigned long long>(k.reissuedTiles),
       static_cast<unsigned long long>(k.failedTiles), static_cast<unsigned long long>(k.lateTiles),
       static_cast<unsigned long long>(k.splitTiles), static_cast<unsigned long long>(k.tileParts),
-      static_cast<unsigned long long>(k.backgroundTiles));
+      static_cast<unsigned long long>(k.backgroundTiles),
+      static_cast<unsigned long long>(k.avoidingTasks));
   out << line;
   for (const LostProcess& p : lost) {
     std::snprintf(line, sizeof line, "lost: %s rank %d at %.2f s (%s)%s\n", p.role.c_str(), p.rank,

@@ -142,6 +142,7 @@ struct KeyFigures {
   std::uint64_t splitTiles = 0;       // tiles drawn as parts by several renders
   std::uint64_t tileParts = 0;        // their parts
   std::uint64_t backgroundTiles = 0;  // found empty by a traverse, drawn by no render
+  std::uint64_t avoidingTasks = 0;    // tiles handed out naming renders to avoid
   // Core-seconds per frame by role over the whole run (0 when not known), and
   // of the render processes' time the part spent drawing.
   std::map<std::string, double> cpuPerFrame;
@@ -258,6 +259,9 @@ struct RunStats {
   std::uint64_t splitTiles = 0;       // tiles drawn as parts by several renders, composed
   std::uint64_t tileParts = 0;        // parts accepted
   std::uint64_t backgroundTiles = 0;  // answered by a traverse: nothing to draw
+  // Tiles handed out while a render held a tile past its deadline (the task
+  // named it to avoid: FrameScheduler::suspectRenders).
+  std::uint64_t avoidingTasks = 0;
   double totalSeconds = 0.0;
   std::vector<ProcessCpu> processes;  // filled once the job has shut down
   std::vector<LostProcess> lost;

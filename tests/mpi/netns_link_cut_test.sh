@@ -2,7 +2,8 @@
 # The link of one simulated host (deploy/netns-cluster.sh: namespaces, veth,
 # TCP) is cut for 3 s in the middle of a run, shorter than the peer timeout:
 #   netns_link_cut_test.sh BIN_DIR DATASET
-# Every frame must complete, none with a failed tile, the tiles held behind
+# Every frame must complete (1500, so the run goes on well after the link is
+# back and the render processes behind it must draw again), none with a failed tile, the tiles held behind
 # the cut must be re-issued (--tile-timeout 1) so that no frame waits more
 # than one timeout and a margin (1.75 s) for its predecessor, and no process
 # may be taken for lost. One timeout: the traverse says which render each tile
@@ -29,7 +30,7 @@ export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
 # Host 3 holds two of the four render processes (three ranks per host).
 POINTILLIST_BUILD="$(dirname "$bin")" timeout --kill-after=20 240 \
   bash "$root/deploy/netns-cluster.sh" --hosts 3 --layout 1,2,1,4 --cut-link 3:6:3 -- \
-  --dataset "$dataset" --camera-path orbit --frames 600 --size 480x270 --quiet \
+  --dataset "$dataset" --camera-path orbit --frames 1500 --size 480x270 --quiet \
   --tile-timeout 1 --render-core-share 1 --scheduler regions --out "$work/job" \
   >"$work/job.log" 2>&1
 code=$?
@@ -49,12 +50,26 @@ stats = json.load(open(sys.argv[1]))
 frames = stats["frames"]
 failed = sum(f["failed_tiles"] for f in frames)
 reissued = sum(f["reissued_tiles"] for f in frames)
+avoiding = stats["key_figures"]["tasks_avoiding_silent_renders"]
 gap = max(b["end"] - a["end"] for a, b in zip(frames, frames[1:]))
 print(f"{len(frames)} frames, {reissued} tiles re-issued, {failed} failed, "
+      f"{avoiding} handed out avoiding a silent render, "
       f"longest wait between frames {gap:.2f} s, lost: {stats['lost_processes']}")
-assert len(frames) == 600, "frames missing"
+assert len(frames) == 1500, "frames missing"
+# The link is back 9 s after launch, before 9 s on the display's clock: the
+# render processes behind it must draw again (their suspicion ends when they
+# answer, or two timeouts on), not stay avoided for the rest of the run.
+after = [f for f in frames if f["start"] > 10.5]
+assert len(after) >= 50, f"the run ended too soon after the cut ({len(after)} frames after it)"
+for rank in ("6", "7"):
+    drawn = sum(f["splats_per_render"].get(rank, 0) for f in after)
+    assert drawn > 0, f"render rank {rank} (behind the cut) drew nothing after the link was back"
+print(f"after the cut: {len(after)} frames, render ranks 6 and 7 drew "
+      f"{sum(f['splats_per_render'].get('6', 0) for f in after)} and "
+      f"{sum(f['splats_per_render'].get('7', 0) for f in after)} splats")
 assert failed == 0, "tiles failed"
 assert reissued > 0, "no tile was held behind the cut (did it cut anything?)"
+assert avoiding > 0, "tiles went out again with no render named to avoid"
 assert gap < 1.75, "a frame waited longer than one tile timeout and a margin"
 assert not stats["lost_processes"], "a process was taken for lost during a 3 s cut"
 print("PASS")

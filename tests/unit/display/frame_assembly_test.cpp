@@ -213,6 +213,7 @@ TEST(FrameAssembly, TasksAvoidARenderHoldingAnOverdueTileUntilItAnswers) {
   EXPECT_EQ(
       std::vector<std::uint32_t>(again[0].avoid_renders().begin(), again[0].avoid_renders().end()),
       (std::vector<std::uint32_t>{1}));
+  EXPECT_EQ(assembly.stats().avoidingTasks, 1u);
   EXPECT_EQ(assembly.tileArrived(tile(again[0], 100, 4), kStart + 1200ms), TileArrival::Complete);
   ASSERT_EQ(assembly.finishFrames(kStart + 1200ms).size(), 1u);
   // Still silent: the next frame's tasks avoid it.
@@ -229,6 +230,8 @@ TEST(FrameAssembly, TasksAvoidARenderHoldingAnOverdueTileUntilItAnswers) {
   next = takeAll(assembly, kStart + 1300ms);
   ASSERT_FALSE(next.empty());
   for (const v1::TileTask& task : next) EXPECT_EQ(task.avoid_renders_size(), 0);
+  EXPECT_NE(assembly.stats().summary().find("handed out avoiding a silent render"),
+            std::string::npos);
   // A placement on a render that does not exist is a protocol error.
   v1::WorkRequest stranger;
   stranger.add_placements()->set_render(2);
