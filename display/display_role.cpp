@@ -578,10 +578,10 @@ class DisplayProcess {
                   holders;
       }
       std::fprintf(stderr,
-                   "display: frame %llu: %u tile(s) never arrived after %u attempts%s (drawn "
+                   "display: frame %llu: %u tile(s) never arrived after %u attempt%s%s (drawn "
                    "magenta)\n",
                    static_cast<unsigned long long>(record.frame), record.failedTiles,
-                   options_.maxAttempts, holders.c_str());
+                   options_.maxAttempts, options_.maxAttempts == 1 ? "" : "s", holders.c_str());
     }
     if (source_ != nullptr) {
       frameSizes_.erase(record.frame);
