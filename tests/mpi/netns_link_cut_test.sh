@@ -3,8 +3,8 @@
 # TCP) is cut for 3 s in the middle of a run, shorter than the peer timeout:
 #   netns_link_cut_test.sh BIN_DIR DATASET
 # Every frame must complete (1500, so the run goes on well after the link is
-# back and the render processes behind it must draw again), none with a failed tile, the tiles held behind
-# the cut must be re-issued (--tile-timeout 1) so that no frame waits more
+# back and the render processes behind it must draw again), none with a
+# failed tile, the tiles held behind the cut must be re-issued (--tile-timeout 1) so that no frame waits more
 # than one timeout and a margin (1.75 s) for its predecessor, and no process
 # may be taken for lost. One timeout: the traverse says which render each tile
 # went to, and the display names the renders holding an overdue tile in every
@@ -61,12 +61,11 @@ assert len(frames) == 1500, "frames missing"
 # answer, or two timeouts on), not stay avoided for the rest of the run.
 after = [f for f in frames if f["start"] > 10.5]
 assert len(after) >= 50, f"the run ended too soon after the cut ({len(after)} frames after it)"
-for rank in ("6", "7"):
-    drawn = sum(f["splats_per_render"].get(rank, 0) for f in after)
-    assert drawn > 0, f"render rank {rank} (behind the cut) drew nothing after the link was back"
+drawn = {rank: sum(f["splats_per_render"].get(rank, 0) for f in after) for rank in ("6", "7")}
 print(f"after the cut: {len(after)} frames, render ranks 6 and 7 drew "
-      f"{sum(f['splats_per_render'].get('6', 0) for f in after)} and "
-      f"{sum(f['splats_per_render'].get('7', 0) for f in after)} splats")
+      f"{drawn['6']} and {drawn['7']} splats")
+for rank, splats in drawn.items():
+    assert splats > 0, f"render rank {rank} (behind the cut) drew nothing after the link was back"
 assert failed == 0, "tiles failed"
 assert reissued > 0, "no tile was held behind the cut (did it cut anything?)"
 assert avoiding > 0, "tiles went out again with no render named to avoid"

@@ -47,16 +47,20 @@ void PacketPlanner::startWork(Outbox& out) {
   for (std::uint32_t request = 0; request < tileTasksAhead(settings_); ++request) requestWork(out);
 }
 
-void PacketPlanner::requestWork(Outbox& out, std::span<const PacketPlan> placed,
-                                const v1::TileTask* task) {
+void PacketPlanner::requestWork(Outbox& out) {
+  requestWork(out, v1::TileTask{}, {});
+}
+
+void PacketPlanner::requestWork(Outbox& out, const v1::TileTask& task,
+                                std::span<const PacketPlan> placed) {
   v1::WorkRequest request;
   request.set_traverse_rank(selfRank_);
   request.set_tasks_done(tasksDone_);
   for (const PacketPlan& plan : placed) {
     v1::TilePlacement* placement = request.add_placements();
-    placement->set_frame_id(task->frame_id());
-    placement->set_tile_id(task->tile_id());
-    placement->set_attempt(task->attempt());
+    placement->set_frame_id(task.frame_id());
+    placement->set_tile_id(task.tile_id());
+    placement->set_attempt(task.attempt());
     placement->set_render(static_cast<std::uint32_t>(plan.choice.render));
   }
   out.send(peers_.display, std::move(request));
@@ -215,7 +219,7 @@ std::vector<PacketPlan> PacketPlanner::planPackets(const v1::TileTask& task, con
   }
   ++tasksDone_;
   splatsPacked_ += walk.splats;
-  requestWork(out, plans, &task);
+  requestWork(out, task, plans);
   return plans;
 }
 

@@ -86,10 +86,10 @@ class PacketPlanner {
   // Asks the display for the run's tile tasks ahead (at start-up; planPacket
   // asks for one more after each tile, keeping that many on request).
   void startWork(Outbox& out);
-  // `placed`: the packets of `task` just sent, so the display knows which
-  // render holds the tile.
-  void requestWork(Outbox& out, std::span<const PacketPlan> placed = {},
-                   const v1::TileTask* task = nullptr);
+  void requestWork(Outbox& out);
+  // The same, telling the display where `task` went: the render of each of
+  // its packets just sent (`placed`).
+  void requestWork(Outbox& out, const v1::TileTask& task, std::span<const PacketPlan> placed);
   // The camera whose view of the task's rect should be ordered ahead, if the
   // run prefetches along the camera path; the caller walks it for planPacket.
   std::optional<Camera> lookaheadCamera(const v1::TileTask& task) const;
