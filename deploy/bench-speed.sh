@@ -16,8 +16,9 @@
 # frame rate (this machine's speed drifts; see the range printed beside it).
 # Environment: POINTILLIST_BUILD (default build-release, configured as Release).
 set -euo pipefail
+# Chosen before common.sh, which would default it to the RelWithDebInfo build.
+export POINTILLIST_BUILD="${POINTILLIST_BUILD:-$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)/build-release}"
 source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
-export POINTILLIST_BUILD="${POINTILLIST_BUILD:-$POINTILLIST_ROOT/build-release}"
 POINTILLIST_BIN="$POINTILLIST_BUILD/bin"
 
 scenes="bunny-10M,city"

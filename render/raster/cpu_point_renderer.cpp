@@ -43,6 +43,7 @@ HWY_INLINE void projectSplats(const PointRaster& r, const PointCell& c, std::siz
   const DI di;
   const DU du;
   const std::size_t lanes = hn::Lanes(df);
+  static_assert(HWY_MAX_BYTES / 4 <= PointCell::kPad, "a vector must fit in a cell's group");
   const float* m = &r.viewProjection[0][0];  // m[4 * column + row]
   const auto entry = [&](int column, int row) { return hn::Set(df, m[4 * column + row]); };
   const VF m00 = entry(0, 0), m10 = entry(1, 0), m20 = entry(2, 0), m30 = entry(3, 0);
@@ -72,9 +73,9 @@ HWY_INLINE void projectSplats(const PointRaster& r, const PointCell& c, std::siz
   for (std::size_t i = from - from % lanes; i < to; i += lanes) {
     const MF inside = hn::AndNot(hn::FirstN(df, from > i ? from - i : 0),
                                  hn::FirstN(df, std::min(to - i, lanes)));
-    const VF x = hn::Load(df, c.x() + i);
-    const VF y = hn::Load(df, c.y() + i);
-    const VF z = hn::Load(df, c.z() + i);
+    const VF x = hn::Load(df, c.x(i));
+    const VF y = hn::Load(df, c.y(i));
+    const VF z = hn::Load(df, c.z(i));
     const VF cw = hn::Add(hn::Add(hn::Add(hn::Mul(m03, x), hn::Mul(m13, y)), hn::Mul(m23, z)), m33);
     MF drawn = hn::And(inside, hn::Gt(cw, zero));  // not behind the eye
     const VF inverse = hn::Div(one, cw);
@@ -87,7 +88,7 @@ HWY_INLINE void projectSplats(const PointRaster& r, const PointCell& c, std::siz
         hn::Add(hn::Add(hn::Add(hn::Mul(m01, x), hn::Mul(m11, y)), hn::Mul(m21, z)), m31), inverse);
     VF size = constantSize;
     if constexpr (!kConstantSize) {
-      size = clampSize(hn::Mul(hn::Mul(hn::Load(df, c.radius() + i), diameterScale), inverse));
+      size = clampSize(hn::Mul(hn::Mul(hn::Load(df, c.radius(i)), diameterScale), inverse));
     }
     const VF wx = hn::Mul(hn::Add(hn::Mul(nx, half), half), frameWidth);
     const VF wy = hn::Mul(hn::Add(hn::Mul(ny, half), half), frameHeight);
@@ -109,11 +110,11 @@ HWY_INLINE void projectSplats(const PointRaster& r, const PointCell& c, std::siz
     const VI x1 = pixel(hn::Min(x1f, tileRight), tileXi);
     const VI y1 = pixel(hn::Min(y1f, tileTop), tileYi);
 
-    VU color = hn::Load(du, c.color() + i);
+    VU color = hn::Load(du, c.color(i));
     if constexpr (kLighting) {
-      const VF nnx = hn::Load(df, c.nx() + i);
-      const VF nny = hn::Load(df, c.ny() + i);
-      const VF nnz = hn::Load(df, c.nz() + i);
+      const VF nnx = hn::Load(df, c.nx(i));
+      const VF nny = hn::Load(df, c.ny(i));
+      const VF nnz = hn::Load(df, c.nz(i));
       const VF lengthSquared =
           hn::Add(hn::Add(hn::Mul(nnx, nnx), hn::Mul(nny, nny)), hn::Mul(nnz, nnz));
       MF lit = hn::And(drawn, hn::Gt(lengthSquared, quarter));
@@ -490,11 +491,10 @@ void PointCell::reserve(std::size_t splats) {
   if (padded <= capacity_) return;
   std::unique_ptr<std::byte[], BlockDeleter> block(
       static_cast<std::byte*>(::operator new (padded* kFields * 4, std::align_val_t{64})));
-  for (std::size_t k = 0; k < kFields; ++k) {
-    std::byte* to = block.get() + k * padded * 4;
-    if (count > 0) std::memcpy(to, block_.get() + k * capacity_ * 4, count * 4);
-    std::memset(to + count * 4, 0, (padded - count) * 4);
-  }
+  // Groups are whole: the held ones move as one block, the rest are zero.
+  const std::size_t held = (count + kPad - 1) / kPad * kPad * kFields * 4;
+  if (held > 0) std::memcpy(block.get(), block_.get(), held);
+  std::memset(block.get() + held, 0, padded * kFields * 4 - held);
   block_ = std::move(block);
   capacity_ = padded;
 }
@@ -504,20 +504,17 @@ void appendToPointCell(PointCell& cell, std::span<const Splat> splats) {
   // Growth by layers is geometric (about 4x per level): room for exactly these.
   cell.reserve(from + splats.size());
   cell.count += splats.size();
-  float *x = cell.x(), *y = cell.y(), *z = cell.z(), *radius = cell.radius();
-  float *nx = cell.nx(), *ny = cell.ny(), *nz = cell.nz();
-  std::uint32_t* color = cell.color();
   for (std::size_t k = 0; k < splats.size(); ++k) {
     const Splat& s = splats[k];
     const std::size_t i = from + k;
-    x[i] = s.position[0];
-    y[i] = s.position[1];
-    z[i] = s.position[2];
-    radius[i] = s.radius;
-    nx[i] = s.normal[0];
-    ny[i] = s.normal[1];
-    nz[i] = s.normal[2];
-    color[i] = packColor(s.color[0], s.color[1], s.color[2], s.color[3]);
+    *cell.x(i) = s.position[0];
+    *cell.y(i) = s.position[1];
+    *cell.z(i) = s.position[2];
+    *cell.radius(i) = s.radius;
+    *cell.nx(i) = s.normal[0];
+    *cell.ny(i) = s.normal[1];
+    *cell.nz(i) = s.normal[2];
+    *cell.color(i) = packColor(s.color[0], s.color[1], s.color[2], s.color[3]);
     const float lengthSquared =
         s.normal[0] * s.normal[0] + s.normal[1] * s.normal[1] + s.normal[2] * s.normal[2];
     cell.hasNormals = cell.hasNormals || lengthSquared > 0.25f;  // as the kernel decides
@@ -571,15 +568,15 @@ void CpuPointRenderer::forEachCell(const CellVisitor& visit) const {
     splats.resize(cell.count);
     for (std::size_t i = 0; i < cell.count; ++i) {
       Splat& s = splats[i];
-      s.position[0] = cell.x()[i];
-      s.position[1] = cell.y()[i];
-      s.position[2] = cell.z()[i];
-      s.normal[0] = cell.nx()[i];
-      s.normal[1] = cell.ny()[i];
-      s.normal[2] = cell.nz()[i];
-      s.radius = cell.radius()[i];
+      s.position[0] = *cell.x(i);
+      s.position[1] = *cell.y(i);
+      s.position[2] = *cell.z(i);
+      s.normal[0] = *cell.nx(i);
+      s.normal[1] = *cell.ny(i);
+      s.normal[2] = *cell.nz(i);
+      s.radius = *cell.radius(i);
       for (int c = 0; c < 4; ++c) {
-        s.color[c] = static_cast<std::uint8_t>(cell.color()[i] >> (8 * c));
+        s.color[c] = static_cast<std::uint8_t>(*cell.color(i) >> (8 * c));
       }
     }
     visit(id, splats);

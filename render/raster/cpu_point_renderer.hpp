@@ -69,10 +69,11 @@ PointFootprint pointFootprintScalar(const PointRaster& raster, const Splat& spla
 void rasterizePointsScalar(const PointRaster& raster, std::span<const Splat> splats,
                            std::uint64_t* buffer);
 
-// A cell as the SIMD kernel streams it: one array per field, each padded to a
-// multiple of kPad (the widest vector) with zeros, the eight of them in one
-// block: a cell costs one allocation, and a short range of it is near in memory
-// (a tile draws thousands of ranges of small cells).
+// A cell as the SIMD kernel streams it: groups of kPad splats (the widest
+// vector), each group one field after another (kPad x's, kPad y's, ...), the
+// last group padded with zeros, all in one block. A range of a cell is one
+// stretch of memory: a tile draws thousands of short ranges of small cells,
+// and one array per field started eight cold streams on eight pages for each.
 class PointCell {
  public:
   static constexpr std::size_t kPad = 16;
@@ -80,22 +81,26 @@ class PointCell {
   std::size_t count = 0;
   bool hasNormals = false;  // any normal long enough to shade with
 
-  const float* x() const { return field<float>(0); }
-  const float* y() const { return field<float>(1); }
-  const float* z() const { return field<float>(2); }
-  const float* radius() const { return field<float>(3); }
-  const float* nx() const { return field<float>(4); }
-  const float* ny() const { return field<float>(5); }
-  const float* nz() const { return field<float>(6); }
-  const std::uint32_t* color() const { return field<std::uint32_t>(7); }  // RGBA8, R low
-  float* x() { return field<float>(0); }
-  float* y() { return field<float>(1); }
-  float* z() { return field<float>(2); }
-  float* radius() { return field<float>(3); }
-  float* nx() { return field<float>(4); }
-  float* ny() { return field<float>(5); }
-  float* nz() { return field<float>(6); }
-  std::uint32_t* color() { return field<std::uint32_t>(7); }
+  // Splat i's value of a field; the kPad - i % kPad values from there are
+  // those of splats i, i + 1, ... of its group (a vector load of them).
+  const float* x(std::size_t i) const { return field<float>(0, i); }
+  const float* y(std::size_t i) const { return field<float>(1, i); }
+  const float* z(std::size_t i) const { return field<float>(2, i); }
+  const float* radius(std::size_t i) const { return field<float>(3, i); }
+  const float* nx(std::size_t i) const { return field<float>(4, i); }
+  const float* ny(std::size_t i) const { return field<float>(5, i); }
+  const float* nz(std::size_t i) const { return field<float>(6, i); }
+  const std::uint32_t* color(std::size_t i) const {  // RGBA8, R low
+    return field<std::uint32_t>(7, i);
+  }
+  float* x(std::size_t i) { return field<float>(0, i); }
+  float* y(std::size_t i) { return field<float>(1, i); }
+  float* z(std::size_t i) { return field<float>(2, i); }
+  float* radius(std::size_t i) { return field<float>(3, i); }
+  float* nx(std::size_t i) { return field<float>(4, i); }
+  float* ny(std::size_t i) { return field<float>(5, i); }
+  float* nz(std::size_t i) { return field<float>(6, i); }
+  std::uint32_t* color(std::size_t i) { return field<std::uint32_t>(7, i); }
 
   // Room for `splats` (and the padding after them), keeping the fields held;
   // new entries are zero.
@@ -107,10 +112,11 @@ class PointCell {
     void operator()(std::byte* block) const { ::operator delete (block, std::align_val_t{64}); }
   };
   template <class T>
-  T* field(std::size_t k) const {
-    return reinterpret_cast<T*>(block_.get() + k * capacity_ * 4);
+  T* field(std::size_t k, std::size_t i) const {
+    return reinterpret_cast<T*>(block_.get() + ((i / kPad) * kFields + k) * kPad * 4 +
+                                (i % kPad) * 4);
   }
-  std::size_t capacity_ = 0;  // per field, a multiple of kPad
+  std::size_t capacity_ = 0;  // splats, a multiple of kPad
   std::unique_ptr<std::byte[], BlockDeleter> block_;
 };
 

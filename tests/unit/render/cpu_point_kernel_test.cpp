@@ -277,13 +277,13 @@ TEST(CpuPointKernel, ACellGrownInPartsEqualsOneUpload) {
   const std::size_t padded =
       (whole.count + PointCell::kPad - 1) / PointCell::kPad * PointCell::kPad;
   for (std::size_t i = 0; i < padded; ++i) {
-    ASSERT_EQ(grown.x()[i], whole.x()[i]) << i;
-    ASSERT_EQ(grown.z()[i], whole.z()[i]) << i;
-    ASSERT_EQ(grown.radius()[i], whole.radius()[i]) << i;
-    ASSERT_EQ(grown.nz()[i], whole.nz()[i]) << i;
-    ASSERT_EQ(grown.color()[i], whole.color()[i]) << i;
+    ASSERT_EQ(*grown.x(i), *whole.x(i)) << i;
+    ASSERT_EQ(*grown.z(i), *whole.z(i)) << i;
+    ASSERT_EQ(*grown.radius(i), *whole.radius(i)) << i;
+    ASSERT_EQ(*grown.nz(i), *whole.nz(i)) << i;
+    ASSERT_EQ(*grown.color(i), *whole.color(i)) << i;
   }
-  EXPECT_EQ(whole.x()[padded - 1] == 0.0f, whole.count < padded);
+  EXPECT_EQ(*whole.x(padded - 1) == 0.0f, whole.count < padded);
   const Camera camera = kernelCamera();
   const PointRaster raster = pointRaster(camera, fullFrameRect(camera), settingsVariants()[0]);
   EXPECT_TRUE(drawSimd(raster, grown, 0, grown.count) == drawScalar(raster, splats));
