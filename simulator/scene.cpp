@@ -106,7 +106,7 @@ std::uint64_t Scene::frameWorkingSetBytes(std::uint64_t frame) const {
   const TileWork& work = tileWork(frame, fullFrameRect(camera));
   std::uint64_t bytes = 0;
   for (const CellPrefix& need : work.needs) {
-    bytes += std::uint64_t{layers_->roundUp(need.cell, need.splats)} * sizeof(Splat);
+    bytes += std::uint64_t{layers_->needPrefix(need.cell, need.splats)} * sizeof(Splat);
   }
   return bytes;
 }

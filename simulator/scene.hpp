@@ -61,7 +61,7 @@ class Scene {
   const std::vector<CellPrefix>& cellsInTile(std::uint64_t frame, const TileRect& rect) const;
   // The layers of every top-level packet (shared with the simulated traverses).
   const std::shared_ptr<const traverse::PacketLayers>& layers() const { return layers_; }
-  // Bytes of the layer-aligned prefixes a whole-frame traversal of `frame` needs.
+  // Bytes of the prefixes a whole-frame traversal of `frame` needs.
   std::uint64_t frameWorkingSetBytes(std::uint64_t frame) const;
   // Times whole-frame traversals of the first frames: seconds per visited cell.
   double measureTraverseSecondsPerCell() const;

@@ -68,6 +68,12 @@ std::uint32_t PacketLayers::roundUp(std::uint32_t cell, std::uint32_t splats) co
   return totalSplats(cell);
 }
 
+std::uint32_t PacketLayers::needPrefix(std::uint32_t cell, std::uint32_t splats) const {
+  if (splats > sectionsBegin_.at(cell) && splats <= sectionsEnd_.at(cell))
+    return sectionsEnd_[cell];
+  return std::min(splats, totalSplats(cell));
+}
+
 std::uint32_t PacketLayers::prefixAt(std::uint32_t cell, const Camera& camera, float distance,
                                      float lodPixels, float sizeScale, bool instanced) const {
   std::uint32_t prefix = totalSplats(cell);

@@ -234,7 +234,7 @@ PacketPlan PacketPlanner::planPart(const v1::TileTask& task, const TileWalk& wal
   plan.needs.reserve(part.endNeed - part.firstNeed);
   for (std::size_t i = part.firstNeed; i < part.endNeed; ++i) {
     const CellPrefix& need = walk.needs[i];
-    plan.needs.push_back({need.cell, layers_->roundUp(need.cell, need.splats)});
+    plan.needs.push_back({need.cell, layers_->needPrefix(need.cell, need.splats)});
   }
   const v1::Scheduler scheduler = schedulerFor(task);
   if (scheduler == v1::SCHEDULER_COST || (scheduler == v1::SCHEDULER_REGIONS && partIndex > 0)) {

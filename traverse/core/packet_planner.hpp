@@ -63,7 +63,7 @@ TraversalSettings traversalSettings(const v1::RunSettings& settings);
 struct PacketPlan {
   RenderChoice choice;
   int renderRank = -1;
-  std::vector<CellPrefix> needs;  // the walk's needs rounded up to layer ends
+  std::vector<CellPrefix> needs;  // the walk's needs (PacketLayers::needPrefix)
   std::uint64_t prefetchBytes = 0;
   std::vector<CellPrefix> prefetch;
   std::uint64_t splats = 0;
@@ -98,8 +98,8 @@ class PacketPlanner {
   // the walk has cells, and renders can take them (RenderModel::rendersForParts
   // within the whole tile's time); else 1.
   std::size_t partsFor(const v1::TileTask& task, const TileWalk& walk, TimePoint now) const;
-  // One walked tile: cut into parts (partsFor, splitWalk), each rounds its
-  // needs up to layer ends, chooses its render process (the cost function's;
+  // One walked tile: cut into parts (partsFor, splitWalk), each takes its
+  // needs (PacketLayers::needPrefix), chooses its render process (the cost function's;
   // one already drawing another part of the tile only when every other that
   // could take a part costs more than the part's own drawing time more),
   // orders what that process lacks of

@@ -218,10 +218,11 @@ std::vector<std::uint32_t> cellsOf(std::span<const CellPrefix> prefixes) {
   return cells;
 }
 
-TEST(OctreeTraversal, PrefetchCellsAreASupersetOfWhatTheTileDraws) {
+TEST(OctreeTraversal, PrefetchCellsAreASupersetOfWhatTheTileDrawsWhichNeedsExactPrefixes) {
   const Fixture& f = cityFixture();
   const PacketLayers layers(f.content.cells, f.content.topLevel);
   std::size_t smallerThanFrame = 0;
+  std::size_t roundedLonger = 0;  // needs a layer-aligned prefix would have made longer
   for (const Camera& camera : testCameras(f)) {
     for (const TileRect& rect :
          {fullFrameRect(camera), makeTileRect(0, 0, 100, 80), makeTileRect(150, 90, 64, 64)}) {
@@ -237,6 +238,16 @@ TEST(OctreeTraversal, PrefetchCellsAreASupersetOfWhatTheTileDraws) {
         EXPECT_TRUE(std::binary_search(ahead.begin(), ahead.end(), cell)) << "cell " << cell;
       }
       ASSERT_TRUE(std::is_sorted(drawnCells.begin(), drawnCells.end()));
+      // A render process is asked for exactly what the tile draws: the prefix
+      // ends at the end of the cell's last drawn range, not at a layer's end.
+      for (const CellPrefix& need : drawn.needs) {
+        EXPECT_EQ(layers.needPrefix(need.cell, need.splats), need.splats);
+        std::uint32_t lastEnd = 0;
+        for (const PacketRange& range : drawn.ranges)
+          if (range.topLevel == need.cell) lastEnd = std::max(lastEnd, range.offset + range.count);
+        EXPECT_EQ(need.splats, lastEnd);
+        roundedLonger += layers.roundUp(need.cell, need.splats) > need.splats;
+      }
       // Estimated prefixes end on a layer and lie inside the packet.
       for (const CellPrefix& prefix : aheadPrefixes) {
         EXPECT_EQ(layers.roundUp(prefix.cell, prefix.splats), prefix.splats);
@@ -251,6 +262,7 @@ TEST(OctreeTraversal, PrefetchCellsAreASupersetOfWhatTheTileDraws) {
     }
   }
   EXPECT_GT(smallerThanFrame, 0u) << "no tile culled a top-level cell";
+  EXPECT_GT(roundedLonger, 0u) << "no need ended inside a layer";
 }
 
 TEST(OctreeTraversal, CoarserLevelOfDetailDrawsFewerSplats) {
@@ -454,6 +466,11 @@ TEST(OctreeTraversal, InstancedModeDrawsSectionsWherePointsWereDrawn) {
     EXPECT_EQ(layers.roundUp(k, static_cast<std::uint32_t>(pointsStart(t))), pointsStart(t));
     EXPECT_EQ(layers.roundUp(k, static_cast<std::uint32_t>(pointsStart(t)) + 1),
               layers.totalSplats(k));
+    // Exact needs too: through the sections when they end inside them.
+    EXPECT_EQ(layers.needPrefix(k, t.levelSplatCount + 1), pointsStart(t));
+    EXPECT_EQ(layers.needPrefix(k, t.levelSplatCount), t.levelSplatCount);
+    EXPECT_EQ(layers.needPrefix(k, static_cast<std::uint32_t>(pointsStart(t)) + 1),
+              pointsStart(t) + 1);
   }
 }
 

@@ -287,7 +287,7 @@ std::vector<std::uint32_t> prefixesIn(const Outbox& out) {
 // Packets are layered: a tile's need is rounded up to the end of a layer, the
 // packet waits for that prefix, and only the splats beyond what the render
 // holds are ordered and counted in the cost.
-TEST(PacketPlanner, RoundsNeedsUpToLayersAndOrdersOnlyWhatLiesBeyondTheHeldPrefix) {
+TEST(PacketPlanner, NeedsExactPrefixesAndOrdersOnlyWhatLiesBeyondTheHeldPrefix) {
   PacketPlanner p = planner();
   v1::RenderReport coarse = report(0);
   coarse.add_loaded_cells(0);
@@ -295,30 +295,32 @@ TEST(PacketPlanner, RoundsNeedsUpToLayersAndOrdersOnlyWhatLiesBeyondTheHeldPrefi
   p.applyReport(kRender0, coarse, kStart);
   p.applyReport(kRender1, report(0), kStart);
   Outbox out;
-  // 700 splats of cell 0 lie in its first layer, which render 0 holds.
+  // 700 splats of cell 0 lie in the first 1000, which render 0 holds: the
+  // packet needs those 700, not the rest of their layer.
   PacketPlan plan =
       p.planPackets(task(0, 0), Walk::prefixes({{0, 700}}, 10).view(), {}, kStart, out).front();
   EXPECT_EQ(plan.renderRank, kRender0);
-  EXPECT_EQ(plan.needs, (std::vector<CellPrefix>{{0, 1000}}));
+  EXPECT_EQ(plan.needs, (std::vector<CellPrefix>{{0, 700}}));
   EXPECT_TRUE(ordersIn(out).empty());
-  EXPECT_EQ(packetIn(out).top_level_splats(0), 1000u);
-  // 1500 splats reach into the second layer: the order names the prefix through
-  // it, and the packet counts only the 4000 splats beyond the first layer.
+  EXPECT_EQ(packetIn(out).top_level_splats(0), 700u);
+  // 1500 splats reach into the second layer: the order names the prefix of
+  // 1500 (not the layer's end at 5000), and the packet counts only the 500
+  // splats beyond the held 1000.
   Outbox closer;
   plan =
       p.planPackets(task(0, 1), Walk::prefixes({{0, 1500}}, 10).view(), {}, kStart, closer).front();
   EXPECT_EQ(plan.renderRank, kRender0);
-  EXPECT_EQ(plan.needs, (std::vector<CellPrefix>{{0, 5000}}));
+  EXPECT_EQ(plan.needs, (std::vector<CellPrefix>{{0, 1500}}));
   EXPECT_EQ(ordersIn(closer), (std::vector<std::pair<int, std::vector<std::uint32_t>>>{{2, {0}}}));
-  EXPECT_EQ(prefixesIn(closer), (std::vector<std::uint32_t>{5000}));
-  EXPECT_EQ(packetIn(closer).ordered_bytes(), 4000u * sizeof(Splat));
-  EXPECT_EQ(packetIn(closer).top_level_splats(0), 5000u);
-  // Into the points: the whole packet.
+  EXPECT_EQ(prefixesIn(closer), (std::vector<std::uint32_t>{1500}));
+  EXPECT_EQ(packetIn(closer).ordered_bytes(), 500u * sizeof(Splat));
+  EXPECT_EQ(packetIn(closer).top_level_splats(0), 1500u);
+  // Into the points: through the last point drawn, beyond the 1500 ordered.
   Outbox nearest;
   plan = p.planPackets(task(0, 2), Walk::prefixes({{0, 5001}}, 10).view(), {}, kStart, nearest)
              .front();
-  EXPECT_EQ(plan.needs, whole({0}));
-  EXPECT_EQ(packetIn(nearest).ordered_bytes(), (wholeCell(0) - 5000u) * sizeof(Splat));
+  EXPECT_EQ(plan.needs, (std::vector<CellPrefix>{{0, 5001}}));
+  EXPECT_EQ(packetIn(nearest).ordered_bytes(), (5001u - 1500u) * sizeof(Splat));
   // A need beyond the packet is refused.
   EXPECT_THROW(p.planPackets(task(0, 3), Walk::prefixes({{0, wholeCell(0) + 1}}, 10).view(), {},
                              kStart, out),
