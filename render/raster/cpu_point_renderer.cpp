@@ -70,12 +70,25 @@ HWY_INLINE void projectSplats(const PointRaster& r, const PointCell& c, std::siz
   };
   const VF constantSize = clampSize(hn::Set(df, r.constantSize));
 
+  // The fields of splat i onwards, from a base held in a register: the sink's
+  // stores could alias the cell's members, and reloading them costs.
+  const float* const values = c.values();
+  constexpr std::size_t kPad = PointCell::kPad;
+  constexpr std::size_t kPrefetchGroups = 4;
   for (std::size_t i = from - from % lanes; i < to; i += lanes) {
     const MF inside = hn::AndNot(hn::FirstN(df, from > i ? from - i : 0),
                                  hn::FirstN(df, std::min(to - i, lanes)));
-    const VF x = hn::Load(df, c.x(i));
-    const VF y = hn::Load(df, c.y(i));
-    const VF z = hn::Load(df, c.z(i));
+    const float* const group = values + (i / kPad) * PointCell::kGroupValues + i % kPad;
+    if (i % kPad == 0) {
+      // One stream (the cell's groups in order) would be read at the pace
+      // the hardware prefetcher keeps for one stream; fetching a few groups
+      // ahead keeps a long range as fast as eight field arrays were.
+      const float* const ahead = group + kPrefetchGroups * PointCell::kGroupValues;
+      for (std::size_t k = 0; k < PointCell::kFields; ++k) hwy::Prefetch(ahead + k * kPad);
+    }
+    const VF x = hn::Load(df, group);
+    const VF y = hn::Load(df, group + kPad);
+    const VF z = hn::Load(df, group + 2 * kPad);
     const VF cw = hn::Add(hn::Add(hn::Add(hn::Mul(m03, x), hn::Mul(m13, y)), hn::Mul(m23, z)), m33);
     MF drawn = hn::And(inside, hn::Gt(cw, zero));  // not behind the eye
     const VF inverse = hn::Div(one, cw);
@@ -88,7 +101,7 @@ HWY_INLINE void projectSplats(const PointRaster& r, const PointCell& c, std::siz
         hn::Add(hn::Add(hn::Add(hn::Mul(m01, x), hn::Mul(m11, y)), hn::Mul(m21, z)), m31), inverse);
     VF size = constantSize;
     if constexpr (!kConstantSize) {
-      size = clampSize(hn::Mul(hn::Mul(hn::Load(df, c.radius(i)), diameterScale), inverse));
+      size = clampSize(hn::Mul(hn::Mul(hn::Load(df, group + 3 * kPad), diameterScale), inverse));
     }
     const VF wx = hn::Mul(hn::Add(hn::Mul(nx, half), half), frameWidth);
     const VF wy = hn::Mul(hn::Add(hn::Mul(ny, half), half), frameHeight);
@@ -110,11 +123,11 @@ HWY_INLINE void projectSplats(const PointRaster& r, const PointCell& c, std::siz
     const VI x1 = pixel(hn::Min(x1f, tileRight), tileXi);
     const VI y1 = pixel(hn::Min(y1f, tileTop), tileYi);
 
-    VU color = hn::Load(du, c.color(i));
+    VU color = hn::Load(du, reinterpret_cast<const std::uint32_t*>(group + 7 * kPad));
     if constexpr (kLighting) {
-      const VF nnx = hn::Load(df, c.nx(i));
-      const VF nny = hn::Load(df, c.ny(i));
-      const VF nnz = hn::Load(df, c.nz(i));
+      const VF nnx = hn::Load(df, group + 4 * kPad);
+      const VF nny = hn::Load(df, group + 5 * kPad);
+      const VF nnz = hn::Load(df, group + 6 * kPad);
       const VF lengthSquared =
           hn::Add(hn::Add(hn::Mul(nnx, nnx), hn::Mul(nny, nny)), hn::Mul(nnz, nnz));
       MF lit = hn::And(drawn, hn::Gt(lengthSquared, quarter));

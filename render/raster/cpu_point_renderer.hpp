@@ -77,6 +77,8 @@ void rasterizePointsScalar(const PointRaster& raster, std::span<const Splat> spl
 class PointCell {
  public:
   static constexpr std::size_t kPad = 16;
+  static constexpr std::size_t kFields = 8;  // 4-byte values each
+  static constexpr std::size_t kGroupValues = kFields * kPad;
 
   std::size_t count = 0;
   bool hasNormals = false;  // any normal long enough to shade with
@@ -102,12 +104,15 @@ class PointCell {
   float* nz(std::size_t i) { return field<float>(6, i); }
   std::uint32_t* color(std::size_t i) { return field<std::uint32_t>(7, i); }
 
+  // The first group's first value: splat i's field k is at
+  // values() + (i / kPad) * kGroupValues + k * kPad + i % kPad.
+  const float* values() const { return reinterpret_cast<const float*>(block_.get()); }
+
   // Room for `splats` (and the padding after them), keeping the fields held;
   // new entries are zero.
   void reserve(std::size_t splats);
 
  private:
-  static constexpr std::size_t kFields = 8;  // 4-byte values each
   struct BlockDeleter {
     void operator()(std::byte* block) const { ::operator delete (block, std::align_val_t{64}); }
   };
