@@ -1,21 +1,58 @@
 #include "render/core/cell_cache.hpp"
 
 #include <algorithm>
+#include <string>
 
 #include "common/errors.hpp"
 
 namespace pointillist::render {
+
+namespace {
+// Far beyond any dataset's top-level cells (a slot is 32 bytes): an id past
+// it is a caller's bug, not a cell.
+constexpr std::uint32_t kMaxCells = 1u << 24;
+}  // namespace
 
 CellCache::CellCache(std::uint64_t capBytes, std::chrono::milliseconds timeout)
     : capBytes_(capBytes), timeout_(timeout) {
   if (capBytes_ == 0) throw UsageError("the render cache needs a cap above 0 bytes");
 }
 
+CellCache::Slot& CellCache::slot(std::uint32_t cell) {
+  if (cell >= slots_.size()) {
+    if (cell >= kMaxCells) {
+      throw UsageError("render cache: cell id " + std::to_string(cell) + " is beyond " +
+                       std::to_string(kMaxCells) + " cells");
+    }
+    slots_.resize(std::max<std::size_t>(std::size_t{cell} + 1, slots_.size() * 2));
+  }
+  return slots_[cell];
+}
+
+void CellCache::linkNewest(std::uint32_t cell) {
+  Slot& s = slots_[cell];
+  s.older = newest_;
+  s.newer = kNone;
+  if (newest_ != kNone) slots_[newest_].newer = cell;
+  newest_ = cell;
+  if (oldest_ == kNone) oldest_ = cell;
+}
+
+void CellCache::unlink(std::uint32_t cell) {
+  Slot& s = slots_[cell];
+  if (s.older != kNone) slots_[s.older].newer = s.newer;
+  if (s.newer != kNone) slots_[s.newer].older = s.older;
+  if (oldest_ == cell) oldest_ = s.newer;
+  if (newest_ == cell) newest_ = s.older;
+  s.older = s.newer = kNone;
+}
+
 void CellCache::touch(std::uint32_t cell, Clock::time_point now) {
-  auto found = entries_.find(cell);
-  if (found == entries_.end()) return;
-  found->second.lastUsed = now;
-  recency_.splice(recency_.end(), recency_, found->second.position);
+  if (!contains(cell)) return;
+  slots_[cell].lastUsed = now;
+  if (newest_ == cell) return;
+  unlink(cell);
+  linkNewest(cell);
 }
 
 std::vector<std::uint32_t> CellCache::insert(std::uint32_t cell, std::uint64_t bytes,
@@ -25,21 +62,24 @@ std::vector<std::uint32_t> CellCache::insert(std::uint32_t cell, std::uint64_t b
   if (contains(cell)) touch(cell, now);
   if (contains(cell) && bytes <= current) return evicted;
   const std::uint64_t growth = bytes - current;
-  for (auto it = recency_.begin(); it != recency_.end() && bytes_ + growth > capBytes_;) {
-    const std::uint32_t victim = *it++;
+  for (std::uint32_t at = oldest_; at != kNone && bytes_ + growth > capBytes_;) {
+    const std::uint32_t victim = at;
+    at = slots_[at].newer;
     if (victim == cell || pinned(victim)) continue;
     evicted.push_back(victim);
     erase(victim);
   }
   if (bytes_ + growth > capBytes_) ++overCapInsertions_;
-  if (contains(cell)) {
-    entries_.at(cell).bytes = bytes;
-  } else {
-    recency_.push_back(cell);
-    entries_[cell] = Entry{bytes, now, std::prev(recency_.end())};
+  Slot& s = slot(cell);
+  if (!s.cached) {
+    s.cached = true;
+    s.lastUsed = now;
+    ++size_;
+    linkNewest(cell);
   }
+  s.bytes = bytes;
   bytes_ += growth;
-  if (pinned(cell)) pinnedBytes_ += growth;
+  if (s.pins > 0) pinnedBytes_ += growth;
   peakBytes_ = std::max(peakBytes_, bytes_);
   return evicted;
 }
@@ -51,16 +91,15 @@ bool CellCache::evict(std::uint32_t cell) {
 }
 
 std::uint64_t CellCache::bytesOf(std::uint32_t cell) const {
-  const auto found = entries_.find(cell);
-  return found == entries_.end() ? 0 : found->second.bytes;
+  return contains(cell) ? slots_[cell].bytes : 0;
 }
 
 std::vector<std::uint32_t> CellCache::expire(Clock::time_point now) {
   std::vector<std::uint32_t> evicted;
-  for (auto it = recency_.begin(); it != recency_.end();) {
-    const std::uint32_t cell = *it++;
-    const Entry& entry = entries_.at(cell);
-    if (now - entry.lastUsed <= timeout_) break;  // the rest were used more recently
+  for (std::uint32_t at = oldest_; at != kNone;) {
+    const std::uint32_t cell = at;
+    at = slots_[at].newer;
+    if (now - slots_[cell].lastUsed <= timeout_) break;  // the rest were used more recently
     if (pinned(cell)) continue;
     evicted.push_back(cell);
     erase(cell);
@@ -73,37 +112,39 @@ bool CellCache::canFit(std::uint64_t bytes) const {
 }
 
 void CellCache::pin(std::uint32_t cell) {
-  if (++pins_[cell] == 1) pinnedBytes_ += bytesOf(cell);
+  Slot& s = slot(cell);
+  if (++s.pins == 1) pinnedBytes_ += bytesOf(cell);
 }
 
 void CellCache::unpin(std::uint32_t cell) {
-  auto found = pins_.find(cell);
-  if (found == pins_.end()) return;
-  if (--found->second == 0) {
-    pins_.erase(found);
-    pinnedBytes_ -= bytesOf(cell);
-  }
+  if (cell >= slots_.size() || slots_[cell].pins == 0) return;
+  if (--slots_[cell].pins == 0) pinnedBytes_ -= bytesOf(cell);
 }
 
 bool CellCache::pinned(std::uint32_t cell) const {
-  return pins_.contains(cell);
+  return cell < slots_.size() && slots_[cell].pins > 0;
 }
 
 std::vector<std::uint32_t> CellCache::lruOrder() const {
-  return {recency_.begin(), recency_.end()};
+  std::vector<std::uint32_t> order;
+  order.reserve(size_);
+  for (std::uint32_t at = oldest_; at != kNone; at = slots_[at].newer) order.push_back(at);
+  return order;
 }
 
 std::optional<CellCache::Clock::time_point> CellCache::oldestUse() const {
-  if (recency_.empty()) return std::nullopt;
-  return entries_.at(recency_.front()).lastUsed;
+  if (oldest_ == kNone) return std::nullopt;
+  return slots_[oldest_].lastUsed;
 }
 
 void CellCache::erase(std::uint32_t cell) {
-  auto found = entries_.find(cell);
-  bytes_ -= found->second.bytes;
-  if (pinned(cell)) pinnedBytes_ -= found->second.bytes;
-  recency_.erase(found->second.position);
-  entries_.erase(found);
+  Slot& s = slots_[cell];
+  bytes_ -= s.bytes;
+  if (s.pins > 0) pinnedBytes_ -= s.bytes;
+  unlink(cell);
+  s.bytes = 0;
+  s.cached = false;
+  --size_;
   ++evictions_;
 }
 

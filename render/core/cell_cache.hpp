@@ -7,9 +7,7 @@
 // data (GL buffers, kernel arrays) and is told what to drop.
 #include <chrono>
 #include <cstdint>
-#include <list>
 #include <optional>
-#include <unordered_map>
 #include <vector>
 
 namespace pointillist::render {
@@ -20,7 +18,7 @@ class CellCache {
 
   CellCache(std::uint64_t capBytes, std::chrono::milliseconds timeout);
 
-  bool contains(std::uint32_t cell) const { return entries_.contains(cell); }
+  bool contains(std::uint32_t cell) const { return cell < slots_.size() && slots_[cell].cached; }
   // Marks a cell used now (moves it to the most recent end).
   void touch(std::uint32_t cell, Clock::time_point now);
   // Makes the cell hold `bytes` (adds it, or grows a cached one; never
@@ -45,7 +43,7 @@ class CellCache {
   std::uint64_t bytes() const { return bytes_; }
   std::uint64_t peakBytes() const { return peakBytes_; }
   std::uint64_t capBytes() const { return capBytes_; }
-  std::size_t size() const { return entries_.size(); }
+  std::size_t size() const { return size_; }
   std::uint64_t evictions() const { return evictions_; }
   std::uint64_t overCapInsertions() const { return overCapInsertions_; }
   // Least recently used first.
@@ -54,18 +52,27 @@ class CellCache {
   std::optional<Clock::time_point> oldestUse() const;
 
  private:
-  struct Entry {
+  static constexpr std::uint32_t kNone = 0xFFFFFFFFu;
+  // Cells are dense top-level ids (packet ids): a slot per id, not a hash
+  // map, and the recency list threaded through the slots. A frame looks up,
+  // pins and touches every cell of every packet.
+  struct Slot {
     std::uint64_t bytes = 0;
-    Clock::time_point lastUsed;
-    std::list<std::uint32_t>::iterator position;
+    Clock::time_point lastUsed{};
+    std::uint32_t older = kNone, newer = kNone;  // recency list neighbours
+    std::uint32_t pins = 0;                      // taken before the cell arrives too
+    bool cached = false;
   };
+  Slot& slot(std::uint32_t cell);  // grows the slots to hold `cell`
+  void linkNewest(std::uint32_t cell);
+  void unlink(std::uint32_t cell);
   void erase(std::uint32_t cell);
 
   std::uint64_t capBytes_;
   std::chrono::milliseconds timeout_;
-  std::list<std::uint32_t> recency_;  // front: least recently used
-  std::unordered_map<std::uint32_t, Entry> entries_;
-  std::unordered_map<std::uint32_t, std::uint32_t> pins_;
+  std::vector<Slot> slots_;
+  std::uint32_t oldest_ = kNone, newest_ = kNone;
+  std::size_t size_ = 0;
   std::uint64_t bytes_ = 0;
   std::uint64_t pinnedBytes_ = 0;  // of the cached cells that are pinned
   std::uint64_t peakBytes_ = 0;
