@@ -57,6 +57,7 @@ void CellCache::touch(std::uint32_t cell, Clock::time_point now) {
 
 std::vector<std::uint32_t> CellCache::insert(std::uint32_t cell, std::uint64_t bytes,
                                              Clock::time_point now) {
+  slot(cell);  // refuses an absurd id before anything is evicted
   std::vector<std::uint32_t> evicted;
   const std::uint64_t current = bytesOf(cell);
   if (contains(cell)) touch(cell, now);

@@ -5,6 +5,7 @@
 #include <map>
 #include <random>
 
+#include "common/errors.hpp"
 #include "render/core/cell_cache.hpp"
 
 namespace pointillist::render {
@@ -30,6 +31,30 @@ TEST(CellCache, EvictsLeastRecentlyUsedToStayUnderTheCap) {
   EXPECT_EQ(many, (std::vector<std::uint32_t>{3, 1, 4}));
   EXPECT_EQ(cache.bytes(), 250u);
   EXPECT_EQ(cache.evictions(), 4u);
+}
+
+// Cells are slots by id: sparse ids work, a pin may come before the cell, and
+// an id no dataset could have is refused rather than allocated for.
+TEST(CellCache, SparseIdsAndEarlyPinsKeepTheBooksAndAbsurdIdsAreRefused) {
+  CellCache cache(1000, 60s);
+  const auto t = Clock::now();
+  cache.pin(70000);  // before it arrives
+  EXPECT_TRUE(cache.pinned(70000));
+  EXPECT_FALSE(cache.contains(70000));
+  EXPECT_TRUE(cache.insert(5, 300, t).empty());
+  EXPECT_TRUE(cache.insert(70000, 400, t + 1ms).empty());
+  EXPECT_FALSE(cache.canFit(601));  // the pinned 400 stays
+  EXPECT_TRUE(cache.canFit(600));
+  EXPECT_EQ(cache.insert(9, 500, t + 2ms), (std::vector<std::uint32_t>{5}));
+  EXPECT_EQ(cache.lruOrder(), (std::vector<std::uint32_t>{70000, 9}));
+  cache.unpin(70000);
+  cache.unpin(12345);  // never pinned: nothing happens
+  EXPECT_TRUE(cache.canFit(1000));
+  EXPECT_EQ(cache.size(), 2u);
+  EXPECT_EQ(cache.bytes(), 900u);
+  EXPECT_THROW(cache.insert(0xFFFFFFF0u, 1, t), UsageError);
+  EXPECT_THROW(cache.pin(0xFFFFFFF0u), UsageError);
+  EXPECT_FALSE(cache.contains(0xFFFFFFF0u));
 }
 
 TEST(CellCache, PinnedCellsAreNeverEvicted) {
