@@ -11,7 +11,9 @@
 # points with normals; city is the built-in generated scene (2 M points). Both
 # are made once into datasets/. Per scene it prints one table: goal, measured,
 # met; the job's CPU per role and activity; and writes OUT/<scene>/ (stats.json
-# of each job run, reference-N.log) and OUT/goals.md with every table.
+# of each job run, reference-N.log, and two plots: bytes.png, MiB moved by each
+# frame of the median job run; pairs.png, frames/s of each job and reference
+# pair) and OUT/goals.md with every table.
 # --repeat N runs the job and the reference in turn N times; it reports the job
 # run with the median steady frame rate, the median reference, and job over
 # reference as the median of the N back-to-back pairs (this machine's speed
@@ -41,7 +43,7 @@ while (($#)); do
     --camera-path) camera_path="$2"; shift 2 ;;
     --repeat) repeat="$2"; shift 2 ;;
     --out) out="$2"; shift 2 ;;
-    -h|--help) sed -n '2,19p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,21p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 0 ;;
     --) shift; extra=("$@"); break ;;
     *) die "unknown option '$1' (options for the job and reference go after --)" ;;
   esac
@@ -51,6 +53,7 @@ done
 [[ "$size" =~ ^[1-9][0-9]*x[1-9][0-9]*$ ]] || die "--size '$size' is not WIDTHxHEIGHT"
 
 install_packages
+command -v gnuplot >/dev/null || die "gnuplot is missing (Debian package gnuplot-nox)"
 if [[ ! -f "$POINTILLIST_BUILD/CMakeCache.txt" ]]; then
   log "configuring a Release build in $POINTILLIST_BUILD"
   cmake -S "$POINTILLIST_ROOT" -B "$POINTILLIST_BUILD" -DCMAKE_BUILD_TYPE=Release \
@@ -106,6 +109,12 @@ ref_splats = refs[0][1]
 # Job over reference run by run (each pair ran back to back), then the median.
 ratios = [j / r for j, r in zip(fps, ref_all)]
 ratio = statistics.median(ratios)
+with open(f"{folder}/bytes.tsv", "w") as out:  # frame, MiB sent for it
+    for f in runs[median]["frames"]:
+        out.write(f"{f['frame']}\t{f['bytes_sent'] / 2**20:.4f}\n")
+with open(f"{folder}/pairs.tsv", "w") as out:  # pair, job frames/s, reference frames/s
+    for i, (j, r) in enumerate(zip(fps, ref_all), 1):
+        out.write(f"{i}\t{j:.3f}\t{r:.3f}\n")
 q = open(f"{folder}/quality.log").read()
 qm = re.search(r"quality: mean PSNR ([0-9.]+) dB over (\d+) frame.*?\((\d+) identical\), ([0-9.]+)% of covered", q)
 full = re.findall(r"full detail ([0-9.]+) M splats", q)
@@ -141,6 +150,28 @@ for role, acts in sorted(by_role.items()):
     parts = ", ".join(f"{a} {1e3 * s / frames:.1f}" for a, s in sorted(acts.items(), key=lambda x: -x[1]) if s > 0)
     print(f"- {role}: {parts}")
 EOF
+  gnuplot <<PLOT
+set terminal pngcairo size 1000,480
+set output "$dir/bytes.png"
+set title "$scene: MiB moved by each frame (median job run; layout $layout, $size, $camera_path)"
+set xlabel "frame"
+set ylabel "MiB (log scale)"
+set logscale y
+set grid
+plot "$dir/bytes.tsv" using 1:(\$2 > 0 ? \$2 : 1/0) with linespoints pt 7 ps 0.5 title "bytes sent"
+PLOT
+  gnuplot <<PLOT
+set terminal pngcairo size 1000,480
+set output "$dir/pairs.png"
+set title "$scene: frames/s of each back-to-back pair (steady job; reference)"
+set xlabel "pair"
+set ylabel "frames/s"
+set yrange [0:*]
+set xtics 1
+set grid
+plot "$dir/pairs.tsv" using 1:2 with linespoints pt 7 title "job", \\
+     "$dir/pairs.tsv" using 1:3 with linespoints pt 5 title "reference"
+PLOT
 done
 cat "$report"
 log "report in $report"
