@@ -78,7 +78,7 @@ HWY_INLINE void projectSplats(const PointRaster& r, const PointCell& c, std::siz
   for (std::size_t i = from - from % lanes; i < to; i += lanes) {
     const MF inside = hn::AndNot(hn::FirstN(df, from > i ? from - i : 0),
                                  hn::FirstN(df, std::min(to - i, lanes)));
-    const float* const group = values + (i / kPad) * PointCell::kGroupValues + i % kPad;
+    const float* const group = values + PointCell::valueIndex(PointCell::kX, i);
     if (i % kPad == 0) {
       // One stream (the cell's groups in order) would be read at the pace
       // the hardware prefetcher keeps for one stream; fetching a few groups
@@ -87,8 +87,8 @@ HWY_INLINE void projectSplats(const PointRaster& r, const PointCell& c, std::siz
       for (std::size_t k = 0; k < PointCell::kFields; ++k) hwy::Prefetch(ahead + k * kPad);
     }
     const VF x = hn::Load(df, group);
-    const VF y = hn::Load(df, group + kPad);
-    const VF z = hn::Load(df, group + 2 * kPad);
+    const VF y = hn::Load(df, group + PointCell::kY * kPad);
+    const VF z = hn::Load(df, group + PointCell::kZ * kPad);
     const VF cw = hn::Add(hn::Add(hn::Add(hn::Mul(m03, x), hn::Mul(m13, y)), hn::Mul(m23, z)), m33);
     MF drawn = hn::And(inside, hn::Gt(cw, zero));  // not behind the eye
     const VF inverse = hn::Div(one, cw);
@@ -101,7 +101,8 @@ HWY_INLINE void projectSplats(const PointRaster& r, const PointCell& c, std::siz
         hn::Add(hn::Add(hn::Add(hn::Mul(m01, x), hn::Mul(m11, y)), hn::Mul(m21, z)), m31), inverse);
     VF size = constantSize;
     if constexpr (!kConstantSize) {
-      size = clampSize(hn::Mul(hn::Mul(hn::Load(df, group + 3 * kPad), diameterScale), inverse));
+      size = clampSize(hn::Mul(
+          hn::Mul(hn::Load(df, group + PointCell::kRadius * kPad), diameterScale), inverse));
     }
     const VF wx = hn::Mul(hn::Add(hn::Mul(nx, half), half), frameWidth);
     const VF wy = hn::Mul(hn::Add(hn::Mul(ny, half), half), frameHeight);
@@ -123,11 +124,12 @@ HWY_INLINE void projectSplats(const PointRaster& r, const PointCell& c, std::siz
     const VI x1 = pixel(hn::Min(x1f, tileRight), tileXi);
     const VI y1 = pixel(hn::Min(y1f, tileTop), tileYi);
 
-    VU color = hn::Load(du, reinterpret_cast<const std::uint32_t*>(group + 7 * kPad));
+    VU color =
+        hn::Load(du, reinterpret_cast<const std::uint32_t*>(group + PointCell::kColor * kPad));
     if constexpr (kLighting) {
-      const VF nnx = hn::Load(df, group + 4 * kPad);
-      const VF nny = hn::Load(df, group + 5 * kPad);
-      const VF nnz = hn::Load(df, group + 6 * kPad);
+      const VF nnx = hn::Load(df, group + PointCell::kNormalX * kPad);
+      const VF nny = hn::Load(df, group + PointCell::kNormalY * kPad);
+      const VF nnz = hn::Load(df, group + PointCell::kNormalZ * kPad);
       const VF lengthSquared =
           hn::Add(hn::Add(hn::Mul(nnx, nnx), hn::Mul(nny, nny)), hn::Mul(nnz, nnz));
       MF lit = hn::And(drawn, hn::Gt(lengthSquared, quarter));

@@ -77,35 +77,40 @@ void rasterizePointsScalar(const PointRaster& raster, std::span<const Splat> spl
 class PointCell {
  public:
   static constexpr std::size_t kPad = 16;
-  static constexpr std::size_t kFields = 8;  // 4-byte values each
+  // A field's place in its group, kPad 4-byte values each.
+  static constexpr std::size_t kX = 0, kY = 1, kZ = 2, kRadius = 3;
+  static constexpr std::size_t kNormalX = 4, kNormalY = 5, kNormalZ = 6, kColor = 7;
+  static constexpr std::size_t kFields = 8;
   static constexpr std::size_t kGroupValues = kFields * kPad;
+  // Where splat i's `field` lies among values(); the kPad - i % kPad values
+  // from there are those of splats i, i + 1, ... of its group (a vector load).
+  static constexpr std::size_t valueIndex(std::size_t field, std::size_t i) {
+    return (i / kPad) * kGroupValues + field * kPad + i % kPad;
+  }
 
   std::size_t count = 0;
   bool hasNormals = false;  // any normal long enough to shade with
 
-  // Splat i's value of a field; the kPad - i % kPad values from there are
-  // those of splats i, i + 1, ... of its group (a vector load of them).
-  const float* x(std::size_t i) const { return field<float>(0, i); }
-  const float* y(std::size_t i) const { return field<float>(1, i); }
-  const float* z(std::size_t i) const { return field<float>(2, i); }
-  const float* radius(std::size_t i) const { return field<float>(3, i); }
-  const float* nx(std::size_t i) const { return field<float>(4, i); }
-  const float* ny(std::size_t i) const { return field<float>(5, i); }
-  const float* nz(std::size_t i) const { return field<float>(6, i); }
+  const float* x(std::size_t i) const { return field<float>(kX, i); }
+  const float* y(std::size_t i) const { return field<float>(kY, i); }
+  const float* z(std::size_t i) const { return field<float>(kZ, i); }
+  const float* radius(std::size_t i) const { return field<float>(kRadius, i); }
+  const float* nx(std::size_t i) const { return field<float>(kNormalX, i); }
+  const float* ny(std::size_t i) const { return field<float>(kNormalY, i); }
+  const float* nz(std::size_t i) const { return field<float>(kNormalZ, i); }
   const std::uint32_t* color(std::size_t i) const {  // RGBA8, R low
-    return field<std::uint32_t>(7, i);
+    return field<std::uint32_t>(kColor, i);
   }
-  float* x(std::size_t i) { return field<float>(0, i); }
-  float* y(std::size_t i) { return field<float>(1, i); }
-  float* z(std::size_t i) { return field<float>(2, i); }
-  float* radius(std::size_t i) { return field<float>(3, i); }
-  float* nx(std::size_t i) { return field<float>(4, i); }
-  float* ny(std::size_t i) { return field<float>(5, i); }
-  float* nz(std::size_t i) { return field<float>(6, i); }
-  std::uint32_t* color(std::size_t i) { return field<std::uint32_t>(7, i); }
+  float* x(std::size_t i) { return field<float>(kX, i); }
+  float* y(std::size_t i) { return field<float>(kY, i); }
+  float* z(std::size_t i) { return field<float>(kZ, i); }
+  float* radius(std::size_t i) { return field<float>(kRadius, i); }
+  float* nx(std::size_t i) { return field<float>(kNormalX, i); }
+  float* ny(std::size_t i) { return field<float>(kNormalY, i); }
+  float* nz(std::size_t i) { return field<float>(kNormalZ, i); }
+  std::uint32_t* color(std::size_t i) { return field<std::uint32_t>(kColor, i); }
 
-  // The first group's first value: splat i's field k is at
-  // values() + (i / kPad) * kGroupValues + k * kPad + i % kPad.
+  // The block's values, as valueIndex counts them.
   const float* values() const { return reinterpret_cast<const float*>(block_.get()); }
 
   // Room for `splats` (and the padding after them), keeping the fields held;
@@ -118,8 +123,8 @@ class PointCell {
   };
   template <class T>
   T* field(std::size_t k, std::size_t i) const {
-    return reinterpret_cast<T*>(block_.get() + ((i / kPad) * kFields + k) * kPad * 4 +
-                                (i % kPad) * 4);
+    static_assert(sizeof(T) == 4);
+    return reinterpret_cast<T*>(block_.get()) + valueIndex(k, i);
   }
   std::size_t capacity_ = 0;  // splats, a multiple of kPad
   std::unique_ptr<std::byte[], BlockDeleter> block_;
