@@ -61,6 +61,21 @@ std::size_t CandidatesWithin(const float* x, const float* y, const float* z,
   return kept;
 }
 
+void SortDistinctKeys(std::uint64_t* keys, std::size_t n, std::uint64_t* sorted) {
+  const hn::ScalableTag<std::uint64_t> d;
+  const std::size_t lanes = hn::Lanes(d);
+  // The last vector is filled up with the largest key, which is below none.
+  const std::size_t padded = (n + lanes - 1) / lanes * lanes;
+  for (std::size_t j = n; j < padded; ++j) keys[j] = ~std::uint64_t{0};
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto key = hn::Set(d, keys[i]);
+    std::size_t below = 0;
+    for (std::size_t j = 0; j < padded; j += lanes)
+      below += hn::CountTrue(d, hn::Lt(hn::LoadU(d, keys + j), key));
+    sorted[below] = keys[i];
+  }
+}
+
 }  // namespace HWY_NAMESPACE
 }  // namespace pointillist::preprocess
 HWY_AFTER_NAMESPACE();
@@ -74,6 +89,13 @@ std::size_t candidatesWithin(const float* x, const float* y, const float* z,
                              const std::uint32_t* id, std::size_t n, const float p[3], float bound,
                              float* distance2, std::uint32_t* idOut) {
   return HWY_DYNAMIC_DISPATCH(CandidatesWithin)(x, y, z, id, n, p, bound, distance2, idOut);
+}
+
+HWY_EXPORT(SortDistinctKeys);
+
+void sortDistinctKeys(std::uint64_t* keys, std::size_t n, std::uint64_t* sorted) {
+  static_assert(HWY_MAX_BYTES / sizeof(std::uint64_t) <= kSortKeysPad + 1);
+  HWY_DYNAMIC_DISPATCH(SortDistinctKeys)(keys, n, sorted);
 }
 
 }  // namespace pointillist::preprocess

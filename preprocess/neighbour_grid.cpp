@@ -22,6 +22,14 @@ namespace {
 
 constexpr unsigned kCodeLevels = 16;
 constexpr std::size_t kNotFound = std::numeric_limits<std::size_t>::max();
+// A query's candidates within the bound are sorted whole up to this many
+// (n^2 compares); beyond, the nearest are selected first.
+constexpr std::size_t kSortAllUpTo = 48;
+// A query first keeps the candidates within this many times the previous
+// query's squared k-th distance (about 1.6 times k of them on a surface),
+// and only if too few pass, those within the bound that is sure to hold
+// enough: twice as many on average.
+constexpr double kTightBound = 1.6;
 
 std::uint64_t interleave(const std::int64_t q[3]) {
   std::uint64_t code = 0;
@@ -29,8 +37,15 @@ std::uint64_t interleave(const std::int64_t q[3]) {
   return code;
 }
 
-std::uint64_t hashKey(std::uint64_t key) {
-  return key * 0x9E3779B97F4A7C15ull;
+// A cube's first slot in the table. The key's low bits (16 consecutive
+// Morton keys, a brick of 2x2x4 cubes) stay the slot's low bits, so a cube's
+// neighbours are mostly found in a few cache lines, and the next cube's in
+// the same ones; the rest is hashed, as an axis-aligned plane would pile up
+// if slots were plain Morton keys.
+constexpr unsigned kBrickBits = 4;
+std::uint64_t firstSlot(std::uint64_t key, std::uint64_t mask) {
+  const std::uint64_t brick = (key >> kBrickBits) * 0x9E3779B97F4A7C15ull >> 32;
+  return (brick << kBrickBits | (key & ((1u << kBrickBits) - 1))) & mask;
 }
 
 }  // namespace
@@ -125,14 +140,14 @@ NeighbourGrid::NeighbourGrid(std::span<const Splat> points, double pointsPerCube
   table_.assign(tableSize, 0);
   tableMask_ = tableSize - 1;
   for (std::size_t c = 0; c < cubeKey_.size(); ++c) {
-    std::uint64_t at = hashKey(cubeKey_[c]) >> 32 & tableMask_;
+    std::uint64_t at = firstSlot(cubeKey_[c], tableMask_);
     while (table_[at] != 0) at = (at + 1) & tableMask_;
     table_[at] = static_cast<std::uint32_t>(c + 1);
   }
 }
 
 std::size_t NeighbourGrid::findCube(std::uint64_t key) const {
-  for (std::uint64_t at = hashKey(key) >> 32 & tableMask_;; at = (at + 1) & tableMask_) {
+  for (std::uint64_t at = firstSlot(key, tableMask_);; at = (at + 1) & tableMask_) {
     const std::uint32_t c = table_[at];
     if (c == 0) return kNotFound;
     if (cubeKey_[c - 1] == key) return c - 1;
@@ -182,12 +197,14 @@ void NeighbourGrid::nearestInCube(std::size_t cube, std::size_t k, const Neighbo
   const std::size_t n = cid.size();  // the queries themselves among them
   passedDistance.resize(n);
   passedId.resize(n);
-  keys.resize(n);
-  spareKeys.resize(n);
+  keys.resize(n + kSortKeysPad);
+  spareKeys.resize(n + kSortKeysPad);
   // The previous query's k-th distance bounds this one's: its k nearest and
-  // itself lie within that distance plus the step between the two.
-  double previousKth = std::numeric_limits<double>::infinity();
-  float previous[3] = {0.0f, 0.0f, 0.0f};
+  // itself lie within that distance plus the step between the two. Kept
+  // from the previous cube (the next one in Morton order, mostly a
+  // neighbour): a cube's first query had no bound and passed every candidate.
+  thread_local double previousKth = std::numeric_limits<double>::infinity();
+  thread_local float previous[3] = {0.0f, 0.0f, 0.0f};
   for (std::uint32_t self = cubeStart_[cube]; self < cubeStart_[cube + 1]; ++self) {
     const float p[3] = {xyz_[3 * self], xyz_[3 * self + 1], xyz_[3 * self + 2]};
     const std::uint64_t selfKey = original_[self];  // at distance 0
@@ -202,8 +219,12 @@ void NeighbourGrid::nearestInCube(std::size_t cube, std::size_t k, const Neighbo
       // A margin for the rounding of float distances. Any bound gives the
       // exact neighbours as long as the query and `found` others pass it.
       const auto bound = static_cast<float>(reach * reach * (1.0 + 1e-4));
+      const auto tight = static_cast<float>(std::min(reach * reach, previousKth * kTightBound));
       std::size_t passed = candidatesWithin(cx.data(), cy.data(), cz.data(), cid.data(), n, p,
-                                            bound, passedDistance.data(), passedId.data());
+                                            tight, passedDistance.data(), passedId.data());
+      if (passed <= found)
+        passed = candidatesWithin(cx.data(), cy.data(), cz.data(), cid.data(), n, p, bound,
+                                  passedDistance.data(), passedId.data());
       if (passed <= found) {
         passed = candidatesWithin(cx.data(), cy.data(), cz.data(), cid.data(), n, p,
                                   std::numeric_limits<float>::infinity(), passedDistance.data(),
@@ -213,17 +234,31 @@ void NeighbourGrid::nearestInCube(std::size_t cube, std::size_t k, const Neighbo
         return std::uint64_t{std::bit_cast<std::uint32_t>(passedDistance[j])} << 32 | passedId[j];
       };
       for (std::size_t j = 0; j < passed; ++j) keys[j] = keyOf(j);
-      // The found + 1 smallest keys: the query's own and its neighbours. The
-      // keys are distinct, so exactly those are at most the last.
-      const std::uint64_t last = kthSmallest(keys.data(), spareKeys.data(), passed, found);
-      std::size_t kept = 0;
-      for (std::size_t j = 0; j < passed; ++j) {
-        const std::uint64_t key = keyOf(j);
-        keys[kept] = key;
-        kept += (key <= last) & (key != selfKey);
+      // The found + 1 smallest keys are the query's own and its neighbours
+      // (the query's own is not among them only where more than `found`
+      // points coincide with it).
+      if (passed <= kSortAllUpTo) {
+        sortDistinctKeys(keys.data(), passed, spareKeys.data());
+        std::size_t kept = 0;
+        for (std::size_t j = 0; j <= found && j < passed; ++j) {
+          keys[kept] = spareKeys[j];
+          kept += spareKeys[j] != selfKey;
+        }
+        found = std::min(found, kept);
+      } else {
+        // The keys are distinct, so exactly those are at most the last.
+        const std::uint64_t last = kthSmallest(keys.data(), spareKeys.data(), passed, found);
+        std::size_t kept = 0;
+        for (std::size_t j = 0; j < passed; ++j) {
+          const std::uint64_t key = keyOf(j);
+          keys[kept] = key;
+          kept += (key <= last) & (key != selfKey);
+        }
+        // Where the query's own is not among them, the found + 1 kept in
+        // candidate order: all sorted, so the `found` nearest come first.
+        std::sort(keys.begin(), keys.begin() + static_cast<std::ptrdiff_t>(kept));
+        found = std::min(found, kept);
       }
-      found = std::min(found, kept);
-      std::sort(keys.begin(), keys.begin() + static_cast<std::ptrdiff_t>(found));
     }
     for (std::size_t j = 0; j < found; ++j) {
       distance2[j] = std::bit_cast<float>(static_cast<std::uint32_t>(keys[j] >> 32));
