@@ -170,12 +170,12 @@ void NeighbourGrid::nearestInCube(std::size_t cube, std::size_t k, const Neighbo
   // order as the value does) above its index, which breaks ties. The k
   // nearest are the k smallest keys.
   thread_local std::vector<std::uint64_t> keys, spareKeys;
-  cx.clear();
-  cy.clear();
-  cz.clear();
-  cid.clear();
   index.resize(want + 1);
   distance2.resize(want + 1);
+  // The occupied cubes around first (their lookups independent of each
+  // other), then their points copied in one sized pass.
+  std::array<std::size_t, 27> around;
+  std::size_t cubesAround = 0, n = 0;  // the queries themselves among the n
   std::int64_t q[3];
   for (std::int64_t dx = -1; dx <= 1; ++dx)
     for (std::int64_t dy = -1; dy <= 1; ++dy)
@@ -187,14 +187,22 @@ void NeighbourGrid::nearestInCube(std::size_t cube, std::size_t k, const Neighbo
           continue;
         const std::size_t other = dx == 0 && dy == 0 && dz == 0 ? cube : findCube(interleave(q));
         if (other == kNotFound) continue;
-        for (std::uint32_t j = cubeStart_[other]; j < cubeStart_[other + 1]; ++j) {
-          cx.push_back(xyz_[3 * j]);
-          cy.push_back(xyz_[3 * j + 1]);
-          cz.push_back(xyz_[3 * j + 2]);
-          cid.push_back(original_[j]);
-        }
+        around[cubesAround++] = other;
+        n += cubeStart_[other + 1] - cubeStart_[other];
       }
-  const std::size_t n = cid.size();  // the queries themselves among them
+  cx.resize(n);
+  cy.resize(n);
+  cz.resize(n);
+  cid.resize(n);
+  std::size_t at = 0;
+  for (std::size_t a = 0; a < cubesAround; ++a) {
+    for (std::uint32_t j = cubeStart_[around[a]]; j < cubeStart_[around[a] + 1]; ++j, ++at) {
+      cx[at] = xyz_[3 * j];
+      cy[at] = xyz_[3 * j + 1];
+      cz[at] = xyz_[3 * j + 2];
+      cid[at] = original_[j];
+    }
+  }
   passedDistance.resize(n);
   passedId.resize(n);
   keys.resize(n + kSortKeysPad);
