@@ -57,7 +57,7 @@ void CellCache::touch(std::uint32_t cell, Clock::time_point now) {
 
 std::vector<std::uint32_t> CellCache::insert(std::uint32_t cell, std::uint64_t bytes,
                                              Clock::time_point now) {
-  slot(cell);  // refuses an absurd id before anything is evicted
+  Slot& s = slot(cell);  // refuses an absurd id before anything is evicted
   std::vector<std::uint32_t> evicted;
   const std::uint64_t current = bytesOf(cell);
   if (contains(cell)) touch(cell, now);
@@ -71,7 +71,6 @@ std::vector<std::uint32_t> CellCache::insert(std::uint32_t cell, std::uint64_t b
     erase(victim);
   }
   if (bytes_ + growth > capBytes_) ++overCapInsertions_;
-  Slot& s = slot(cell);
   if (!s.cached) {
     s.cached = true;
     s.lastUsed = now;
