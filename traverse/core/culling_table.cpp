@@ -12,14 +12,21 @@ CellCulling cellCulling(const OctreeCell& cell, float sizeScale) {
   const float r = cell.maxSplatRadius * sizeScale;
   out.low = {cell.boundsMin[0] - r, cell.boundsMin[1] - r, cell.boundsMin[2] - r};
   out.high = {cell.boundsMax[0] + r, cell.boundsMax[1] + r, cell.boundsMax[2] + r};
-  out.centre = 0.5f * (out.low + out.high);
   out.radius = 0.5f * glm::length(out.high - out.low);
   const NormalCone cone = decodeNormalCone(cell);
   if (cone.valid && cone.cosHalfAngle > 0.0) {  // a cone of 90 deg or more culls nothing
-    out.coneAxis = {cone.axis[0], cone.axis[1], cone.axis[2]};
-    out.cosCone = std::min(cone.cosHalfAngle, 1.0);
-    out.sinCone = std::sqrt(1.0 - out.cosCone * out.cosCone);
+    out.coneAxis = glm::vec3(glm::normalize(glm::dvec3(cone.axis[0], cone.axis[1], cone.axis[2])));
+    const double cosCone = std::min(cone.cosHalfAngle, 1.0);
+    out.cosCone = static_cast<float>(cosCone);
+    out.sinCone = static_cast<float>(std::sqrt(1.0 - cosCone * cosCone));
   }
+  out.maxSplatRadius = cell.maxSplatRadius;
+  out.nextSibling = cell.nextSibling;
+  out.topLevel = cell.topLevel;
+  out.flags = (cell.isLeaf() ? CellCulling::kLeaf : 0u) |
+              (cell.pointsCount > 0 ? CellCulling::kHasPoints : 0u) |
+              (cell.splatsCount > 0 ? CellCulling::kHasSplats : 0u) |
+              std::uint32_t{cell.level} << CellCulling::kLevelShift;
   return out;
 }
 
@@ -28,7 +35,6 @@ CullingTable::CullingTable(std::span<const OctreeCell> cells, float sizeScale)
   culling_.reserve(cells.size());
   for (const OctreeCell& cell : cells) culling_.push_back(cellCulling(cell, sizeScale));
   // Depth-first order: a cell's children follow it up to its next sibling.
-  withinParent_.assign(cells.size(), 0);
   struct Open {
     std::size_t end;
     std::size_t index;
@@ -38,9 +44,10 @@ CullingTable::CullingTable(std::span<const OctreeCell> cells, float sizeScale)
     while (!ancestors.empty() && i >= ancestors.back().end) ancestors.pop_back();
     if (!ancestors.empty()) {
       const CellCulling& parent = culling_[ancestors.back().index];
-      const CellCulling& child = culling_[i];
-      withinParent_[i] = glm::all(glm::greaterThanEqual(child.low, parent.low)) &&
-                         glm::all(glm::lessThanEqual(child.high, parent.high));
+      CellCulling& child = culling_[i];
+      if (glm::all(glm::greaterThanEqual(child.low, parent.low)) &&
+          glm::all(glm::lessThanEqual(child.high, parent.high)))
+        child.flags |= CellCulling::kWithinParent;
     }
     if (!cells[i].isLeaf()) {
       ancestors.push_back(
@@ -54,8 +61,8 @@ bool cellBackfacing(const CellCulling& cell, const glm::vec3& eye) {
 }
 
 Facing cellFacing(const CellCulling& cell, const glm::vec3& eye) {
-  if (cell.cosCone <= 0.0) return Facing::Mixed;
-  const glm::vec3 toCell = cell.centre - eye;
+  if (cell.cosCone <= 0.0f) return Facing::Mixed;
+  const glm::vec3 toCell = cell.centre() - eye;
   const float distance = glm::length(toCell);
   if (distance <= cell.radius * 1.0001f) return Facing::Mixed;  // eye inside
   // Every splat normal n lies within the cone's half angle C of the axis;
@@ -66,20 +73,22 @@ Facing cellFacing(const CellCulling& cell, const glm::vec3& eye) {
   // instead of angles: X = C + V + s must stay below 90 deg (cos X > 0), and
   // then A < 90 deg - X exactly when cos A > sin X. Every splat faces the eye
   // when the angle from the axis to -toCell passes the same test.
-  constexpr double kSafety = 1e-3;  // radians, covers float rounding of bounds and normals
-  static const double cosSafety = std::cos(kSafety);
-  static const double sinSafety = std::sin(kSafety);
-  const double cosC = cell.cosCone;
-  const double sinC = cell.sinCone;
-  const double sinV = std::clamp(static_cast<double>(cell.radius / distance), 0.0, 1.0);
-  const double cosV = std::sqrt(1.0 - sinV * sinV);
-  const double cosCV = cosC * cosV - sinC * sinV;
-  const double sinCV = sinC * cosV + cosC * sinV;
-  const double cosX = cosCV * cosSafety - sinCV * sinSafety;
-  const double sinX = sinCV * cosSafety + cosCV * sinSafety;
-  if (cosX <= 0.0) return Facing::Mixed;
-  const double cosA =
-      std::clamp(glm::dot(cell.coneAxis, glm::normalize(glm::dvec3(toCell))), -1.0, 1.0);
+  // In float: s covers its rounding (a relative 1e-7 moves an angle by at
+  // most 5e-4 radians, where its cosine is near 1) as well as that of the
+  // bounds and normals.
+  constexpr float kSafety = 2e-3f;  // radians
+  static const float cosSafety = std::cos(kSafety);
+  static const float sinSafety = std::sin(kSafety);
+  const float cosC = cell.cosCone;
+  const float sinC = cell.sinCone;
+  const float sinV = std::clamp(cell.radius / distance, 0.0f, 1.0f);
+  const float cosV = std::sqrt(1.0f - sinV * sinV);
+  const float cosCV = cosC * cosV - sinC * sinV;
+  const float sinCV = sinC * cosV + cosC * sinV;
+  const float cosX = cosCV * cosSafety - sinCV * sinSafety;
+  const float sinX = sinCV * cosSafety + cosCV * sinSafety;
+  if (cosX <= 0.0f) return Facing::Mixed;
+  const float cosA = glm::dot(cell.coneAxis, toCell) / distance;
   if (cosA > sinX) return Facing::Away;
   if (-cosA > sinX) return Facing::Toward;
   return Facing::Mixed;

@@ -1,9 +1,11 @@
 #pragma once
 // What the walk tests for every cell, taken out of the 64-byte cells once per
 // dataset and size scale: bounds grown by the largest splat radius, the
-// bounding sphere, and the normal cone decoded from its quantized form.
-// Decoding the cone (a normalisation in double) for every visited cell was
-// a third of the walk's time; the decisions are the same, bit for bit.
+// bounding sphere, the normal cone decoded from its quantized form, and the
+// links and flags the walk follows. One 64-byte record per cell is all the
+// walk reads until it draws a cell (the octree cell is read then): with the
+// cell and a double-precision cone beside it, a visited cell cost two and a
+// half cache lines.
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -14,15 +16,27 @@
 
 namespace pointillist::traverse {
 
-struct CellCulling {
+struct alignas(64) CellCulling {
   glm::vec3 low{};  // bounds grown by maxSplatRadius * sizeScale
   glm::vec3 high{};
-  glm::vec3 centre{};  // of the grown bounds
-  float radius = 0.0f;
-  glm::dvec3 coneAxis{};  // unit
-  double cosCone = -1.0;  // half-angle cosine in (0, 1]; -1: no cone to cull by
-  double sinCone = 0.0;
+  glm::vec3 coneAxis{};   // unit
+  float cosCone = -1.0f;  // half-angle cosine in (0, 1]; -1: no cone to cull by
+  float sinCone = 0.0f;
+  float radius = 0.0f;          // of the sphere around the grown bounds' centre
+  float maxSplatRadius = 0.0f;  // the cell's, not scaled
+  std::uint32_t nextSibling = kNoIndex;
+  std::uint32_t topLevel = kNoIndex;
+  std::uint32_t flags = 0;  // the bits below; the cell's level in bits 8-15
+
+  static constexpr std::uint32_t kLeaf = 1, kHasPoints = 2, kHasSplats = 4, kWithinParent = 8;
+  static constexpr unsigned kLevelShift = 8;
+  bool isLeaf() const { return (flags & kLeaf) != 0; }
+  std::uint8_t level() const { return static_cast<std::uint8_t>(flags >> kLevelShift); }
+  bool hasPoints() const { return (flags & kHasPoints) != 0; }
+  bool hasSplats() const { return (flags & kHasSplats) != 0; }
+  glm::vec3 centre() const { return 0.5f * (low + high); }
 };
+static_assert(sizeof(CellCulling) == 64);
 
 CellCulling cellCulling(const OctreeCell& cell, float sizeScale);
 
@@ -35,13 +49,14 @@ class CullingTable {
   const CellCulling& operator[](std::uint32_t index) const { return culling_[index]; }
   // The cell's grown bounds lie within its parent's: a plane the parent's lie
   // wholly inside holds the cell's too.
-  bool withinParent(std::uint32_t index) const { return withinParent_[index] != 0; }
+  bool withinParent(std::uint32_t index) const {
+    return (culling_[index].flags & CellCulling::kWithinParent) != 0;
+  }
 
  private:
   std::span<const OctreeCell> cells_;
   float sizeScale_;
   std::vector<CellCulling> culling_;
-  std::vector<std::uint8_t> withinParent_;
 };
 
 // True when every splat of the cell faces away from the eye (conservative:
