@@ -54,6 +54,39 @@ CullingTable::CullingTable(std::span<const OctreeCell> cells, float sizeScale)
           {cells[i].nextSibling == kNoIndex ? cells.size() : cells[i].nextSibling, i});
     }
   }
+  children_.assign(cells.size(), {});
+  for (std::size_t i = 0; i < cells.size(); ++i) {
+    const OctreeCell& parent = cells[i];
+    if (parent.isLeaf() || parent.topLevel == kNoIndex) continue;
+    const std::size_t end = parent.nextSibling == kNoIndex ? cells.size() : parent.nextSibling;
+    ChildrenSplats group;
+    bool oneRange = true;
+    bool first = true;
+    for (std::size_t child = i + 1; child < end && oneRange;) {
+      const OctreeCell& c = cells[child];
+      const bool fits =
+          c.splatsCount > 0 && c.topLevel == parent.topLevel &&
+          (culling_[child].flags & CellCulling::kWithinParent) != 0 &&
+          (first ? true : c.level == group.level && c.splatsOffset == group.offset + group.count);
+      if (!fits) {
+        oneRange = false;
+        break;
+      }
+      if (first) {
+        group.offset = c.splatsOffset;
+        group.level = c.level;
+        first = false;
+      }
+      group.count += c.splatsCount;
+      group.maxSplatRadius = std::max(group.maxSplatRadius, c.maxSplatRadius);
+      // The next child: this one's next sibling (its subtree is skipped).
+      child = c.nextSibling == kNoIndex ? end : c.nextSibling;
+    }
+    if (oneRange && !first) {
+      children_[i] = group;
+      culling_[i].flags |= CellCulling::kChildrenInOneRange;
+    }
+  }
 }
 
 bool cellBackfacing(const CellCulling& cell, const glm::vec3& eye) {

@@ -28,7 +28,8 @@ struct alignas(64) CellCulling {
   std::uint32_t topLevel = kNoIndex;
   std::uint32_t flags = 0;  // the bits below; the cell's level in bits 8-15
 
-  static constexpr std::uint32_t kLeaf = 1, kHasPoints = 2, kHasSplats = 4, kWithinParent = 8;
+  static constexpr std::uint32_t kLeaf = 1, kHasPoints = 2, kHasSplats = 4, kWithinParent = 8,
+                                 kChildrenInOneRange = 16;
   static constexpr unsigned kLevelShift = 8;
   bool isLeaf() const { return (flags & kLeaf) != 0; }
   std::uint8_t level() const { return static_cast<std::uint8_t>(flags >> kLevelShift); }
@@ -37,6 +38,19 @@ struct alignas(64) CellCulling {
   glm::vec3 centre() const { return 0.5f * (low + high); }
 };
 static_assert(sizeof(CellCulling) == 64);
+
+// The level-splats of all of a cell's children, where they are one run of
+// the packet: every child has level-splats, lies within the cell, and the
+// children are of one level (their splats then follow each other in the
+// layer, children in depth-first order). The walk takes them at once when it
+// knows every child would be drawn from its level-splats
+// (CellCulling::kChildrenInOneRange).
+struct ChildrenSplats {
+  std::uint32_t offset = 0;
+  std::uint32_t count = 0;
+  float maxSplatRadius = 0.0f;  // the largest of the children's
+  std::uint8_t level = 0;       // the children's
+};
 
 CellCulling cellCulling(const OctreeCell& cell, float sizeScale);
 
@@ -52,11 +66,14 @@ class CullingTable {
   bool withinParent(std::uint32_t index) const {
     return (culling_[index].flags & CellCulling::kWithinParent) != 0;
   }
+  // Valid where the cell's flags have kChildrenInOneRange.
+  const ChildrenSplats& childrenSplats(std::uint32_t index) const { return children_[index]; }
 
  private:
   std::span<const OctreeCell> cells_;
   float sizeScale_;
   std::vector<CellCulling> culling_;
+  std::vector<ChildrenSplats> children_;
 };
 
 // True when every splat of the cell faces away from the eye (conservative:

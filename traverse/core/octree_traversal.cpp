@@ -90,6 +90,23 @@ bool coarseEnough(float maxSplatRadius, float distance, double focal,
          maxSplatRadius * settings.sizeScale * pixelsPerUnit(focal, distance) <= settings.lodPixels;
 }
 
+// The children's level-splats, when the walk would draw every child of the
+// cell at `index` from them: the cell lies inside every plane of the tile and,
+// with back-face culling, all its splats face the eye (so no child is culled,
+// the children lying within it), and its children's largest splat is coarse
+// enough at the cell's distance, which no child is nearer than. nullptr
+// otherwise, or when the walk must test each cell (inheritCulling off, or
+// instanced sections to look for).
+const ChildrenSplats* childrenAllDrawnCoarse(const CullingTable& table, std::uint32_t index,
+                                             bool insideAll, bool facingEye, float distance,
+                                             double focal, const TraversalSettings& settings) {
+  if ((table[index].flags & CellCulling::kChildrenInOneRange) == 0 || !insideAll ||
+      !settings.inheritCulling || settings.instanced || (settings.backfaceCull && !facingEye))
+    return nullptr;
+  const ChildrenSplats& children = table.childrenSplats(index);
+  return coarseEnough(children.maxSplatRadius, distance, focal, settings) ? &children : nullptr;
+}
+
 // Whether traverseTile, over the whole frame, would draw any point of the
 // subtree at `root`: its walk with back-face culling and level of detail but
 // no frustum (which differs between tiles).
@@ -275,6 +292,7 @@ TraversalResult traverseTile(const CullingTable& table, const Camera& camera, co
   const glm::vec3 eye = cameraEye(camera);
   const double focal = focalLengthPixels(camera);
   const auto size = static_cast<std::uint32_t>(cells.size());
+  const int allPlanes = (1 << planes.size()) - 1;
 
   // What the cells being descended into are known to satisfy, innermost last.
   struct Known {
@@ -351,6 +369,12 @@ TraversalResult traverseTile(const CullingTable& table, const Camera& camera, co
       const OctreeCell& cell = cells[index];
       found.add({culling.topLevel, cell.splatsOffset, cell.splatsCount},
                 PacketOrderRanges::levelSplats(culling.level()));
+      index = culling.nextSibling;
+    } else if (const ChildrenSplats* children = childrenAllDrawnCoarse(
+                   table, index, inside == allPlanes, facingEye, distance, focal, settings)) {
+      // Every child would be visited only to be drawn from its level-splats.
+      found.add({culling.topLevel, children->offset, children->count},
+                PacketOrderRanges::levelSplats(children->level));
       index = culling.nextSibling;
     } else {
       descend();
