@@ -214,7 +214,12 @@ WorkDensity TilePlanner::densityFor(const TileRect& area) const {
     width = std::max(width, tile.rect.x() + tile.rect.width());
     height = std::max(height, tile.rect.y() + tile.rect.height());
   }
-  return WorkDensity(width, height, density_);
+  // Cells a 32nd of the mean tile's side: the cuts stay as fine, and large
+  // tiles (few render processes) do not pay for a grid of small ones.
+  const double tiles = std::max(1.0, options_.tilesPerRender * static_cast<double>(live_.size()));
+  const double meanSide = std::sqrt(static_cast<double>(area.width()) * area.height() / tiles);
+  const auto side = static_cast<std::uint32_t>(std::clamp(meanSide / 32.0, 1.0, 64.0));
+  return WorkDensity(width, height, density_, 1u << 19, side);
 }
 
 }  // namespace pointillist::display

@@ -13,8 +13,9 @@ std::uint32_t cellsAlong(std::uint32_t pixels, std::uint32_t side) {
 }  // namespace
 
 WorkDensity::WorkDensity(std::uint32_t width, std::uint32_t height,
-                         std::span<const TileFeedback> tiles, std::size_t maxCells)
-    : width_(width), height_(height) {
+                         std::span<const TileFeedback> tiles, std::size_t maxCells,
+                         std::uint32_t minCellSide)
+    : width_(width), height_(height), cell_(std::max(minCellSide, 1u)) {
   if (width == 0 || height == 0) return;
   double measuredArea = 0.0;
   double measuredWork = 0.0;

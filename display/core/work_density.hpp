@@ -27,9 +27,10 @@ class WorkDensity {
   // No measurement: work is proportional to area.
   WorkDensity() = default;
   // The frame is `width` x `height` pixels; cells are the smallest square
-  // side that keeps the grid within `maxCells`.
+  // side of at least `minCellSide` pixels that keeps the grid within
+  // `maxCells`.
   WorkDensity(std::uint32_t width, std::uint32_t height, std::span<const TileFeedback> tiles,
-              std::size_t maxCells = 1u << 19);
+              std::size_t maxCells = 1u << 19, std::uint32_t minCellSide = 1);
 
   bool measured() const { return !table_.empty(); }
   std::uint32_t cellSide() const { return cell_; }

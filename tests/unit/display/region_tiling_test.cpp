@@ -82,6 +82,11 @@ TEST(WorkDensity, EqualsThePixelEstimateOnItsGridAndStaysCloseBetween) {
   EXPECT_NEAR(coarse.work(frame), bruteWork(frame, tiles), 1e-6 * bruteWork(frame, tiles));
   // No measurement: work is area.
   EXPECT_EQ(WorkDensity().work(makeTileRect(3, 4, 10, 20)), 200.0);
+  // A floor on the cell side (the planner's, for large tiles) holds, and the
+  // frame's work stays whole.
+  const WorkDensity floored(width, height, tiles, 1u << 19, 10);
+  EXPECT_EQ(floored.cellSide(), 10u);
+  EXPECT_NEAR(floored.work(frame), bruteWork(frame, tiles), 1e-6 * bruteWork(frame, tiles));
 }
 
 TEST(WorkDensity, CutsAtTheShareOfTheWork) {
