@@ -96,8 +96,9 @@ bool cellBackfacing(const CellCulling& cell, const glm::vec3& eye) {
 Facing cellFacing(const CellCulling& cell, const glm::vec3& eye) {
   if (cell.cosCone <= 0.0f) return Facing::Mixed;
   const glm::vec3 toCell = cell.centre() - eye;
-  const float distance = glm::length(toCell);
-  if (distance <= cell.radius * 1.0001f) return Facing::Mixed;  // eye inside
+  const float squared = glm::dot(toCell, toCell);
+  const float radius = cell.radius;
+  if (squared <= radius * radius * 1.0002f) return Facing::Mixed;  // eye inside
   // Every splat normal n lies within the cone's half angle C of the axis;
   // every direction from the eye to a splat lies within V of toCell, with
   // sin V = radius / distance. The splat faces away when angle(n, direction)
@@ -105,25 +106,25 @@ Facing cellFacing(const CellCulling& cell, const glm::vec3& eye) {
   // the axis to toCell and s a safety margin. Tested with cosines and sines
   // instead of angles: X = C + V + s must stay below 90 deg (cos X > 0), and
   // then A < 90 deg - X exactly when cos A > sin X. Every splat faces the eye
-  // when the angle from the axis to -toCell passes the same test.
+  // when the angle from the axis to -toCell passes the same test. Every term
+  // is taken times the distance D (sin V D = radius, cos A D = axis . toCell),
+  // which leaves one square root and no division.
   // In float: s covers its rounding (a relative 1e-7 moves an angle by at
   // most 5e-4 radians, where its cosine is near 1) as well as that of the
   // bounds and normals.
-  constexpr float kSafety = 2e-3f;  // radians
-  static const float cosSafety = std::cos(kSafety);
-  static const float sinSafety = std::sin(kSafety);
+  constexpr float kCosSafety = 0.999998f;       // cos(2e-3 radians)
+  constexpr float kSinSafety = 0.00199999867f;  // sin(2e-3 radians)
   const float cosC = cell.cosCone;
   const float sinC = cell.sinCone;
-  const float sinV = std::clamp(cell.radius / distance, 0.0f, 1.0f);
-  const float cosV = std::sqrt(1.0f - sinV * sinV);
-  const float cosCV = cosC * cosV - sinC * sinV;
-  const float sinCV = sinC * cosV + cosC * sinV;
-  const float cosX = cosCV * cosSafety - sinCV * sinSafety;
-  const float sinX = sinCV * cosSafety + cosCV * sinSafety;
-  if (cosX <= 0.0f) return Facing::Mixed;
-  const float cosA = glm::dot(cell.coneAxis, toCell) / distance;
-  if (cosA > sinX) return Facing::Away;
-  if (-cosA > sinX) return Facing::Toward;
+  const float cosVD = std::sqrt(squared - radius * radius);
+  const float cosCVD = cosC * cosVD - sinC * radius;
+  const float sinCVD = sinC * cosVD + cosC * radius;
+  const float cosXD = cosCVD * kCosSafety - sinCVD * kSinSafety;
+  const float sinXD = sinCVD * kCosSafety + cosCVD * kSinSafety;
+  if (cosXD <= 0.0f) return Facing::Mixed;
+  const float cosAD = glm::dot(cell.coneAxis, toCell);
+  if (cosAD > sinXD) return Facing::Away;
+  if (-cosAD > sinXD) return Facing::Toward;
   return Facing::Mixed;
 }
 
