@@ -304,10 +304,16 @@ TraversalResult traverseTile(const CullingTable& table, const Camera& camera, co
   PacketOrderRanges found(result.ranges);
   std::uint32_t index = 0;
   while (index != kNoIndex && index < size) {
-    // Only this record is read until the cell is drawn (culling_table.hpp);
-    // the cell itself is fetched meanwhile, for the ranges.
+    // Only this record is read until the cell is drawn (culling_table.hpp).
+    // Where the walk goes next, the first child or the next sibling, is
+    // fetched meanwhile, the cell too (its ranges are read if it is drawn):
+    // the sibling is a jump no hardware prefetcher foresees.
     const CellCulling& culling = table[index];
-    __builtin_prefetch(&cells[index]);
+    if (culling.nextSibling < size) {
+      __builtin_prefetch(&table[culling.nextSibling]);
+      __builtin_prefetch(&cells[culling.nextSibling]);
+    }
+    if (index + 1 < size) __builtin_prefetch(&cells[index + 1]);
     ++result.cellsVisited;
     while (!known.empty() && index >= known.back().end) known.pop_back();
     const bool inherit = settings.inheritCulling && !known.empty();
