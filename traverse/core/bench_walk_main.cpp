@@ -100,6 +100,12 @@ int run(int argc, char** argv) {
   const Dataset dataset = Dataset::open(datasetPath, DatasetParts::Cells);
   const std::vector<Camera> cameras = viewCameras(view, datasetBounds(dataset.manifest()));
   if (cameras.empty()) throw UsageError("the camera path has no frames");
+  for (std::size_t g = 0; g < grids.size(); ++g) {
+    if (tileGrids[g].first > cameras[0].image_width() ||
+        tileGrids[g].second > cameras[0].image_height())
+      throw UsageError("--tiles '" + grids[g] + "' has more tiles across than the " + view.size +
+                       " frame has pixels");
+  }
   TraversalSettings settings;
   settings.lodPixels = view.lodPixels;
   settings.sizeScale = view.sizeScale;
@@ -125,12 +131,12 @@ int run(int argc, char** argv) {
       if (pass == 0 || figures.seconds < best.seconds) best = figures;
     }
     const double visited = static_cast<double>(best.visited) / frames;
-    std::printf("%-7s %10.3f %12.1f %12.0f %10.0f %12.0f %10.0f %10.0f\n", grid.c_str(),
-                best.seconds / frames * 1e3, best.seconds / frames / visited * 1e9, visited,
-                static_cast<double>(best.ranges) / frames,
-                static_cast<double>(best.splats) / frames,
-                static_cast<double>(best.culledFrustum) / frames,
-                static_cast<double>(best.culledBackface) / frames);
+    std::printf(
+        "%-7s %10.3f %12.1f %12.0f %10.0f %12.0f %10.0f %10.0f\n", grid.c_str(),
+        best.seconds / frames * 1e3, visited > 0.0 ? best.seconds / frames / visited * 1e9 : 0.0,
+        visited, static_cast<double>(best.ranges) / frames,
+        static_cast<double>(best.splats) / frames, static_cast<double>(best.culledFrustum) / frames,
+        static_cast<double>(best.culledBackface) / frames);
   }
   return 0;
 }
