@@ -28,10 +28,7 @@ Scene Scene::load(const std::string& datasetPath, const ViewOptions& view) {
   if (datasetPath.empty()) throw UsageError("--dataset is required");
   const Dataset dataset = Dataset::open(datasetPath, DatasetParts::Cells);
   const SceneBounds bounds = datasetBounds(dataset.manifest());
-  traverse::TraversalSettings traversal;
-  traversal.lodPixels = view.lodPixels;
-  traversal.sizeScale = view.sizeScale;
-  traversal.backfaceCull = !view.noBackfaceCull;
+  const traverse::TraversalSettings traversal = traverse::traversalSettings(view);
   return Scene(datasetPath, {dataset.cells().begin(), dataset.cells().end()},
                {dataset.topLevelCells().begin(), dataset.topLevelCells().end()}, bounds,
                viewCameras(view, bounds), traversal);

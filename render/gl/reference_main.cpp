@@ -80,10 +80,7 @@ int run(int argc, char** argv) {
 
   const Dataset dataset = Dataset::open(options.datasetPath, DatasetParts::All);
   const auto cameras = viewCameras(options.view, datasetBounds(dataset.manifest()));
-  traverse::TraversalSettings traversal;
-  traversal.lodPixels = options.view.lodPixels;
-  traversal.sizeScale = options.view.sizeScale;
-  traversal.backfaceCull = !options.view.noBackfaceCull;
+  traverse::TraversalSettings traversal = traverse::traversalSettings(options.view);
   if (parseRenderMode(options.view.mode) == v1::RENDER_MODE_INSTANCED)
     traversal.instanced = traverse::InstancedCells::load(dataset);
   if (parseRenderMode(options.view.mode) == v1::RENDER_MODE_STATISTICAL)

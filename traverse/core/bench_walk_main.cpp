@@ -106,10 +106,7 @@ int run(int argc, char** argv) {
       throw UsageError("--tiles '" + grids[g] + "' has more tiles across than the " + view.size +
                        " frame has pixels");
   }
-  TraversalSettings settings;
-  settings.lodPixels = view.lodPixels;
-  settings.sizeScale = view.sizeScale;
-  settings.backfaceCull = !view.noBackfaceCull;
+  TraversalSettings settings = traversalSettings(view);
   const v1::RenderMode mode = parseRenderMode(view.mode);
   if (mode == v1::RENDER_MODE_STATISTICAL)
     throw UsageError(

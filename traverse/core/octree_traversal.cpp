@@ -8,6 +8,7 @@
 #include "common/errors.hpp"
 #include "common/geometry.hpp"
 #include "common/instanced_section.hpp"
+#include "common/view_options.hpp"
 
 namespace pointillist::traverse {
 namespace {
@@ -174,6 +175,14 @@ std::shared_ptr<const InstancedCells> InstancedCells::load(const Dataset& datase
   const std::vector<std::byte> bytes = dataset.readFile(kInstancedSectionsKey);
   return std::make_shared<const InstancedCells>(dataset.cells(), dataset.topLevelCells(), bytes,
                                                 name);
+}
+
+TraversalSettings traversalSettings(const ViewOptions& view) {
+  TraversalSettings settings;
+  settings.lodPixels = view.lodPixels;
+  settings.sizeScale = view.sizeScale;
+  settings.backfaceCull = !view.noBackfaceCull;
+  return settings;
 }
 
 float distanceToCell(const OctreeCell& cell, const glm::vec3& eye, float sizeScale) {

@@ -21,6 +21,10 @@
 #include "traverse/core/culling_table.hpp"
 #include "traverse/core/packet_layers.hpp"
 
+namespace pointillist {
+struct ViewOptions;
+}
+
 namespace pointillist::traverse {
 
 // --mode instanced: the instancing units' sections (seed 000), per octree
@@ -88,6 +92,11 @@ struct TraversalSettings {
   // node ranges of the cut (common/statistical_cut.hpp) in statistical packets.
   std::shared_ptr<StatisticalCutMemo> statistical;
 };
+
+// A view's level of detail, size scale and back-face culling (the tools'
+// --lod-pixels, --size-scale, --no-backface-cull); a mode's instanced or
+// statistical data is the caller's to load.
+TraversalSettings traversalSettings(const ViewOptions& view);
 
 // One drawn range: splats [offset, offset + count) of a top-level cell's packet.
 struct PacketRange {
