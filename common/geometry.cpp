@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <utility>
 
 namespace pointillist {
@@ -60,38 +61,64 @@ Eigen3 eigenSymmetric3(const Sym3& m) {
   return result;
 }
 
+namespace {
+// With u = sqrt(1 - det B / 2) in [0, sqrt 2], the smallest root of
+// beta^3 - 3 beta = det B is -1 - u g, where g solves 3 g^2 + u g^3 = 2:
+// smooth in u (between 1/sqrt 2 and sqrt(2/3)), where beta itself has a
+// square-root corner at u = 0. A quadratic guess and three Newton steps give
+// g to a few ulps over the whole range.
+double smallestRootScale(double u) {
+  const double t = u * 0.70710678118654752440;  // in [0, 1]
+  double g = 0.81649658092772603 + t * (-0.14664724674687624 + t * 0.037257447005697664);
+  for (int step = 0; step < 3; ++step) {
+    const double g2 = g * g;
+    g = g - (3.0 * g2 + u * g2 * g - 2.0) / (6.0 * g + 3.0 * u * g2);
+  }
+  return g;
+}
+}  // namespace
+
 SmallestEigen3 smallestEigen3(const Sym3& m) {
   auto jacobi = [&] {
     const Eigen3 e = eigenSymmetric3(m);
     return SmallestEigen3{e.values, e.vectors[0]};
   };
+  // Each step as the batched form in preprocess/eigen_batch.cpp takes it, so
+  // the two give the same bits.
   const double q = (m[0] + m[3] + m[5]) / 3.0;
+  const double d0 = m[0] - q, d3 = m[3] - q, d5 = m[5] - q;
   const double p1 = m[1] * m[1] + m[2] * m[2] + m[4] * m[4];
-  const double p2 =
-      (m[0] - q) * (m[0] - q) + (m[3] - q) * (m[3] - q) + (m[5] - q) * (m[5] - q) + 2.0 * p1;
+  const double p2 = d0 * d0 + d3 * d3 + d5 * d5 + 2.0 * p1;
   const double p = std::sqrt(p2 / 6.0);
-  if (!(p > 0.0) || !std::isfinite(p)) return jacobi();
+  if (!(p > 0.0 && p < std::numeric_limits<double>::infinity())) return jacobi();
   const double ip = 1.0 / p;
-  const double b0 = (m[0] - q) * ip, b1 = m[1] * ip, b2 = m[2] * ip;
-  const double b3 = (m[3] - q) * ip, b4 = m[4] * ip, b5 = (m[5] - q) * ip;
-  const double r = std::clamp(
-      0.5 * (b0 * (b3 * b5 - b4 * b4) - b1 * (b1 * b5 - b4 * b2) + b2 * (b1 * b4 - b3 * b2)), -1.0,
-      1.0);
-  const double phi = std::acos(r) / 3.0;
-  constexpr double kTwoPiThirds = 2.0943951023931954923;
-  const double hi = q + 2.0 * p * std::cos(phi);
-  const double lo = q + 2.0 * p * std::cos(phi + kTwoPiThirds);
+  const double b0 = d0 * ip, b1 = m[1] * ip, b2 = m[2] * ip;
+  const double b3 = d3 * ip, b4 = m[4] * ip, b5 = d5 * ip;
+  const double det = b0 * (b3 * b5 - b4 * b4) - b1 * (b1 * b5 - b4 * b2) + b2 * (b1 * b4 - b3 * b2);
+  const double r = std::clamp(0.5 * det, -1.0, 1.0);
+  const double u = std::sqrt(1.0 - r);
+  const double g = smallestRootScale(u);
+  const double betaLo = -1.0 - u * g;
+  const double disc = std::max(0.0, 12.0 - 3.0 * betaLo * betaLo);
+  const double lo = q + p * betaLo;
+  const double hi = q + p * (0.5 * (std::sqrt(disc) - betaLo));
   const double mid = 3.0 * q - hi - lo;
   if (mid - lo < 1e-6 * (hi - lo)) return jacobi();
   const Vec3d r0 = {m[0] - lo, m[1], m[2]};
   const Vec3d r1 = {m[1], m[3] - lo, m[4]};
   const Vec3d r2 = {m[2], m[4], m[5] - lo};
   Vec3d best = cross(r0, r1);
-  for (const Vec3d& c : {cross(r0, r2), cross(r1, r2)})
-    if (dot(c, c) > dot(best, best)) best = c;
-  const Vec3d v = normalized(best);
-  if (length(v) == 0.0) return jacobi();
-  return {{lo, mid, hi}, v};
+  double bestSquared = dot(best, best);
+  for (const Vec3d& c : {cross(r0, r2), cross(r1, r2)}) {
+    const double squared = dot(c, c);
+    if (squared > bestSquared) {
+      best = c;
+      bestSquared = squared;
+    }
+  }
+  const double len = std::sqrt(bestSquared);
+  if (!(len > 1e-300)) return jacobi();
+  return {{lo, mid, hi}, scale(best, 1.0 / len)};
 }
 
 namespace {

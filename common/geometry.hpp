@@ -28,9 +28,14 @@ struct Eigen3 {
 Eigen3 eigenSymmetric3(const Sym3& m);
 
 // Eigenvalues (ascending) and the eigenvector of the smallest one, in closed
-// form (Smith 1961: trigonometric roots, cross product of rows) -- several
-// times faster than Jacobi; falls back to Jacobi when the smallest eigenvalue
-// is (nearly) repeated and the closed-form vector would be unreliable.
+// form -- several times faster than Jacobi; falls back to Jacobi when the
+// smallest eigenvalue is (nearly) repeated and the closed-form vector would be
+// unreliable. Smith (1961) scales m - q I (q the mean eigenvalue) to B, whose
+// eigenvalues beta solve beta^3 - 3 beta = det B: the smallest is found by
+// Newton steps instead of acos and cos, which cost as much
+// as the rest; the others from the quadratic left; the vector is the longest
+// cross product of two rows of m - lo I. Only + - * / and sqrt: a batch in
+// SIMD (preprocess/eigen_batch) gives the same bits.
 struct SmallestEigen3 {
   std::array<double, 3> values;
   Vec3d vector;  // unit

@@ -13,6 +13,7 @@
 #include <thread>
 
 #include "common/geometry.hpp"
+#include "preprocess/eigen_batch.hpp"
 #include "preprocess/parallel.hpp"
 
 namespace pointillist::preprocess {
@@ -103,6 +104,8 @@ struct ClusterScratch {
   std::vector<double> meanX, meanY, meanZ, distances, radii;
   std::vector<std::uint8_t> alive, anyNormal;
   std::vector<Vec3d> normalSums;
+  std::vector<Sym3> covariances;
+  std::vector<SmallestEigen3> planes;
   std::vector<std::array<double, 4>> colorSums;
 };
 
@@ -369,6 +372,16 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
     }
     for (std::size_t ch = 0; ch < 4; ++ch) colorSum[c][ch] += input[i].color[ch];
   }
+  // The plane fits' eigenvectors, solved together (SIMD).
+  std::vector<Sym3>& covariances = scratch.covariances;
+  covariances.clear();
+  for (std::size_t c = 0; c < k; ++c) {
+    if (anyNormal[c] && acc[c].count >= 3.0) covariances.push_back(acc[c].covariance());
+  }
+  std::vector<SmallestEigen3>& planes = scratch.planes;
+  planes.resize(covariances.size());
+  smallestEigen3Batch(covariances, planes);
+  std::size_t plane = 0;
   out.splats.resize(k);
   for (std::size_t c = 0; c < k; ++c) {
     Splat& s = out.splats[c];
@@ -378,7 +391,7 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
     if (anyNormal[c]) {
       normal = normalized(normalSum[c]);
       if (acc[c].count >= 3.0) {
-        const SmallestEigen3 e = smallestEigen3(acc[c].covariance());
+        const SmallestEigen3& e = planes[plane++];
         // A plane fit needs a cluster that is flat but not a line: otherwise
         // the plane can spin about the line and the mean normal is better.
         const bool flat = e.values[1] > 0.0 && e.values[0] <= 0.25 * e.values[1] &&

@@ -17,6 +17,7 @@
 
 #include "common/errors.hpp"
 #include "common/geometry.hpp"
+#include "preprocess/eigen_batch.hpp"
 #include "preprocess/neighbour_grid.hpp"
 #include "preprocess/parallel.hpp"
 #include "preprocess/selection.hpp"
@@ -466,9 +467,35 @@ void estimateNormalsAndRadii(PointCloud& cloud, const NormalOptions& options) {
   const float radiusFactor = std::sqrt(3.0f / static_cast<float>(k));
   std::atomic<std::uint64_t> done{0};
 
+  // Covariances wait in blocks for their eigenvectors: one at a time, the
+  // solve is a chain of divisions and roots; a block is solved in SIMD.
+  struct PendingNormals {
+    std::vector<std::uint32_t> points;
+    std::vector<Sym3> covariances;
+    std::vector<SmallestEigen3> eigen;
+  };
+  constexpr std::size_t kPendingNormals = 256;
+  const auto finishNormals = [&](PendingNormals& pending) {
+    pending.eigen.resize(pending.points.size());
+    smallestEigen3Batch(pending.covariances, pending.eigen);
+    for (std::size_t j = 0; j < pending.points.size(); ++j) {
+      const std::uint32_t i = pending.points[j];
+      const SmallestEigen3& eigen = pending.eigen[j];
+      const Vec3d normal = eigen.values[2] > 0 ? eigen.vector : Vec3d{0, 0, 1};
+      // Divided, not multiplied by a reciprocal as normalized() does: the
+      // stored normals keep their exact bits.
+      const double len = length(normal);
+      for (std::size_t d = 0; d < 3; ++d) splats[i].normal[d] = static_cast<float>(normal[d] / len);
+      // A recomputed normal keeps the side of the one it replaces.
+      if (!old.empty() && hasNormal(old[i]) && dotNormals(splats[i], old[i]) < 0) flip(splats[i]);
+    }
+    pending.points.clear();
+    pending.covariances.clear();
+  };
+
   // One point with its m nearest (index, squared distance), nearest first.
-  const auto handle = [&](std::size_t i, const std::uint32_t* index, const float* distance,
-                          std::size_t m) {
+  const auto handle = [&](PendingNormals& pending, std::size_t i, const std::uint32_t* index,
+                          const float* distance, std::size_t m) {
     if (needRadius[i]) splats[i].radius = std::sqrt(distance[m - 1]) * radiusFactor;
     if (!needNormal[i]) return;
     // Two passes (mean, then centred products) rather than
@@ -479,20 +506,14 @@ void estimateNormalsAndRadii(PointCloud& cloud, const NormalOptions& options) {
     Sym3 cov{};
     addOuterProduct(cov, sub(position(splats[i]), mean));
     for (std::size_t j = 0; j < m; ++j) addOuterProduct(cov, sub(position(splats[index[j]]), mean));
-    // Closed form (Jacobi only for near-equal eigenvalues): a third of the cost.
-    const SmallestEigen3 eigen = smallestEigen3(cov);
-    const Vec3d normal = eigen.values[2] > 0 ? eigen.vector : Vec3d{0, 0, 1};
-    // Divided, not multiplied by a reciprocal as normalized() does: the
-    // stored normals keep their exact bits.
-    const double len = length(normal);
-    for (std::size_t d = 0; d < 3; ++d) splats[i].normal[d] = static_cast<float>(normal[d] / len);
+    pending.points.push_back(static_cast<std::uint32_t>(i));
+    pending.covariances.push_back(cov);
+    if (pending.points.size() == kPendingNormals) finishNormals(pending);
     std::copy(index, index + m, neighbours.begin() + static_cast<std::ptrdiff_t>(i * k));
     if (m < k) {  // fewer neighbours than asked (tiny clouds): repeat the last
       std::fill(neighbours.begin() + static_cast<std::ptrdiff_t>(i * k + m),
                 neighbours.begin() + static_cast<std::ptrdiff_t>((i + 1) * k), index[m - 1]);
     }
-    // A recomputed normal keeps the side of the one it replaces.
-    if (!old.empty() && hasNormal(old[i]) && dotNormals(splats[i], old[i]) < 0) flip(splats[i]);
   };
 
   // Work items: cubes of the grid (their points share one gathering of
@@ -501,13 +522,14 @@ void estimateNormalsAndRadii(PointCloud& cloud, const NormalOptions& options) {
   const auto work = [&](std::size_t begin, std::size_t end, bool reports) {
     std::vector<std::uint32_t> index(k + 1);
     std::vector<float> distance(k + 1);
+    PendingNormals pending;
     std::uint64_t unreported = 0;
     for (std::size_t item = begin; item < end; ++item) {
       if (grid) {
         grid->nearestInCube(
             item, k, [&](std::size_t i, const std::uint32_t* idx, const float* d2, std::size_t m) {
               ++unreported;
-              if (needNormal[i] || needRadius[i]) handle(i, idx, d2, m);
+              if (needNormal[i] || needRadius[i]) handle(pending, i, idx, d2, m);
             });
       } else {
         const std::size_t i = item;
@@ -528,7 +550,7 @@ void estimateNormalsAndRadii(PointCloud& cloud, const NormalOptions& options) {
           distance[m] = distance[j];
           ++m;
         }
-        handle(i, index.data(), distance.data(), m);
+        handle(pending, i, index.data(), distance.data(), m);
       }
       if (unreported >= 1024) {
         const std::uint64_t now = done.fetch_add(unreported) + unreported;
@@ -536,6 +558,7 @@ void estimateNormalsAndRadii(PointCloud& cloud, const NormalOptions& options) {
         if (reports && options.progress) options.progress(now, total);
       }
     }
+    finishNormals(pending);
     done += unreported;
   };
 
