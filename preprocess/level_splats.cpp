@@ -14,6 +14,7 @@
 
 #include "common/geometry.hpp"
 #include "preprocess/eigen_batch.hpp"
+#include "preprocess/likeliest_gaussian.hpp"
 #include "preprocess/parallel.hpp"
 
 namespace pointillist::preprocess {
@@ -58,20 +59,9 @@ Range makeRange(std::uint32_t begin, std::uint32_t end, const Moments& m) {
   return {begin, end, end - begin >= 2 ? c[0] + c[3] + c[5] : 0.0, m.mean(), c, m};
 }
 
-struct Gaussian {
-  Vec3d mean;
-  Sym3 inverse;
-  double logDet;
-};
-
-double quadratic(const Sym3& m, const Vec3d& d) {
-  return m[0] * d[0] * d[0] + m[3] * d[1] * d[1] + m[5] * d[2] * d[2] +
-         2.0 * (m[1] * d[0] * d[1] + m[2] * d[0] * d[2] + m[4] * d[1] * d[2]);
-}
-
 // Inverse and log-determinant of (covariance + eps I) by the adjugate: no
 // eigen-decomposition needed for the Mahalanobis distance.
-Gaussian makeGaussian(const Moments& acc, double eps) {
+GaussianRecord makeGaussian(const Moments& acc, double eps) {
   Sym3 c = acc.covariance();
   c[0] += eps;
   c[3] += eps;
@@ -83,34 +73,28 @@ Gaussian makeGaussian(const Moments& acc, double eps) {
   // Positive definite by construction (PSD + eps I); guard against rounding.
   const double safeDet = std::max(det, eps * eps * eps);
   const double inv = 1.0 / safeDet;
-  Gaussian g{acc.mean(), {}, std::log(safeDet)};
-  g.inverse = {a00 * inv,
-               a01 * inv,
-               a02 * inv,
-               (c[0] * c[5] - c[2] * c[2]) * inv,
-               (c[1] * c[2] - c[0] * c[4]) * inv,
-               (c[0] * c[3] - c[1] * c[1]) * inv};
-  return g;
+  const Vec3d mean = acc.mean();
+  return {{mean[0], mean[1], mean[2]},
+          {a00 * inv, a01 * inv, a02 * inv, (c[0] * c[5] - c[2] * c[2]) * inv,
+           (c[1] * c[2] - c[0] * c[4]) * inv, (c[0] * c[3] - c[1] * c[1]) * inv},
+          std::log(safeDet)};
 }
 
 // What clusterSplats needs besides its output, kept per thread between calls.
 struct ClusterScratch {
   std::vector<Vec3d> positions;
-  std::vector<std::uint32_t> order, partitioned, active, activeBegin, done, candidates, remap;
+  std::vector<std::uint32_t> order, partitioned, active, activeBegin, done, remap;
   std::vector<double> activeSpread;
   std::vector<Range> ranges;
   std::vector<Moments> moments;
-  std::vector<Gaussian> gaussians;
-  std::vector<double> meanX, meanY, meanZ, distances, radii;
+  std::vector<GaussianRecord> gaussians;
+  std::vector<double> radii;
   std::vector<std::uint8_t> alive, anyNormal;
   std::vector<Vec3d> normalSums;
   std::vector<Sym3> covariances;
   std::vector<SmallestEigen3> planes;
   std::vector<std::array<double, 4>> colorSums;
 };
-
-// Clusters an input may move to in the refinement besides its own.
-constexpr std::size_t kRefineCandidates = 8;
 
 float roundUp(double v) {
   float f = static_cast<float>(v);
@@ -253,92 +237,12 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
     std::vector<Moments>& acc = scratch.moments;
     acc.assign(k, Moments{});
     for (std::size_t i = 0; i < m; ++i) acc[out.assignment[i]].add(pos[i]);
-    std::vector<Gaussian>& g = scratch.gaussians;
+    std::vector<GaussianRecord>& g = scratch.gaussians;
     g.clear();
     for (const auto& a : acc) g.push_back(makeGaussian(a, eps));
-    // An input moves only to one of its cluster's nearest clusters (by mean):
-    // the likeliest Gaussian is a near one, and all k would cost m * k.
-    const std::size_t near = std::min<std::size_t>(k - 1, kRefineCandidates);
-    // The `near` closest by (distance, index). Only the set matters: the
-    // reassignment takes the lowest (cost, index) whatever the order.
-    std::vector<std::uint32_t>& candidates = scratch.candidates;
-    candidates.resize(k * near);
-    if (near == k - 1) {
-      // Every other cluster is a candidate: no distances needed.
-      for (std::uint32_t c = 0; c < k; ++c) {
-        std::uint32_t* best = candidates.data() + std::size_t{c} * near;
-        for (std::uint32_t o = 0; o < k; ++o)
-          if (o != c) *best++ = o;
-      }
-    } else {
-      // The means as columns: one cluster's distances to all are a loop the
-      // compiler vectorizes.
-      std::vector<double>& mx = scratch.meanX;
-      std::vector<double>& my = scratch.meanY;
-      std::vector<double>& mz = scratch.meanZ;
-      std::vector<double>& distances = scratch.distances;
-      mx.resize(k);
-      my.resize(k);
-      mz.resize(k);
-      distances.resize(k);
-      for (std::size_t c = 0; c < k; ++c) {
-        mx[c] = g[c].mean[0];
-        my[c] = g[c].mean[1];
-        mz[c] = g[c].mean[2];
-      }
-      std::array<double, kRefineCandidates> bestDistance{};
-      for (std::uint32_t c = 0; c < k; ++c) {
-        const double cx = mx[c], cy = my[c], cz = mz[c];
-        for (std::size_t o = 0; o < k; ++o) {
-          const double dx = mx[o] - cx, dy = my[o] - cy, dz = mz[o] - cz;
-          distances[o] = dx * dx + dy * dy + dz * dz;
-        }
-        distances[c] = std::numeric_limits<double>::infinity();  // never its own candidate
-        std::uint32_t* best = candidates.data() + std::size_t{c} * near;
-        // The first `near` others; then each closer than the farthest kept
-        // replaces it. A later index never beats an equal distance, so ties
-        // keep the smaller index, and the farthest kept is the one with the
-        // larger index among equals.
-        std::size_t filled = 0;
-        std::uint32_t o = 0;
-        for (; filled < near; ++o) {
-          if (o == c) continue;
-          bestDistance[filled] = distances[o];
-          best[filled++] = o;
-        }
-        const auto farthest = [&] {
-          std::size_t f = 0;
-          for (std::size_t j = 1; j < near; ++j)
-            if (bestDistance[j] > bestDistance[f] ||
-                (bestDistance[j] == bestDistance[f] && best[j] > best[f]))
-              f = j;
-          return f;
-        };
-        std::size_t worst = farthest();
-        for (; o < k; ++o) {
-          if (!(distances[o] < bestDistance[worst])) continue;
-          bestDistance[worst] = distances[o];
-          best[worst] = o;
-          worst = farthest();
-        }
-      }
-    }
-    bool changed = false;
-    for (std::size_t i = 0; i < m; ++i) {
-      const std::uint32_t own = out.assignment[i];
-      std::uint32_t best = own;
-      double bestCost = quadratic(g[best].inverse, sub(pos[i], g[best].mean)) + g[best].logDet;
-      for (std::size_t j = 0; j < near; ++j) {
-        const std::uint32_t c = candidates[own * near + j];
-        const double cost = quadratic(g[c].inverse, sub(pos[i], g[c].mean)) + g[c].logDet;
-        if (cost < bestCost || (cost == bestCost && c < best)) {
-          bestCost = cost;
-          best = c;
-        }
-      }
-      changed |= best != out.assignment[i];
-      out.assignment[i] = best;
-    }
+    // Every cluster is tried (SIMD over inputs): choosing a few near ones
+    // first cost more than trying them all.
+    const bool changed = assignLikeliestGaussians(pos, g, out.assignment);
     // Drop clusters that lost all their members.
     std::vector<std::uint8_t>& alive = scratch.alive;
     alive.assign(k, 0);
