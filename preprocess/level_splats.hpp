@@ -7,8 +7,9 @@
 //      largest covariance eigenvector, until the target count is reached;
 //   2. refinement: every input is reassigned to the cluster Gaussian with the
 //      smallest Mahalanobis distance (plus log-determinant, i.e. the most
-//      likely one); covariances are regularized by half the mean input radius
-//      so flat clusters stay thin but finite.
+//      likely one), every cluster of the cell tried (SIMD over the inputs,
+//      preprocess/likeliest_gaussian); covariances are regularized by half the
+//      mean input radius so flat clusters stay thin but finite.
 // Each output splat: centroid position; normal = smallest covariance
 // eigenvector oriented like the mean input normal (the mean normal itself when
 // the cluster is not flat, e.g. two inputs or a line); mean colour; radius =
