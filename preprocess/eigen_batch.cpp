@@ -158,13 +158,5 @@ void smallestEigen3Batch(std::span<const Sym3> matrices, std::span<SmallestEigen
   }
 }
 
-std::vector<std::int64_t> eigenBatchTargets() {
-  return hwy::SupportedAndGeneratedTargets();
-}
-
-void forceEigenBatchTarget(std::int64_t target) {
-  hwy::SetSupportedTargetsForTest(target);
-}
-
 }  // namespace pointillist::preprocess
 #endif  // HWY_ONCE

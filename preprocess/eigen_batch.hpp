@@ -5,9 +5,7 @@
 // and square roots that leaves the core waiting. The same bits as the scalar
 // function for every matrix: the same operations in its order, no fused
 // multiply-add, and the matrices it hands to Jacobi go to it too.
-#include <cstdint>
 #include <span>
-#include <vector>
 
 #include "common/geometry.hpp"
 
@@ -15,10 +13,5 @@ namespace pointillist::preprocess {
 
 // out[i] = smallestEigen3(matrices[i]); out needs matrices.size() entries.
 void smallestEigen3Batch(std::span<const Sym3> matrices, std::span<SmallestEigen3> out);
-
-// For tests: the SIMD targets this binary has and the machine runs, and one of
-// them forced for every later dispatch (0: the best again).
-std::vector<std::int64_t> eigenBatchTargets();
-void forceEigenBatchTarget(std::int64_t target);
 
 }  // namespace pointillist::preprocess

@@ -93,13 +93,5 @@ bool assignLikeliestGaussians(std::span<const std::array<double, 3>> positions,
   return changed;
 }
 
-std::vector<std::int64_t> likeliestGaussianTargets() {
-  return hwy::SupportedAndGeneratedTargets();
-}
-
-void forceLikeliestGaussianTarget(std::int64_t target) {
-  hwy::SetSupportedTargetsForTest(target);
-}
-
 }  // namespace pointillist::preprocess
 #endif  // HWY_ONCE

@@ -10,7 +10,6 @@
 #include <cstddef>
 #include <cstdint>
 #include <span>
-#include <vector>
 
 namespace pointillist::preprocess {
 
@@ -31,10 +30,5 @@ double gaussianCost(const GaussianRecord& g, double x, double y, double z);
 bool assignLikeliestGaussians(std::span<const std::array<double, 3>> positions,
                               std::span<const GaussianRecord> gaussians,
                               std::span<std::uint32_t> assignment);
-
-// For tests: the SIMD targets this binary has and the machine runs, and one of
-// them forced for every later dispatch (0: the best again).
-std::vector<std::int64_t> likeliestGaussianTargets();
-void forceLikeliestGaussianTarget(std::int64_t target);
 
 }  // namespace pointillist::preprocess

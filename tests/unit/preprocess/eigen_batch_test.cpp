@@ -1,4 +1,5 @@
 #include "preprocess/eigen_batch.hpp"
+#include "preprocess/simd_targets.hpp"
 
 #include <gtest/gtest.h>
 
@@ -72,10 +73,10 @@ TEST(EigenBatch, EqualsTheScalarFunctionBitForBitOnEveryTarget) {
   const std::vector<Sym3> matrices = testMatrices();
   std::vector<SmallestEigen3> expected;
   for (const Sym3& m : matrices) expected.push_back(smallestEigen3(m));
-  const std::vector<std::int64_t> targets = eigenBatchTargets();
+  const std::vector<std::int64_t> targets = simdTargets();
   ASSERT_FALSE(targets.empty());
   for (const std::int64_t target : targets) {
-    forceEigenBatchTarget(target);
+    forceSimdTarget(target);
     SCOPED_TRACE("target " + std::to_string(target));
     std::vector<SmallestEigen3> out(matrices.size());
     smallestEigen3Batch(matrices, out);
@@ -91,7 +92,7 @@ TEST(EigenBatch, EqualsTheScalarFunctionBitForBitOnEveryTarget) {
       }
     }
   }
-  forceEigenBatchTarget(0);
+  forceSimdTarget(0);
 }
 
 // The closed form stays as accurate as Jacobi where the smallest eigenvalue

@@ -1,4 +1,5 @@
 #include "preprocess/likeliest_gaussian.hpp"
+#include "preprocess/simd_targets.hpp"
 
 #include <gtest/gtest.h>
 
@@ -62,14 +63,14 @@ TEST(LikeliestGaussian, EachInputTakesTheLowestCostAndTheLowestIndexOnEveryTarge
       if (k > 2 && n > 1) {
         EXPECT_EQ(expected[0], 1u);
       }
-      for (const std::int64_t target : likeliestGaussianTargets()) {
-        forceLikeliestGaussianTarget(target);
+      for (const std::int64_t target : simdTargets()) {
+        forceSimdTarget(target);
         std::vector<std::uint32_t> assignment = start;
         const bool changed = assignLikeliestGaussians(positions, gaussians, assignment);
         ASSERT_EQ(assignment, expected) << "k " << k << ", n " << n << ", target " << target;
         EXPECT_EQ(changed, expected != start);
       }
-      forceLikeliestGaussianTarget(0);
+      forceSimdTarget(0);
     }
   }
 }
