@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <string>
 
@@ -22,7 +23,6 @@ struct Keyed {
 // Written in full by the threads that fill them: zeroing them first would be
 // a pass over hundreds of megabytes on one thread.
 using KeyedVector = std::vector<Keyed, UninitializedAllocator<Keyed>>;
-using CodeVector = std::vector<std::uint64_t, UninitializedAllocator<std::uint64_t>>;
 
 // Orders points by Morton code. Only the top 8 levels are radix sorted; a run
 // sharing that prefix is sorted further only if it holds more than a leaf's
@@ -57,9 +57,9 @@ void mortonSort(KeyedVector& items, unsigned totalBits, std::uint32_t leafPoints
 
 class TreeBuilder {
  public:
-  TreeBuilder(Octree& tree, std::span<const std::uint64_t> codes, const OctreeOptions& o,
+  TreeBuilder(Octree& tree, std::span<const Keyed> sorted, const OctreeOptions& o,
               const OctreeFrame* frame)
-      : tree_(tree), codes_(codes), options_(o), frame_(frame) {}
+      : tree_(tree), sorted_(sorted), options_(o), frame_(frame) {}
 
   std::uint32_t build(std::uint64_t begin, std::uint64_t end, unsigned depth,
                       std::uint32_t parent) {
@@ -78,12 +78,13 @@ class TreeBuilder {
       return index;  // a leaf: its bounds come after, on all threads
     }
     const unsigned shift = 3 * (options_.maxDepth - 1 - depth);
-    const auto* first = codes_.data();
+    const Keyed* first = sorted_.data();
     std::uint64_t cur = begin;
     unsigned children = 0;
     for (std::uint64_t octant = 0; octant < 8 && cur < end; ++octant) {
-      const auto* split = std::partition_point(
-          first + cur, first + end, [&](std::uint64_t c) { return ((c >> shift) & 7u) <= octant; });
+      const Keyed* split = std::partition_point(first + cur, first + end, [&](const Keyed& k) {
+        return ((k.code >> shift) & 7u) <= octant;
+      });
       const auto childEnd = static_cast<std::uint64_t>(split - first);
       if (childEnd > cur) {
         build(cur, childEnd, depth + 1, index);
@@ -99,7 +100,7 @@ class TreeBuilder {
   bool forcedSplit(std::uint64_t begin, unsigned depth) const {
     if (frame_ == nullptr || depth >= frame_->splitCells.size()) return false;
     const auto& split = frame_->splitCells[depth];
-    const std::uint64_t prefix = codes_[begin] >> (3 * (options_.maxDepth - depth));
+    const std::uint64_t prefix = sorted_[begin].code >> (3 * (options_.maxDepth - depth));
     return std::binary_search(split.begin(), split.end(), prefix);
   }
 
@@ -125,7 +126,7 @@ class TreeBuilder {
 
  private:
   Octree& tree_;
-  std::span<const std::uint64_t> codes_;
+  std::span<const Keyed> sorted_;  // Morton codes in point order
   const OctreeOptions& options_;
   const OctreeFrame* frame_;
 };
@@ -232,21 +233,33 @@ Octree buildOctree(std::vector<Splat> points, const OctreeOptions& options,
       kChunk);
   mortonSort(keyed, 3 * options.maxDepth, options.leafPoints, progress, options.threads);
 
-  tree.points.reserve(points.size() + options.spareCapacity);
-  tree.points.resize(points.size());
-  CodeVector codes(points.size());
+  // Gathered on all threads into a buffer that is not zeroed first, then
+  // copied back into the input's own (already touched) memory: a new
+  // std::vector would be zeroed on one thread, taking every page fault there.
+  std::vector<Splat, UninitializedAllocator<Splat>> sorted(points.size());
   parallelFor(
-      keyed.size(), options.threads,
-      [&](std::size_t i) {
-        tree.points[i] = points[keyed[i].index];
-        codes[i] = keyed[i].code;
-      },
+      keyed.size(), options.threads, [&](std::size_t i) { sorted[i] = points[keyed[i].index]; },
       kChunk);
-  keyed = {};
-  points = {};
+  if (points.capacity() >= points.size() + options.spareCapacity) {
+    parallelFor((sorted.size() + kChunk - 1) / kChunk, options.threads,
+                [&](std::size_t chunk) {
+                  const std::size_t from = chunk * kChunk;
+                  const std::size_t count = std::min(kChunk, sorted.size() - from);
+                  std::memcpy(points.data() + from, sorted.data() + from, count * sizeof(Splat));
+                },
+                1);
+    tree.points = std::move(points);
+  } else {
+    tree.points.reserve(points.size() + options.spareCapacity);
+    tree.points.assign(sorted.begin(), sorted.end());
+    points = {};
+  }
+  sorted = {};
 
-  TreeBuilder builder(tree, codes, options, frame);
+  // The codes stay in `keyed` (sorted with the points) until the cells are cut.
+  TreeBuilder builder(tree, keyed, options, frame);
   builder.build(0, tree.points.size(), 0, kNoIndex);
+  keyed = {};
   if (tree.cells.size() >= kNoIndex) throw InputError("octree too large for 32-bit cell indices");
   parallelFor(
       tree.cells.size(), options.threads,
