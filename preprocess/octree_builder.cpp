@@ -5,7 +5,6 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
-#include <cstring>
 #include <limits>
 #include <string>
 
@@ -241,13 +240,7 @@ Octree buildOctree(std::vector<Splat> points, const OctreeOptions& options,
       keyed.size(), options.threads, [&](std::size_t i) { sorted[i] = points[keyed[i].index]; },
       kChunk);
   if (points.capacity() >= points.size() + options.spareCapacity) {
-    parallelFor((sorted.size() + kChunk - 1) / kChunk, options.threads,
-                [&](std::size_t chunk) {
-                  const std::size_t from = chunk * kChunk;
-                  const std::size_t count = std::min(kChunk, sorted.size() - from);
-                  std::memcpy(points.data() + from, sorted.data() + from, count * sizeof(Splat));
-                },
-                1);
+    parallelCopy(sorted.data(), sorted.size(), points.data(), options.threads);
     tree.points = std::move(points);
   } else {
     tree.points.reserve(points.size() + options.spareCapacity);

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cstddef>
+#include <cstring>
 #include <thread>
 #include <vector>
 
@@ -23,6 +24,18 @@ void parallelFor(std::size_t n, unsigned threads, Fn fn, std::size_t chunk = 64)
     pool.emplace_back(run);
   run();
   for (auto& t : pool) t.join();
+}
+
+// Copies n trivially copyable values on `threads` threads (0: all cores).
+template <class T>
+void parallelCopy(const T* from, std::size_t n, T* to, unsigned threads) {
+  constexpr std::size_t kChunk = std::size_t{1} << 16;
+  parallelFor((n + kChunk - 1) / kChunk, threads,
+              [&](std::size_t chunk) {
+                const std::size_t first = chunk * kChunk;
+                std::memcpy(to + first, from + first, std::min(kChunk, n - first) * sizeof(T));
+              },
+              1);
 }
 
 // std::sort on `threads` threads (0: all cores): pieces sorted apart, then
