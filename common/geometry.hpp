@@ -32,10 +32,10 @@ Eigen3 eigenSymmetric3(const Sym3& m);
 // smallest eigenvalue is (nearly) repeated and the closed-form vector would be
 // unreliable. Smith (1961) scales m - q I (q the mean eigenvalue) to B, whose
 // eigenvalues beta solve beta^3 - 3 beta = det B: the smallest is found by
-// Newton steps instead of acos and cos, which cost as much
-// as the rest; the others from the quadratic left; the vector is the longest
-// cross product of two rows of m - lo I. Only + - * / and sqrt: a batch in
-// SIMD (preprocess/eigen_batch) gives the same bits.
+// Newton steps instead of acos and cos (which cost as much as the rest), the
+// other two from the quadratic left; the vector is the longest cross product
+// of two rows of m - lo I. Only + - * / and sqrt: a batch in SIMD
+// (preprocess/eigen_batch) gives the same bits.
 struct SmallestEigen3 {
   std::array<double, 3> values;
   Vec3d vector;  // unit
