@@ -27,7 +27,7 @@ namespace pointillist::preprocess {
 namespace HWY_NAMESPACE {
 namespace hn = hwy::HWY_NAMESPACE;
 
-// Columns in: the six entries of n matrices, padded to kBlock. Columns out:
+// Columns in: the six entries of n matrices, padded to a whole vector. Columns out:
 // lo, mid, hi, the vector, and whether the scalar function would take Jacobi
 // instead. Every step is smallestEigen3's, in its order.
 void SmallestEigenColumns(const double* const* m, std::size_t n, double* const* out,

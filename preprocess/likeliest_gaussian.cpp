@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <limits>
+#include <stdexcept>
+#include <string>
 
 // Highway compiles the SIMD part once per target by including this file again.
 #undef HWY_TARGET_INCLUDE
@@ -70,7 +72,12 @@ bool assignLikeliestGaussians(std::span<const std::array<double, 3>> positions,
   // whole vector.
   constexpr std::size_t kBlock = 256;  // a multiple of every target's lanes
   alignas(64) double x[kBlock], y[kBlock], z[kBlock], best[kBlock];
-  const std::size_t n = std::min(positions.size(), assignment.size());
+  if (assignment.size() != positions.size()) {
+    throw std::invalid_argument("assignLikeliestGaussians: " + std::to_string(positions.size()) +
+                                " positions but " + std::to_string(assignment.size()) +
+                                " assignments");
+  }
+  const std::size_t n = positions.size();
   bool changed = false;
   for (std::size_t begin = 0; begin < n; begin += kBlock) {
     const std::size_t count = std::min(kBlock, n - begin);

@@ -26,7 +26,8 @@ double gaussianCost(const GaussianRecord& g, double x, double y, double z);
 
 // For each input position: assignment[i] becomes the cluster of lowest cost,
 // the lowest index among equal costs; an input no cost below +infinity
-// reaches (NaN) keeps its cluster. Returns whether any changed.
+// reaches (NaN) keeps its cluster. Returns whether any changed. Throws
+// std::invalid_argument unless there is one assignment per position.
 bool assignLikeliestGaussians(std::span<const std::array<double, 3>> positions,
                               std::span<const GaussianRecord> gaussians,
                               std::span<std::uint32_t> assignment);

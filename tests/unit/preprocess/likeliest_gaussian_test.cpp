@@ -6,6 +6,7 @@
 #include <cmath>
 #include <limits>
 #include <random>
+#include <stdexcept>
 #include <vector>
 
 namespace pointillist::preprocess {
@@ -73,6 +74,16 @@ TEST(LikeliestGaussian, EachInputTakesTheLowestCostAndTheLowestIndexOnEveryTarge
       forceSimdTarget(0);
     }
   }
+}
+
+// One assignment per position, or nothing is assigned.
+TEST(LikeliestGaussian, RefusesAssignmentsThatDoNotMatchThePositions) {
+  std::mt19937 rng(9);
+  const std::vector<GaussianRecord> gaussians{randomGaussian(rng), randomGaussian(rng)};
+  const std::vector<std::array<double, 3>> positions(5, std::array<double, 3>{0.0, 0.0, 0.0});
+  std::vector<std::uint32_t> assignment(4, 1u);
+  EXPECT_THROW(assignLikeliestGaussians(positions, gaussians, assignment), std::invalid_argument);
+  EXPECT_EQ(assignment, std::vector<std::uint32_t>(4, 1u));
 }
 
 }  // namespace
