@@ -446,42 +446,53 @@ std::vector<std::byte> Dataset::readFile(std::string_view key) const {
 
 namespace {
 
-// One packet's records from `file`, verified against its checksum; `what`
-// names the packet in errors.
-std::vector<Splat> readPacketAt(const fs::path& file, std::uint64_t byteOffset,
-                                std::uint64_t records, std::uint64_t checksum,
-                                const std::string& what) {
+// One packet's records from `file` into `out`, verified against its checksum;
+// `what` names the packet in errors.
+void readPacketAt(const fs::path& file, std::uint64_t byteOffset, std::span<Splat> out,
+                  std::uint64_t checksum, const std::string& what) {
   std::ifstream in(file, std::ios::binary);
   if (!in) throw InputError(file.string() + ": cannot open: " + std::strerror(errno));
-  std::vector<Splat> out(static_cast<std::size_t>(records));
-  const auto bytes = static_cast<std::streamsize>(out.size() * sizeof(Splat));
+  const auto bytes = static_cast<std::streamsize>(out.size_bytes());
   in.seekg(static_cast<std::streamoff>(byteOffset));
   in.read(reinterpret_cast<char*>(out.data()), bytes);
   if (!in || in.gcount() != bytes)
     throw InputError(file.string() + ": " + what + ": short read (truncated file)");
-  if (checksum64(out.data(), out.size() * sizeof(Splat)) != checksum)
+  if (checksum64(out.data(), out.size_bytes()) != checksum)
     throw InputError(file.string() + ": " + what + " (bytes " + std::to_string(byteOffset) + "+" +
                      std::to_string(bytes) + "): checksum mismatch (damaged file)");
-  return out;
 }
 
 }  // namespace
 
-std::vector<Splat> Dataset::readTopLevel(std::uint32_t topLevel) const {
-  if (topLevel >= topLevel_.size() && topLevel - topLevel_.size() < statistical_.size()) {
-    const std::uint32_t t = topLevel - static_cast<std::uint32_t>(topLevel_.size());
-    const StatisticalPacketEntry& e = statistical_[t];
-    return readPacketAt(dir_ / manifest_.file(kStatisticalPacketsKey)->name, e.byteOffset,
-                        e.records, e.checksum,
-                        "statistical packet of top-level cell " + std::to_string(t));
+std::uint64_t Dataset::packetSplats(std::uint32_t id) const {
+  if (id >= topLevel_.size() && id - topLevel_.size() < statistical_.size())
+    return statistical_[id - topLevel_.size()].records;
+  if (id >= topLevel_.size())
+    throw UsageError("top-level cell " + std::to_string(id) + " out of range or table not loaded");
+  return topLevel_[id].byteSize / sizeof(Splat);
+}
+
+std::vector<Splat> Dataset::readTopLevel(std::uint32_t id) const {
+  std::vector<Splat> out(static_cast<std::size_t>(packetSplats(id)));
+  readTopLevelInto(id, out);
+  return out;
+}
+
+void Dataset::readTopLevelInto(std::uint32_t id, std::span<Splat> out) const {
+  if (out.size() != packetSplats(id)) {
+    throw UsageError("packet " + std::to_string(id) + " holds " + std::to_string(packetSplats(id)) +
+                     " splats, not " + std::to_string(out.size()));
   }
-  if (topLevel >= topLevel_.size())
-    throw UsageError("top-level cell " + std::to_string(topLevel) +
-                     " out of range or table not loaded");
-  const TopLevelCell& t = topLevel_[topLevel];
-  return readPacketAt(dir_ / manifest_.file(kPointsFile.key)->name, t.byteOffset,
-                      t.byteSize / sizeof(Splat), packetChecksums_[topLevel],
-                      "top-level cell " + std::to_string(topLevel));
+  if (id >= topLevel_.size()) {
+    const std::uint32_t t = id - static_cast<std::uint32_t>(topLevel_.size());
+    const StatisticalPacketEntry& e = statistical_[t];
+    readPacketAt(dir_ / manifest_.file(kStatisticalPacketsKey)->name, e.byteOffset, out, e.checksum,
+                 "statistical packet of top-level cell " + std::to_string(t));
+    return;
+  }
+  const TopLevelCell& t = topLevel_[id];
+  readPacketAt(dir_ / manifest_.file(kPointsFile.key)->name, t.byteOffset, out,
+               packetChecksums_[id], "top-level cell " + std::to_string(id));
 }
 
 }  // namespace pointillist

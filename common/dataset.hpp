@@ -101,6 +101,9 @@ class Dataset {
   // from statistical.bin) and verifies its checksum (throws InputError on a
   // short read or mismatch). Thread-safe.
   std::vector<Splat> readTopLevel(std::uint32_t id) const;  // needs TopLevel
+  // The same into `out`, which must hold exactly packetSplats(id) records.
+  void readTopLevelInto(std::uint32_t id, std::span<Splat> out) const;
+  std::uint64_t packetSplats(std::uint32_t id) const;  // needs TopLevel
 
   // The whole point-array and one packet of it in memory (needs Points; the
   // statistical packets are then in memory too).

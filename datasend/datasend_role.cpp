@@ -10,6 +10,7 @@
 #include "common/dataset.hpp"
 #include "common/mpi/worker.hpp"
 #include "common/ownership.hpp"
+#include "common/shared_packets.hpp"
 #include "datasend/core/send_ledger.hpp"
 
 namespace pointillist::datasend {
@@ -25,14 +26,27 @@ class DataSendProcess final : public WorkerProcess {
                                    dataset_.packetCount()),
                 static_cast<std::uint32_t>(job.indexInRole())) {
     // Hold only the packets this process owns (seed 003: no process needs all
-    // data); a statistical packet goes with its top-level cell's.
+    // data); a statistical packet goes with its top-level cell's. They live
+    // in one shared segment, which render processes of this machine read in
+    // place (common/shared_packets.hpp).
     const auto start = std::chrono::steady_clock::now();
+    std::uint64_t splats = 0;
+    for (std::uint32_t cell = 0; cell < dataset_.packetCount(); ++cell) {
+      if (ledger_.owns(cell)) splats += dataset_.packetSplats(cell);
+    }
+    segment_ = std::make_shared<SharedSegment>(
+        splats * sizeof(Splat), "pointillist-packets-" + std::to_string(job.worldRank()));
+    auto* records = reinterpret_cast<Splat*>(segment_->data());
+    std::uint64_t at = 0;
     for (std::uint32_t cell = 0; cell < dataset_.packetCount(); ++cell) {
       if (!ledger_.owns(cell)) continue;
-      auto splats = std::make_shared<const std::vector<Splat>>(dataset_.readTopLevel(cell));
-      bytesHeld_ += splats->size() * sizeof(Splat);
-      packets_.emplace(cell, std::move(splats));
+      const std::span<Splat> packet(records + at,
+                                    static_cast<std::size_t>(dataset_.packetSplats(cell)));
+      dataset_.readTopLevelInto(cell, packet);
+      packets_.emplace(cell, packet);
+      at += packet.size();
     }
+    bytesHeld_ = at * sizeof(Splat);
     loadSeconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   }
 
@@ -44,7 +58,9 @@ class DataSendProcess final : public WorkerProcess {
     return line;
   }
 
-  void begin(const v1::RunSettings&) override {}
+  void begin(const v1::RunSettings& settings) override {
+    sharedPackets_ = !settings.no_shared_packets();
+  }
 
   void onMessage(Envelope& envelope) override {
     switch (envelope.kind) {
@@ -64,9 +80,10 @@ class DataSendProcess final : public WorkerProcess {
   std::string summary() const override {
     char line[200];
     std::snprintf(line, sizeof line,
-                  "data_packets=%llu parts_sent=%llu extensions=%llu bytes_sent=%llu "
-                  "duplicates_skipped=%llu",
+                  "data_packets=%llu shared_in_place=%llu parts_sent=%llu extensions=%llu "
+                  "bytes_sent=%llu duplicates_skipped=%llu",
                   static_cast<unsigned long long>(messagesSent_),
+                  static_cast<unsigned long long>(sharedMessages_),
                   static_cast<unsigned long long>(packetsSent_),
                   static_cast<unsigned long long>(extensionsSent_),
                   static_cast<unsigned long long>(bytesSent_),
@@ -78,11 +95,11 @@ class DataSendProcess final : public WorkerProcess {
   void send(const v1::SendOrder& order) {
     for (int i = 0; i < order.top_level_cells_size() && i < order.top_level_splats_size(); ++i) {
       const auto found = packets_.find(order.top_level_cells(i));
-      if (found != packets_.end() && order.top_level_splats(i) > found->second->size()) {
+      if (found != packets_.end() && order.top_level_splats(i) > found->second.size()) {
         throw ProtocolError("rank " + std::to_string(order.requester_rank()) + " ordered " +
                             std::to_string(order.top_level_splats(i)) +
                             " splats of top-level cell " + std::to_string(found->first) +
-                            ", which holds " + std::to_string(found->second->size()));
+                            ", which holds " + std::to_string(found->second.size()));
       }
     }
     const std::vector<SplatRange> ranges = ledger_.rangesToSend(order);
@@ -91,48 +108,66 @@ class DataSendProcess final : public WorkerProcess {
     }
   }
 
-  // One data packet: a single range goes straight from the held packet, more
-  // are copied back to back into one payload.
+  // One data packet. To a render process of this machine it names where the
+  // parts lie in the shared segment; otherwise a single range goes straight
+  // from the held packet, and more are copied back to back into one payload.
   void sendGroup(int renderRank, std::span<const SplatRange> group) {
+    const bool shared = sharedPackets_ && job_.onThisMachine(renderRank);
     v1::DataPacketHeader header;
     header.set_record_size(sizeof(Splat));
     header.set_datasend_rank(job_.worldRank());
+    if (shared) {
+      const SharedSegmentId& id = segment_->id();
+      v1::SharedSegment& named = *header.mutable_shared();
+      named.set_pid(id.pid);
+      named.set_fd(id.fd);
+      named.set_inode(id.inode);
+      named.set_byte_size(id.byteSize);
+    }
     std::uint64_t total = 0;
     for (const SplatRange& range : group) {
-      const auto& splats = packets_.at(range.cell);
-      const std::span<const std::byte> bytes(
-          reinterpret_cast<const std::byte*>(splats->data() + range.first),
-          std::size_t{range.count} * sizeof(Splat));
+      const std::span<const Splat> splats =
+          packets_.at(range.cell).subspan(range.first, range.count);
       v1::DataPart& part = *header.add_parts();
       part.set_top_level_cell(range.cell);
       part.set_first_splat(range.first);
       part.set_splat_count(range.count);
-      // The whole packet's checksum was verified at load; a part gets its own.
-      part.set_checksum(range.first == 0 && range.count == splats->size()
-                            ? dataset_.packetChecksum(range.cell)
-                            : checksum64(bytes.data(), bytes.size()));
-      total += bytes.size();
+      if (shared) {
+        part.set_shared_offset(static_cast<std::uint64_t>(
+            reinterpret_cast<const std::byte*>(splats.data()) - segment_->data()));
+      } else {
+        // The whole packet's checksum was verified at load; a part gets its own.
+        part.set_checksum(range.first == 0 && range.count == packets_.at(range.cell).size()
+                              ? dataset_.packetChecksum(range.cell)
+                              : checksum64(splats.data(), splats.size_bytes()));
+      }
+      total += splats.size_bytes();
       ++packetsSent_;
       if (range.first > 0) ++extensionsSent_;
     }
     header.set_byte_size(total);
     bytesSent_ += total;
     ++messagesSent_;
+    if (shared) {
+      ++sharedMessages_;
+      job_.sends().post(renderRank, MessageKind::DataPacket, header);
+      return;
+    }
     if (group.size() == 1) {
       const SplatRange& range = group.front();
-      const auto& splats = packets_.at(range.cell);
-      const std::span<const std::byte> bytes(
-          reinterpret_cast<const std::byte*>(splats->data() + range.first), total);
-      job_.sends().post(renderRank, MessageKind::DataPacket, header, bytes, splats);
+      const std::span<const Splat> splats =
+          packets_.at(range.cell).subspan(range.first, range.count);
+      job_.sends().post(renderRank, MessageKind::DataPacket, header, std::as_bytes(splats),
+                        segment_);
       return;
     }
     auto payload = std::make_shared<std::vector<std::byte>>(total);
     std::byte* out = payload->data();
     for (const SplatRange& range : group) {
-      const auto& splats = packets_.at(range.cell);
-      const std::size_t size = std::size_t{range.count} * sizeof(Splat);
-      std::memcpy(out, splats->data() + range.first, size);
-      out += size;
+      const std::span<const Splat> splats =
+          packets_.at(range.cell).subspan(range.first, range.count);
+      std::memcpy(out, splats.data(), splats.size_bytes());
+      out += splats.size_bytes();
     }
     const std::span<const std::byte> bytes(*payload);
     job_.sends().post(renderRank, MessageKind::DataPacket, header, bytes, std::move(payload));
@@ -141,7 +176,10 @@ class DataSendProcess final : public WorkerProcess {
   Job& job_;
   Dataset dataset_;
   SendLedger ledger_;
-  std::map<std::uint32_t, std::shared_ptr<const std::vector<Splat>>> packets_;
+  std::shared_ptr<SharedSegment> segment_;  // every packet held, back to back
+  std::map<std::uint32_t, std::span<const Splat>> packets_;
+  bool sharedPackets_ = true;
+  std::uint64_t sharedMessages_ = 0;  // data packets sent as places in segment_
   std::uint64_t bytesHeld_ = 0;
   double loadSeconds_ = 0.0;
   std::uint64_t messagesSent_ = 0;

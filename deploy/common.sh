@@ -48,6 +48,32 @@ reference_malloc_tunables() {
 # True when one process may read another's memory with process_vm_readv (what
 # Open MPI's CMA single copy needs): no Yama restriction, and a probe of a
 # forked child passes (container seccomp filters may forbid the call).
+# Whether a process may open another's memory file through /proc/PID/fd (as a
+# render process opens a data-send's shared packets, common/shared_packets.hpp):
+# a child holds a memfd, this process reads it by that path.
+shared_packets_allowed() {
+  python3 - <<'PROBE' 2>/dev/null
+import os, signal, sys, time
+fd = os.memfd_create("pointillist-probe")
+os.write(fd, b"pointillist")
+ready, told = os.pipe()
+child = os.fork()
+if child == 0:
+    os.write(told, b"x")
+    time.sleep(30)
+    os._exit(0)
+os.read(ready, 1)
+os.close(fd)  # the child's descriptor alone keeps the file
+try:
+    with open(f"/proc/{child}/fd/{fd}", "rb") as memory:
+        found = memory.read(11) == b"pointillist"
+except OSError:
+    found = False
+os.kill(child, signal.SIGKILL)
+os.waitpid(child, 0)
+sys.exit(0 if found else 1)
+PROBE
+}
 cma_allowed() {
   local scope=/proc/sys/kernel/yama/ptrace_scope
   [[ -r "$scope" && "$(cat "$scope")" != 0 ]] && return 1

@@ -61,6 +61,19 @@ if [[ -z "$single_copy" ]]; then
   single_copy=none
   [[ -z "$hostfile" ]] && cma_allowed && single_copy=cma
 fi
+# Render processes read data packets in place from a data-send process of
+# their machine (common/shared_packets.hpp) where a process may open another's
+# memory file through /proc/PID/fd; where this machine forbids it, packets are
+# copied. The probe speaks for this machine: with nodes set up otherwise, pass
+# --shared-packets off (or on) yourself.
+shared_packets_given=0
+for arg in "${role_args[@]}"; do
+  [[ "$arg" == --shared-packets || "$arg" == --shared-packets=* ]] && shared_packets_given=1
+done
+if ((!shared_packets_given)) && ! shared_packets_allowed; then
+  echo "run.sh: processes may not open each other's memory files here; data packets are copied (--shared-packets off)" >&2
+  role_args+=(--shared-packets off)
+fi
 launch=(mpirun --mca btl_vader_single_copy_mechanism "$single_copy")
 ((recovery)) && launch+=(--enable-recovery)
 if [[ -n "$hostfile" ]]; then

@@ -59,6 +59,7 @@ struct DisplayOptions {
   std::string tileTasksAhead = "auto";
   std::string renderCoreShare = "auto";
   std::string tileSplit = "auto";
+  std::string sharedPackets = "on";
   bool quiet = false;
   // Serve mode: frames are asked for by clients over ZeroMQ.
   bool serve = false;
@@ -116,6 +117,7 @@ v1::RunSettings runSettings(const DisplayOptions& options, const DatasetManifest
       ahead > 0 ? ahead
                 : autoTileTasksAhead(options.tilesPerRender * layout.render, layout.traverse));
   parseTileSplit(options.tileSplit, settings);
+  settings.set_no_shared_packets(options.sharedPackets == "off");
   // A number here; auto is filled in at the handshake, from every process's host.
   if (const float share = parseRenderCoreShare(options.renderCoreShare); share > 0.0f) {
     for (std::uint32_t render = 0; render < layout.render; ++render) {
@@ -739,6 +741,12 @@ int runDisplayMain(int argc, char** argv) {
   app.add_option("--prefetch-frames", options.prefetchFrames,
                  "Cost scheduler: order the data each tile's rect needs this many frames on "
                  "(0: no prefetch)");
+  app.add_option("--shared-packets", options.sharedPackets,
+                 "on: render processes read data packets in place from the memory of a "
+                 "data-send process on their machine (common/shared_packets.hpp); off: every "
+                 "packet is copied through MPI")
+      ->check(CLI::IsMember({"on", "off"}))
+      ->capture_default_str();
   app.add_flag("--equal-tiles", options.equalTiles,
                "Cost scheduler: equal tiles instead of tiles sized by last frame's work");
   app.add_flag("--quiet", options.quiet, "No per-frame lines");

@@ -2,6 +2,7 @@
 
 #include <chrono>
 #include <limits>
+#include <map>
 #include <memory>
 #include <thread>
 
@@ -11,6 +12,7 @@
 #include "common/mpi/worker.hpp"
 #include "common/ownership.hpp"
 #include "common/run_settings.hpp"
+#include "common/shared_packets.hpp"
 #include "render/core/render_core.hpp"
 #include "render/gl/tile_renderers.hpp"
 
@@ -115,39 +117,69 @@ class RenderProcess final : public WorkerProcess {
   void receiveData(const Envelope& envelope, RenderEffects& effects) {
     const auto header = envelope.as<v1::DataPacketHeader>();
     checkDataPacketHeader(header, envelope.payload.size(), envelope.source);
-    const auto* splats = reinterpret_cast<const Splat*>(envelope.payload.data());
     // What a byte cost this process before it can be drawn (T_n): its
     // transfer, shared among the parts by their size, and the CPU time that
     // checking and storing a byte took on the last data packets. Between
-    // processes on one machine the transfer is a fast copy and the storing
-    // is most of the cost; leaving it out made the cost function send tiles
-    // wherever queues were shortest, and every render process ended up
-    // holding most of the data (docs/scheduling.md §11).
+    // processes on one machine the transfer is a fast copy (or none: parts
+    // read in place) and the storing is most of the cost; leaving it out made
+    // the cost function send tiles wherever queues were shortest, and every
+    // render process ended up holding most of the data (docs/scheduling.md §11).
     const double cpuStart = threadCpuSeconds();
-    const double bytes = static_cast<double>(envelope.payload.size());
+    const auto bytes = static_cast<double>(header.byte_size());
     const double secondsPerSplat =
         (envelope.payloadSeconds / bytes + storeSecondsPerByte_) * sizeof(Splat);
+    const SharedSegmentView* shared =
+        header.has_shared() ? &sharedView(header, envelope.source) : nullptr;
+    const auto* payload = reinterpret_cast<const Splat*>(envelope.payload.data());
     for (const v1::DataPart& part : header.parts()) {
-      receivePart(part, {splats, static_cast<std::size_t>(part.splat_count())},
+      const auto count = static_cast<std::size_t>(part.splat_count());
+      std::span<const Splat> splats;
+      if (shared != nullptr) {
+        const auto place = shared->bytes(part.shared_offset(), count * sizeof(Splat));
+        splats = {reinterpret_cast<const Splat*>(place.data()), count};
+      } else {
+        splats = {payload, count};
+        payload += count;
+      }
+      receivePart(part, splats, shared == nullptr,
                   secondsPerSplat * static_cast<double>(part.splat_count()), envelope.source,
                   effects);
-      splats += part.splat_count();
     }
-    if (envelope.payload.size() >= kMinTransferSampleBytes) {
+    if (header.byte_size() >= kMinTransferSampleBytes) {
       storeSecondsPerByte_ =
           movingAverage(storeSecondsPerByte_, (threadCpuSeconds() - cpuStart) / bytes);
     }
   }
 
-  void receivePart(const v1::DataPart& part, std::span<const Splat> splats, double seconds,
-                   int source, RenderEffects& effects) {
+  // The segment a data-send process's header names, mapped on first use (and
+  // again if that process's segment changed).
+  const SharedSegmentView& sharedView(const v1::DataPacketHeader& header, int source) {
+    const v1::SharedSegment& named = header.shared();
+    const SharedSegmentId id{named.pid(), named.fd(), named.inode(), named.byte_size()};
+    SharedSegmentView& view = sharedViews_[source];
+    if (!view.mapped() || view.id() != id) {
+      try {
+        view = SharedSegmentView(id, "data-send rank " + std::to_string(source));
+      } catch (const ProtocolError& error) {
+        // Its data-send ended after sending: lost, as when a payload never comes.
+        if (!processRuns(id.pid)) throw PeerSilentError(source, error.what());
+        throw;
+      }
+    }
+    return view;
+  }
+
+  // `carried`: the bytes came in a payload, so their checksum is checked;
+  // parts read in place were checked when their data-send loaded them.
+  void receivePart(const v1::DataPart& part, std::span<const Splat> splats, bool carried,
+                   double seconds, int source, RenderEffects& effects) {
     const std::uint32_t cell = part.top_level_cell();
     const auto first = static_cast<std::uint32_t>(part.first_splat());
     const auto count = static_cast<std::uint32_t>(part.splat_count());
     const bool wholePacket =
         cell < dataset_.packetCount() && first == 0 && count == core_.packetSplats(cell);
-    if (checksum64(splats.data(), splats.size_bytes()) != part.checksum() ||
-        (wholePacket && part.checksum() != dataset_.packetChecksum(cell))) {
+    if (carried && (checksum64(splats.data(), splats.size_bytes()) != part.checksum() ||
+                    (wholePacket && part.checksum() != dataset_.packetChecksum(cell)))) {
       throw ProtocolError("data packet for top-level cell " + std::to_string(cell) + " from rank " +
                           std::to_string(source) + " (splats " + std::to_string(first) + "+" +
                           std::to_string(count) + ") fails its checksum");
@@ -261,7 +293,8 @@ class RenderProcess final : public WorkerProcess {
   RenderOptions options_;
   Dataset dataset_;
   RenderCore core_;
-  double storeSecondsPerByte_ = 0.0;  // CPU to check and store a byte of data
+  double storeSecondsPerByte_ = 0.0;              // CPU to check and store a byte of data
+  std::map<int, SharedSegmentView> sharedViews_;  // by data-send rank
   // Made once the run's settings are known; a second one when a served frame
   // asks for a mode the first cannot draw. renderer_ drew the last tile.
   std::vector<std::unique_ptr<TileRenderer>> renderers_;

@@ -2,6 +2,7 @@
 
 #include "common/core_share.hpp"
 #include "common/peer_watch.hpp"
+#include "common/shared_packets.hpp"
 
 #include <sys/resource.h>
 #include <unistd.h>
@@ -86,7 +87,13 @@ Job::Job(int& argc, char**& argv, v1::Role role) : role_(role) {
   appNumber_ = found != 0 && appAttribute != nullptr ? *appAttribute : -1;
 
   // Exchange roles without a blocking collective (those spin in Open MPI).
-  std::array<int, 4> mine{kBootstrapMagic, static_cast<int>(role_), appNumber_, 0};
+  const std::uint64_t machine = thisMachineIdentity();
+  std::array<int, 6> mine{kBootstrapMagic,
+                          static_cast<int>(role_),
+                          appNumber_,
+                          0,
+                          static_cast<int>(static_cast<std::uint32_t>(machine)),
+                          static_cast<int>(static_cast<std::uint32_t>(machine >> 32))};
   std::vector<int> all(static_cast<std::size_t>(worldSize_) * mine.size());
   MPI_Request request = MPI_REQUEST_NULL;
   checkMpi(MPI_Iallgather(mine.data(), static_cast<int>(mine.size()), MPI_INT, all.data(),
@@ -95,8 +102,12 @@ Job::Job(int& argc, char**& argv, v1::Role role) : role_(role) {
   Channel::waitFor(request, std::chrono::seconds(120), "role discovery");
 
   ranksByRole_.assign(kRoleCount, {});
+  machines_.assign(static_cast<std::size_t>(worldSize_), 0);
   for (int rank = 0; rank < worldSize_; ++rank) {
     const int* entry = all.data() + static_cast<std::size_t>(rank) * mine.size();
+    machines_[static_cast<std::size_t>(rank)] =
+        static_cast<std::uint32_t>(entry[4]) |
+        (std::uint64_t{static_cast<std::uint32_t>(entry[5])} << 32);
     if (entry[0] != kBootstrapMagic || entry[1] <= 0 || entry[1] >= kRoleCount) {
       throw CoordinatedError("rank " + std::to_string(rank) +
                              " is not a Pointillist process (bad start-up record); every rank "
@@ -138,6 +149,12 @@ void Job::finalize() {
   channel_.reset();
   if (comm_ != MPI_COMM_NULL) MPI_Comm_free(&comm_);
   MPI_Finalize();
+}
+
+bool Job::onThisMachine(int rank) const {
+  return rank >= 0 && rank < worldSize_ &&
+         machines_[static_cast<std::size_t>(rank)] ==
+             machines_[static_cast<std::size_t>(worldRank_)];
 }
 
 const std::vector<int>& Job::ranksOf(v1::Role role) const {

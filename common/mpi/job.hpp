@@ -56,6 +56,9 @@ class Job {
   int worldRank() const { return worldRank_; }
   int worldSize() const { return worldSize_; }
   int appNumber() const { return appNumber_; }
+  // Whether `rank` runs on this process's machine (common/shared_packets.hpp:
+  // it can map this process's shared memory).
+  bool onThisMachine(int rank) const;
   const JobLayout& layout() const { return layout_; }
   // World ranks holding a role, in rank order.
   const std::vector<int>& ranksOf(v1::Role role) const;
@@ -110,6 +113,7 @@ class Job {
   int worldSize_ = 0;
   int appNumber_ = -1;
   int indexInRole_ = 0;
+  std::vector<std::uint64_t> machines_;  // per world rank: thisMachineIdentity()
   JobLayout layout_;
   std::vector<std::vector<int>> ranksByRole_;
   MPI_Comm comm_ = MPI_COMM_NULL;  // our duplicate of MPI_COMM_WORLD

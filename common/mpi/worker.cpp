@@ -76,7 +76,17 @@ void serveUntilShutdown(Job& job, WorkerProcess* process, SelfKill selfKill) {
                             " message from rank " + std::to_string(envelope->source));
       }
       meter.switchTo(std::string("handle ") + messageKindName(envelope->kind));
-      process->onMessage(*envelope);
+      try {
+        process->onMessage(*envelope);
+      } catch (const PeerSilentError& silent) {
+        // A message that needed its sender after it ended (a data packet in
+        // a lost data-send's memory): as when its payload never comes.
+        if (silent.rank() == display) throw;
+        std::fprintf(stderr, "%s: %s; ignoring it from now on\n", job.describe().c_str(),
+                     silent.what());
+        job.markLost(silent.rank());
+        continue;
+      }
       selfKill.count();
       continue;
     }

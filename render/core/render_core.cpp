@@ -460,7 +460,10 @@ void checkDataPacketHeader(const v1::DataPacketHeader& header, std::size_t paylo
     fail("records of " + std::to_string(header.record_size()) + " bytes, not " +
          std::to_string(sizeof(Splat)));
   }
-  if (header.byte_size() != payloadBytes) {
+  // Parts read in place come without a payload.
+  const bool shared = header.has_shared();
+  if (shared && payloadBytes != 0) fail("its parts are in shared memory, yet bytes follow");
+  if (!shared && header.byte_size() != payloadBytes) {
     fail("its header says " + std::to_string(header.byte_size()) + " bytes");
   }
   if (header.parts_size() == 0) fail("no parts");
@@ -473,11 +476,22 @@ void checkDataPacketHeader(const v1::DataPacketHeader& header, std::size_t paylo
            " names splats " + std::to_string(part.first_splat()) + "+" +
            std::to_string(part.splat_count()));
     }
+    if (shared) {
+      const std::uint64_t size = header.shared().byte_size();
+      const std::uint64_t offset = part.shared_offset();
+      if (offset % alignof(Splat) != 0 || offset > size ||
+          part.splat_count() * sizeof(Splat) > size - offset) {
+        fail("the part of top-level cell " + std::to_string(part.top_level_cell()) +
+             " lies at byte " + std::to_string(offset) + ", not inside the " +
+             std::to_string(size) + "-byte shared segment");
+      }
+    }
     splats += part.splat_count();
   }
-  if (splats * sizeof(Splat) != payloadBytes) {
+  if (splats * sizeof(Splat) != header.byte_size()) {
     fail("its parts hold " + std::to_string(splats) + " splats of " +
-         std::to_string(sizeof(Splat)) + " bytes");
+         std::to_string(sizeof(Splat)) + " bytes, not the " + std::to_string(header.byte_size()) +
+         " its header says");
   }
 }
 

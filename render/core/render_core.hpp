@@ -74,8 +74,9 @@ struct ReadyPacket {
 };
 
 // A DataPacket's header against its payload (`payloadBytes`): sizes, record
-// size and counts that fit a packet. Throws ProtocolError naming the cell and
-// `sourceRank`. The checksum is the caller's (it reads the bytes).
+// size and counts that fit a packet, and for parts in a shared segment (no
+// payload) places inside it. Throws ProtocolError naming the cell and
+// `sourceRank`. The checksum and the segment itself are the caller's.
 void checkDataPacketHeader(const v1::DataPacketHeader& header, std::size_t payloadBytes,
                            int sourceRank);
 

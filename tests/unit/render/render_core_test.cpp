@@ -440,6 +440,35 @@ TEST(RenderCore, RefusesPacketsWhoseRangesReachBeyondThePrefixTheyWaitFor) {
 // A data packet's header must describe its payload exactly: its parts' splats
 // fill the payload; counts past 32 bits are refused before anything is
 // multiplied or summed.
+// Parts read in place from a data-send's shared segment: no payload, and
+// every part inside the segment, at a place a record may start.
+TEST(RenderCore, ADataPacketInSharedMemoryNamesPlacesInsideTheSegment) {
+  v1::DataPacketHeader header;
+  header.set_byte_size(10 * sizeof(Splat));
+  header.set_record_size(sizeof(Splat));
+  v1::SharedSegment& shared = *header.mutable_shared();
+  shared.set_byte_size(20 * sizeof(Splat));
+  v1::DataPart& first = *header.add_parts();
+  first.set_top_level_cell(3);
+  first.set_splat_count(4);
+  first.set_shared_offset(16 * sizeof(Splat));
+  v1::DataPart& second = *header.add_parts();
+  second.set_top_level_cell(5);
+  second.set_splat_count(6);
+  second.set_shared_offset(0);
+  EXPECT_NO_THROW(checkDataPacketHeader(header, 0, 3));
+  EXPECT_THROW(checkDataPacketHeader(header, 10 * sizeof(Splat), 3), ProtocolError);  // bytes too
+  header.mutable_parts(0)->set_shared_offset(17 * sizeof(Splat));  // ends past the segment
+  EXPECT_THROW(checkDataPacketHeader(header, 0, 3), ProtocolError);
+  header.mutable_parts(0)->set_shared_offset(~std::uint64_t{0} - 8);  // would wrap
+  EXPECT_THROW(checkDataPacketHeader(header, 0, 3), ProtocolError);
+  header.mutable_parts(0)->set_shared_offset(16 * sizeof(Splat) - 2);  // not a record's start
+  EXPECT_THROW(checkDataPacketHeader(header, 0, 3), ProtocolError);
+  header.mutable_parts(0)->set_shared_offset(16 * sizeof(Splat));
+  header.set_byte_size(9 * sizeof(Splat));  // parts hold 10
+  EXPECT_THROW(checkDataPacketHeader(header, 0, 3), ProtocolError);
+}
+
 TEST(RenderCore, ADataPacketHeaderMustDescribeItsPayload) {
   v1::DataPacketHeader header;
   header.set_byte_size(10 * sizeof(Splat));
