@@ -96,6 +96,7 @@ SharedSegmentView::SharedSegmentView(const SharedSegmentId& id, const std::strin
     data_ = static_cast<const std::byte*>(mapped);
   }
   close(fd);  // the mapping keeps the file
+  open_ = true;
 }
 
 SharedSegmentView::~SharedSegmentView() {
@@ -103,7 +104,10 @@ SharedSegmentView::~SharedSegmentView() {
 }
 
 SharedSegmentView::SharedSegmentView(SharedSegmentView&& other) noexcept
-    : id_(other.id_), owner_(std::move(other.owner_)), data_(std::exchange(other.data_, nullptr)) {}
+    : id_(other.id_),
+      owner_(std::move(other.owner_)),
+      data_(std::exchange(other.data_, nullptr)),
+      open_(std::exchange(other.open_, false)) {}
 
 SharedSegmentView& SharedSegmentView::operator=(SharedSegmentView&& other) noexcept {
   if (this != &other) {
@@ -111,6 +115,7 @@ SharedSegmentView& SharedSegmentView::operator=(SharedSegmentView&& other) noexc
     id_ = other.id_;
     owner_ = std::move(other.owner_);
     data_ = std::exchange(other.data_, nullptr);
+    open_ = std::exchange(other.open_, false);
   }
   return *this;
 }
@@ -119,6 +124,7 @@ void SharedSegmentView::release() noexcept {
   if (data_ != nullptr)
     munmap(const_cast<std::byte*>(data_), static_cast<std::size_t>(id_.byteSize));
   data_ = nullptr;
+  open_ = false;
 }
 
 std::span<const std::byte> SharedSegmentView::bytes(std::uint64_t offset,
@@ -129,14 +135,17 @@ std::span<const std::byte> SharedSegmentView::bytes(std::uint64_t offset,
                         "-byte segment");
   }
   if (size == 0) return {};
-  // The pages mapped in one call: a fault costs microseconds on a VM, and
-  // mapping the whole segment up front would map pages no tile asks for.
-  // Where the kernel lacks MADV_POPULATE_READ (before 5.14) they fault as read.
-  const auto page = static_cast<std::uintptr_t>(sysconf(_SC_PAGESIZE));
-  const auto first = reinterpret_cast<std::uintptr_t>(data_ + offset) / page * page;
-  const auto end = reinterpret_cast<std::uintptr_t>(data_ + offset + size);
-  madvise(reinterpret_cast<void*>(first), end - first, kPopulateRead);
   return {data_ + offset, static_cast<std::size_t>(size)};
+}
+
+void SharedSegmentView::populate(std::span<const std::byte> bytes) {
+  // Only what is about to be read: mapping the whole segment up front would
+  // map pages no tile asks for.
+  if (bytes.empty()) return;
+  static const auto page = static_cast<std::uintptr_t>(sysconf(_SC_PAGESIZE));
+  const auto first = reinterpret_cast<std::uintptr_t>(bytes.data()) / page * page;
+  const auto end = reinterpret_cast<std::uintptr_t>(bytes.data() + bytes.size());
+  madvise(reinterpret_cast<void*>(first), end - first, kPopulateRead);
 }
 
 bool processRuns(std::uint32_t pid) {

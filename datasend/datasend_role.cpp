@@ -1,5 +1,6 @@
 #include "datasend/datasend_role.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <cstring>
@@ -10,6 +11,7 @@
 #include "common/dataset.hpp"
 #include "common/mpi/worker.hpp"
 #include "common/ownership.hpp"
+#include "common/point_groups.hpp"
 #include "common/shared_packets.hpp"
 #include "datasend/core/send_ledger.hpp"
 
@@ -51,15 +53,27 @@ class DataSendProcess final : public WorkerProcess {
   }
 
   std::string readyDetail() const override {
-    char line[160];
-    std::snprintf(line, sizeof line, "owns %zu of %u packets, %.1f MiB, loaded in %.2f s",
-                  packets_.size(), dataset_.packetCount(),
-                  static_cast<double>(bytesHeld_) / (1024.0 * 1024.0), loadSeconds_);
+    char line[240];
+    int length = std::snprintf(
+        line, sizeof line, "owns %zu of %u packets, %.1f MiB, loaded in %.2f s", packets_.size(),
+        dataset_.packetCount(), static_cast<double>(bytesHeld_) / (1024.0 * 1024.0), loadSeconds_);
+    if (groups_ && length > 0 && static_cast<std::size_t>(length) < sizeof line) {
+      std::snprintf(line + length, sizeof line - static_cast<std::size_t>(length),
+                    "; %.1f MiB laid out for the cpu kernel in %.2f s",
+                    static_cast<double>(groups_->size()) / (1024.0 * 1024.0), groupSeconds_);
+    }
     return line;
   }
 
   void begin(const v1::RunSettings& settings) override {
     sharedPackets_ = !settings.no_shared_packets();
+    const auto& renders = job_.ranksOf(v1::ROLE_RENDER);
+    const bool neighbours = std::any_of(renders.begin(), renders.end(),
+                                        [&](int rank) { return job_.onThisMachine(rank); });
+    // Render processes of this machine that draw points with the CPU kernel
+    // draw these packets in place, from the kernel's layout: no copy into a
+    // cell of their own, and no fresh memory to fault in for it.
+    if (sharedPackets_ && neighbours && settings.renderer() != v1::RENDERER_GL) layOutGroups();
   }
 
   void onMessage(Envelope& envelope) override {
@@ -108,6 +122,23 @@ class DataSendProcess final : public WorkerProcess {
     }
   }
 
+  // Every packet held, also in the CPU kernel's layout, in a second segment
+  // (its padding stays zero, as a new memory file is).
+  void layOutGroups() {
+    const auto start = std::chrono::steady_clock::now();
+    std::uint64_t bytes = 0;
+    for (const auto& [cell, splats] : packets_) bytes += PointGroups::blockBytes(splats.size());
+    groups_ = std::make_shared<SharedSegment>(
+        bytes, "pointillist-point-groups-" + std::to_string(job_.worldRank()));
+    std::uint64_t at = 0;
+    for (const auto& [cell, splats] : packets_) {
+      auto* values = reinterpret_cast<float*>(groups_->data() + at);
+      groupsAt_.emplace(cell, GroupsPlace{at, writePointGroups(splats, 0, values)});
+      at += PointGroups::blockBytes(splats.size());
+    }
+    groupSeconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  }
+
   // One data packet. To a render process of this machine it names where the
   // parts lie in the shared segment; otherwise a single range goes straight
   // from the held packet, and more are copied back to back into one payload.
@@ -123,6 +154,14 @@ class DataSendProcess final : public WorkerProcess {
       named.set_fd(id.fd);
       named.set_inode(id.inode);
       named.set_byte_size(id.byteSize);
+      if (groups_) {
+        const SharedSegmentId& groupsId = groups_->id();
+        v1::SharedSegment& laidOut = *header.mutable_shared_groups();
+        laidOut.set_pid(groupsId.pid);
+        laidOut.set_fd(groupsId.fd);
+        laidOut.set_inode(groupsId.inode);
+        laidOut.set_byte_size(groupsId.byteSize);
+      }
     }
     std::uint64_t total = 0;
     for (const SplatRange& range : group) {
@@ -135,6 +174,11 @@ class DataSendProcess final : public WorkerProcess {
       if (shared) {
         part.set_shared_offset(static_cast<std::uint64_t>(
             reinterpret_cast<const std::byte*>(splats.data()) - segment_->data()));
+        if (groups_) {
+          const GroupsPlace& place = groupsAt_.at(range.cell);
+          part.set_shared_groups_offset(place.offset);
+          part.set_shared_has_normals(place.hasNormals);
+        }
       } else {
         // The whole packet's checksum was verified at load; a part gets its own.
         part.set_checksum(range.first == 0 && range.count == packets_.at(range.cell).size()
@@ -177,6 +221,13 @@ class DataSendProcess final : public WorkerProcess {
   Dataset dataset_;
   SendLedger ledger_;
   std::shared_ptr<SharedSegment> segment_;  // every packet held, back to back
+  struct GroupsPlace {
+    std::uint64_t offset = 0;  // of the packet's block in groups_
+    bool hasNormals = false;
+  };
+  std::shared_ptr<SharedSegment> groups_;  // the same in the CPU kernel's layout, or none
+  std::map<std::uint32_t, GroupsPlace> groupsAt_;
+  double groupSeconds_ = 0.0;
   std::map<std::uint32_t, std::span<const Splat>> packets_;
   bool sharedPackets_ = true;
   std::uint64_t sharedMessages_ = 0;  // data packets sent as places in segment_

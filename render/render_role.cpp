@@ -11,6 +11,7 @@
 #include "common/dataset.hpp"
 #include "common/mpi/worker.hpp"
 #include "common/ownership.hpp"
+#include "common/point_groups.hpp"
 #include "common/run_settings.hpp"
 #include "common/shared_packets.hpp"
 #include "render/core/render_core.hpp"
@@ -129,7 +130,11 @@ class RenderProcess final : public WorkerProcess {
     const double secondsPerSplat =
         (envelope.payloadSeconds / bytes + storeSecondsPerByte_) * sizeof(Splat);
     const SharedSegmentView* shared =
-        header.has_shared() ? &sharedView(header, envelope.source) : nullptr;
+        header.has_shared() ? &sharedView(header.shared(), envelope.source, sharedViews_) : nullptr;
+    const SharedSegmentView* groups =
+        header.has_shared_groups()
+            ? &sharedView(header.shared_groups(), envelope.source, sharedGroupViews_)
+            : nullptr;
     const auto* payload = reinterpret_cast<const Splat*>(envelope.payload.data());
     for (const v1::DataPart& part : header.parts()) {
       const auto count = static_cast<std::size_t>(part.splat_count());
@@ -141,7 +146,7 @@ class RenderProcess final : public WorkerProcess {
         splats = {payload, count};
         payload += count;
       }
-      receivePart(part, splats, shared == nullptr,
+      receivePart(part, splats, shared == nullptr, groups,
                   secondsPerSplat * static_cast<double>(part.splat_count()), envelope.source,
                   effects);
     }
@@ -151,28 +156,34 @@ class RenderProcess final : public WorkerProcess {
     }
   }
 
-  // The segment a data-send process's header names, mapped on first use (and
-  // again if that process's segment changed).
-  const SharedSegmentView& sharedView(const v1::DataPacketHeader& header, int source) {
-    const v1::SharedSegment& named = header.shared();
+  // The segment a data-send process's header names, mapped on first use. Its
+  // segments stay the same while it runs: cells drawn in place point into them.
+  const SharedSegmentView& sharedView(const v1::SharedSegment& named, int source,
+                                      std::map<int, SharedSegmentView>& views) {
     const SharedSegmentId id{named.pid(), named.fd(), named.inode(), named.byte_size()};
-    SharedSegmentView& view = sharedViews_[source];
-    if (!view.mapped() || view.id() != id) {
-      try {
-        view = SharedSegmentView(id, "data-send rank " + std::to_string(source));
-      } catch (const ProtocolError& error) {
-        // Its data-send ended after sending: lost, as when a payload never comes.
-        if (!processRuns(id.pid)) throw PeerSilentError(source, error.what());
-        throw;
-      }
+    SharedSegmentView& view = views[source];
+    if (view.mapped() && view.id() == id) return view;
+    if (view.mapped()) {
+      throw ProtocolError("data-send rank " + std::to_string(source) +
+                          " named another shared segment than before");
+    }
+    try {
+      view = SharedSegmentView(id, "data-send rank " + std::to_string(source));
+    } catch (const ProtocolError& error) {
+      // Its data-send ended after sending: lost, as when a payload never comes.
+      if (!processRuns(id.pid)) throw PeerSilentError(source, error.what());
+      throw;
     }
     return view;
   }
 
   // `carried`: the bytes came in a payload, so their checksum is checked;
   // parts read in place were checked when their data-send loaded them.
+  // `groups`: the data-send's packets in the CPU kernel's layout, which a
+  // renderer that can draws from in place.
   void receivePart(const v1::DataPart& part, std::span<const Splat> splats, bool carried,
-                   double seconds, int source, RenderEffects& effects) {
+                   const SharedSegmentView* groups, double seconds, int source,
+                   RenderEffects& effects) {
     const std::uint32_t cell = part.top_level_cell();
     const auto first = static_cast<std::uint32_t>(part.first_splat());
     const auto count = static_cast<std::uint32_t>(part.splat_count());
@@ -189,8 +200,25 @@ class RenderProcess final : public WorkerProcess {
     for (std::uint32_t victim : effects.released) releaseEverywhere(victim);
     effects.released.clear();
     if (intake.verdict != DataVerdict::Store) return;
+    const std::size_t held = std::size_t{first} + intake.skip + intake.count;
+    const float* laidOut = nullptr;
+    if (groups != nullptr) {
+      const auto block = groups->bytes(part.shared_groups_offset(), PointGroups::blockBytes(held));
+      // The groups the new splats start in onwards: the earlier ones are mapped.
+      const std::size_t known = (held - intake.count) / PointGroups::kPad * PointGroups::kPad;
+      SharedSegmentView::populate(block.subspan(PointGroups::blockBytes(known)));
+      laidOut = reinterpret_cast<const float*>(block.data());
+    }
+    const std::span<const Splat> added = splats.subspan(intake.skip, intake.count);
+    bool populated = carried;
     for (const auto& renderer : renderers_) {
-      renderer->appendToCell(cell, splats.subspan(intake.skip, intake.count));
+      if (laidOut != nullptr &&
+          renderer->viewCell(cell, laidOut, held, part.shared_has_normals())) {
+        continue;
+      }
+      if (!populated) SharedSegmentView::populate(std::as_bytes(added));
+      populated = true;
+      renderer->appendToCell(cell, added);
     }
   }
 
@@ -293,8 +321,9 @@ class RenderProcess final : public WorkerProcess {
   RenderOptions options_;
   Dataset dataset_;
   RenderCore core_;
-  double storeSecondsPerByte_ = 0.0;              // CPU to check and store a byte of data
-  std::map<int, SharedSegmentView> sharedViews_;  // by data-send rank
+  double storeSecondsPerByte_ = 0.0;                   // CPU to check and store a byte of data
+  std::map<int, SharedSegmentView> sharedViews_;       // by data-send rank
+  std::map<int, SharedSegmentView> sharedGroupViews_;  // the same in the kernel's layout
   // Made once the run's settings are known; a second one when a served frame
   // asks for a mode the first cannot draw. renderer_ drew the last tile.
   std::vector<std::unique_ptr<TileRenderer>> renderers_;

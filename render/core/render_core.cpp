@@ -6,6 +6,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "common/point_groups.hpp"
 #include "common/splat.hpp"
 
 namespace pointillist::render {
@@ -475,6 +476,18 @@ void checkDataPacketHeader(const v1::DataPacketHeader& header, std::size_t paylo
       fail("the part of top-level cell " + std::to_string(part.top_level_cell()) +
            " names splats " + std::to_string(part.first_splat()) + "+" +
            std::to_string(part.splat_count()));
+    }
+    if (header.has_shared_groups()) {
+      const std::uint64_t size = header.shared_groups().byte_size();
+      const std::uint64_t offset = part.shared_groups_offset();
+      const std::uint64_t block = PointGroups::blockBytes(
+          static_cast<std::size_t>(part.first_splat() + part.splat_count()));
+      if (!shared || offset % PointGroups::kAlignment != 0 || offset > size ||
+          block > size - offset) {
+        fail("the part of top-level cell " + std::to_string(part.top_level_cell()) +
+             " is drawn from byte " + std::to_string(offset) + ", not a block inside the " +
+             std::to_string(size) + "-byte segment of kernel groups");
+      }
     }
     if (shared) {
       const std::uint64_t size = header.shared().byte_size();

@@ -399,10 +399,6 @@ std::uint8_t unitToByte(float value) {
   return static_cast<std::uint8_t>(std::clamp(value, 0.0f, 1.0f) * 255.0f + 0.5f);
 }
 
-std::uint32_t packColor(std::uint32_t r, std::uint32_t g, std::uint32_t b, std::uint32_t a) {
-  return r | (g << 8) | (b << 16) | (a << 24);
-}
-
 }  // namespace
 
 PointRaster pointRaster(const Camera& camera, const TileRect& rect,
@@ -501,16 +497,25 @@ PointCell makePointCell(std::span<const Splat> splats) {
   return cell;
 }
 
+PointCell PointCell::view(const float* values, std::size_t count, bool hasNormals) {
+  PointCell cell;
+  cell.view_ = values;
+  cell.count = count;
+  cell.hasNormals = hasNormals;
+  return cell;
+}
+
 void PointCell::reserve(std::size_t splats) {
   const std::size_t padded = (splats + kPad - 1) / kPad * kPad;
-  if (padded <= capacity_) return;
-  std::unique_ptr<std::byte[], BlockDeleter> block(
-      static_cast<std::byte*>(::operator new (padded* kFields * 4, std::align_val_t{64})));
+  if (view_ == nullptr && padded <= capacity_) return;
+  std::unique_ptr<std::byte[], BlockDeleter> block(static_cast<std::byte*>(
+      ::operator new (padded* kFields * 4, std::align_val_t{PointGroups::kAlignment})));
   // Groups are whole: the held ones move as one block, the rest are zero.
-  const std::size_t held = (count + kPad - 1) / kPad * kPad * kFields * 4;
-  if (held > 0) std::memcpy(block.get(), block_.get(), held);
+  const std::size_t held = PointGroups::blockBytes(count);
+  if (held > 0) std::memcpy(block.get(), values(), held);
   std::memset(block.get() + held, 0, padded * kFields * 4 - held);
   block_ = std::move(block);
+  view_ = nullptr;
   capacity_ = padded;
 }
 
@@ -519,21 +524,8 @@ void appendToPointCell(PointCell& cell, std::span<const Splat> splats) {
   // Growth by layers is geometric (about 4x per level): room for exactly these.
   cell.reserve(from + splats.size());
   cell.count += splats.size();
-  for (std::size_t k = 0; k < splats.size(); ++k) {
-    const Splat& s = splats[k];
-    const std::size_t i = from + k;
-    *cell.x(i) = s.position[0];
-    *cell.y(i) = s.position[1];
-    *cell.z(i) = s.position[2];
-    *cell.radius(i) = s.radius;
-    *cell.nx(i) = s.normal[0];
-    *cell.ny(i) = s.normal[1];
-    *cell.nz(i) = s.normal[2];
-    *cell.color(i) = packColor(s.color[0], s.color[1], s.color[2], s.color[3]);
-    const float lengthSquared =
-        s.normal[0] * s.normal[0] + s.normal[1] * s.normal[1] + s.normal[2] * s.normal[2];
-    cell.hasNormals = cell.hasNormals || lengthSquared > 0.25f;  // as the kernel decides
-  }
+  const bool normals = writePointGroups(splats, from, reinterpret_cast<float*>(cell.block_.get()));
+  cell.hasNormals = cell.hasNormals || normals;
 }
 
 void rasterizePoints(const PointRaster& raster, const PointCell& cell, std::size_t from,
@@ -575,6 +567,12 @@ void CpuPointRenderer::uploadCell(std::uint32_t id, std::span<const Splat> splat
 
 void CpuPointRenderer::appendToCell(std::uint32_t id, std::span<const Splat> splats) {
   appendToPointCell(cells_[id], splats);
+}
+
+bool CpuPointRenderer::viewCell(std::uint32_t id, const float* groups, std::size_t count,
+                                bool hasNormals) {
+  cells_[id] = PointCell::view(groups, count, hasNormals);
+  return true;
 }
 
 void CpuPointRenderer::forEachCell(const CellVisitor& visit) const {

@@ -27,6 +27,7 @@
 
 #include <glm/glm.hpp>
 
+#include "common/point_groups.hpp"
 #include "render/raster/tile_renderer.hpp"
 
 namespace pointillist::render {
@@ -69,24 +70,28 @@ PointFootprint pointFootprintScalar(const PointRaster& raster, const Splat& spla
 void rasterizePointsScalar(const PointRaster& raster, std::span<const Splat> splats,
                            std::uint64_t* buffer);
 
-// A cell as the SIMD kernel streams it: groups of kPad splats (the widest
-// vector), each group one field after another (kPad x's, kPad y's, ...), the
-// last group padded with zeros, all in one block. A range of a cell is one
-// stretch of memory: a tile draws thousands of short ranges of small cells,
-// and one array per field started eight cold streams on eight pages for each.
+// A cell as the SIMD kernel streams it: common/point_groups.hpp's layout, in a
+// block of its own or, as a view, in a block held elsewhere (a data-send
+// process's shared memory, which render processes of its machine draw from
+// in place).
 class PointCell {
  public:
-  static constexpr std::size_t kPad = 16;
-  // A field's place in its group, kPad 4-byte values each.
-  static constexpr std::size_t kX = 0, kY = 1, kZ = 2, kRadius = 3;
-  static constexpr std::size_t kNormalX = 4, kNormalY = 5, kNormalZ = 6, kColor = 7;
-  static constexpr std::size_t kFields = 8;
-  static constexpr std::size_t kGroupValues = kFields * kPad;
-  // Where splat i's `field` lies among values(); the kPad - i % kPad values
-  // from there are those of splats i, i + 1, ... of its group (a vector load).
+  static constexpr std::size_t kPad = PointGroups::kPad;
+  static constexpr std::size_t kX = PointGroups::kX, kY = PointGroups::kY, kZ = PointGroups::kZ;
+  static constexpr std::size_t kRadius = PointGroups::kRadius;
+  static constexpr std::size_t kNormalX = PointGroups::kNormalX;
+  static constexpr std::size_t kNormalY = PointGroups::kNormalY;
+  static constexpr std::size_t kNormalZ = PointGroups::kNormalZ;
+  static constexpr std::size_t kColor = PointGroups::kColor;
+  static constexpr std::size_t kFields = PointGroups::kFields;
+  static constexpr std::size_t kGroupValues = PointGroups::kGroupValues;
   static constexpr std::size_t valueIndex(std::size_t field, std::size_t i) {
-    return (i / kPad) * kGroupValues + field * kPad + i % kPad;
+    return PointGroups::valueIndex(field, i);
   }
+
+  // A view of `count` splats of a block (kAlignment-aligned, whole groups)
+  // that outlives it; appending to it copies the held splats first.
+  static PointCell view(const float* values, std::size_t count, bool hasNormals);
 
   std::size_t count = 0;
   bool hasNormals = false;  // any normal long enough to shade with
@@ -101,33 +106,32 @@ class PointCell {
   const std::uint32_t* color(std::size_t i) const {  // RGBA8, R low
     return field<std::uint32_t>(kColor, i);
   }
-  float* x(std::size_t i) { return field<float>(kX, i); }
-  float* y(std::size_t i) { return field<float>(kY, i); }
-  float* z(std::size_t i) { return field<float>(kZ, i); }
-  float* radius(std::size_t i) { return field<float>(kRadius, i); }
-  float* nx(std::size_t i) { return field<float>(kNormalX, i); }
-  float* ny(std::size_t i) { return field<float>(kNormalY, i); }
-  float* nz(std::size_t i) { return field<float>(kNormalZ, i); }
-  std::uint32_t* color(std::size_t i) { return field<std::uint32_t>(kColor, i); }
 
   // The block's values, as valueIndex counts them.
-  const float* values() const { return reinterpret_cast<const float*>(block_.get()); }
+  const float* values() const {
+    return view_ != nullptr ? view_ : reinterpret_cast<const float*>(block_.get());
+  }
+  bool isView() const { return view_ != nullptr; }
 
-  // Room for `splats` (and the padding after them), keeping the fields held;
-  // new entries are zero.
+  // Room for `splats` (and the padding after them) in a block of its own,
+  // keeping the splats held; new entries are zero.
   void reserve(std::size_t splats);
 
  private:
+  friend void appendToPointCell(PointCell& cell, std::span<const Splat> splats);
   struct BlockDeleter {
-    void operator()(std::byte* block) const { ::operator delete (block, std::align_val_t{64}); }
+    void operator()(std::byte* block) const {
+      ::operator delete (block, std::align_val_t{PointGroups::kAlignment});
+    }
   };
   template <class T>
-  T* field(std::size_t k, std::size_t i) const {
+  const T* field(std::size_t k, std::size_t i) const {
     static_assert(sizeof(T) == 4);
-    return reinterpret_cast<T*>(block_.get()) + valueIndex(k, i);
+    return reinterpret_cast<const T*>(values()) + valueIndex(k, i);
   }
-  std::size_t capacity_ = 0;  // splats, a multiple of kPad
+  std::size_t capacity_ = 0;  // splats of the own block, a multiple of kPad
   std::unique_ptr<std::byte[], BlockDeleter> block_;
+  const float* view_ = nullptr;
 };
 
 PointCell makePointCell(std::span<const Splat> splats);
@@ -172,6 +176,7 @@ class CpuPointRenderer final : public TileRenderer {
 
   void uploadCell(std::uint32_t id, std::span<const Splat> splats) override;
   void appendToCell(std::uint32_t id, std::span<const Splat> splats) override;
+  bool viewCell(std::uint32_t id, const float* groups, std::size_t count, bool hasNormals) override;
   void forEachCell(const CellVisitor& visit) const override;
   void releaseCell(std::uint32_t id) override;
   RenderStats render(const Camera& camera, const TileRect& rect, std::span<const DrawRange> ranges,

@@ -79,6 +79,10 @@ class EdlTileRenderer final : public TileRenderer {
   void appendToCell(std::uint32_t id, std::span<const Splat> splats) override {
     inner_->appendToCell(id, splats);
   }
+  bool viewCell(std::uint32_t id, const float* groups, std::size_t count,
+                bool hasNormals) override {
+    return inner_->viewCell(id, groups, count, hasNormals);
+  }
   void releaseCell(std::uint32_t id) override { inner_->releaseCell(id); }
   void forEachCell(const CellVisitor& visit) const override { inner_->forEachCell(visit); }
   // Also throws UsageError for settings.edl out of range or in blended mode.

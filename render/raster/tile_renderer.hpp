@@ -7,6 +7,7 @@
 // Tiles are drawn in full-frame pixel coordinates, so a tile equals the same
 // rectangle of a whole-frame render by the same renderer (common/camera.hpp).
 #include <array>
+#include <cstddef>
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -104,6 +105,14 @@ class TileRenderer {
   // Adds splats after the cell's current ones (a longer prefix of its layered
   // packet arrived); an unknown id starts a new cell.
   virtual void appendToCell(std::uint32_t id, std::span<const Splat> splats) = 0;
+  // Cell `id` drawn in place from `count` splats of a block in the CPU point
+  // kernel's layout (common/point_groups.hpp) held elsewhere, which outlives
+  // its use here (a data-send's shared memory). False: this renderer cannot,
+  // and takes the splats through uploadCell / appendToCell instead.
+  virtual bool viewCell(std::uint32_t id, const float* groups, std::size_t count, bool hasNormals) {
+    (void)id, (void)groups, (void)count, (void)hasNormals;
+    return false;
+  }
   virtual void releaseCell(std::uint32_t id) = 0;  // no-op for unknown ids
   // Calls `visit` with every cell kept and its splats as uploaded, so another
   // renderer can take them over (a served frame asks for a mode this one

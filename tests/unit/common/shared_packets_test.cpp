@@ -93,7 +93,10 @@ TEST(SharedPackets, AViewMovesWithItsMapping) {
   SharedSegment segment(64, "pointillist-test");
   std::memset(segment.data(), 0x5a, 64);
   SharedSegmentView first(segment.id(), "data-send rank 2");
+  EXPECT_FALSE(SharedSegmentView().mapped());
   SharedSegmentView second = std::move(first);
+  EXPECT_TRUE(second.mapped());
+  EXPECT_FALSE(first.mapped());  // NOLINT(bugprone-use-after-move): moved-from is empty
   EXPECT_EQ(second.bytes(0, 64)[63], std::byte{0x5a});
   first = std::move(second);
   EXPECT_EQ(first.bytes(0, 1)[0], std::byte{0x5a});

@@ -3,8 +3,11 @@
 // full frame drawn by another, so any difference would show as wrong pixels.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
+#include <new>
 #include <random>
 #include <set>
 #include <string>
@@ -287,6 +290,68 @@ TEST(CpuPointKernel, ACellGrownInPartsEqualsOneUpload) {
   const Camera camera = kernelCamera();
   const PointRaster raster = pointRaster(camera, fullFrameRect(camera), settingsVariants()[0]);
   EXPECT_TRUE(drawSimd(raster, grown, 0, grown.count) == drawScalar(raster, splats));
+}
+
+// Vectors of values that start on a cache line, as a laid-out block does.
+template <class T>
+struct CacheLineAllocator {
+  using value_type = T;
+  CacheLineAllocator() = default;
+  template <class U>
+  explicit CacheLineAllocator(const CacheLineAllocator<U>&) {}
+  T* allocate(std::size_t n) {
+    return static_cast<T*>(
+        ::operator new (n * sizeof(T), std::align_val_t{PointGroups::kAlignment}));
+  }
+  void deallocate(T* p, std::size_t) {
+    ::operator delete (p, std::align_val_t{PointGroups::kAlignment});
+  }
+  bool operator==(const CacheLineAllocator&) const = default;
+};
+using AlignedFloats = CacheLineAllocator<float>;
+
+// A cell drawn in place from a block laid out elsewhere (a data-send's shared
+// memory, common/point_groups.hpp) draws as its own copy; appending to it
+// copies what it holds first, and the block is left as it was.
+TEST(CpuPointKernel, ACellDrawnInPlaceEqualsItsOwnCopy) {
+  const std::vector<Splat> splats = edgeScene(3001, 53);
+  std::vector<float, AlignedFloats> block(PointGroups::blockBytes(splats.size()) / 4, 0.0f);
+  const bool normals = writePointGroups(splats, 0, block.data());
+  const std::vector<float, AlignedFloats> before = block;
+  const PointCell whole = makePointCell(splats);
+  EXPECT_EQ(normals, whole.hasNormals);
+  // Bit for bit (the scene holds NaNs).
+  const std::size_t bytes = block.size() * sizeof(float);
+  EXPECT_EQ(std::memcmp(block.data(), whole.values(), bytes), 0);
+
+  const std::size_t held = 1000;  // a prefix, as a render holds one
+  const PointCell view = PointCell::view(block.data(), held, normals);
+  EXPECT_TRUE(view.isView());
+  const PointCell copy = makePointCell({splats.data(), held});
+  const Camera camera = kernelCamera();
+  for (const RenderSettings& settings : settingsVariants()) {
+    const PointRaster raster = pointRaster(camera, fullFrameRect(camera), settings);
+    EXPECT_TRUE(drawSimd(raster, view, 0, held) == drawSimd(raster, copy, 0, held));
+    EXPECT_TRUE(drawSimd(raster, view, 17, 901) == drawScalar(raster, {splats.data() + 17, 884}));
+  }
+
+  PointCell grown = PointCell::view(block.data(), held, normals);
+  appendToPointCell(grown, {splats.data() + held, splats.size() - held});
+  EXPECT_FALSE(grown.isView());
+  ASSERT_EQ(grown.count, splats.size());
+  EXPECT_EQ(std::memcmp(grown.values(), whole.values(), bytes), 0);
+  EXPECT_EQ(std::memcmp(block.data(), before.data(), bytes), 0);
+
+  // Through the renderer: a view, then a longer view of the same block.
+  CpuPointRenderer renderer;
+  ASSERT_TRUE(renderer.viewCell(7, block.data(), held, normals));
+  ASSERT_TRUE(renderer.viewCell(7, block.data(), splats.size(), normals));
+  CpuPointRenderer uploaded;
+  uploaded.uploadCell(7, splats);
+  const DrawRange all{7, 0, static_cast<std::uint32_t>(splats.size())};
+  renderer.render(camera, fullFrameRect(camera), {&all, 1}, settingsVariants()[0]);
+  uploaded.render(camera, fullFrameRect(camera), {&all, 1}, settingsVariants()[0]);
+  EXPECT_TRUE(std::ranges::equal(renderer.pixels(), uploaded.pixels()));
 }
 
 // One pixel per point everywhere: the batched 1x1 path.

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 
+#include "common/point_groups.hpp"
 #include "common/splat.hpp"
 #include "render/core/render_core.hpp"
 
@@ -467,6 +468,21 @@ TEST(RenderCore, ADataPacketInSharedMemoryNamesPlacesInsideTheSegment) {
   header.mutable_parts(0)->set_shared_offset(16 * sizeof(Splat));
   header.set_byte_size(9 * sizeof(Splat));  // parts hold 10
   EXPECT_THROW(checkDataPacketHeader(header, 0, 3), ProtocolError);
+  header.set_byte_size(10 * sizeof(Splat));
+
+  // The same packets in the CPU kernel's layout: each part's whole block
+  // (from splat 0 to its end) inside that segment, on a cache line.
+  header.mutable_shared_groups()->set_byte_size(2 * PointGroups::blockBytes(16));
+  header.mutable_parts(1)->set_shared_groups_offset(PointGroups::blockBytes(16));
+  EXPECT_NO_THROW(checkDataPacketHeader(header, 0, 3));
+  header.mutable_parts(1)->set_first_splat(11);  // splats 0-16: two groups from there
+  EXPECT_THROW(checkDataPacketHeader(header, 0, 3), ProtocolError);
+  header.mutable_parts(1)->set_first_splat(0);
+  header.mutable_parts(1)->set_shared_groups_offset(PointGroups::blockBytes(16) + 4);
+  EXPECT_THROW(checkDataPacketHeader(header, 0, 3), ProtocolError);  // not a block's start
+  header.mutable_parts(1)->set_shared_groups_offset(PointGroups::blockBytes(16));
+  header.clear_shared();  // groups without the packets themselves
+  EXPECT_THROW(checkDataPacketHeader(header, 10 * sizeof(Splat), 3), ProtocolError);
 }
 
 TEST(RenderCore, ADataPacketHeaderMustDescribeItsPayload) {
