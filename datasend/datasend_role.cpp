@@ -92,15 +92,16 @@ class DataSendProcess final : public WorkerProcess {
   }
 
   std::string summary() const override {
-    char line[200];
+    char line[320];
     std::snprintf(line, sizeof line,
                   "data_packets=%llu shared_in_place=%llu parts_sent=%llu extensions=%llu "
-                  "bytes_sent=%llu duplicates_skipped=%llu",
+                  "bytes_sent=%llu bytes_in_place=%llu duplicates_skipped=%llu",
                   static_cast<unsigned long long>(messagesSent_),
                   static_cast<unsigned long long>(sharedMessages_),
                   static_cast<unsigned long long>(packetsSent_),
                   static_cast<unsigned long long>(extensionsSent_),
                   static_cast<unsigned long long>(bytesSent_),
+                  static_cast<unsigned long long>(bytesInPlace_),
                   static_cast<unsigned long long>(ledger_.duplicatesSkipped()));
     return line;
   }
@@ -194,6 +195,7 @@ class DataSendProcess final : public WorkerProcess {
     ++messagesSent_;
     if (shared) {
       ++sharedMessages_;
+      bytesInPlace_ += total;
       job_.sends().post(renderRank, MessageKind::DataPacket, header);
       return;
     }
@@ -231,6 +233,7 @@ class DataSendProcess final : public WorkerProcess {
   std::map<std::uint32_t, std::span<const Splat>> packets_;
   bool sharedPackets_ = true;
   std::uint64_t sharedMessages_ = 0;  // data packets sent as places in segment_
+  std::uint64_t bytesInPlace_ = 0;    // of bytesSent_, in those: read in place, not copied
   std::uint64_t bytesHeld_ = 0;
   double loadSeconds_ = 0.0;
   std::uint64_t messagesSent_ = 0;
