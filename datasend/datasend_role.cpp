@@ -140,6 +140,13 @@ class DataSendProcess final : public WorkerProcess {
     groupSeconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   }
 
+  static void name(const SharedSegmentId& id, v1::SharedSegment& named) {
+    named.set_pid(id.pid);
+    named.set_fd(id.fd);
+    named.set_inode(id.inode);
+    named.set_byte_size(id.byteSize);
+  }
+
   // One data packet. To a render process of this machine it names where the
   // parts lie in the shared segment; otherwise a single range goes straight
   // from the held packet, and more are copied back to back into one payload.
@@ -149,20 +156,8 @@ class DataSendProcess final : public WorkerProcess {
     header.set_record_size(sizeof(Splat));
     header.set_datasend_rank(job_.worldRank());
     if (shared) {
-      const SharedSegmentId& id = segment_->id();
-      v1::SharedSegment& named = *header.mutable_shared();
-      named.set_pid(id.pid);
-      named.set_fd(id.fd);
-      named.set_inode(id.inode);
-      named.set_byte_size(id.byteSize);
-      if (groups_) {
-        const SharedSegmentId& groupsId = groups_->id();
-        v1::SharedSegment& laidOut = *header.mutable_shared_groups();
-        laidOut.set_pid(groupsId.pid);
-        laidOut.set_fd(groupsId.fd);
-        laidOut.set_inode(groupsId.inode);
-        laidOut.set_byte_size(groupsId.byteSize);
-      }
+      name(segment_->id(), *header.mutable_shared());
+      if (groups_) name(groups_->id(), *header.mutable_shared_groups());
     }
     std::uint64_t total = 0;
     for (const SplatRange& range : group) {

@@ -8,6 +8,19 @@
 
 namespace pointillist {
 
+namespace {
+
+// Nothing more is taken from a silent peer; whether the job goes on is the
+// display's call (it hears from everyone), and work its message carried is
+// re-issued as late. Without the display nothing can go on.
+void ignoreSilentPeer(Job& job, const PeerSilentError& silent) {
+  if (silent.rank() == job.displayRank()) throw silent;
+  std::fprintf(stderr, "%s: %s; ignoring it from now on\n", job.describe().c_str(), silent.what());
+  job.markLost(silent.rank());
+}
+
+}  // namespace
+
 void serveUntilShutdown(Job& job, WorkerProcess* process, SelfKill selfKill) {
   Channel& channel = job.channel();
   SendQueue& sends = job.sends();
@@ -34,14 +47,9 @@ void serveUntilShutdown(Job& job, WorkerProcess* process, SelfKill selfKill) {
     try {
       envelope = channel.tryReceive();
     } catch (const PeerSilentError& silent) {
-      if (silent.rank() == display) throw;
       // A peer stopped halfway through a message: it died, or its link is
-      // down for longer than any transfer may take. Nothing more is taken
-      // from it; whether the job goes on is the display's call (it hears
-      // from everyone), and work the message carried is re-issued as late.
-      std::fprintf(stderr, "%s: %s; ignoring it from now on\n", job.describe().c_str(),
-                   silent.what());
-      job.markLost(silent.rank());
+      // down for longer than any transfer may take.
+      ignoreSilentPeer(job, silent);
       continue;
     }
     // Judged only with nothing waiting: after a long draw the display's
@@ -81,10 +89,7 @@ void serveUntilShutdown(Job& job, WorkerProcess* process, SelfKill selfKill) {
       } catch (const PeerSilentError& silent) {
         // A message that needed its sender after it ended (a data packet in
         // a lost data-send's memory): as when its payload never comes.
-        if (silent.rank() == display) throw;
-        std::fprintf(stderr, "%s: %s; ignoring it from now on\n", job.describe().c_str(),
-                     silent.what());
-        job.markLost(silent.rank());
+        ignoreSilentPeer(job, silent);
         continue;
       }
       selfKill.count();
