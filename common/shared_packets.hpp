@@ -81,8 +81,9 @@ class SharedSegmentView {
 // be opened (a mapping made before stays valid).
 bool processRuns(std::uint32_t pid);
 
-// Identifies this machine (its kernel's boot id and the host name): two
-// processes with the same identity can map each other's segments. A host name
+// Identifies this machine (its kernel's boot id, the host name and the pid
+// namespace): two processes with the same identity can map each other's
+// segments, and a pid one of them names is the same process for the other. A host name
 // of its own (a network-namespace "host", deploy/netns-cluster.sh) counts as
 // another machine, so packets cross its simulated links.
 std::uint64_t thisMachineIdentity();
