@@ -12,6 +12,7 @@
 #include "common/mpi/worker.hpp"
 #include "common/ownership.hpp"
 #include "common/point_groups.hpp"
+#include "common/run_settings.hpp"
 #include "common/shared_packets.hpp"
 #include "datasend/core/send_ledger.hpp"
 
@@ -70,10 +71,12 @@ class DataSendProcess final : public WorkerProcess {
     const auto& renders = job_.ranksOf(v1::ROLE_RENDER);
     const bool neighbours = std::any_of(renders.begin(), renders.end(),
                                         [&](int rank) { return job_.onThisMachine(rank); });
-    // Render processes of this machine that draw points with the CPU kernel
-    // draw these packets in place, from the kernel's layout: no copy into a
-    // cell of their own, and no fresh memory to fault in for it.
-    if (sharedPackets_ && neighbours && settings.renderer() != v1::RENDERER_GL) layOutGroups();
+    // Render processes of this machine that draw the run's frames with the
+    // CPU kernel draw these packets in place, from the kernel's layout: no
+    // copy into a cell of their own, and no fresh memory to fault in for it.
+    // (A served frame of another mode than the run's still draws, from copies.)
+    const bool kernel = resolveRenderer(settings.renderer(), settings.mode()) == v1::RENDERER_CPU;
+    if (sharedPackets_ && neighbours && kernel) layOutGroups();
   }
 
   void onMessage(Envelope& envelope) override {

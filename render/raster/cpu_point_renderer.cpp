@@ -509,11 +509,11 @@ void PointCell::reserve(std::size_t splats) {
   const std::size_t padded = (splats + kPad - 1) / kPad * kPad;
   if (view_ == nullptr && padded <= capacity_) return;
   std::unique_ptr<std::byte[], BlockDeleter> block(static_cast<std::byte*>(
-      ::operator new (padded* kFields * 4, std::align_val_t{PointGroups::kAlignment})));
+      ::operator new (PointGroups::blockBytes(padded), std::align_val_t{PointGroups::kAlignment})));
   // Groups are whole: the held ones move as one block, the rest are zero.
   const std::size_t held = PointGroups::blockBytes(count);
   if (held > 0) std::memcpy(block.get(), values(), held);
-  std::memset(block.get() + held, 0, padded * kFields * 4 - held);
+  std::memset(block.get() + held, 0, PointGroups::blockBytes(padded) - held);
   block_ = std::move(block);
   view_ = nullptr;
   capacity_ = padded;
