@@ -3,9 +3,12 @@
 #include <algorithm>
 #include <atomic>
 #include <cstddef>
+#include <cstdint>
 #include <cstring>
 #include <thread>
 #include <vector>
+
+#include <sys/mman.h>
 
 namespace pointillist::preprocess {
 
@@ -36,6 +39,34 @@ void parallelCopy(const T* from, std::size_t n, T* to, unsigned threads) {
                 std::memcpy(to + first, from + first, std::min(kChunk, n - first) * sizeof(T));
               },
               1);
+}
+
+// Maps fresh memory's pages in ahead of a serial writer, on `threads` threads
+// (0: all cores), one madvise call each: a page fault taken one by one costs
+// microseconds on a virtual machine (0.2 s for 320 MB here), and a serial
+// copy into a fresh vector took them all on one core. Only a hint: the
+// pages are zero either way, and a kernel without MADV_POPULATE_WRITE (before
+// Linux 5.14) leaves them to fault as before.
+inline void populatePages(void* data, std::size_t bytes, unsigned threads) {
+#ifdef MADV_POPULATE_WRITE
+  constexpr std::size_t kPage = 4096;
+  constexpr std::size_t kChunk = std::size_t{16} << 20;
+  const auto first = (reinterpret_cast<std::uintptr_t>(data) + kPage - 1) / kPage * kPage;
+  const auto last = (reinterpret_cast<std::uintptr_t>(data) + bytes) / kPage * kPage;
+  if (last <= first) return;
+  parallelFor((last - first + kChunk - 1) / kChunk, threads,
+              [&](std::size_t c) {
+                const std::uintptr_t begin = first + c * kChunk;
+                // NOLINTNEXTLINE(performance-no-int-to-ptr): an address range for the kernel
+                ::madvise(reinterpret_cast<void*>(begin),
+                          std::min<std::uintptr_t>(kChunk, last - begin), MADV_POPULATE_WRITE);
+              },
+              1);
+#else
+  (void)data;
+  (void)bytes;
+  (void)threads;
+#endif
 }
 
 // std::sort on `threads` threads (0: all cores): pieces sorted apart, then

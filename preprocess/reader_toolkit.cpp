@@ -12,6 +12,7 @@
 #include <utility>
 
 #include "common/errors.hpp"
+#include "preprocess/parallel.hpp"
 
 namespace pointillist::preprocess {
 namespace detail {
@@ -135,6 +136,9 @@ void CloudBuilder::reserve(std::uint64_t expected, std::uint64_t limit) {
   std::uint64_t n = std::min(expected, limit);
   if (options_.sink) n = std::min<std::uint64_t>(n, options_.sinkBlock);
   cloud_.splats.reserve(static_cast<std::size_t>(n));
+  // Readers decode on all threads and hand blocks over in one serial copy.
+  populatePages(cloud_.splats.data() + cloud_.splats.size(),
+                (cloud_.splats.capacity() - cloud_.splats.size()) * sizeof(Splat), 0);
 }
 
 void CloudBuilder::addPrepared(const Splat& s, std::uint64_t line, std::uint64_t byte) {
