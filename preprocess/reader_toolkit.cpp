@@ -100,6 +100,43 @@ bool FileReader::readLine(std::string_view& line) {
   }
 }
 
+std::string_view FileReader::readLineBlock(std::size_t want) {
+  want = std::max<std::size_t>(want, 1);
+  // Room for `want` bytes after the unread ones, so refill never grows the
+  // buffer (it would take a long block for a long line).
+  if (buffer_.size() < want + kInitialBuffer) {
+    if (pos_ > 0) {
+      std::memmove(buffer_.data(), buffer_.data() + pos_, end_ - pos_);
+      end_ -= pos_;
+      pos_ = 0;
+    }
+    buffer_.resize(want + kInitialBuffer);
+  }
+  bool more = true;
+  while (end_ - pos_ < want && more) more = refill();
+  for (;;) {
+    const std::size_t scanned = end_ - pos_;
+    if (scanned == 0) return {};
+    const char* first = buffer_.data() + pos_;
+    const void* last = ::memrchr(first, '\n', scanned);
+    std::size_t take = 0;
+    if (last != nullptr) {
+      take = static_cast<std::size_t>(static_cast<const char*>(last) - first) + 1;
+    } else if (!more) {
+      take = scanned;  // the file's last line, without "\n"
+    } else {
+      // Not one whole line in the buffer: read on, as readLine would, up to
+      // its limit on a line's length.
+      if (buffer_.size() >= kMaxLine) failAtLine(path_, line_ + 1, "line too long (binary data?)");
+      buffer_.resize(buffer_.size() * 2);
+      while (end_ < buffer_.size() && more) more = refill();
+      continue;
+    }
+    pos_ += take;
+    return {first, take};
+  }
+}
+
 std::size_t FileReader::read(void* destination, std::size_t n) {
   auto* out = static_cast<char*>(destination);
   std::size_t done = 0;
@@ -250,12 +287,60 @@ bool isBlank(char c) {
 }
 }  // namespace
 
+const char* parseShortDecimal(const char* at, const char* end, double& value) {
+  // Clinger's fast path: a significand below 2^53 and a power of ten up to
+  // 10^22 are both exact doubles, so one multiplication or division rounds
+  // the exact value once, as a correctly rounded parse does.
+  static constexpr double kPowersOfTen[] = {1e0,  1e1,  1e2,  1e3,  1e4,  1e5,  1e6,  1e7,
+                                            1e8,  1e9,  1e10, 1e11, 1e12, 1e13, 1e14, 1e15,
+                                            1e16, 1e17, 1e18, 1e19, 1e20, 1e21, 1e22};
+  constexpr std::uint64_t kExactBelow = std::uint64_t{1} << 53;
+  const char* p = at;
+  const bool negative = p < end && *p == '-';
+  p += negative ? 1 : 0;
+  std::uint64_t significand = 0;
+  int digits = 0, scale = 0;
+  const auto digit = [&](const char* q) { return q < end && *q >= '0' && *q <= '9'; };
+  if (!digit(p)) return nullptr;  // ".5", "inf", "nan", "0x10": from_chars decides
+  for (; digit(p); ++p, ++digits) significand = significand * 10 + static_cast<unsigned>(*p - '0');
+  if (p < end && *p == '.') {
+    ++p;
+    if (!digit(p)) return nullptr;  // "5.": from_chars decides
+    for (; digit(p); ++p, ++digits, --scale)
+      significand = significand * 10 + static_cast<unsigned>(*p - '0');
+  }
+  if (p < end && (*p == 'e' || *p == 'E')) {
+    const char* q = p + 1;
+    const bool down = q < end && *q == '-';
+    q += (q < end && (*q == '-' || *q == '+')) ? 1 : 0;
+    if (!digit(q)) return nullptr;
+    int exponent = 0;
+    for (; digit(q); ++q) {
+      if (exponent > 1000) return nullptr;
+      exponent = exponent * 10 + (*q - '0');
+    }
+    scale += down ? -exponent : exponent;
+    p = q;
+  }
+  // 19 digits cannot wrap 64 bits.
+  if (digits > 19 || significand >= kExactBelow || scale < -22 || scale > 22) return nullptr;
+  const auto exact = static_cast<double>(significand);
+  const double magnitude = scale < 0 ? exact / kPowersOfTen[-scale] : exact * kPowersOfTen[scale];
+  value = negative ? -magnitude : magnitude;
+  return p;
+}
+
 bool parseNumbers(std::string_view line, double* values, std::size_t count) {
   const char* at = line.data();
   const char* const end = at + line.size();
   for (std::size_t i = 0; i < count; ++i) {
     while (at < end && isBlank(*at)) ++at;
     if (at < end && *at == '+') ++at;  // parseDouble allows one
+    if (const char* stop = parseShortDecimal(at, end, values[i]);
+        stop != nullptr && (stop == end || isBlank(*stop))) {
+      at = stop;
+      continue;
+    }
     const auto result = std::from_chars(at, end, values[i]);
     // The number must be the whole field: a blank or the end follows it.
     if (result.ec != std::errc() || (result.ptr < end && !isBlank(*result.ptr))) return false;

@@ -45,6 +45,13 @@ class FileReader {
   // Next line without its "\n" / "\r\n"; false at end of file. The view stays
   // valid until the next call.
   bool readLine(std::string_view& line);
+  // The next whole lines, at least `want` bytes of them where the file has
+  // that many more, as one view that stays valid until the next call; empty
+  // at end of file. Lines keep their "\n" (the file's last may have none).
+  // For readers that cut lines on many threads: they count the lines there,
+  // and pass the count to countLines for lineNumber().
+  std::string_view readLineBlock(std::size_t want);
+  void countLines(std::uint64_t lines) { line_ += lines; }
   // Copies up to n bytes; returns how many were available.
   std::size_t read(void* destination, std::size_t n);
   // Skips n bytes; returns how many were available.
@@ -141,6 +148,11 @@ bool parseDouble(std::string_view field, double& value);
 // and nothing else: the values splitFields and parseDouble would give, in
 // one pass over the line. False for anything else (the caller then splits).
 bool parseNumbers(std::string_view line, double* values, std::size_t count);
+// A plain decimal at `at` ("-12.5", "3e-4": digits before any point and after
+// it) with at most 19 digits and an exact fast conversion: its value, the
+// bits std::from_chars gives, and the end of the number. nullptr for
+// anything else, which std::from_chars then reads.
+const char* parseShortDecimal(const char* at, const char* end, double& value);
 bool parseUnsigned(std::string_view field, std::uint64_t& value);
 std::uint8_t colorFromUnit(double value);  // 0..1 -> 0..255, clamped
 std::uint8_t colorFromByte(double value);  // 0..255, rounded and clamped (NaN -> 0)

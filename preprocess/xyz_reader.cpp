@@ -2,8 +2,9 @@
 
 #include <algorithm>
 #include <cmath>
-#include <mutex>
+#include <span>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "preprocess/parallel.hpp"
@@ -199,78 +200,108 @@ class XyzParser {
     if ((++rows_ & 4095) == 0) builder_.progress(reader_.offset(), reader_.size());
   }
 
-  // After the sniffed lines: blocks of lines are cut here and parsed on every
-  // core; the checks and the hand-over stay in line order, and the first bad
-  // line of a block is reported as reading line by line would.
+  // After the sniffed lines: blocks of whole lines are read at once, cut into
+  // pieces at line ends and parsed on every core (cutting lines one by one
+  // on one thread held the others back); the checks and the hand-over stay
+  // in line order, and the first bad line is reported as reading line by
+  // line would.
   void readRestInBlocks() {
-    constexpr std::size_t kBlockLines = std::size_t{1} << 15;
-    std::string text;
-    std::vector<std::size_t> begin;  // line j is text[begin[j], begin[j + 1])
-    std::vector<std::uint64_t> lineNumber;
-    std::vector<Splat> splats;
-    std::vector<std::uint8_t> isData;
-    for (;;) {
-      text.clear();
-      begin.assign(1, 0);
-      lineNumber.clear();
-      std::string_view line;
-      while (lineNumber.size() < kBlockLines && reader_.readLine(line)) {
-        text.append(line);
-        begin.push_back(text.size());
-        lineNumber.push_back(reader_.lineNumber());
-      }
-      const std::size_t n = lineNumber.size();
-      if (n == 0) return;
-      splats.resize(n);
-      isData.assign(n, 0);
-      std::mutex mutex;
-      std::size_t bad = n;  // the first line that does not parse
+    constexpr std::size_t kBlockBytes = std::size_t{8} << 20;
+    constexpr std::size_t kPieceBytes = std::size_t{256} << 10;
+    struct Piece {
+      std::string_view text;
+      std::uint64_t lines = 0;
+      std::vector<Splat> splats;
+      std::vector<std::uint32_t> lineOf;  // each splat's line in the piece, from 0
+      bool allFinite = true;
+      std::uint64_t bad = kNoBadLine;  // the first line that does not parse
       std::string badMessage;
-      parallelFor(
-          n, 0,
-          [&](std::size_t j) {
-            thread_local std::vector<std::string_view> fields;
-            thread_local std::vector<double> values;
-            std::string_view l(text.data() + begin[j], begin[j + 1] - begin[j]);
-            const std::size_t hash = l.find('#');
-            if (hash != std::string_view::npos) l = l.substr(0, hash);
-            values.resize(columns_);
-            if (!detail::parseNumbers(l, values.data(), columns_)) {
-              // Anything else (a blank line, a bad value, another count) the
-              // slow way, which names what is wrong.
-              detail::splitFields(l, fields);
-              if (fields.empty()) return;
-              std::string message;
-              if (fields.size() != columns_) {
-                message = std::to_string(fields.size()) + " values, but line " +
-                          std::to_string(firstLine_) + " has " + std::to_string(columns_) +
-                          " (the layout is fixed by the first line)";
-              } else {
-                for (std::size_t i = 0; i < columns_ && message.empty(); ++i)
-                  if (!detail::parseDouble(fields[i], values[i]))
-                    message = "not a number: '" + std::string(fields[i]) + "'";
-              }
-              if (!message.empty()) {
-                std::lock_guard lock(mutex);
-                if (j < bad) {
-                  bad = j;
-                  badMessage = std::move(message);
-                }
-                return;
-              }
-            }
-            splats[j] = splatOf(values.data());
-            detail::CloudBuilder::prepare(splats[j]);
-            isData[j] = 1;
-          },
-          1024);
-      for (std::size_t j = 0; j < std::min(n, bad); ++j) {
-        if (!isData[j]) continue;
-        builder_.addPrepared(splats[j], lineNumber[j], 0);
-        ++rows_;
+    };
+    std::vector<Piece> pieces;
+    for (;;) {
+      const std::uint64_t linesBefore = reader_.lineNumber();
+      const std::string_view block = reader_.readLineBlock(kBlockBytes);
+      if (block.empty()) return;
+      // Pieces end after a "\n" (the block's last may not).
+      std::size_t count = 0;
+      for (std::size_t at = 0; at < block.size(); ++count) {
+        std::size_t stop = std::min(block.size(), at + kPieceBytes);
+        if (stop < block.size()) {
+          const std::size_t nl = block.find('\n', stop - 1);
+          stop = nl == std::string_view::npos ? block.size() : nl + 1;
+        }
+        if (pieces.size() <= count) pieces.emplace_back();
+        pieces[count].text = block.substr(at, stop - at);
+        at = stop;
       }
-      if (bad < n) failAtLine(file_, lineNumber[bad], badMessage);
+      parallelFor(
+          count, 0, [&](std::size_t p) { parsePiece(pieces[p]); }, 1);
+      std::uint64_t line = linesBefore;
+      for (std::size_t p = 0; p < count; ++p) {
+        Piece& piece = pieces[p];
+        const std::span<const Splat> parsed(piece.splats);
+        if (piece.allFinite) {
+          builder_.addPreparedFinite(parsed);
+        } else {
+          for (std::size_t j = 0; j < parsed.size(); ++j)
+            builder_.addPrepared(parsed[j], line + 1 + piece.lineOf[j], 0);
+        }
+        rows_ += parsed.size();
+        if (piece.bad != kNoBadLine) failAtLine(file_, line + 1 + piece.bad, piece.badMessage);
+        line += piece.lines;
+      }
+      reader_.countLines(line - linesBefore);
       builder_.progress(reader_.offset(), reader_.size());
+    }
+  }
+
+  static constexpr std::uint64_t kNoBadLine = ~std::uint64_t{0};
+
+  // Parses a piece's lines up to its first bad one.
+  template <class Piece>
+  void parsePiece(Piece& piece) const {
+    piece.lines = 0;
+    piece.splats.clear();
+    piece.lineOf.clear();
+    piece.allFinite = true;
+    piece.bad = kNoBadLine;
+    std::vector<std::string_view> fields;
+    std::vector<double> values(columns_);
+    std::string_view rest = piece.text;
+    while (!rest.empty()) {
+      const std::size_t nl = rest.find('\n');
+      std::string_view l = rest.substr(0, nl);
+      rest = nl == std::string_view::npos ? std::string_view{} : rest.substr(nl + 1);
+      const std::uint64_t index = piece.lines++;
+      if (!l.empty() && l.back() == '\r') l.remove_suffix(1);
+      const std::size_t hash = l.find('#');
+      if (hash != std::string_view::npos) l = l.substr(0, hash);
+      if (!detail::parseNumbers(l, values.data(), columns_)) {
+        // Anything else (a blank line, a bad value, another count) the slow
+        // way, which names what is wrong.
+        detail::splitFields(l, fields);
+        if (fields.empty()) continue;
+        std::string message;
+        if (fields.size() != columns_) {
+          message = std::to_string(fields.size()) + " values, but line " +
+                    std::to_string(firstLine_) + " has " + std::to_string(columns_) +
+                    " (the layout is fixed by the first line)";
+        } else {
+          for (std::size_t i = 0; i < columns_ && message.empty(); ++i)
+            if (!detail::parseDouble(fields[i], values[i]))
+              message = "not a number: '" + std::string(fields[i]) + "'";
+        }
+        if (!message.empty()) {
+          piece.bad = index;
+          piece.badMessage = std::move(message);
+          return;
+        }
+      }
+      Splat s = splatOf(values.data());
+      detail::CloudBuilder::prepare(s);
+      piece.allFinite = piece.allFinite && detail::isFinite(s);
+      piece.splats.push_back(s);
+      piece.lineOf.push_back(static_cast<std::uint32_t>(index));
     }
   }
 

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <bit>
+#include <charconv>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -14,6 +15,7 @@
 #include <limits>
 #include <map>
 #include <numbers>
+#include <random>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -1238,6 +1240,43 @@ TEST(XyzReader, LongFilesReadInBlocksAsLineByLine) {
                    {"word.xyz", "line 41000", "not a number: 'two'"});
 }
 
+// Blocks of 8 MiB are read whole and cut into pieces at line ends: lines that
+// straddle a block or a piece, CRLF ends, comments, blank lines and a last
+// line without its end all read as line by line, and a bad line in a later
+// block is named by its number in the file.
+TEST(XyzReader, LinesAcrossBlocksAndPiecesKeepTheirNumbers) {
+  TempDir dir;
+  constexpr int kLines = 500'000;  // about 17 MiB: three blocks
+  std::string text;
+  for (int i = 0; i < kLines; ++i) {
+    text += std::to_string(i) + ".25 -" + std::to_string(i % 1000) + " 7e-3 1 2 3";
+    text += (i % 3 == 0) ? "\r\n" : "\n";
+    if (i % 40'000 == 0) text += "\n   \n# a comment\n";
+  }
+  text += "1 2 3 4 5 6";  // no end of line
+  const auto cloud = readPointCloud(dir.write("blocks.xyz", text), defaults());
+  ASSERT_EQ(cloud.splats.size(), static_cast<std::size_t>(kLines) + 1);
+  for (int i = 0; i < kLines; i += 12'347) {
+    const Splat& s = cloud.splats[static_cast<std::size_t>(i)];
+    EXPECT_EQ(s.position[0], static_cast<float>(i + 0.25)) << i;
+    EXPECT_EQ(s.position[1], -static_cast<float>(i % 1000)) << i;
+    EXPECT_EQ(s.position[2], 7e-3f) << i;
+  }
+  EXPECT_EQ(cloud.splats.back().position[0], 1.0f);
+  EXPECT_EQ(cloud.splats.back().color[2], 6);
+
+  // The file's line of point j: one line each, and three more after every
+  // 40,000th point.
+  const auto lineOf = [](int j) { return j + 1 + 3 * (j / 40'000 + 1); };
+  std::string bad = text;
+  const std::string wanted = "450000.25 -0 7e-3 1 2 3";
+  const std::size_t at = bad.find(wanted);
+  ASSERT_NE(at, std::string::npos);
+  bad.replace(at, wanted.size(), "450000.25 oops 7e-3 1 2 3");
+  expectInputError([&] { readPointCloud(dir.write("bad.xyz", bad), defaults()); },
+                   {"bad.xyz", "line " + std::to_string(lineOf(450'000)), "not a number: 'oops'"});
+}
+
 // The XYZ blocks parse a line in one pass (parseNumbers) and fall back to
 // splitting it: whenever the one pass accepts a line, splitting gives the
 // same count and bit for bit the same values; lines it refuses are ones the
@@ -1265,6 +1304,77 @@ TEST(XyzReader, OnePassParsingAgreesWithSplitting) {
       }
     }
   }
+}
+
+// parseNumbers reads plain decimals without std::from_chars where the
+// conversion is exact (Clinger's fast path): wherever it takes a number, it
+// must give from_chars' bits and end where from_chars ends.
+TEST(XyzReader, ShortDecimalsParseAsFromCharsDoes) {
+  using pointillist::preprocess::detail::parseShortDecimal;
+  std::mt19937_64 rng(7);
+  const auto digits = [&](int n) {
+    std::string d;
+    for (int i = 0; i < n; ++i) d += static_cast<char>('0' + rng() % 10);
+    return d;
+  };
+  std::vector<std::string> numbers = {"0",
+                                      "-0",
+                                      "0.0",
+                                      "-0.0",
+                                      "1",
+                                      "9007199254740992",
+                                      "9007199254740993",
+                                      "1e22",
+                                      "1e23",
+                                      "1e-22",
+                                      "1e-23",
+                                      "123456789012345678",
+                                      "1234567890123456789",
+                                      "12345678901234567890",
+                                      "0.1",
+                                      "0.3",
+                                      "5.",
+                                      ".5",
+                                      "1e",
+                                      "1e+",
+                                      "1E+5",
+                                      "1e-5x",
+                                      "-",
+                                      "--1",
+                                      "inf",
+                                      "nan",
+                                      "1.5.5",
+                                      "0x10",
+                                      "4.35",
+                                      "0.25065574",
+                                      "-0.43347988",
+                                      "128"};
+  for (int i = 0; i < 2'000'000; ++i) {
+    std::string n = (rng() % 2 != 0) ? "-" : "";
+    n += digits(1 + static_cast<int>(rng() % 12));
+    if (rng() % 4 != 0) n += "." + digits(1 + static_cast<int>(rng() % 12));
+    if (rng() % 5 == 0) {
+      n += (rng() % 2 != 0) ? "e" : "E";
+      const int e = static_cast<int>(rng() % 61) - 30;
+      n += (e < 0 ? "-" : (rng() % 2 != 0 ? "+" : "")) + std::to_string(std::abs(e));
+    }
+    numbers.push_back(n);
+  }
+  std::size_t fast = 0;
+  for (const std::string& n : numbers) {
+    const char* end = n.data() + n.size();
+    double value = 0.0, expected = 0.0;
+    const char* stop = parseShortDecimal(n.data(), end, value);
+    if (stop == nullptr) continue;
+    ++fast;
+    const auto result = std::from_chars(n.data(), end, expected);
+    ASSERT_EQ(result.ec, std::errc()) << n;
+    EXPECT_EQ(stop, result.ptr) << n;
+    EXPECT_EQ(std::bit_cast<std::uint64_t>(value), std::bit_cast<std::uint64_t>(expected)) << n;
+  }
+  // Most of them take the fast path (the rest have a wide exponent or too
+  // many digits), as scanner exports do.
+  EXPECT_GT(fast, numbers.size() / 2);
 }
 
 TEST(PlyReader, LongBinaryBodiesReadInBlocksAsRecordByRecord) {
