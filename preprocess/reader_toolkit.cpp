@@ -367,6 +367,7 @@ bool parseDouble(std::string_view field, double& value) {
   if (!field.empty() && field.front() == '+') field.remove_prefix(1);
   if (field.empty()) return false;
   const char* end = field.data() + field.size();
+  if (parseShortDecimal(field.data(), end, value) == end) return true;
   const auto result = std::from_chars(field.data(), end, value);
   return result.ec == std::errc() && result.ptr == end;
 }
