@@ -172,10 +172,17 @@ void CloudBuilder::reserve(std::uint64_t expected, std::uint64_t limit) {
   // Never trust a header count for allocation: cap it by what the file can hold.
   std::uint64_t n = std::min(expected, limit);
   if (options_.sink) n = std::min<std::uint64_t>(n, options_.sinkBlock);
+  if (n <= cloud_.splats.capacity()) return;
   cloud_.splats.reserve(static_cast<std::size_t>(n));
   // Readers decode on all threads and hand blocks over in one serial copy.
   populatePages(cloud_.splats.data() + cloud_.splats.size(),
                 (cloud_.splats.capacity() - cloud_.splats.size()) * sizeof(Splat), 0);
+}
+
+void CloudBuilder::expect(std::uint64_t expected, std::uint64_t limit) {
+  if (std::min(expected, limit) <= cloud_.splats.capacity()) return;
+  // A margin, so that a figure that creeps up does not move the array again.
+  reserve(expected + expected / 20, limit);
 }
 
 void CloudBuilder::addPrepared(const Splat& s, std::uint64_t line, std::uint64_t byte) {

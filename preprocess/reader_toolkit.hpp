@@ -77,7 +77,12 @@ class CloudBuilder {
  public:
   CloudBuilder(std::filesystem::path file, const ReadOptions& options);
 
+  // Room for `expected` points in all (never more than `limit`, which the
+  // file could hold), its pages mapped ahead; nothing when there is room.
   void reserve(std::uint64_t expected, std::uint64_t limit);
+  // A better estimate, part way: when `expected` points would not fit, room
+  // for 5 % more than that.
+  void expect(std::uint64_t expected, std::uint64_t limit);
   // `line` or `byte` (one is 0) locates the point for messages.
   void add(const Splat& splat, std::uint64_t line, std::uint64_t byte) {
     Splat s = splat;

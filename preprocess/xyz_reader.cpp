@@ -50,10 +50,9 @@ class XyzParser {
     std::vector<Row> sniffed;
     Row row;
     while (sniffed.size() < kSniffLines && nextRow(row)) sniffed.push_back(row);
-    // Size the array from the bytes per line seen so far.
-    const std::uint64_t perLine =
-        std::max<std::uint64_t>(1, reader_.offset() / (sniffed.size() + 1));
-    builder_.reserve(reader_.size() / perLine + 16, reader_.size() / 6 + 16);
+    // The array is sized after the first block of lines (readRestInBlocks):
+    // the first few lines' length guessed it a few percent short, and the
+    // array then moved near the end.
     if (sniffed.empty()) {
       if (countLine_ > 0) {
         failAtLine(file_, countLine_,
@@ -251,6 +250,14 @@ class XyzParser {
         line += piece.lines;
       }
       reader_.countLines(line - linesBefore);
+      // Sized from the file so far.
+      const std::uint64_t done = reader_.offset();
+      if (done > 0 && done < reader_.size()) {
+        const double perByte = static_cast<double>(rows_) / static_cast<double>(done);
+        const auto expected =
+            static_cast<std::uint64_t>(perByte * static_cast<double>(reader_.size())) + 1024;
+        builder_.expect(expected, reader_.size() / 6 + 16);
+      }
       builder_.progress(reader_.offset(), reader_.size());
     }
   }
