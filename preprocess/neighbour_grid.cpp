@@ -62,7 +62,7 @@ NeighbourGrid::NeighbourGrid(std::span<const Splat> points, double pointsPerCube
   const std::size_t blocks = (n_ + kBlock - 1) / kBlock;
   const auto blockEnd = [&](std::size_t b) { return std::min(n_, (b + 1) * kBlock); };
   struct BlockFigures {
-    bool sorted = true;
+    int disorder = -1;  // the highest bit where a code falls below the one before
     std::array<std::size_t, kCodeLevels + 1> parts{};
   };
   std::vector<BlockFigures> figures(blocks);
@@ -75,22 +75,55 @@ NeighbourGrid::NeighbourGrid(std::span<const Splat> points, double pointsPerCube
     }
   };
   std::vector<Keyed, UninitializedAllocator<Keyed>> keyed(n_);
+  const auto disorderBetween = [&](std::size_t i) {  // keyed[i - 1] and keyed[i]
+    const std::uint64_t a = keyed[i - 1].code, b = keyed[i].code;
+    return a <= b ? -1 : 63 - std::countl_zero(a ^ b);
+  };
   parallelFor(
       blocks, threads,
       [&](std::size_t b) {
-        bool sorted = true;
+        int disorder = -1;
         for (std::size_t i = b * kBlock; i < blockEnd(b); ++i) {
           keyed[i] = {morton(points[i].position), static_cast<std::uint32_t>(i)};
-          sorted = sorted && (i == b * kBlock || keyed[i - 1].code <= keyed[i].code);
+          if (i > b * kBlock) disorder = std::max(disorder, disorderBetween(i));
         }
-        figures[b].sorted = sorted;
+        figures[b].disorder = disorder;
       },
       1);
-  bool sorted = true;
-  for (std::size_t b = 0; b < blocks; ++b)
-    sorted = sorted && figures[b].sorted &&
-             (b == 0 || keyed[b * kBlock - 1].code <= keyed[b * kBlock].code);
-  if (!sorted) parallelSort(keyed.begin(), keyed.end(), threads, std::less<Keyed>());
+  int disorder = -1;
+  for (std::size_t b = 0; b < blocks; ++b) {
+    disorder = std::max(disorder, figures[b].disorder);
+    if (b > 0) disorder = std::max(disorder, disorderBetween(b * kBlock));
+  }
+  if (disorder >= 0) {
+    // Codes only fall at bit `disorder` or below: the points are already in
+    // order of the bits above it (a preprocess hands them over sorted down
+    // to its octree's leaves), so only runs that share those bits are sorted
+    // (the same order a sort of the whole gives).
+    const unsigned shift = static_cast<unsigned>(disorder) + 1;
+    // Fewer than 6 levels in order (a cloud in file order): runs too long
+    // for one thread each, so the whole is sorted on all threads.
+    if (shift > 3 * (kCodeLevels - 6)) {
+      parallelSort(keyed.begin(), keyed.end(), threads, std::less<Keyed>());
+    } else {
+      parallelFor(
+          blocks, threads,
+          [&](std::size_t b) {
+            // The runs that start in this block.
+            const auto prefix = [&](std::size_t i) { return keyed[i].code >> shift; };
+            std::size_t i = b * kBlock;
+            while (i > 0 && i < blockEnd(b) && prefix(i - 1) == prefix(i)) ++i;
+            while (i < blockEnd(b)) {
+              std::size_t end = i + 1;
+              while (end < n_ && prefix(end) == prefix(i)) ++end;
+              std::sort(keyed.begin() + static_cast<std::ptrdiff_t>(i),
+                        keyed.begin() + static_cast<std::ptrdiff_t>(end), std::less<Keyed>());
+              i = end;
+            }
+          },
+          1);
+    }
+  }
 
   // Occupied cubes at every level from where neighbours in that order part.
   parallelFor(

@@ -16,6 +16,7 @@
 #include "preprocess/neighbour_filter.hpp"
 #include "preprocess/neighbour_grid.hpp"
 #include "preprocess/normals.hpp"
+#include "preprocess/octree_builder.hpp"
 
 using pointillist::Splat;
 using namespace pointillist::preprocess;
@@ -89,6 +90,23 @@ TEST(NeighbourGrid, SurfacePointsMatchBruteForce) {
   std::shuffle(pts.begin(), pts.end(), std::mt19937(2));
   expectExact(pts, 12, 7);
   expectExactInCubes(pts, 12);
+}
+
+// A preprocess hands the points over sorted down to its octree's leaves and
+// in any order inside them: the grid then sorts only runs that share a
+// leaf's code, and must find what it finds for a cloud in full order.
+TEST(NeighbourGrid, PointsSortedDownToLeavesMatchBruteForce) {
+  auto pts = generateScene("city", 6000, 5).splats;
+  const PointBounds bounds = pointBounds(pts, 1);
+  const MortonCoder morton(boundingCube(bounds.lo, bounds.hi), 16);
+  std::shuffle(pts.begin(), pts.end(), std::mt19937(3));
+  for (const unsigned levels : {8u, 4u}) {  // runs sorted apart, and the whole sorted
+    std::stable_sort(pts.begin(), pts.end(), [&](const Splat& a, const Splat& b) {
+      return morton(a.position) >> (3 * (16 - levels)) < morton(b.position) >> (3 * (16 - levels));
+    });
+    expectExact(pts, 12, 5);
+    expectExactInCubes(pts, 12);
+  }
 }
 
 TEST(NeighbourGrid, VolumeStacksOutliersAndTinyClouds) {
