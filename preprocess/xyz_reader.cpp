@@ -44,7 +44,7 @@ bool looksLikeColor(const double* v) {
 class XyzParser {
  public:
   XyzParser(const std::filesystem::path& file, const ReadOptions& options)
-      : file_(file), reader_(file), builder_(file, options) {}
+      : file_(file), reader_(file), builder_(file, options), streaming_(bool(options.sink)) {}
 
   PointCloud run() {
     std::vector<Row> sniffed;
@@ -205,7 +205,9 @@ class XyzParser {
   // in line order, and the first bad line is reported as reading line by
   // line would.
   void readRestInBlocks() {
-    constexpr std::size_t kBlockBytes = std::size_t{8} << 20;
+    // Streamed out of core, a block is text held beside the block of points
+    // that --memory-mb counts for the reader: a small one then.
+    const std::size_t blockBytes = streaming_ ? std::size_t{1} << 20 : std::size_t{8} << 20;
     constexpr std::size_t kPieceBytes = std::size_t{256} << 10;
     struct Piece {
       std::string_view text;
@@ -219,7 +221,7 @@ class XyzParser {
     std::vector<Piece> pieces;
     for (;;) {
       const std::uint64_t linesBefore = reader_.lineNumber();
-      const std::string_view block = reader_.readLineBlock(kBlockBytes);
+      const std::string_view block = reader_.readLineBlock(blockBytes);
       if (block.empty()) return;
       // Pieces end after a "\n" (the block's last may not).
       std::size_t count = 0;
@@ -321,6 +323,7 @@ class XyzParser {
   std::uint64_t countLine_ = 0;
   std::uint64_t expectedCount_ = 0;
   std::uint64_t rows_ = 0;
+  bool streaming_ = false;
   Layout layout_;
 };
 
