@@ -106,20 +106,29 @@ NeighbourGrid::NeighbourGrid(std::span<const Splat> points, double pointsPerCube
     if (shift > 3 * (kCodeLevels - 6)) {
       parallelSort(keyed.begin(), keyed.end(), threads, std::less<Keyed>());
     } else {
+      // The runs that start in each block, found before any is sorted (a
+      // run may reach into the next block).
+      std::vector<std::vector<std::pair<std::size_t, std::size_t>>> runs(blocks);
       parallelFor(
           blocks, threads,
           [&](std::size_t b) {
-            // The runs that start in this block.
             const auto prefix = [&](std::size_t i) { return keyed[i].code >> shift; };
             std::size_t i = b * kBlock;
             while (i > 0 && i < blockEnd(b) && prefix(i - 1) == prefix(i)) ++i;
             while (i < blockEnd(b)) {
               std::size_t end = i + 1;
               while (end < n_ && prefix(end) == prefix(i)) ++end;
-              std::sort(keyed.begin() + static_cast<std::ptrdiff_t>(i),
-                        keyed.begin() + static_cast<std::ptrdiff_t>(end), std::less<Keyed>());
+              if (end - i > 1) runs[b].emplace_back(i, end);
               i = end;
             }
+          },
+          1);
+      parallelFor(
+          blocks, threads,
+          [&](std::size_t b) {
+            for (const auto& [first, last] : runs[b])
+              std::sort(keyed.begin() + static_cast<std::ptrdiff_t>(first),
+                        keyed.begin() + static_cast<std::ptrdiff_t>(last), std::less<Keyed>());
           },
           1);
     }

@@ -44,7 +44,10 @@ bool looksLikeColor(const double* v) {
 class XyzParser {
  public:
   XyzParser(const std::filesystem::path& file, const ReadOptions& options)
-      : file_(file), reader_(file), builder_(file, options), streaming_(bool(options.sink)) {}
+      : file_(file),
+        reader_(file),
+        builder_(file, options),
+        streaming_(static_cast<bool>(options.sink)) {}
 
   PointCloud run() {
     std::vector<Row> sniffed;
@@ -209,16 +212,7 @@ class XyzParser {
     // that --memory-mb counts for the reader: a small one then.
     const std::size_t blockBytes = streaming_ ? std::size_t{1} << 20 : std::size_t{8} << 20;
     constexpr std::size_t kPieceBytes = std::size_t{256} << 10;
-    struct Piece {
-      std::string_view text;
-      std::uint64_t lines = 0;
-      std::vector<Splat> splats;
-      std::vector<std::uint32_t> lineOf;  // each splat's line in the piece, from 0
-      bool allFinite = true;
-      std::uint64_t bad = kNoBadLine;  // the first line that does not parse
-      std::string badMessage;
-    };
-    std::vector<Piece> pieces;
+    std::vector<LinePiece> pieces;
     for (;;) {
       const std::uint64_t linesBefore = reader_.lineNumber();
       const std::string_view block = reader_.readLineBlock(blockBytes);
@@ -239,7 +233,7 @@ class XyzParser {
           count, 0, [&](std::size_t p) { parsePiece(pieces[p]); }, 1);
       std::uint64_t line = linesBefore;
       for (std::size_t p = 0; p < count; ++p) {
-        Piece& piece = pieces[p];
+        LinePiece& piece = pieces[p];
         const std::span<const Splat> parsed(piece.splats);
         if (piece.allFinite) {
           builder_.addPreparedFinite(parsed);
@@ -266,9 +260,19 @@ class XyzParser {
 
   static constexpr std::uint64_t kNoBadLine = ~std::uint64_t{0};
 
+  // Whole lines of a block, and what parsing them on one thread found.
+  struct LinePiece {
+    std::string_view text;
+    std::uint64_t lines = 0;
+    std::vector<Splat> splats;
+    std::vector<std::uint32_t> lineOf;  // each splat's line in the piece, from 0
+    bool allFinite = true;
+    std::uint64_t bad = kNoBadLine;  // the first line that does not parse
+    std::string badMessage;
+  };
+
   // Parses a piece's lines up to its first bad one.
-  template <class Piece>
-  void parsePiece(Piece& piece) const {
+  void parsePiece(LinePiece& piece) const {
     piece.lines = 0;
     piece.splats.clear();
     piece.lineOf.clear();
