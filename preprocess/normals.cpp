@@ -239,19 +239,8 @@ void orient(std::vector<Splat>& splats, const std::vector<std::uint8_t>& needNor
     const std::uint32_t ascending = (bits & 0x80000000u) != 0 ? ~bits : bits | 0x80000000u;
     return std::uint64_t{~ascending} << 32 | i;
   };
-  std::vector<std::uint64_t> order(n);
-  for (std::size_t i = 0; i < n; ++i) order[i] = seedKey(i);
-  radixSort(
-      order, 32, 64, [](std::uint64_t item) { return item; }, {}, options.threads);
-
   const std::size_t blockPoints = std::max<std::size_t>(1, options.orientBlockPoints);
   const std::size_t blocks = (n + blockPoints - 1) / blockPoints;
-  std::vector<std::vector<std::uint32_t>> seeds(blocks);
-  for (const std::uint64_t item : order) {
-    const auto i = static_cast<std::uint32_t>(item);
-    seeds[i / blockPoints].push_back(i);
-  }
-  order = {};
 
   // Phase 1, on all threads; progress from this thread.
   std::vector<std::uint32_t> piece(n, 0);
@@ -263,8 +252,17 @@ void orient(std::vector<Splat>& splats, const std::vector<std::uint8_t>& needNor
       [&](std::size_t b) {
         const auto begin = static_cast<std::uint32_t>(b * blockPoints);
         const auto end = static_cast<std::uint32_t>(std::min(n, (b + 1) * blockPoints));
-        blockPieces[b] = orientBlock(context, begin, end, seeds[b], piece);
-        seeds[b] = {};
+        // The block's seeds, sorted here: a sort of the whole cloud, then
+        // dealt out to the blocks, ran mostly on one core.
+        std::vector<std::uint64_t> order(end - begin);
+        for (std::uint32_t i = begin; i < end; ++i) order[i - begin] = seedKey(i);
+        radixSort(
+            order, 32, 64, [](std::uint64_t item) { return item; }, {}, 1);
+        std::vector<std::uint32_t> seeds(order.size());
+        for (std::size_t j = 0; j < order.size(); ++j)
+          seeds[j] = static_cast<std::uint32_t>(order[j]);
+        order = {};
+        blockPieces[b] = orientBlock(context, begin, end, seeds, piece);
         const std::uint64_t done = oriented += end - begin;
         if (options.progress && std::this_thread::get_id() == caller)
           options.progress(n + done * 9 / 10, total);
