@@ -597,8 +597,33 @@ class PlyParser {
       }
       if (slot >= 0) fields.push_back({p.offset, p.type, slot});
     }
-    const auto decodeRecord = [&](const unsigned char* record, Splat& out) {
-      out = detail::greySplat();
+    // The common layout (little-endian floats, byte colours) by fixed offsets;
+    // anything else by the general loop. Both fill a splat on the stack,
+    // which is stored once.
+    std::array<int, 11> offsetOf{};
+    offsetOf.fill(-1);
+    for (const Field& f : fields)
+      offsetOf[static_cast<std::size_t>(f.slot)] = static_cast<int>(f.offset);
+    const bool plain = offsetOf[0] >= 0 && offsetOf[1] >= 0 && offsetOf[2] >= 0 &&
+                       std::all_of(fields.begin(), fields.end(), [&](const Field& f) {
+                         return f.slot >= 7 ? f.type == ScalarType::UInt8
+                                            : f.type == ScalarType::Float32 && !swap_;
+                       });
+    const bool plainNormals = offsetOf[3] >= 0 && offsetOf[4] >= 0 && offsetOf[5] >= 0;
+    const Splat grey = detail::greySplat();
+    const auto decodeRecord = [&](const unsigned char* record) {
+      Splat out = grey;
+      if (plain) {
+        for (std::size_t a = 0; a < 3; ++a)
+          std::memcpy(&out.position[a], record + offsetOf[a], sizeof(float));
+        if (plainNormals)
+          for (std::size_t a = 0; a < 3; ++a)
+            std::memcpy(&out.normal[a], record + offsetOf[3 + a], sizeof(float));
+        if (offsetOf[6] >= 0) std::memcpy(&out.radius, record + offsetOf[6], sizeof(float));
+        for (std::size_t c = 0; c < 4; ++c)
+          if (offsetOf[7 + c] >= 0) out.color[c] = record[offsetOf[7 + c]];
+        return out;
+      }
       for (const Field& f : fields) {
         const unsigned char* at = record + f.offset;
         if (f.slot >= 7) {
@@ -619,6 +644,7 @@ class PlyParser {
         else
           out.radius = v;
       }
+      return out;
     };
     // The next block is read while this one is decoded: the copy out of the
     // page cache would otherwise leave the other cores waiting.
@@ -644,21 +670,34 @@ class PlyParser {
           }
         });
       }
-      // Decoded, prepared and checked on all threads; runs of finite splats
-      // (normally the whole block) are then handed over in one copy.
-      std::atomic<bool> anyNonFinite{false};
+      // Decoded, prepared and checked on all threads, into the cloud itself
+      // where it is held in memory (else into `splats`, handed over in one
+      // copy). A block with a non-finite splat goes one by one, for the message.
+      std::atomic<bool> anyNonFinite{false}, anyWithoutNormal{false};
       try {
+        const std::span<Splat> room = builder_.appendRoom(n);
+        Splat* const into = room.empty() ? splats.data() : room.data();
         parallelFor(
             n, 0,
             [&](std::size_t j) {
-              decodeRecord(bytes.data() + j * size, splats[j]);
-              detail::CloudBuilder::prepare(splats[j]);
-              if (!detail::isFinite(splats[j])) anyNonFinite.store(true, std::memory_order_relaxed);
+              Splat s = decodeRecord(bytes.data() + j * size);
+              detail::CloudBuilder::prepare(s);
+              if (!detail::isFinite(s)) anyNonFinite.store(true, std::memory_order_relaxed);
+              if (!detail::hasNormal(s)) anyWithoutNormal.store(true, std::memory_order_relaxed);
+              into[j] = s;
             },
             4096);
         if (!anyNonFinite.load()) {
-          builder_.addPreparedFinite(std::span<const Splat>(splats).first(n));
+          if (room.empty())
+            builder_.addPreparedFinite(std::span<const Splat>(splats).first(n),
+                                       !anyWithoutNormal.load());
+          else
+            builder_.keepRoom(!anyWithoutNormal.load());
         } else {
+          if (!room.empty()) {
+            std::copy(room.begin(), room.end(), splats.begin());
+            builder_.giveBackRoom();
+          }
           for (std::size_t j = 0; j < n; ++j) builder_.addPrepared(splats[j], 0, where + j * size);
         }
       } catch (...) {

@@ -207,13 +207,14 @@ void CloudBuilder::addPrepared(const Splat& s, std::uint64_t line, std::uint64_t
   if (options_.sink && cloud_.splats.size() >= options_.sinkBlock) flush();
 }
 
-void CloudBuilder::addPreparedFinite(std::span<const Splat> splats) {
+void CloudBuilder::addPreparedFinite(std::span<const Splat> splats, bool allHaveNormals) {
   while (!splats.empty()) {
     std::size_t take = splats.size();
     if (options_.sink)
       take =
           std::min(take, options_.sinkBlock - std::min(options_.sinkBlock, cloud_.splats.size()));
     take = std::max<std::size_t>(take, 1);
+    if (allHaveNormals && checkedNormals_ == cloud_.splats.size()) checkedNormals_ += take;
     cloud_.splats.insert(cloud_.splats.end(), splats.begin(),
                          splats.begin() + static_cast<std::ptrdiff_t>(take));
     splats = splats.subspan(take);
@@ -221,15 +222,26 @@ void CloudBuilder::addPreparedFinite(std::span<const Splat> splats) {
   }
 }
 
-namespace {
-bool hasNormal(const Splat& s) {
-  return s.normal[0] != 0.0f || s.normal[1] != 0.0f || s.normal[2] != 0.0f;
+std::span<Splat> CloudBuilder::appendRoom(std::size_t n) {
+  if (options_.sink) return {};
+  roomBegin_ = cloud_.splats.size();
+  cloud_.splats.resize(roomBegin_ + n);
+  return std::span<Splat>(cloud_.splats).subspan(roomBegin_);
 }
-}  // namespace
+
+void CloudBuilder::keepRoom(bool allHaveNormals) {
+  if (allHaveNormals && checkedNormals_ == roomBegin_) checkedNormals_ = cloud_.splats.size();
+}
+
+void CloudBuilder::giveBackRoom() {
+  cloud_.splats.resize(roomBegin_);
+}
 
 void CloudBuilder::flush() {
   const auto& v = cloud_.splats;
-  allNormals_ = allNormals_ && std::all_of(v.begin(), v.end(), hasNormal);
+  allNormals_ = allNormals_ && std::all_of(v.begin() + static_cast<std::ptrdiff_t>(checkedNormals_),
+                                           v.end(), hasNormal);
+  checkedNormals_ = 0;
   allRadii_ =
       allRadii_ && std::all_of(v.begin(), v.end(), [](const Splat& x) { return x.radius > 0.0f; });
   if (!v.empty()) options_.sink(v);
@@ -260,7 +272,9 @@ PointCloud CloudBuilder::finish(bool hasNormals, bool hasColors, bool hasRadii) 
   }
   if (options_.sink) flush();
   const auto& v = cloud_.splats;
-  cloud_.hasNormals = hasNormals && allNormals_ && std::all_of(v.begin(), v.end(), hasNormal);
+  cloud_.hasNormals =
+      hasNormals && allNormals_ &&
+      std::all_of(v.begin() + static_cast<std::ptrdiff_t>(checkedNormals_), v.end(), hasNormal);
   cloud_.hasColors = hasColors;
   cloud_.hasRadii = hasRadii && allRadii_ &&
                     std::all_of(v.begin(), v.end(), [](const Splat& x) { return x.radius > 0.0f; });

@@ -107,7 +107,16 @@ class CloudBuilder {
   void addPrepared(const Splat& splat, std::uint64_t line, std::uint64_t byte);
   // addPrepared for a run of prepared splats already known to be finite: one
   // copy, handed to the sink at the same points as one by one.
-  void addPreparedFinite(std::span<const Splat> splats);
+  // `allHaveNormals`: the reader checked that each has a normal, so finish
+  // need not look again.
+  void addPreparedFinite(std::span<const Splat> splats, bool allHaveNormals = false);
+  // Room for n more points at the cloud's end, for a reader to decode into
+  // on many threads instead of copying a decoded block over; empty when the
+  // points go to a sink. Then keepRoom when all n are prepared and finite,
+  // else giveBackRoom (and addPrepared one by one, for the messages).
+  std::span<Splat> appendRoom(std::size_t n);
+  void keepRoom(bool allHaveNormals);
+  void giveBackRoom();
   // Throttled progress callback.
   void progress(std::uint64_t done, std::uint64_t total);
   // Points accepted so far (handed to a sink or held).
@@ -120,8 +129,10 @@ class CloudBuilder {
   void flush();
 
   PointCloud cloud_;
-  std::uint64_t flushed_ = 0;  // points handed to options_.sink
-  bool allNormals_ = true;     // over the flushed points
+  std::uint64_t flushed_ = 0;       // points handed to options_.sink
+  std::size_t checkedNormals_ = 0;  // leading points of cloud_ known to have normals
+  std::size_t roomBegin_ = 0;       // where appendRoom's room starts
+  bool allNormals_ = true;          // over the flushed points
   bool allRadii_ = true;
   std::uint64_t dropped_ = 0;
   std::uint64_t firstDropLine_ = 0;
@@ -137,6 +148,9 @@ inline bool isFinite(const Splat& splat) {
   return finite(splat.position[0]) & finite(splat.position[1]) & finite(splat.position[2]) &
          finite(splat.normal[0]) & finite(splat.normal[1]) & finite(splat.normal[2]) &
          finite(splat.radius);
+}
+inline bool hasNormal(const Splat& splat) {
+  return splat.normal[0] != 0.0f || splat.normal[1] != 0.0f || splat.normal[2] != 0.0f;
 }
 // A coordinate a float can hold: finite and within float range.
 bool fitsFloat(double value);

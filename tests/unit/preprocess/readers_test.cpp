@@ -1449,3 +1449,52 @@ TEST(BadInput, Meshes) {
   bad("flat.ply", "ply\nformat ascii 1.0\n" + head + "0 0 0\n1 0 0\n2 0 0\n3 0 1 2\n",
       {"flat.ply", "degenerate"});
 }
+
+// Blocks are decoded into the cloud and checked for normals on all threads:
+// the cloud has normals only when every record has one, read whole or
+// streamed, wherever the record without one lies.
+TEST(PlyReader, NormalsFlagHoldsOnlyWhenEveryRecordOfEveryBlockHasOne) {
+  TempDir dir;
+  const std::vector<PlyProperty> properties = {{"float", "x"},  {"float", "y"},  {"float", "z"},
+                                               {"float", "nx"}, {"float", "ny"}, {"float", "nz"}};
+  std::vector<Splat> points(140000);
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    Splat& s = points[i];
+    s.position[0] = static_cast<float>(i % 977);
+    s.position[1] = static_cast<float>(i) * 0.5f;
+    s.position[2] = 1.0f;
+    s.normal[i % 3] = (i % 2) != 0u ? 1.0f : -1.0f;
+  }
+  const auto read = [&](const std::vector<Splat>& records, const std::string& name) {
+    const auto file = dir.write(name, makePly(PlyFormat::Little, properties, records));
+    PointCloud whole = readPointCloud(file, defaults());
+    ReadOptions streaming = defaults();
+    streaming.sinkBlock = 30000;
+    std::vector<Splat> streamed;
+    std::uint64_t count = 0;
+    const PointCloud flags = streamPointClouds(
+        {file}, streaming,
+        [&](std::span<const Splat> block) {
+          streamed.insert(streamed.end(), block.begin(), block.end());
+        },
+        count);
+    EXPECT_EQ(flags.hasNormals, whole.hasNormals) << name;
+    EXPECT_EQ(streamed.size(), whole.splats.size()) << name;
+    EXPECT_EQ(std::memcmp(streamed.data(), whole.splats.data(), streamed.size() * sizeof(Splat)), 0)
+        << name;
+    return whole;
+  };
+  expectSamePoints(read(points, "all.ply"), points, true, false, false, false);
+  // One record without a normal: in the first block, in the last (short) one.
+  for (const std::size_t without : {std::size_t{17}, std::size_t{139999}}) {
+    std::vector<Splat> some = points;
+    for (float& n : some[without].normal) n = 0.0f;
+    const PointCloud cloud = read(some, "some" + std::to_string(without) + ".ply");
+    EXPECT_FALSE(cloud.hasNormals) << without;
+    ASSERT_EQ(cloud.splats.size(), some.size());
+    for (std::size_t i = 0; i < some.size(); ++i) {
+      ASSERT_EQ(cloud.splats[i].position[1], some[i].position[1]) << i;
+      ASSERT_EQ(cloud.splats[i].normal[i % 3], some[i].normal[i % 3]) << i;
+    }
+  }
+}
