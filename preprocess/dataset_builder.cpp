@@ -110,31 +110,6 @@ DatasetContent assembleDatasetContent(Octree tree, LevelSplats ls, const Preproc
   });
   for (std::size_t i = n; i-- > 1;) merge(summary[cells[i].parent], summary[i]);
 
-  // Packets are layered coarse-first (common/dataset.hpp): within each
-  // top-level cell, its cells' level-splats by level from the highest down,
-  // cells of one level in depth-first order. layered[i] is cell i's offset.
-  const std::size_t topCount = tree.topLevelCells.size();
-  std::vector<std::uint32_t> layered(n, 0);
-  std::vector<Splat> layeredSplats(ls.splats.size());
-  parallelFor(topCount, options.threads, [&](std::size_t k) {
-    const std::uint32_t root = tree.topLevelCells[k];
-    const std::uint32_t end = cells[root].nextSibling == kNoIndex ? static_cast<std::uint32_t>(n)
-                                                                  : cells[root].nextSibling;
-    std::vector<std::uint32_t> order;
-    for (std::uint32_t i = root; i < end; ++i)
-      if (ls.cellCount[i] > 0) order.push_back(i);
-    std::stable_sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
-      return cells[a].level > cells[b].level;
-    });
-    std::uint64_t at = ls.topLevelBegin[k];
-    for (std::uint32_t i : order) {
-      layered[i] = static_cast<std::uint32_t>(at - ls.topLevelBegin[k]);
-      std::copy_n(splats.begin() + static_cast<std::ptrdiff_t>(ls.cellBegin[i]), ls.cellCount[i],
-                  layeredSplats.begin() + static_cast<std::ptrdiff_t>(at));
-      at += ls.cellCount[i];
-    }
-  });
-
   // The cone's half angle needs every normal of the subtree against the axis.
   parallelFor(n, options.threads, [&](std::size_t i) {
     const BuildCell& c = cells[i];
@@ -175,8 +150,38 @@ DatasetContent assembleDatasetContent(Octree tree, LevelSplats ls, const Preproc
           ls.topLevelBegin[c.topLevel + 1] - ls.topLevelBegin[c.topLevel];
       out.pointsOffset = static_cast<std::uint32_t>(packetSplats + c.begin - top.begin);
       out.pointsCount = static_cast<std::uint32_t>(c.end - c.begin);
-      out.splatsOffset = ls.cellCount[i] > 0 ? layered[i] : 0;
-      out.splatsCount = ls.cellCount[i];
+      out.splatsCount = ls.cellCount[i];  // the offset comes with the layering, below
+    }
+  });
+
+  // Packets are layered coarse-first (common/dataset.hpp): within each
+  // top-level cell, its cells' level-splats by level from the highest down,
+  // cells of one level in depth-first order. Done in place, after the cones
+  // (which read each subtree's splats as one depth-first range), through a
+  // packet-sized copy: a second array of all level-splats would be fresh
+  // memory, zeroed and faulted in on one thread.
+  const std::size_t topCount = tree.topLevelCells.size();
+  parallelFor(topCount, options.threads, [&](std::size_t k) {
+    const std::uint32_t root = tree.topLevelCells[k];
+    const std::uint32_t end = cells[root].nextSibling == kNoIndex ? static_cast<std::uint32_t>(n)
+                                                                  : cells[root].nextSibling;
+    thread_local std::vector<std::uint32_t> order;
+    thread_local std::vector<Splat> packet;
+    order.clear();
+    for (std::uint32_t i = root; i < end; ++i)
+      if (ls.cellCount[i] > 0) order.push_back(i);
+    std::stable_sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
+      return cells[a].level > cells[b].level;
+    });
+    const std::uint64_t first = ls.topLevelBegin[k];
+    const auto whole = ls.splats.begin() + static_cast<std::ptrdiff_t>(first);
+    packet.assign(whole, ls.splats.begin() + static_cast<std::ptrdiff_t>(ls.topLevelBegin[k + 1]));
+    std::uint64_t at = 0;
+    for (const std::uint32_t i : order) {
+      content.cells[i].splatsOffset = static_cast<std::uint32_t>(at);
+      std::copy_n(packet.begin() + static_cast<std::ptrdiff_t>(ls.cellBegin[i] - first),
+                  ls.cellCount[i], whole + static_cast<std::ptrdiff_t>(at));
+      at += ls.cellCount[i];
     }
   });
 
@@ -213,7 +218,7 @@ DatasetContent assembleDatasetContent(Octree tree, LevelSplats ls, const Preproc
   m.leafPoints = options.octree.leafPoints;
   m.levelSplatReduction = options.levelSplats.reduction;
   content.points = std::move(tree.points);
-  content.levelSplats = std::move(layeredSplats);
+  content.levelSplats = std::move(ls.splats);
   return content;
 }
 

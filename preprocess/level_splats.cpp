@@ -435,8 +435,9 @@ LevelSplats buildLevelSplats(const Octree& tree, const LevelSplatOptions& option
     total += results[k].splats.size();
   }
   out.topLevelBegin[nTop] = total;
-  // Gathered on all threads: a copy of a third of the points' bytes.
-  out.splats.resize(total);
+  // Gathered on all threads: a copy of a third of the points' bytes, into
+  // pages mapped on all threads first (the resize only zeroes them).
+  resizePopulated(out.splats, total, threads);
   parallelFor(
       nTop, threads,
       [&](std::size_t k) {

@@ -222,7 +222,8 @@ Octree buildOctree(std::vector<Splat> points, const OctreeOptions& options,
   // Codes and the gather on all threads: the gather's reads are scattered,
   // so it waits on memory, and two cores wait in parallel.
   constexpr std::size_t kChunk = std::size_t{1} << 16;
-  KeyedVector keyed(points.size());
+  KeyedVector keyed;
+  resizePopulated(keyed, points.size(), options.threads);
   const MortonCoder morton(cube, options.maxDepth);
   parallelFor(
       points.size(), options.threads,
@@ -235,7 +236,8 @@ Octree buildOctree(std::vector<Splat> points, const OctreeOptions& options,
   // Gathered on all threads into a buffer that is not zeroed first, then
   // copied back into the input's own (already touched) memory: a new
   // std::vector would be zeroed on one thread, taking every page fault there.
-  std::vector<Splat, UninitializedAllocator<Splat>> sorted(points.size());
+  std::vector<Splat, UninitializedAllocator<Splat>> sorted;
+  resizePopulated(sorted, points.size(), options.threads);
   parallelFor(
       keyed.size(), options.threads, [&](std::size_t i) { sorted[i] = points[keyed[i].index]; },
       kChunk);

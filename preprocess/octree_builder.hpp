@@ -148,7 +148,8 @@ void radixSort(std::vector<Item, Allocator>& items, unsigned lowBit, unsigned hi
   const std::size_t n = items.size();
   // Below a few blocks a thread costs more than it saves.
   const std::size_t shares = std::clamp<std::size_t>(n >> 18, 1, threads);
-  std::vector<Item, Allocator> tmp(n);
+  std::vector<Item, Allocator> tmp;
+  resizePopulated(tmp, n, threads);  // its writes are scattered
   std::vector<std::array<std::size_t, 256>> count(shares);
   const auto shareBegin = [&](std::size_t s) { return n * s / shares; };
   const unsigned passes = (highBit - lowBit + 7) / 8;

@@ -69,6 +69,19 @@ inline void populatePages(void* data, std::size_t bytes, unsigned threads) {
 #endif
 }
 
+// Resizes `values` to n, the new elements' pages mapped on `threads` threads
+// first: a resize or a scattered fill of fresh memory would take every page
+// fault one by one (on one core for the resize).
+template <class Vector>
+void resizePopulated(Vector& values, std::size_t n, unsigned threads) {
+  if (n > values.size()) {
+    values.reserve(n);
+    populatePages(values.data() + values.size(),
+                  (n - values.size()) * sizeof(typename Vector::value_type), threads);
+  }
+  values.resize(n);
+}
+
 // std::sort on `threads` threads (0: all cores): pieces sorted apart, then
 // merged pairwise. The order is the one std::sort gives wherever `less` is a
 // strict total order (no two items equal).
