@@ -96,6 +96,14 @@ struct ClusterScratch {
   std::vector<std::array<double, 4>> colorSums;
 };
 
+// std::lround of v clamped to [0, 255], without its library call (a level-
+// splat has four): v - floor(v) is exact there, so halves round up as lround's do.
+std::uint8_t roundedChannel(double v) {
+  v = std::clamp(v, 0.0, 255.0);
+  const double whole = std::floor(v);
+  return static_cast<std::uint8_t>(whole + (v - whole >= 0.5 ? 1.0 : 0.0));
+}
+
 float roundUp(double v) {
   float f = static_cast<float>(v);
   if (static_cast<double>(f) < v) f = std::nextafter(f, std::numeric_limits<float>::infinity());
@@ -305,9 +313,7 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
     }
     for (std::size_t a = 0; a < 3; ++a) s.normal[a] = static_cast<float>(normal[a]);
     const double n = acc[c].count;
-    for (std::size_t ch = 0; ch < 4; ++ch)
-      s.color[ch] =
-          static_cast<std::uint8_t>(std::lround(std::clamp(colorSum[c][ch] / n, 0.0, 255.0)));
+    for (std::size_t ch = 0; ch < 4; ++ch) s.color[ch] = roundedChannel(colorSum[c][ch] / n);
     s.radius = 0.0f;
   }
   // Radius from the stored (float) centre so the coverage property holds exactly.
