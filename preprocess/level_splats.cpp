@@ -49,14 +49,25 @@ struct Range {
   std::uint32_t begin;
   std::uint32_t end;
   double spread;  // total variance (covariance trace): the split priority
-  Vec3d mean;
-  Sym3 covariance;
   Moments moments;
 };
 
+// The trace of m.covariance(), as covarianceFromSums computes its diagonal:
+// only a range that is split needs the whole matrix and the mean, and about
+// half of them never are.
+double spreadOf(const Moments& m) {
+  if (!(m.count > 0.0)) return 0.0;
+  const double w = 1.0 / m.count;
+  double trace = 0.0;
+  for (const std::size_t a : {0u, 1u, 2u}) {
+    const double mean = m.sum[a] * w;
+    trace += std::max(m.square[a == 0 ? 0 : a == 1 ? 3 : 5] * w - mean * mean, 0.0);
+  }
+  return trace;
+}
+
 Range makeRange(std::uint32_t begin, std::uint32_t end, const Moments& m) {
-  const Sym3 c = m.covariance();
-  return {begin, end, end - begin >= 2 ? c[0] + c[3] + c[5] : 0.0, m.mean(), c, m};
+  return {begin, end, end - begin >= 2 ? spreadOf(m) : 0.0, m};
 }
 
 // Inverse and log-determinant of (covariance + eps I) by the adjugate: no
@@ -187,8 +198,9 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
       continue;
     }
     // Cut through the centroid, normal to the direction of largest variance.
-    const Vec3d axis = majorAxis(r.covariance);
-    auto proj = [&](std::uint32_t i) { return dot(sub(pos[i], r.mean), axis); };
+    const Vec3d axis = majorAxis(r.moments.covariance());
+    const Vec3d mean = r.moments.mean();
+    auto proj = [&](std::uint32_t i) { return dot(sub(pos[i], mean), axis); };
     // Partition without branches (the side is a coin toss to the predictor):
     // the low side fills scratch from the front, the high side from the back.
     // Each input is written to both free ends, and only one end advances:
