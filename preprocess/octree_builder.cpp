@@ -8,6 +8,10 @@
 #include <limits>
 #include <string>
 
+#if defined(__x86_64__)
+#include <immintrin.h>
+#endif
+
 #include "common/errors.hpp"
 #include "preprocess/parallel.hpp"
 
@@ -52,6 +56,34 @@ void mortonSort(KeyedVector& items, unsigned totalBits, std::uint32_t leafPoints
                   items.begin() + static_cast<std::ptrdiff_t>(runs[r].second), less);
       },
       16);
+}
+
+// Codes of points[first, last): the bits interleaved by BMI2's pdep where the
+// processor has it (one instruction an axis against fifteen), else by spreadBits.
+#if defined(__x86_64__)
+__attribute__((target("bmi2"))) void codePointsWithPdep(const MortonCoder& morton,
+                                                        const Splat* points, Keyed* keyed,
+                                                        std::size_t first, std::size_t last) {
+  for (std::size_t i = first; i < last; ++i) {
+    std::uint64_t q[3];
+    morton.quantize(points[i].position, q);
+    keyed[i] = {_pdep_u64(q[0], 0x4924924924924924ull) | _pdep_u64(q[1], 0x2492492492492492ull) |
+                    _pdep_u64(q[2], 0x1249249249249249ull),
+                i};
+  }
+}
+#endif
+
+void codePoints(const MortonCoder& morton, const Splat* points, Keyed* keyed, std::size_t first,
+                std::size_t last) {
+#if defined(__x86_64__)
+  static const bool hasPdep = __builtin_cpu_supports("bmi2") != 0;
+  if (hasPdep) {
+    codePointsWithPdep(morton, points, keyed, first, last);
+    return;
+  }
+#endif
+  for (std::size_t i = first; i < last; ++i) keyed[i] = {morton(points[i].position), i};
 }
 
 class TreeBuilder {
@@ -225,12 +257,12 @@ Octree buildOctree(std::vector<Splat> points, const OctreeOptions& options,
   KeyedVector keyed;
   resizePopulated(keyed, points.size(), options.threads);
   const MortonCoder morton(cube, options.maxDepth);
-  parallelFor(
-      points.size(), options.threads,
-      [&](std::size_t i) {
-        keyed[i] = {morton(points[i].position), i};
-      },
-      kChunk);
+  parallelFor((points.size() + kChunk - 1) / kChunk, options.threads,
+              [&](std::size_t chunk) {
+                codePoints(morton, points.data(), keyed.data(), chunk * kChunk,
+                           std::min(points.size(), (chunk + 1) * kChunk));
+              },
+              1);
   mortonSort(keyed, 3 * options.maxDepth, options.leafPoints, progress, options.threads);
 
   // Gathered on all threads into a buffer that is not zeroed first, then

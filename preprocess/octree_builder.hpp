@@ -112,14 +112,17 @@ class MortonCoder {
         maxCoord_(static_cast<double>((std::uint64_t{1} << maxDepth) - 1)) {}
 
   std::uint64_t operator()(const float position[3]) const {
-    std::uint64_t code = 0;
+    std::uint64_t q[3];
+    quantize(position, q);
+    return spreadBits(q[0]) << 2 | spreadBits(q[1]) << 1 | spreadBits(q[2]);
+  }
+  // The position's cell coordinates at maxDepth, each below 2^maxDepth.
+  void quantize(const float position[3], std::uint64_t q[3]) const {
     for (int a = 0; a < 3; ++a) {
       const double t = (static_cast<double>(position[a]) - min_[a]) * scale_;
       // Clamped as a double first: a cast of an out-of-range double is undefined.
-      const auto q = static_cast<std::uint64_t>(t < 0.0 ? 0.0 : (t > maxCoord_ ? maxCoord_ : t));
-      code |= spreadBits(q) << (2 - a);
+      q[a] = static_cast<std::uint64_t>(t < 0.0 ? 0.0 : (t > maxCoord_ ? maxCoord_ : t));
     }
-    return code;
   }
 
  private:
