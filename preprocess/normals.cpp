@@ -18,6 +18,7 @@
 #include "common/errors.hpp"
 #include "common/geometry.hpp"
 #include "preprocess/eigen_batch.hpp"
+#include "preprocess/leaf_distances.hpp"
 #include "preprocess/neighbour_grid.hpp"
 #include "preprocess/parallel.hpp"
 #include "preprocess/selection.hpp"
@@ -631,12 +632,23 @@ float sampledRadius(std::span<const Splat> leaf, std::size_t k, float factor) {
   const std::size_t m = leaf.size();
   if (m <= k) return 0.0f;
   const std::size_t samples = std::min(m, kLeafRadiusSamples);
-  thread_local std::vector<float> distances, spare;  // leaves are many: no allocation each
-  distances.resize(m);
-  spare.resize(m);
+  // Leaves are many: buffers kept on the thread, no allocation each.
+  thread_local std::vector<float> distances, spare;
+  thread_local LeafColumns columns;
+  const bool ranked = m <= LeafColumns::kMaxPoints;
+  if (ranked) {
+    columns.assign(leaf);
+  } else {
+    distances.resize(m);
+    spare.resize(m);
+  }
   std::array<float, kLeafRadiusSamples> sampled{};
   for (std::size_t s = 0; s < samples; ++s) {
     const auto& p = leaf[(2 * s + 1) * m / (2 * samples)].position;
+    if (ranked) {
+      sampled[s] = std::sqrt(columns.kthSmallestSquaredDistance(p, k)) * factor;
+      continue;
+    }
     for (std::size_t i = 0; i < m; ++i) {
       const auto& q = leaf[i].position;
       const float dx = q[0] - p[0], dy = q[1] - p[1], dz = q[2] - p[2];
