@@ -823,28 +823,43 @@ TEST(LasReader, FormatsAndVersionsWithScaleAndOffset) {
 // Streamed in blocks (the out-of-core preprocess) LAS gives the same points,
 // colours scaled as a whole read scales them: 16-bit colours are found by a
 // first pass, 8-bit ones stay.
+namespace {
+
+// A file read through streamPointClouds in blocks of at most `block` points.
+struct Streamed {
+  std::vector<Splat> splats;
+  std::uint64_t count = 0;
+  PointCloud flags;
+};
+Streamed readStreamed(const std::filesystem::path& file, std::size_t block) {
+  ReadOptions streaming = defaults();
+  streaming.sinkBlock = block;
+  Streamed out;
+  out.flags = streamPointClouds(
+      {file}, streaming,
+      [&](std::span<const Splat> part) {
+        EXPECT_LE(part.size(), block);
+        out.splats.insert(out.splats.end(), part.begin(), part.end());
+      },
+      out.count);
+  return out;
+}
+
+}  // namespace
+
 TEST(LasReader, StreamedAsReadWhole) {
   TempDir dir;
   for (const bool sixteen : {true, false}) {
     const auto file =
         dir.write(sixteen ? "16.las" : "8.las", makeLas(2, 3, lasPoints(3000, sixteen)));
     const PointCloud whole = readPointCloud(file, defaults());
-    ReadOptions streaming = defaults();
-    streaming.sinkBlock = 500;
-    std::vector<Splat> streamed;
-    std::uint64_t count = 0;
-    const PointCloud flags = streamPointClouds(
-        {file}, streaming,
-        [&](std::span<const Splat> block) {
-          EXPECT_LE(block.size(), 500u);
-          streamed.insert(streamed.end(), block.begin(), block.end());
-        },
-        count);
-    ASSERT_EQ(streamed.size(), whole.splats.size());
-    EXPECT_EQ(count, whole.splats.size());
-    EXPECT_EQ(std::memcmp(streamed.data(), whole.splats.data(), streamed.size() * sizeof(Splat)),
+    const Streamed streamed = readStreamed(file, 500);
+    ASSERT_EQ(streamed.splats.size(), whole.splats.size());
+    EXPECT_EQ(streamed.count, whole.splats.size());
+    EXPECT_EQ(std::memcmp(streamed.splats.data(), whole.splats.data(),
+                          streamed.splats.size() * sizeof(Splat)),
               0);
-    EXPECT_TRUE(flags.hasColors);
+    EXPECT_TRUE(streamed.flags.hasColors);
   }
 }
 
@@ -1468,19 +1483,12 @@ TEST(PlyReader, NormalsFlagHoldsOnlyWhenEveryRecordOfEveryBlockHasOne) {
   const auto read = [&](const std::vector<Splat>& records, const std::string& name) {
     const auto file = dir.write(name, makePly(PlyFormat::Little, properties, records));
     PointCloud whole = readPointCloud(file, defaults());
-    ReadOptions streaming = defaults();
-    streaming.sinkBlock = 30000;
-    std::vector<Splat> streamed;
-    std::uint64_t count = 0;
-    const PointCloud flags = streamPointClouds(
-        {file}, streaming,
-        [&](std::span<const Splat> block) {
-          streamed.insert(streamed.end(), block.begin(), block.end());
-        },
-        count);
-    EXPECT_EQ(flags.hasNormals, whole.hasNormals) << name;
-    EXPECT_EQ(streamed.size(), whole.splats.size()) << name;
-    EXPECT_EQ(std::memcmp(streamed.data(), whole.splats.data(), streamed.size() * sizeof(Splat)), 0)
+    const Streamed streamed = readStreamed(file, 30000);
+    EXPECT_EQ(streamed.flags.hasNormals, whole.hasNormals) << name;
+    EXPECT_EQ(streamed.splats.size(), whole.splats.size()) << name;
+    EXPECT_EQ(std::memcmp(streamed.splats.data(), whole.splats.data(),
+                          streamed.splats.size() * sizeof(Splat)),
+              0)
         << name;
     return whole;
   };
