@@ -5,6 +5,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "preprocess/selection.hpp"
+
 // Highway compiles the SIMD part once per target by including this file again.
 #undef HWY_TARGET_INCLUDE
 #define HWY_TARGET_INCLUDE "preprocess/leaf_distances.cpp"
@@ -17,8 +19,10 @@ namespace pointillist::preprocess {
 namespace HWY_NAMESPACE {
 namespace hn = hwy::HWY_NAMESPACE;
 
-// padded: a multiple of the lane count, the columns +inf beyond n. Returns n
-// when no value has rank k (cannot happen for k < n; the caller checks).
+// padded: a multiple of the lane count, the columns +inf beyond n. Returns
+// the index of a distance of rank k; n when none has it (cannot happen for
+// k < n; the caller checks); kNotRanked when n is more than 8 vectors, where
+// ranking (n^2 / lanes) would cost more than selecting by partitions.
 std::size_t KthSmallestDistanceIndex(const float* x, const float* y, const float* z, std::size_t n,
                                      std::size_t padded, const float* p, std::size_t k,
                                      float* distances) {
@@ -33,6 +37,7 @@ std::size_t KthSmallestDistanceIndex(const float* x, const float* y, const float
     hn::StoreU(hn::Add(hn::Add(hn::Mul(dx, dx), hn::Mul(dy, dy)), hn::Mul(dz, dz)), d,
                distances + i);
   }
+  if (n > 8 * lanes) return detail::kNotRanked;
   // A candidate has rank k when fewer than k + 1 values lie below it and
   // more than k lie at or below it. Padding (+inf) lanes come after every real one.
   const auto rank = hn::Set(di, static_cast<std::int32_t>(k));
@@ -72,6 +77,7 @@ void LeafColumns::assign(std::span<const Splat> points) {
   y_.assign(padded_, inf);
   z_.assign(padded_, inf);
   distances_.resize(padded_);
+  values_.resize(size_);
   for (std::size_t i = 0; i < size_; ++i) {
     x_[i] = points[i].position[0];
     y_[i] = points[i].position[1];
@@ -85,6 +91,10 @@ float LeafColumns::kthSmallestSquaredDistance(const float p[3], std::size_t k) c
                                 std::to_string(size_) + " points");
   const std::size_t at = HWY_DYNAMIC_DISPATCH(KthSmallestDistanceIndex)(
       x_.data(), y_.data(), z_.data(), size_, padded_, p, k, distances_.data());
+  if (at == detail::kNotRanked) {
+    std::copy_n(distances_.begin(), size_, values_.begin());
+    return kthSmallest(values_.data(), distances_.data(), size_, k);
+  }
   // Every rank below size_ has a value: finite positions give no NaN (an
   // overflow gives +inf, which ranks like any other value).
   if (at >= size_)

@@ -4,7 +4,9 @@
 // holds a few dozen points and the estimate samples millions of them, so the
 // distances are computed and ranked in SIMD (Highway, run-time dispatch):
 // each distance's rank is counted against all the others, a vector of
-// candidates at a time, which beats selecting by partitions at this size.
+// candidates at a time, which beats selecting by partitions up to about
+// eight vectors of points (128 with AVX-512, 64 with AVX2); beyond that the
+// SIMD distances are selected by partitions.
 // The value is the one kthSmallest (preprocess/selection.hpp) gives for the
 // same float distances, (dx*dx + dy*dy) + dz*dz.
 #include <cstddef>
@@ -15,10 +17,15 @@
 
 namespace pointillist::preprocess {
 
+namespace detail {
+// What the SIMD kernel returns for a leaf it leaves to selection by partitions.
+inline constexpr std::size_t kNotRanked = ~std::size_t{0};
+}  // namespace detail
+
 // A leaf's positions as columns, padded with +inf to whole vectors.
 class LeafColumns {
  public:
-  // Leaves larger than this are left to kthSmallest: ranking costs n^2.
+  // Larger leaves are left to the caller (columns would cost more than they save).
   static constexpr std::size_t kMaxPoints = 256;
 
   void assign(std::span<const Splat> points);
@@ -31,7 +38,7 @@ class LeafColumns {
   std::size_t size_ = 0;
   std::size_t padded_ = 0;
   std::vector<float> x_, y_, z_;
-  mutable std::vector<float> distances_;
+  mutable std::vector<float> distances_, values_;
 };
 
 }  // namespace pointillist::preprocess
