@@ -194,6 +194,44 @@ TEST(Octree, ChildrenAreTheOctantsOfTheirParentsCube) {
   }
 }
 
+// The sort's codes (BMI2's pdep where the processor has it) order the points
+// as the scalar coder's do: the top 24 bits never fall, and a run sharing them
+// that is longer than a leaf is in full code order. Also spreadBits' layout.
+TEST(Octree, PointsFollowTheScalarCodersMortonCurve) {
+  for (const unsigned maxDepth : {10u, 16u, 21u}) {
+    OctreeOptions options;
+    options.maxDepth = maxDepth;
+    options.leafPoints = 16;
+    options.threads = 2;
+    const Octree tree = buildOctree(testCloud(20000, 3), options);
+    OctreeCube cube;
+    for (int a = 0; a < 3; ++a) cube.min[a] = tree.cubeMin[a];
+    cube.size = tree.cubeSize;
+    const unsigned lowBit = 3 * maxDepth - 24;
+    std::vector<std::uint64_t> codes;
+    for (const Splat& p : tree.points) codes.push_back(mortonCode(p.position, cube, maxDepth));
+    std::size_t runStart = 0, longRuns = 0;
+    for (std::size_t i = 1; i <= codes.size(); ++i) {
+      if (i < codes.size()) {
+        ASSERT_LE(codes[i - 1] >> lowBit, codes[i] >> lowBit) << i;
+      }
+      if (i < codes.size() && codes[i] >> lowBit == codes[runStart] >> lowBit) continue;
+      if (i - runStart > options.leafPoints) {
+        ++longRuns;
+        for (std::size_t j = runStart + 1; j < i; ++j) ASSERT_LE(codes[j - 1], codes[j]) << j;
+      }
+      runStart = i;
+    }
+    EXPECT_GT(longRuns, 0u) << maxDepth;  // the dense blob
+  }
+  for (const std::uint64_t v : {0ull, 1ull, 0x1fffffull, 0x15555ull, 0x123456789ull}) {
+    const std::uint64_t spread = spreadBits(v);
+    EXPECT_EQ(compactBits(spread), v & 0x1fffff);
+    EXPECT_EQ(spread & ~0x1249249249249249ull, 0u);
+    for (unsigned k = 0; k < 21; ++k) EXPECT_EQ((spread >> (3 * k)) & 1u, (v >> k) & 1u);
+  }
+}
+
 TEST(Octree, NextSiblingAndLevelsFollowTheRules) {
   const Built b = build(5000, smallOptions());
   const Octree& t = b.tree;
