@@ -34,9 +34,6 @@ Vec3d position(const Splat& s) {
   return {s.position[0], s.position[1], s.position[2]};
 }
 
-bool hasNormal(const Splat& s) {
-  return s.normal[0] != 0.0f || s.normal[1] != 0.0f || s.normal[2] != 0.0f;
-}
 bool hasRadius(const Splat& s) {
   return s.radius > 0.0f && std::isfinite(s.radius);
 }

@@ -683,7 +683,7 @@ class PlyParser {
               Splat s = decodeRecord(bytes.data() + j * size);
               detail::CloudBuilder::prepare(s);
               if (!detail::isFinite(s)) anyNonFinite.store(true, std::memory_order_relaxed);
-              if (!detail::hasNormal(s)) anyWithoutNormal.store(true, std::memory_order_relaxed);
+              if (!hasNormal(s)) anyWithoutNormal.store(true, std::memory_order_relaxed);
               into[j] = s;
             },
             4096);

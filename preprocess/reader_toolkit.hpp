@@ -149,9 +149,6 @@ inline bool isFinite(const Splat& splat) {
          finite(splat.normal[0]) & finite(splat.normal[1]) & finite(splat.normal[2]) &
          finite(splat.radius);
 }
-inline bool hasNormal(const Splat& splat) {
-  return splat.normal[0] != 0.0f || splat.normal[1] != 0.0f || splat.normal[2] != 0.0f;
-}
 // A coordinate a float can hold: finite and within float range.
 bool fitsFloat(double value);
 // A count or index read as a number: true when `value` is a whole number in

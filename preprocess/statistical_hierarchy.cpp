@@ -160,10 +160,6 @@ void validate(const StatisticalOptions& o) {
 
 // ---- per-node attributes --------------------------------------------------
 
-bool hasNormal(const Splat& s) {
-  return s.normal[0] != 0.0f || s.normal[1] != 0.0f || s.normal[2] != 0.0f;
-}
-
 // Seed 004 §3: the normals rotated so their mean is z, unwrapped onto the
 // tangent plane at the pole by elevation theta and azimuth phi to
 // theta (cos phi, sin phi) -- the paper's (theta sin phi, theta cos phi) with
