@@ -6,10 +6,12 @@
 // each distance's rank is counted against all the others, a vector of
 // candidates at a time, which beats selecting by partitions up to about
 // eight vectors of points (128 with AVX-512, 64 with AVX2); beyond that the
-// SIMD distances are selected by partitions.
+// SIMD distances are selected by partitions. Given a bound that more than k
+// distances pass, only those are ranked.
 // The value is the one kthSmallest (preprocess/selection.hpp) gives for the
 // same float distances, (dx*dx + dy*dy) + dz*dz.
 #include <cstddef>
+#include <limits>
 #include <span>
 #include <vector>
 
@@ -18,8 +20,11 @@
 namespace pointillist::preprocess {
 
 namespace detail {
-// What the SIMD kernel returns for a leaf it leaves to selection by partitions.
-inline constexpr std::size_t kNotRanked = ~std::size_t{0};
+// What the SIMD kernel returns: the value found, a leaf left to selection by
+// partitions, no value of that rank (cannot happen for finite positions).
+inline constexpr int kRanked = 1;
+inline constexpr int kLeftToSelection = 0;
+inline constexpr int kNoRank = -1;
 }  // namespace detail
 
 // A leaf's positions as columns, padded with +inf to whole vectors.
@@ -31,8 +36,11 @@ class LeafColumns {
   void assign(std::span<const Splat> points);
   std::size_t size() const { return size_; }
   // The k-th smallest (0-based, k < size()) squared distance from p to the
-  // points. Needs size() <= kMaxPoints.
-  float kthSmallestSquaredDistance(const float p[3], std::size_t k) const;
+  // points. Needs size() <= kMaxPoints. When more than k distances are at
+  // most `bound` (a guess, e.g. a nearby point's figure), only those are
+  // ranked, which is cheaper; the value is the same for any bound.
+  float kthSmallestSquaredDistance(const float p[3], std::size_t k,
+                                   float bound = std::numeric_limits<float>::infinity()) const;
 
  private:
   std::size_t size_ = 0;

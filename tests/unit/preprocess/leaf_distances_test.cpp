@@ -26,9 +26,9 @@ float scalarKth(const std::vector<Splat>& points, const float p[3], std::size_t 
 }
 
 // On every target, every rank of leaves of 1 to 256 points gives kthSmallest's
-// value bit for bit: with repeated points (ties of rank), points on a coarse
-// grid (many equal distances), distances that overflow to +inf, and sizes
-// around whole vectors.
+// value bit for bit, whatever bound is given: with repeated points (ties of
+// rank), points on a coarse grid (many equal distances), distances that
+// overflow to +inf, and sizes around whole vectors.
 TEST(LeafColumns, EveryRankIsKthSmallestsValueOnEveryTarget) {
   std::mt19937 rng(17);
   std::uniform_real_distribution<float> unit(-1.0f, 1.0f);
@@ -53,13 +53,24 @@ TEST(LeafColumns, EveryRankIsKthSmallestsValueOnEveryTarget) {
         for (std::size_t k = 0; k < n; k += 1 + n / 20) {
           const float expected = scalarKth(points, p, k);
           ties += k > 0 && scalarKth(points, p, k - 1) == expected;
+          // Bounds that too few pass, that just enough pass, that all pass,
+          // and none (infinite, NaN).
+          const float bounds[] = {std::numeric_limits<float>::infinity(),
+                                  0.0f,
+                                  0.5f * expected,
+                                  expected,
+                                  4.0f * expected,
+                                  std::numeric_limits<float>::max(),
+                                  std::numeric_limits<float>::quiet_NaN()};
           for (const std::int64_t target : targets) {
             forceSimdTarget(target);
-            const float got = columns.kthSmallestSquaredDistance(p, k);
-            ASSERT_EQ(std::memcmp(&got, &expected, sizeof got), 0)
-                << "n " << n << " variant " << variant << " k " << k << " target " << target << ": "
-                << got << " against " << expected;
-            ++checked;
+            for (const float bound : bounds) {
+              const float got = columns.kthSmallestSquaredDistance(p, k, bound);
+              ASSERT_EQ(std::memcmp(&got, &expected, sizeof got), 0)
+                  << "n " << n << " variant " << variant << " k " << k << " target " << target
+                  << " bound " << bound << ": " << got << " against " << expected;
+              ++checked;
+            }
           }
           forceSimdTarget(0);
         }

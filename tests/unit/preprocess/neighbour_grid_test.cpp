@@ -17,6 +17,7 @@
 #include "preprocess/neighbour_grid.hpp"
 #include "preprocess/normals.hpp"
 #include "preprocess/octree_builder.hpp"
+#include "preprocess/simd_targets.hpp"
 
 using pointillist::Splat;
 using namespace pointillist::preprocess;
@@ -186,25 +187,32 @@ TEST(NeighbourGrid, FilterKeepsWhatTheScalarTestKeeps) {
   }
 }
 
-// Sorting by counting the keys below each: every length up to five vectors
-// of the widest target, keys up to the largest but one, and the room past n
-// is all it writes outside `sorted`.
+// Sorting by counting the keys below each, on every SIMD target: every
+// length up to eight vectors of the widest target, keys up to the largest
+// but one, and the room past n is all it writes outside `sorted`.
 TEST(NeighbourGrid, KeysSortByCountingEqualsStdSort) {
   std::mt19937_64 rng(11);
-  for (std::size_t n = 0; n <= 40; ++n) {
-    std::vector<std::uint64_t> keys(n + kSortKeysPad + 4, 7);
+  for (std::size_t n = 0; n <= 64; ++n) {
     std::set<std::uint64_t> distinct;
     // Every fifth key near the top, where the padding's largest key sits.
     while (distinct.size() < n)
       distinct.insert(distinct.size() % 5 == 4 ? ~std::uint64_t{0} - 1 - distinct.size() : rng());
     std::vector<std::uint64_t> want(distinct.begin(), distinct.end());
     std::shuffle(want.begin(), want.end(), rng);
-    std::copy(want.begin(), want.end(), keys.begin());
-    std::vector<std::uint64_t> sorted(n + 1, 5);
-    sortDistinctKeys(keys.data(), n, sorted.data());
-    std::sort(want.begin(), want.end());
-    EXPECT_TRUE(std::equal(want.begin(), want.end(), sorted.begin())) << "n " << n;
-    EXPECT_EQ(sorted[n], 5u) << "n " << n;
-    for (std::size_t j = n + kSortKeysPad; j < keys.size(); ++j) EXPECT_EQ(keys[j], 7u) << n;
+    std::vector<std::uint64_t> ascending = want;
+    std::sort(ascending.begin(), ascending.end());
+    for (const std::int64_t target : simdTargets()) {
+      forceSimdTarget(target);
+      std::vector<std::uint64_t> keys(n + kSortKeysPad + 4, 7);
+      std::copy(want.begin(), want.end(), keys.begin());
+      std::vector<std::uint64_t> sorted(n + 1, 5);
+      sortDistinctKeys(keys.data(), n, sorted.data());
+      EXPECT_TRUE(std::equal(ascending.begin(), ascending.end(), sorted.begin()))
+          << "n " << n << " target " << target;
+      EXPECT_EQ(sorted[n], 5u) << "n " << n << " target " << target;
+      for (std::size_t j = n + kSortKeysPad; j < keys.size(); ++j)
+        EXPECT_EQ(keys[j], 7u) << "n " << n << " target " << target;
+    }
+    forceSimdTarget(0);
   }
 }
