@@ -30,6 +30,8 @@ struct TriangleMesh {
 // else grey. Radii follow normals.hpp: r = sqrt(3 * area / (pi * count)), disks
 // covering the surface about three times over. Zero-area triangles are skipped;
 // a mesh with no triangle of positive area is an InputError naming `source`.
+// The points are made on all cores from one random stream drawn in order, so
+// they are the same on any number of cores.
 PointCloud sampleMesh(const TriangleMesh& mesh, std::size_t count, std::uint64_t seed,
                       const std::string& source);
 

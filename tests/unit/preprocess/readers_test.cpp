@@ -21,6 +21,7 @@
 #include <vector>
 
 #include "common/errors.hpp"
+#include "common/geometry.hpp"
 #include "preprocess/mesh_sampler.hpp"
 #include "preprocess/reader_toolkit.hpp"
 #include "preprocess/readers.hpp"
@@ -969,6 +970,65 @@ TEST(MeshSampler, AreaWeightingOneToThree) {
   // Radius from the sampling density: sqrt(3 * area / (pi * n)).
   EXPECT_NEAR(cloud.splats[0].radius,
               std::sqrt(3 * 4.0 / (std::numbers::pi * static_cast<double>(n))), 1e-7);
+}
+
+// The sampler draws its random numbers on one thread and makes the points on
+// all: the points must be those of one walk through the stream and the
+// cumulative areas, bit for bit, across its chunks (2^18 points) and blocks
+// (2^14), with a degenerate triangle in the list, and with vertex colours.
+TEST(MeshSampler, PointsOnAllThreadsEqualOneSerialWalk) {
+  TriangleMesh mesh;
+  Rng shape(3);
+  for (int t = 0; t < 500; ++t) {
+    const auto base = static_cast<std::uint32_t>(mesh.vertices.size());
+    for (int v = 0; v < 3; ++v)
+      mesh.vertices.push_back({shape.uniform(0, 10), shape.uniform(0, 10), shape.uniform(0, 1)});
+    mesh.vertexColors.push_back({static_cast<std::uint8_t>(t), 10, 200, 255});
+    mesh.vertexColors.push_back({0, static_cast<std::uint8_t>(t), 20, 255});
+    mesh.vertexColors.push_back({30, 40, static_cast<std::uint8_t>(t), 255});
+    mesh.triangles.push_back({base, base + 1, t == 7 ? base : base + 2});  // one degenerate
+  }
+  const std::size_t n = (std::size_t{1} << 20) + 12345;  // four chunks and a part
+  const PointCloud cloud = sampleMesh(mesh, n, 11, "many.off");
+  ASSERT_EQ(cloud.splats.size(), n);
+
+  // The serial walk, as the sampler's documentation describes it.
+  std::vector<std::uint32_t> used;
+  std::vector<double> cumulative;
+  double total = 0.0;
+  for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+    const auto& tri = mesh.triangles[t];
+    const auto& a = mesh.vertices[tri[0]];
+    const double area =
+        0.5 * pointillist::length(pointillist::cross(pointillist::sub(mesh.vertices[tri[1]], a),
+                                                     pointillist::sub(mesh.vertices[tri[2]], a)));
+    if (!(area > 0.0)) continue;  // the others are far above the sampler's threshold
+    total += area;
+    used.push_back(static_cast<std::uint32_t>(t));
+    cumulative.push_back(total);
+  }
+  ASSERT_EQ(used.size(), 499u);
+  Rng rng(11);
+  const double step = total / static_cast<double>(n);
+  std::size_t u = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    const double target = (static_cast<double>(i) + rng.uniform()) * step;
+    while (u + 1 < used.size() && cumulative[u] <= target) ++u;
+    const auto& tri = mesh.triangles[used[u]];
+    const auto& a = mesh.vertices[tri[0]];
+    const auto& b = mesh.vertices[tri[1]];
+    const auto& c = mesh.vertices[tri[2]];
+    const double r1 = std::sqrt(rng.uniform());
+    const double r2 = rng.uniform();
+    const double wa = 1.0 - r1, wb = r1 * (1.0 - r2), wc = r1 * r2;
+    for (std::size_t k = 0; k < 3; ++k) {
+      const auto want = static_cast<float>(a[k] * wa + b[k] * wb + c[k] * wc);
+      ASSERT_EQ(cloud.splats[i].position[k], want) << "point " << i << " axis " << k;
+    }
+    const double red = wa * mesh.vertexColors[tri[0]][0] + wb * mesh.vertexColors[tri[1]][0] +
+                       wc * mesh.vertexColors[tri[2]][0];
+    ASSERT_NEAR(cloud.splats[i].color[0], red, 0.5 + 1e-9) << "point " << i;
+  }
 }
 
 TEST(MeshSampler, SkipsDegenerateTrianglesAndRejectsAllDegenerate) {
