@@ -107,12 +107,46 @@ PointCloud sampleMesh(const TriangleMesh& mesh, std::size_t count, std::uint64_t
   const auto radius =
       static_cast<float>(std::sqrt(3.0 * total / (std::numbers::pi * static_cast<double>(count))));
 
-  // One random stream, three numbers a point in order (where along the area,
-  // then the two barycentric draws): drawn on this thread a chunk at a time,
-  // the points made from them on all threads. A block of points finds its
-  // first triangle by a binary search, where the one-thread walk over the
-  // cumulative areas arrived: the same points, bit for bit, on any number of
-  // threads.
+  // Point i from its three random numbers (where along the area, then the
+  // two barycentric draws) and the triangle its area falls in.
+  const auto samplePoint = [&](std::size_t i, std::uint32_t t, const double* draw) {
+    const auto& tri = mesh.triangles[t];
+    const Vec3d& a = mesh.vertices[tri[0]];
+    const Vec3d& b = mesh.vertices[tri[1]];
+    const Vec3d& c = mesh.vertices[tri[2]];
+    const double r1 = std::sqrt(draw[1]);
+    const double r2 = draw[2];
+    const double wa = 1.0 - r1, wb = r1 * (1.0 - r2), wc = r1 * r2;
+    const Vec3d p = add(add(scale(a, wa), scale(b, wb)), scale(c, wc));
+    const Vec3d n = cross(sub(b, a), sub(c, a));
+    const double len = length(n);
+
+    Splat& s = cloud.splats[i];
+    for (std::size_t k = 0; k < 3; ++k) {
+      s.position[k] = static_cast<float>(p[k]);
+      // Divided, not normalized(): its reciprocal would change last bits.
+      s.normal[k] = static_cast<float>(n[k] / len);
+    }
+    s.radius = radius;
+    if (vertexColors) {
+      for (std::size_t k = 0; k < 4; ++k) {
+        const double value = wa * mesh.vertexColors[tri[0]][k] + wb * mesh.vertexColors[tri[1]][k] +
+                             wc * mesh.vertexColors[tri[2]][k];
+        s.color[k] = detail::colorFromByte(value);
+      }
+    } else if (triangleColors) {
+      std::copy(mesh.triangleColors[t].begin(), mesh.triangleColors[t].end(), s.color);
+    } else {
+      s.color[0] = s.color[1] = s.color[2] = kDefaultGrey;
+      s.color[3] = 255;
+    }
+  };
+
+  // One random stream, three numbers a point in order: drawn on this thread
+  // a chunk at a time, the points made from them on all threads. A block of
+  // points finds its first triangle by a binary search, where the one-thread
+  // walk over the cumulative areas arrived: the same points, bit for bit, on
+  // any number of threads.
   Rng rng(seed);
   const double step = total / static_cast<double>(count);
   constexpr std::size_t kChunk = std::size_t{1} << 18;
@@ -121,58 +155,25 @@ PointCloud sampleMesh(const TriangleMesh& mesh, std::size_t count, std::uint64_t
   for (std::size_t first = 0; first < count; first += kChunk) {
     const std::size_t n = std::min(kChunk, count - first);
     for (std::size_t j = 0; j < 3 * n; ++j) draws[j] = rng.uniform();
-    parallelFor((n + kBlock - 1) / kBlock, 0,
-                [&](std::size_t block) {
-                  const std::size_t begin = block * kBlock, end = std::min(n, begin + kBlock);
-                  // Jittered stratification: sample i lands in [i, i+1) * step of the area.
-                  const auto target = [&](std::size_t j) {
-                    return (static_cast<double>(first + j) + draws[3 * j]) * step;
-                  };
-                  // The first triangle whose cumulative area passes the target (the
-                  // last one at most): where the walk below would stand.
-                  std::size_t u = static_cast<std::size_t>(
-                      std::upper_bound(cumulative.begin(), cumulative.end(), target(begin)) -
-                      cumulative.begin());
-                  u = std::min(u, used.size() - 1);
-                  for (std::size_t j = begin; j < end; ++j) {
-                    const double at = target(j);
-                    while (u + 1 < used.size() && cumulative[u] <= at) ++u;
-                    const std::uint32_t t = used[u];
-                    const auto& tri = mesh.triangles[t];
-                    const Vec3d& a = mesh.vertices[tri[0]];
-                    const Vec3d& b = mesh.vertices[tri[1]];
-                    const Vec3d& c = mesh.vertices[tri[2]];
-                    const double r1 = std::sqrt(draws[3 * j + 1]);
-                    const double r2 = draws[3 * j + 2];
-                    const double wa = 1.0 - r1, wb = r1 * (1.0 - r2), wc = r1 * r2;
-                    const Vec3d p = add(add(scale(a, wa), scale(b, wb)), scale(c, wc));
-                    const Vec3d normal = cross(sub(b, a), sub(c, a));
-                    const double len = length(normal);
-
-                    Splat& s = cloud.splats[first + j];
-                    for (std::size_t k = 0; k < 3; ++k) {
-                      s.position[k] = static_cast<float>(p[k]);
-                      // Divided, not normalized(): its reciprocal would change last bits.
-                      s.normal[k] = static_cast<float>(normal[k] / len);
-                    }
-                    s.radius = radius;
-                    if (vertexColors) {
-                      for (std::size_t k = 0; k < 4; ++k) {
-                        const double value = wa * mesh.vertexColors[tri[0]][k] +
-                                             wb * mesh.vertexColors[tri[1]][k] +
-                                             wc * mesh.vertexColors[tri[2]][k];
-                        s.color[k] = detail::colorFromByte(value);
-                      }
-                    } else if (triangleColors) {
-                      std::copy(mesh.triangleColors[t].begin(), mesh.triangleColors[t].end(),
-                                s.color);
-                    } else {
-                      s.color[0] = s.color[1] = s.color[2] = kDefaultGrey;
-                      s.color[3] = 255;
-                    }
-                  }
-                },
-                1);
+    // Jittered stratification: sample i lands in [i, i+1) * step of the area.
+    const auto target = [&](std::size_t j) {
+      return (static_cast<double>(first + j) + draws[3 * j]) * step;
+    };
+    const auto sampleBlock = [&](std::size_t block) {
+      const std::size_t begin = block * kBlock, end = std::min(n, begin + kBlock);
+      // The first triangle whose cumulative area passes the target (the last
+      // at most): where the walk below stands for that target.
+      auto u = static_cast<std::size_t>(
+          std::upper_bound(cumulative.begin(), cumulative.end(), target(begin)) -
+          cumulative.begin());
+      u = std::min(u, used.size() - 1);
+      for (std::size_t j = begin; j < end; ++j) {
+        const double at = target(j);
+        while (u + 1 < used.size() && cumulative[u] <= at) ++u;
+        samplePoint(first + j, used[u], draws.data() + 3 * j);
+      }
+    };
+    parallelFor((n + kBlock - 1) / kBlock, 0, sampleBlock, 1);
   }
   return cloud;
 }
