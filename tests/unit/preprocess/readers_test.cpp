@@ -1027,7 +1027,11 @@ TEST(MeshSampler, PointsOnAllThreadsEqualOneSerialWalk) {
     }
     const double red = wa * mesh.vertexColors[tri[0]][0] + wb * mesh.vertexColors[tri[1]][0] +
                        wc * mesh.vertexColors[tri[2]][0];
-    ASSERT_NEAR(cloud.splats[i].color[0], red, 0.5 + 1e-9) << "point " << i;
+    ASSERT_EQ(cloud.splats[i].color[0], detail::colorFromByte(red)) << "point " << i;
+    const auto normal = pointillist::cross(pointillist::sub(b, a), pointillist::sub(c, a));
+    const double len = pointillist::length(normal);
+    for (std::size_t k = 0; k < 3; ++k)
+      ASSERT_EQ(cloud.splats[i].normal[k], static_cast<float>(normal[k] / len)) << "point " << i;
   }
 }
 
