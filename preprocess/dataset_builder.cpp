@@ -246,6 +246,11 @@ DatasetContent buildDatasetContent(std::vector<Splat> points, const PreprocessOp
     NormalOptions no;
     no.neighbours = options.radiusNeighbours;
     no.search = options.neighbourSearch;
+    no.method = resolveNormalMethod(options.normalMethod, own);
+    no.lattice = options.cubeLattice;
+    if (no.method == NormalMethod::Moments && !(no.lattice.side > 0.0))
+      no.lattice = chooseCubeLattice(std::span<const Splat>(cloud.splats.data(), own), tree.cubeMin,
+                                     tree.cubeSize);
     no.onlyWhereMissing = true;
     no.threads = options.threads;
     no.sideReference = options.sideReference;

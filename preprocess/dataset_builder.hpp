@@ -39,6 +39,10 @@ struct PreprocessOptions {
   // NormalOptions::sideReference.
   std::function<bool(const Splat&, float[3])> sideReference;
   NeighbourSearch neighbourSearch = NeighbourSearch::Grid;
+  NormalMethod normalMethod = NormalMethod::Neighbours;
+  // NormalMethod::Moments: the cubes; side 0: chosen from the points, inside
+  // the octree's cube (out of core, every chunk is given the whole cloud's).
+  CubeLattice cubeLattice;
   unsigned threads = 0;  // 0: all cores
   std::string source;    // recorded in the manifest
   // --instanced: every top-level cell's points also as vertex and

@@ -17,6 +17,7 @@
 
 #include "common/errors.hpp"
 #include "common/geometry.hpp"
+#include "preprocess/cube_normals.hpp"
 #include "preprocess/eigen_batch.hpp"
 #include "preprocess/leaf_distances.hpp"
 #include "preprocess/neighbour_grid.hpp"
@@ -119,7 +120,7 @@ struct OrientContext {
   std::vector<Splat>& splats;
   const std::vector<std::uint8_t>& needNormal;
   const std::vector<std::uint8_t>& isAnchor;  // side fixed from the start
-  const std::vector<std::uint32_t>& neighbours;
+  std::span<const std::uint32_t> neighbours;
   std::size_t k;
   Vec3d centroid;
   const std::function<bool(const Splat&, float[3])>& sideReference;
@@ -217,8 +218,8 @@ std::vector<Piece> orientBlock(const OrientContext& c, std::uint32_t begin, std:
 
 void orient(std::vector<Splat>& splats, const std::vector<std::uint8_t>& needNormal,
             const std::vector<std::uint8_t>& anchored, bool recomputed,
-            const std::vector<std::uint32_t>& neighbours, std::size_t k,
-            const NormalOptions& options, std::uint64_t total) {
+            std::span<const std::uint32_t> neighbours, std::size_t k, const NormalOptions& options,
+            std::uint64_t total) {
   const std::size_t n = splats.size();
   std::vector<std::uint8_t> isAnchor(n);
   // Recomputed normals already took the side of their old ones.
@@ -406,6 +407,116 @@ void orient(std::vector<Splat>& splats, const std::vector<std::uint8_t>& needNor
   if (options.progress) options.progress(total, total);
 }
 
+// Points whose neighbours all coincide (or whose block spans no area) got
+// radius 0: they take the median of the rest.
+void fillZeroRadii(std::vector<Splat>& splats) {
+  if (std::all_of(splats.begin(), splats.end(), [](const Splat& s) { return s.radius > 0.0f; }))
+    return;
+  std::vector<float> radii;
+  for (const Splat& s : splats) {
+    if (s.radius > 0.0f) radii.push_back(s.radius);
+  }
+  float fallback = 1.0f;
+  if (!radii.empty()) {
+    std::nth_element(radii.begin(), radii.begin() + static_cast<std::ptrdiff_t>(radii.size() / 2),
+                     radii.end());
+    fallback = radii[radii.size() / 2];
+  }
+  for (Splat& s : splats) {
+    if (!(s.radius > 0.0f)) s.radius = fallback;
+  }
+}
+
+// NormalMethod::Moments: each cube's block gives the normal and radius of
+// the cube's points. The cubes, as points at their centroids, are oriented
+// as points are (orient above, over their nearest neighbour cubes); a cube
+// holding points whose normal is kept is an anchor, on the side most of
+// those normals take.
+void orientedMomentNormals(std::vector<Splat>& splats, const std::vector<std::uint8_t>& needNormal,
+                           const std::vector<std::uint8_t>& needRadius,
+                           const std::vector<std::uint8_t>& anchored, bool anyNormal,
+                           bool recomputed, const NormalOptions& options, std::uint64_t total) {
+  const std::size_t n = splats.size();
+  CubeLattice lattice = options.lattice;
+  if (!(lattice.side > 0.0)) {
+    const PointBounds bounds = pointBounds(splats, options.threads);
+    const OctreeCube cube = boundingCube(bounds.lo, bounds.hi);
+    lattice = chooseCubeLattice(splats, cube.min, cube.size);
+  }
+  // Eight of the 26 cubes around: enough to join a surface's cubes, where
+  // a point's twelve nearest were half the orientation's cost.
+  constexpr std::size_t kCubeNeighbours = 8;
+  const CubeBlocks blocks(splats, lattice, kCubeNeighbours, options.threads);
+  const std::size_t cubes = blocks.cubes();
+  if (options.progress) options.progress(n, total);
+
+  std::vector<Splat> representatives;
+  if (anyNormal) {
+    representatives.resize(cubes);
+    std::vector<std::uint8_t> everyCube(cubes, 1), anchoredCube(cubes, 0);
+    parallelFor(
+        cubes, options.threads,
+        [&](std::size_t c) {
+          Splat& r = representatives[c];
+          for (std::size_t a = 0; a < 3; ++a) {
+            r.position[a] = blocks.centroid(c)[a];
+            r.normal[a] = blocks.normal(c)[a];
+          }
+          double agree = 0.0;
+          for (const std::uint32_t i : blocks.pointsOf(c)) {
+            if (!anchored[i]) continue;
+            anchoredCube[c] = 1;
+            agree += static_cast<double>(dotNormals(r, splats[i]));
+          }
+          if (agree < 0.0) flip(r);
+        },
+        4096);
+    NormalOptions cubeOptions;
+    cubeOptions.threads = options.threads;
+    cubeOptions.orientBlockPoints = options.orientBlockPoints;
+    if (options.sideReference) {
+      // A cube's reference: the sum of its points' references.
+      cubeOptions.sideReference = [&](const Splat& r, float normal[3]) {
+        const auto c = static_cast<std::size_t>(&r - representatives.data());
+        float sum[3] = {0.0f, 0.0f, 0.0f};
+        bool any = false;
+        for (const std::uint32_t i : blocks.pointsOf(c)) {
+          float reference[3];
+          if (!options.sideReference(splats[i], reference)) continue;
+          any = true;
+          for (int a = 0; a < 3; ++a) sum[a] += reference[a];
+        }
+        for (int a = 0; a < 3; ++a) normal[a] = sum[a];
+        return any;
+      };
+    }
+    if (options.progress) {
+      // orient counts cubes from `cubes` to 2 * cubes; points from n to 2n here.
+      cubeOptions.progress = [&](std::uint64_t done, std::uint64_t) {
+        options.progress(done * n / std::max<std::size_t>(cubes, 1), total);
+      };
+    }
+    orient(representatives, everyCube, anchoredCube, true, blocks.neighbours(), kCubeNeighbours,
+           cubeOptions, 2 * static_cast<std::uint64_t>(cubes));
+  }
+  parallelFor(
+      cubes, options.threads,
+      [&](std::size_t c) {
+        for (const std::uint32_t i : blocks.pointsOf(c)) {
+          if (anyNormal && needNormal[i]) {
+            // A recomputed normal keeps the side of the one it replaces.
+            const bool turn =
+                recomputed && anchored[i] && dotNormals(representatives[c], splats[i]) < 0.0f;
+            for (int a = 0; a < 3; ++a)
+              splats[i].normal[a] =
+                  turn ? -representatives[c].normal[a] : representatives[c].normal[a];
+          }
+          if (needRadius[i]) splats[i].radius = blocks.radius(c);
+        }
+      },
+      4096);
+}
+
 }  // namespace
 
 void estimateNormalsAndRadii(PointCloud& cloud, const NormalOptions& options) {
@@ -442,6 +553,16 @@ void estimateNormalsAndRadii(PointCloud& cloud, const NormalOptions& options) {
   if (n == 1) {
     if (needNormal[0]) splats[0].normal[2] = 1.0f;
     if (needRadius[0]) splats[0].radius = 1.0f;
+    cloud.hasNormals = cloud.hasRadii = true;
+    if (options.progress) options.progress(total, total);
+    return;
+  }
+
+  if (resolveNormalMethod(options.method, n) == NormalMethod::Moments) {
+    if (options.progress) options.progress(0, total);
+    orientedMomentNormals(splats, needNormal, needRadius, anchored, anyNormal,
+                          !options.onlyWhereMissing, options, total);
+    if (anyRadius) fillZeroRadii(splats);
     cloud.hasNormals = cloud.hasRadii = true;
     if (options.progress) options.progress(total, total);
     return;
@@ -578,25 +699,7 @@ void estimateNormalsAndRadii(PointCloud& cloud, const NormalOptions& options) {
   }
   if (options.progress) options.progress(n, total);
 
-  // Points whose neighbours all coincide got radius 0: use the median of the rest.
-  const bool anyZeroRadius =
-      anyRadius &&
-      std::any_of(splats.begin(), splats.end(), [](const Splat& s) { return !(s.radius > 0.0f); });
-  if (anyZeroRadius) {
-    std::vector<float> radii;
-    for (const Splat& s : splats) {
-      if (s.radius > 0.0f) radii.push_back(s.radius);
-    }
-    float fallback = 1.0f;
-    if (!radii.empty()) {
-      std::nth_element(radii.begin(), radii.begin() + static_cast<std::ptrdiff_t>(radii.size() / 2),
-                       radii.end());
-      fallback = radii[radii.size() / 2];
-    }
-    for (Splat& s : splats) {
-      if (!(s.radius > 0.0f)) s.radius = fallback;
-    }
-  }
+  if (anyRadius) fillZeroRadii(splats);
 
   if (anyNormal) orient(splats, needNormal, anchored, !old.empty(), neighbours, k, options, total);
   cloud.hasNormals = cloud.hasRadii = true;

@@ -3,7 +3,9 @@
 // sample neighborhoods").
 //
 // Per point, over its k nearest neighbours (a uniform grid, or a nanoflann
-// kd-tree; NormalOptions::search):
+// kd-tree; NormalOptions::search), or, with NormalMethod::Moments, over the
+// points of a block of small cubes around it (cube_normals.hpp: the same
+// rules, per cube, at a fraction of the cost):
 //  - normal: the eigenvector of the smallest eigenvalue of the neighbourhood
 //    covariance (smallestEigen3 of common/geometry.hpp, no Eigen);
 //  - orientation: propagated along a minimum spanning tree of the neighbour
@@ -28,10 +30,12 @@
 // Colours: readers already give grey to points without colour; when the cloud
 // has no colours, splats left all zero (RGBA 0,0,0,0, never written) get that
 // grey too.
+#include <cstdint>
 #include <functional>
 #include <optional>
 
 #include "common/geometry.hpp"
+#include "preprocess/cube_normals.hpp"
 #include "preprocess/octree_builder.hpp"
 #include "preprocess/point_cloud.hpp"
 
@@ -41,9 +45,28 @@ namespace pointillist::preprocess {
 // or a nanoflann kd-tree; both exact.
 enum class NeighbourSearch { Grid, KdTree };
 
+// What a point's normal and radius are measured over: its k nearest
+// neighbours, or the block of 3x3x3 small cubes around its own
+// (cube_normals.hpp); the cubes are oriented as points are, and each point
+// takes its cube's normal and radius.
+// Auto (the command line's default): Moments for clouds of at least
+// kMomentNormalsFromPoints points, where the neighbour search was most of a
+// preprocess, Neighbours below, where it costs little and sparse samplings of
+// curved surfaces keep it a few degrees closer (README, "Normals from cube moments").
+enum class NormalMethod { Neighbours, Moments, Auto };
+inline constexpr std::uint64_t kMomentNormalsFromPoints = 2'000'000;
+inline NormalMethod resolveNormalMethod(NormalMethod method, std::uint64_t points) {
+  if (method != NormalMethod::Auto) return method;
+  return points >= kMomentNormalsFromPoints ? NormalMethod::Moments : NormalMethod::Neighbours;
+}
+
 struct NormalOptions {
   int neighbours = 12;
   NeighbourSearch search = NeighbourSearch::Grid;
+  NormalMethod method = NormalMethod::Neighbours;
+  // Moments: the cubes (side 0: chosen from this cloud, inside its bounding
+  // cube). A chunk out of core is given the whole cloud's.
+  CubeLattice lattice;
   // Only fill in what is missing: zero normals, non-positive radii. When false,
   // every normal and radius is recomputed (new normals keep the side of old ones).
   bool onlyWhereMissing = true;

@@ -22,6 +22,7 @@
 #include "common/errors.hpp"
 #include "common/geometry.hpp"
 #include "common/instanced_section.hpp"
+#include "preprocess/cube_normals.hpp"
 #include "preprocess/normals.hpp"
 #include "preprocess/octree_builder.hpp"
 #include "preprocess/parallel.hpp"
@@ -463,16 +464,6 @@ std::vector<Splat> loadChunk(const Layout& layout, std::pair<std::size_t, std::s
 // (out of core, when normals are estimated).
 constexpr std::uint64_t kSidePoints = std::uint64_t{1} << 20;
 
-// A hash of a point's position: the sample below is the points whose hash
-// falls in one residue class, so a chunk finds its sampled points without a
-// look-up for every point.
-std::uint64_t positionHash(const Splat& s) {
-  std::uint64_t h = 0x9E3779B97F4A7C15ull;
-  for (const float c : s.position)
-    h = (h ^ std::bit_cast<std::uint32_t>(c)) * 0xC2B2AE3D27D4EB4Full;
-  return h ^ (h >> 29);
-}
-
 // The sides of normals for the whole cloud, from an even sample of it whose
 // normals are estimated and oriented in memory (whole surfaces, so the
 // turning rules see them whole). A point of the sample is found again by its
@@ -550,15 +541,17 @@ class BorderForwarder {
 
   // Hands the points of `chunk` (with their normals and radii) that lie
   // within reach of a later chunk to it. Reach: twice the k-th neighbour
-  // distance of nearly all of them (r = d_k sqrt(3 / k), normals.hpp).
-  void forward(std::size_t chunk, std::span<const Splat> points, int neighbours) {
+  // distance of nearly all of them (r = d_k sqrt(3 / k), normals.hpp), and
+  // at least `minReach` (normals from cube moments: two cubes, so the cubes
+  // along the border see their whole block).
+  void forward(std::size_t chunk, std::span<const Splat> points, int neighbours, double minReach) {
     if (points.empty() || chunk + 1 >= waiting_.size()) return;
     std::vector<float> radii;
     for (std::size_t i = 0; i < points.size(); i += 16) radii.push_back(points[i].radius);
     const auto high = radii.begin() + static_cast<std::ptrdiff_t>(radii.size() * 95 / 100);
     std::nth_element(radii.begin(), high, radii.end());
-    const double reach =
-        2.0 * static_cast<double>(*high) * std::sqrt(static_cast<double>(neighbours) / 3.0);
+    const double reach = std::max(minReach, 2.0 * static_cast<double>(*high) *
+                                                std::sqrt(static_cast<double>(neighbours) / 3.0));
     if (!(reach > 0.0)) return;
     std::size_t own = kNone;
     std::size_t sentTo[8];
@@ -738,6 +731,13 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
   // (SideReference), as the in-memory run decides it for whole surfaces.
   std::vector<Splat> sample;
   const std::uint64_t sampleEvery = sampleSize > 0 ? (count + sampleSize - 1) / sampleSize : 0;
+  // Normals from cube moments: the lattice from its own sample, as the
+  // in-memory run chooses it (the same points, the same cubes).
+  const NormalMethod normalMethod = resolveNormalMethod(options.build.normalMethod, count);
+  const bool momentNormals = estimateNormals && normalMethod == NormalMethod::Moments &&
+                             !(options.build.cubeLattice.side > 0.0);
+  std::vector<Splat> latticeSample;
+  const std::uint64_t latticeEvery = momentNormals ? latticeSampleEvery(count) : 0;
 
   // 2. Spilling, then splitting files that hold more than a chunk.
   read.progress = [&](std::uint64_t done, std::uint64_t total) { report("spilling", done, total); };
@@ -759,6 +759,9 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
           if (sampleEvery > 0)
             for (const Splat& s : block)
               if (positionHash(s) % sampleEvery == 0) sample.push_back(s);
+          if (latticeEvery > 0)
+            for (const Splat& s : block)
+              if (positionHash(s) % latticeEvery == 0) latticeSample.push_back(s);
         },
         again);
     if (again != count)
@@ -800,6 +803,11 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
 
   // 3-4. Units, and the top-level depth.
   PreprocessOptions build = options.build;
+  build.normalMethod = normalMethod;  // the whole cloud's choice, not a chunk's
+  if (momentNormals)
+    build.cubeLattice = chooseCubeLattice(latticeSample, latticeEvery, cube.min, cube.size);
+  const double minReach =
+      build.normalMethod == NormalMethod::Moments ? 2.0 * build.cubeLattice.side : 0.0;
   Layout layout = planUnits(nodes, buckets, octree,
                             build.topLevelDepth >= 0
                                 ? std::min<unsigned>(deepest, unsigned(build.topLevelDepth))
@@ -928,7 +936,7 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
     build.neighbourAnchors = anchors;
     DatasetContent local = buildDatasetContent(std::move(points), build, inner, &frame, &normals);
     build.neighbourAnchors = {};
-    if (borders) borders->forward(chunkIndex, local.points, options.neighbours);
+    if (borders) borders->forward(chunkIndex, local.points, options.neighbours, minReach);
 
     // The chunk's units, in order, each a subtree of the local tree.
     const auto localCount = static_cast<std::uint32_t>(local.cells.size());

@@ -296,7 +296,9 @@ TEST(StreamPointClouds, BlocksHoldWhatTheWholeReaderReads) {
 // sampling. Every point keeps the side the in-memory build gives it (a
 // chunk's piece of a closed surface turned by its own shape came out inside
 // out before), and directions differ only near chunk borders.
-TEST(OutOfCore, WithoutNormalsTheSidesAreTheInMemoryOnes) {
+class OutOfCoreNormals : public ::testing::TestWithParam<NormalMethod> {};
+
+TEST_P(OutOfCoreNormals, WithoutNormalsTheSidesAreTheInMemoryOnes) {
   TempDir dir;
   std::vector<Splat> splats = generateScene("torus", 40000, 1).splats;
   for (const Splat& s : generateScene("sphere", 20000, 2).splats) {
@@ -312,6 +314,7 @@ TEST(OutOfCore, WithoutNormalsTheSidesAreTheInMemoryOnes) {
   ASSERT_FALSE(cloud.hasNormals);
   PreprocessOptions build;
   build.estimateNormals = true;
+  build.normalMethod = GetParam();
   build.source = cloud.source;
   DatasetContent content = buildDatasetContent(std::move(cloud.splats), build);
   pointillist::writeDataset(dir.path() / "memory", content);
@@ -345,3 +348,11 @@ TEST(OutOfCore, WithoutNormalsTheSidesAreTheInMemoryOnes) {
     EXPECT_LT(apart, points / 50) << "chunks of " << chunkPoints;
   }
 }
+
+// Both methods; with cube moments every chunk is given the whole cloud's
+// lattice, so inside a chunk its cubes are the in-memory run's.
+INSTANTIATE_TEST_SUITE_P(Methods, OutOfCoreNormals,
+                         ::testing::Values(NormalMethod::Neighbours, NormalMethod::Moments),
+                         [](const ::testing::TestParamInfo<NormalMethod>& method) {
+                           return method.param == NormalMethod::Moments ? "Moments" : "Neighbours";
+                         });
