@@ -330,33 +330,42 @@ CubeBlocks::CubeBlocks(std::span<const Splat> points, const CubeLattice& lattice
   // next to each other share most of their neighbours.
   constexpr unsigned kRecentBits = 9;
   using RecentBricks = std::array<std::pair<std::uint64_t, std::size_t>, 1u << kRecentBits>;
+  constexpr std::uint64_t kNoBrick = ~std::uint64_t{0};
+  const auto recentSlot = [](std::uint64_t key) {
+    return (key * 0x9E3779B97F4A7C15ull) >> (64 - kRecentBits);
+  };
   // The 27 bricks around `brick` (kNotFound: none there), by offset + 1.
   using Around = std::array<std::array<std::array<std::size_t, 3>, 3>, 3>;
   const auto findAround = [&](std::size_t brick, const std::int64_t b[3], RecentBricks& recent) {
     Around around;
+    // The keys first, with the table's slots of those not seen lately
+    // fetched ahead: the look-ups then miss the cache side by side, not one
+    // after another.
+    std::array<std::uint64_t, 27> aroundKeys;
     const auto lastBrick = static_cast<std::int64_t>(kMaxCoordinate >> 2);
-    for (std::size_t dx = 0; dx < 3; ++dx)
-      for (std::size_t dy = 0; dy < 3; ++dy)
-        for (std::size_t dz = 0; dz < 3; ++dz) {
-          std::size_t& found = around[dx][dy][dz];
-          found = kNotFound;
-          const std::int64_t q[3] = {b[0] + static_cast<std::int64_t>(dx) - 1,
-                                     b[1] + static_cast<std::int64_t>(dy) - 1,
-                                     b[2] + static_cast<std::int64_t>(dz) - 1};
-          if (std::min({q[0], q[1], q[2]}) < 0 || std::max({q[0], q[1], q[2]}) > lastBrick)
-            continue;
-          if (dx == 1 && dy == 1 && dz == 1) {
-            found = brick;
-            continue;
-          }
-          const std::uint64_t u[3] = {static_cast<std::uint64_t>(q[0]),
-                                      static_cast<std::uint64_t>(q[1]),
-                                      static_cast<std::uint64_t>(q[2])};
-          const std::uint64_t key = mortonKey(u);
-          auto& hit = recent[(key * 0x9E3779B97F4A7C15ull) >> (64 - kRecentBits)];
-          if (hit.first != key) hit = {key, findBrick(key)};
-          found = hit.second;
-        }
+    for (std::size_t k = 0; k < 27; ++k) {
+      const std::int64_t q[3] = {b[0] + static_cast<std::int64_t>(k / 9) - 1,
+                                 b[1] + static_cast<std::int64_t>(k / 3 % 3) - 1,
+                                 b[2] + static_cast<std::int64_t>(k % 3) - 1};
+      aroundKeys[k] = kNoBrick;
+      if (k == 13 || std::min({q[0], q[1], q[2]}) < 0 || std::max({q[0], q[1], q[2]}) > lastBrick)
+        continue;
+      const std::uint64_t u[3] = {static_cast<std::uint64_t>(q[0]),
+                                  static_cast<std::uint64_t>(q[1]),
+                                  static_cast<std::uint64_t>(q[2])};
+      aroundKeys[k] = mortonKey(u);
+      if (recent[recentSlot(aroundKeys[k])].first != aroundKeys[k])
+        __builtin_prefetch(&table[slotOf(aroundKeys[k])]);
+    }
+    for (std::size_t k = 0; k < 27; ++k) {
+      std::size_t& found = around[k / 9][k / 3 % 3][k % 3];
+      found = k == 13 ? brick : kNotFound;
+      if (aroundKeys[k] == kNoBrick) continue;
+      auto& hit = recent[recentSlot(aroundKeys[k])];
+      if (hit.first != aroundKeys[k]) hit = {aroundKeys[k], findBrick(aroundKeys[k])};
+      found = hit.second;
+      __builtin_prefetch(brickCubes[found == kNotFound ? brick : found].data());
+    }
     return around;
   };
   // The window of a brick: its cubes and the layer around, each cell's sums
@@ -450,7 +459,7 @@ CubeBlocks::CubeBlocks(std::span<const Splat> points, const CubeLattice& lattice
                 Window& w = windowOfThread;
                 Pending& pending = pendingOfThread;
                 RecentBricks recent;
-                recent.fill({~std::uint64_t{0}, kNotFound});
+                recent.fill({kNoBrick, kNotFound});
                 for (std::size_t brick = task * kBricksPerTask;
                      brick < std::min(bricks, (task + 1) * kBricksPerTask); ++brick) {
                   std::int64_t b[3],
