@@ -6,13 +6,16 @@
 # and the time of each stage. Plots (gnuplot): stages.png, each input's time
 # stacked by stage; rate.png, points/s per core against the goal of 2 M.
 #
-#   deploy/bench-preprocess.sh [--points N] [--inputs ply,xyz,mesh,big] [--out DIR]
+#   deploy/bench-preprocess.sh [--points N] [--inputs ply,xyz,mesh,xyz-knn,big] [--out DIR]
 #                              [--big-points N] [--memory-mb MB]
 #                              [-- extra pointillist-preprocess options]
 #
 # Inputs (N points each, default 10 M):
 #   ply   binary PLY with normals and colours, no radii (a sampled mesh)
-#   xyz   XYZ text "x y z r g b", no normals (what a scanner exports)
+#   xyz   XYZ text "x y z r g b", no normals (what a scanner exports); from
+#         2 M points normals come from cube moments (--normals auto)
+#   xyz-knn  the same file with --normals knn, each point's 12 nearest
+#         neighbours (not by default)
 #   mesh  the bunny mesh itself, sampled by the preprocessor (reading is cheap)
 #   big   the ply kind with --big-points points (default 200 M, 5.4 GB), built
 #         out of core under --memory-mb (default 4096); needs about 25 GB of
@@ -72,9 +75,9 @@ for kind in "${kinds[@]}"; do
   case "$kind" in
     big) n="$big_points"; input="$out/inputs/bunny-$n.ply"; args=(--mesh "$mesh" --points "$n" --format ply) ;;
     ply) input="$out/inputs/bunny-$points.ply"; args=(--mesh "$mesh" --points "$points" --format ply) ;;
-    xyz) input="$out/inputs/bunny-$points.xyz"; args=(--mesh "$mesh" --points "$points" --format xyz --no-normals) ;;
+    xyz|xyz-knn) input="$out/inputs/bunny-$points.xyz"; args=(--mesh "$mesh" --points "$points" --format xyz --no-normals) ;;
     mesh) input="$mesh"; args=() ;;
-    *) echo "bench-preprocess: unknown input '$kind' (ply, xyz, mesh, big)" >&2; exit 2 ;;
+    *) echo "bench-preprocess: unknown input '$kind' (ply, xyz, mesh, xyz-knn, big)" >&2; exit 2 ;;
   esac
   if [[ "$kind" != mesh && ! -f "$input" ]]; then
     "$build/bin/pointillist-make-points" "${args[@]}" -o "$input"
@@ -84,6 +87,7 @@ for kind in "${kinds[@]}"; do
   cmd=("$build/bin/pointillist-preprocess" "$input" -o "$dataset" --force)
   [[ "$kind" == mesh ]] && cmd+=(--points "$points")
   [[ "$kind" == big ]] && cmd+=(--memory-mb "$memory_mb")
+  [[ "$kind" == xyz-knn ]] && cmd+=(--normals knn)
   echo "bench-preprocess: $kind: ${cmd[*]} ${extra[*]}" >&2
   # Cold page cache would measure the disk, not us: read the input once first.
   cat "$input" >/dev/null
