@@ -40,9 +40,43 @@ double angleDegrees(const Splat& s, const std::array<double, 3>& direction) {
   return std::acos(std::clamp(c, -1.0, 1.0)) * 180.0 / std::numbers::pi;
 }
 
+// side x side points spaced `spacing` apart in x and y on the plane
+// z = 0.3 x + 2, row by row.
+PointCloud tiltedGridPlane(int side, float spacing) {
+  PointCloud cloud;
+  for (int i = 0; i < side; ++i) {
+    for (int j = 0; j < side; ++j) {
+      Splat s{};
+      s.position[0] = static_cast<float>(i) * spacing;
+      s.position[1] = static_cast<float>(j) * spacing;
+      s.position[2] = 0.3f * s.position[0] + 2.0f;
+      cloud.splats.push_back(s);
+    }
+  }
+  return cloud;
+}
+
 }  // namespace
 
-TEST(Normals, SphereNormalsPointOutward) {
+// The rules every method keeps (outward, anchored sides, thread counts, real
+// data), for k nearest neighbours and cube moments (cube_normals.hpp).
+class NormalsByMethod : public ::testing::TestWithParam<NormalMethod> {
+ protected:
+  NormalOptions options() const {
+    NormalOptions o;
+    o.method = GetParam();
+    return o;
+  }
+  bool moments() const { return GetParam() == NormalMethod::Moments; }
+};
+
+INSTANTIATE_TEST_SUITE_P(Methods, NormalsByMethod,
+                         ::testing::Values(NormalMethod::Neighbours, NormalMethod::Moments),
+                         [](const ::testing::TestParamInfo<NormalMethod>& method) {
+                           return method.param == NormalMethod::Moments ? "Moments" : "Neighbours";
+                         });
+
+TEST_P(NormalsByMethod, SphereNormalsPointOutward) {
   // An offset sphere, so "outward" is not just "away from the origin".
   PointCloud cloud = stripped(generateScene("sphere", 20000, 3));
   for (Splat& s : cloud.splats) {
@@ -51,8 +85,9 @@ TEST(Normals, SphereNormalsPointOutward) {
     s.position[2] = s.position[2] * 5.0f + 7.0f;
   }
   std::uint64_t lastDone = 0, lastTotal = 0;
-  NormalOptions options;
+  NormalOptions options = this->options();
   options.progress = [&](std::uint64_t done, std::uint64_t total) {
+    EXPECT_GE(done, lastDone);
     lastDone = done;
     lastTotal = total;
   };
@@ -70,7 +105,7 @@ TEST(Normals, SphereNormalsPointOutward) {
     angles.push_back(a);
   }
   std::sort(angles.begin(), angles.end());
-  EXPECT_LT(angles[angles.size() * 99 / 100], 5.0);
+  EXPECT_LT(angles[angles.size() * 99 / 100], moments() ? 6.0 : 5.0);
   EXPECT_LT(angles.back(), 15.0);
   // Radii: about sqrt(3 * area / (pi * n)) for this uniform sampling.
   const double expected = std::sqrt(3 * 4 * std::numbers::pi * 25 / (std::numbers::pi * 20000));
@@ -82,13 +117,13 @@ TEST(Normals, SphereNormalsPointOutward) {
 
 // --threads must not change the dataset: every point's search is its own,
 // and orientation blocks do not depend on the threads (one block, or many).
-TEST(Normals, ThreadCountDoesNotChangeTheResult) {
+TEST_P(NormalsByMethod, ThreadCountDoesNotChangeTheResult) {
   const PointCloud input = stripped(generateScene("city", 60000, 5));
   for (const std::size_t block : {NormalOptions{}.orientBlockPoints, std::size_t{4096}}) {
     std::vector<std::vector<Splat>> results;
     for (const unsigned threads : {1u, 3u}) {
       PointCloud cloud = input;
-      NormalOptions options;
+      NormalOptions options = this->options();
       options.threads = threads;
       options.orientBlockPoints = block;
       estimateNormalsAndRadii(cloud, options);
@@ -101,12 +136,12 @@ TEST(Normals, ThreadCountDoesNotChangeTheResult) {
   }
 }
 
-TEST(Normals, TwoSeparateClosedShapesBothOutward) {
+TEST_P(NormalsByMethod, TwoSeparateClosedShapesBothOutward) {
   PointCloud a = stripped(generateScene("torus", 15000, 1));
   PointCloud b = stripped(generateScene("sphere", 6000, 2));
   for (Splat& s : b.splats) s.position[0] += 4.0f;
   a.splats.insert(a.splats.end(), b.splats.begin(), b.splats.end());
-  estimateNormalsAndRadii(a, {});
+  estimateNormalsAndRadii(a, options());
   std::size_t bad = 0;
   for (std::size_t i = 0; i < a.splats.size(); ++i) {
     const Splat& s = a.splats[i];
@@ -123,17 +158,8 @@ TEST(Normals, TwoSeparateClosedShapesBothOutward) {
 }
 
 TEST(Normals, GridPlaneRadiusEqualsSpacingAndNormalsUp) {
-  PointCloud cloud;
   const float spacing = 0.5f;
-  for (int i = 0; i < 60; ++i) {
-    for (int j = 0; j < 60; ++j) {
-      Splat s{};
-      s.position[0] = static_cast<float>(i) * spacing;
-      s.position[1] = static_cast<float>(j) * spacing;
-      s.position[2] = 0.3f * s.position[0] + 2.0f;  // a tilted plane
-      cloud.splats.push_back(s);
-    }
-  }
+  PointCloud cloud = tiltedGridPlane(60, spacing);
   estimateNormalsAndRadii(cloud, {});
   for (std::size_t idx = 0; idx < cloud.splats.size(); ++idx) {
     const Splat& s = cloud.splats[idx];
@@ -149,7 +175,27 @@ TEST(Normals, GridPlaneRadiusEqualsSpacingAndNormalsUp) {
   }
 }
 
-TEST(Normals, OnlyWhereMissingKeepsGivenValuesAndAgreesWithThem) {
+// Cube moments on the same kind of plane: the normals exact, the radii
+// those of the plane's density (pi r^2 = 3 / density).
+TEST(MomentNormals, GridPlaneNormalsExactRadiiFromTheDensity) {
+  const float spacing = 0.5f;
+  PointCloud cloud = tiltedGridPlane(80, spacing);
+  NormalOptions options;
+  options.method = NormalMethod::Moments;
+  estimateNormalsAndRadii(cloud, options);
+  const double area = static_cast<double>(spacing) * static_cast<double>(spacing) * std::sqrt(1.09);
+  const double expected = std::sqrt(3.0 * area / std::numbers::pi);
+  for (std::size_t idx = 0; idx < cloud.splats.size(); ++idx) {
+    const Splat& s = cloud.splats[idx];
+    EXPECT_LT(angleDegrees(s, {-0.3, 0, 1}), 0.05) << idx;
+    const int i = static_cast<int>(idx / 80), j = static_cast<int>(idx % 80);
+    if (i >= 8 && i < 72 && j >= 8 && j < 72) {
+      EXPECT_NEAR(s.radius, expected, 0.15 * expected) << idx;
+    }
+  }
+}
+
+TEST_P(NormalsByMethod, OnlyWhereMissingKeepsGivenValuesAndAgreesWithThem) {
   // Upper hemisphere points get inward normals given; the rest have none.
   PointCloud cloud = stripped(generateScene("sphere", 8000, 9));
   std::size_t given = 0;
@@ -161,7 +207,7 @@ TEST(Normals, OnlyWhereMissingKeepsGivenValuesAndAgreesWithThem) {
     }
   }
   const PointCloud before = cloud;
-  estimateNormalsAndRadii(cloud, {});
+  estimateNormalsAndRadii(cloud, options());
   std::size_t inward = 0;
   for (std::size_t i = 0; i < cloud.splats.size(); ++i) {
     const Splat& s = cloud.splats[i];
@@ -178,7 +224,7 @@ TEST(Normals, OnlyWhereMissingKeepsGivenValuesAndAgreesWithThem) {
   EXPECT_GT(inward, cloud.splats.size() * 98 / 100);
 
   // Recomputing everything keeps each point on its old side.
-  NormalOptions all;
+  NormalOptions all = options();
   all.onlyWhereMissing = false;
   estimateNormalsAndRadii(cloud, all);
   for (const Splat& s : cloud.splats) {
@@ -189,7 +235,7 @@ TEST(Normals, OnlyWhereMissingKeepsGivenValuesAndAgreesWithThem) {
 // Orientation in blocks (on all cores) joins the blocks' pieces: with blocks
 // far smaller than the cloud, and points in no spatial order (so a block is
 // scattered over the whole shape), the sides are those of one pass.
-TEST(Normals, OrientationInSmallBlocksKeepsEverySide) {
+TEST_P(NormalsByMethod, OrientationInSmallBlocksKeepsEverySide) {
   PointCloud sphere = stripped(generateScene("sphere", 20000, 3));
   for (Splat& s : sphere.splats) s.position[2] += 30.0f;  // off the origin
   PointCloud twoShapes = stripped(generateScene("torus", 15000, 1));
@@ -206,7 +252,7 @@ TEST(Normals, OrientationInSmallBlocksKeepsEverySide) {
     return {static_cast<double>(s.position[0]) - 4.0, s.position[1], s.position[2]};
   };
   for (const std::size_t block : {std::size_t{997}, std::size_t{5000}}) {
-    NormalOptions options;
+    NormalOptions options = this->options();
     options.orientBlockPoints = block;
     PointCloud a = sphere;
     estimateNormalsAndRadii(a, options);
@@ -238,13 +284,13 @@ TEST(Normals, OrientationInSmallBlocksKeepsEverySide) {
   }
 }
 
-TEST(Normals, DuplicatesAndTinyClouds) {
+TEST_P(NormalsByMethod, DuplicatesAndTinyClouds) {
   PointCloud cloud;
   Splat s{};
   for (int i = 0; i < 20; ++i) cloud.splats.push_back(s);  // all identical
   s.position[0] = 1.0f;
   cloud.splats.push_back(s);
-  estimateNormalsAndRadii(cloud, {});
+  estimateNormalsAndRadii(cloud, options());
   for (const Splat& p : cloud.splats) {
     EXPECT_TRUE(std::isfinite(p.radius));
     EXPECT_GT(p.radius, 0.0f);
@@ -254,22 +300,26 @@ TEST(Normals, DuplicatesAndTinyClouds) {
   }
   PointCloud one;
   one.splats.push_back(Splat{});
-  estimateNormalsAndRadii(one, {});
+  estimateNormalsAndRadii(one, options());
   EXPECT_EQ(one.splats[0].normal[2], 1.0f);
   EXPECT_GT(one.splats[0].radius, 0.0f);
   EXPECT_EQ(one.splats[0].color[0], kDefaultGrey);  // never-written colour becomes grey
   EXPECT_EQ(one.splats[0].color[3], 255);
 
   PointCloud empty;
-  EXPECT_NO_THROW(estimateNormalsAndRadii(empty, {}));
-  NormalOptions few;
+  EXPECT_NO_THROW(estimateNormalsAndRadii(empty, options()));
+  NormalOptions few = options();
   few.neighbours = 2;
   EXPECT_THROW(estimateNormalsAndRadii(cloud, few), pointillist::UsageError);
 }
 
 // Real data with known normals: a sampled mesh (triangle normals) and CGAL's
-// kitten scan (normals in the file). Signs must agree almost everywhere.
-TEST(Normals, RealMeshAndScanAgreeWithKnownNormals) {
+// kitten scan (normals in the file). Signs must agree almost everywhere, and
+// 95 % of the normals lie within 15 degrees, 90 % with cube moments: 20,000
+// points on the bunny is a sparse sampling of its curves, and a block of
+// cubes spans more of them than 12 neighbours do (why auto keeps knn below
+// kMomentNormalsFromPoints).
+TEST_P(NormalsByMethod, RealMeshAndScanAgreeWithKnownNormals) {
   const std::filesystem::path data = std::filesystem::path(POINTILLIST_TEST_DATA_DIR) / "data";
   if (!std::filesystem::exists(data)) {
     GTEST_SKIP() << "test data missing at " << data << "; run `bash deploy/fetch-test-data.sh`";
@@ -281,7 +331,7 @@ TEST(Normals, RealMeshAndScanAgreeWithKnownNormals) {
     const PointCloud truth = readPointCloud(file, read);
     ASSERT_TRUE(truth.hasNormals);
     PointCloud cloud = stripped(truth);
-    estimateNormalsAndRadii(cloud, {});
+    estimateNormalsAndRadii(cloud, options());
     std::size_t flipped = 0, close = 0;
     for (std::size_t i = 0; i < cloud.splats.size(); ++i) {
       double d = 0;
@@ -293,7 +343,7 @@ TEST(Normals, RealMeshAndScanAgreeWithKnownNormals) {
       close += d > std::cos(15 * std::numbers::pi / 180) ? 1u : 0u;
     }
     EXPECT_LT(flipped, cloud.splats.size() / 200);  // under 0.5%
-    EXPECT_GT(close, cloud.splats.size() * 95 / 100);
+    EXPECT_GT(close, cloud.splats.size() * (moments() ? 90 : 95) / 100);
   }
 }
 
