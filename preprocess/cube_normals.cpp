@@ -152,7 +152,7 @@ CubeBlocks::CubeBlocks(std::span<const Splat> points, const CubeLattice& lattice
   if (keyBits + indexBits <= 64) {
     parallelFor(
         n, threads, [&](std::size_t i) { keys[i] = keys[i] << indexBits | i; }, kBlock);
-    radixSort(
+    radixSort<11>(
         keys, indexBits, indexBits + keyBits, [](std::uint64_t item) { return item; }, {}, threads);
     const std::uint64_t indexMask = (std::uint64_t{1} << indexBits) - 1;
     scan([&](std::size_t j) { return keys[j] >> indexBits; },

@@ -140,11 +140,11 @@ struct OctreeFrame {
   std::vector<std::vector<std::uint64_t>> splitCells;
 };
 
-// Stable LSD radix sort on bits [lowBit, highBit) of key(item), 8 bits a
-// pass: equal keys keep their order. Each of `threads` threads (0: all cores)
+// Stable LSD radix sort on bits [lowBit, highBit) of key(item), kDigitBits
+// bits a pass: equal keys keep their order. Each of `threads` threads (0: all cores)
 // counts and scatters its own contiguous share, in share order, so the sort
 // stays stable. Reports progress as a share of the items.
-template <class Item, class Allocator, class KeyFn>
+template <unsigned kDigitBits = 8, class Item, class Allocator, class KeyFn>
 void radixSort(std::vector<Item, Allocator>& items, unsigned lowBit, unsigned highBit, KeyFn key,
                const ProgressFn& progress = {}, unsigned threads = 1) {
   if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
@@ -153,13 +153,14 @@ void radixSort(std::vector<Item, Allocator>& items, unsigned lowBit, unsigned hi
   const std::size_t shares = std::clamp<std::size_t>(n >> 18, 1, threads);
   std::vector<Item, Allocator> tmp;
   resizePopulated(tmp, n, threads);  // its writes are scattered
-  std::vector<std::array<std::size_t, 256>> count(shares);
+  constexpr std::size_t kDigits = std::size_t{1} << kDigitBits;
+  std::vector<std::array<std::size_t, kDigits>> count(shares);
   const auto shareBegin = [&](std::size_t s) { return n * s / shares; };
-  const unsigned passes = (highBit - lowBit + 7) / 8;
+  const unsigned passes = (highBit - lowBit + kDigitBits - 1) / kDigitBits;
   for (unsigned pass = 0; pass < passes; ++pass) {
-    const unsigned shift = lowBit + pass * 8;
+    const unsigned shift = lowBit + pass * kDigitBits;
     const std::uint64_t mask =
-        shift + 8 <= highBit ? 0xffu : (std::uint64_t{1} << (highBit - shift)) - 1;
+        shift + kDigitBits <= highBit ? kDigits - 1 : (std::uint64_t{1} << (highBit - shift)) - 1;
     const auto digit = [&](const Item& item) {
       return static_cast<std::size_t>((key(item) >> shift) & mask);
     };
@@ -174,7 +175,7 @@ void radixSort(std::vector<Item, Allocator>& items, unsigned lowBit, unsigned hi
     // Where each share's run of each digit starts: digit-major, share-minor.
     std::size_t at = 0;
     bool oneDigit = false;
-    for (std::size_t d = 0; d < 256; ++d) {
+    for (std::size_t d = 0; d < kDigits; ++d) {
       std::size_t total = 0;
       for (std::size_t s = 0; s < shares; ++s) {
         const std::size_t c = count[s][d];

@@ -496,9 +496,14 @@ TEST(RadixSort, OrdersByTheChosenBitsAndIsStable) {
     const auto keyBits = [](std::uint64_t v) { return (v >> 8) & 0xfff; };
     std::stable_sort(expected.begin(), expected.end(),
                      [&](std::uint64_t a, std::uint64_t b) { return keyBits(a) < keyBits(b); });
+    std::vector<std::uint64_t> wide = items;
     radixSort(
         items, 8, 20, [](std::uint64_t v) { return v; }, {}, threads);
     EXPECT_EQ(items, expected) << threads << " threads";
+    // 11-bit digits (the cube moments' sort): two passes, the second partial.
+    radixSort<11>(
+        wide, 8, 20, [](std::uint64_t v) { return v; }, {}, threads);
+    EXPECT_EQ(wide, expected) << threads << " threads, 11-bit digits";
   }
 }
 
