@@ -261,7 +261,7 @@ CubeBlocks::CubeBlocks(std::span<const Splat> points, const CubeLattice& lattice
   // cubes around it (6x6x6) as a dense window of sums about one corner, so
   // a block is 27 additions of dense cells, with no look-up per cube. Then
   // the block's covariance, the normal and radius (eigenvectors a batch at
-  // a time), and the nearest neighbour cubes.
+  // a time), and the neighbour cubes nearest in the lattice.
   normal_.resize(count);
   radius_.resize(count);
   neighbours_.resize(count * k_);

@@ -87,9 +87,9 @@ class CubeBlocks {
   float radius(std::size_t cube) const { return radius_[cube]; }
   // The mean position of the cube's own points.
   const std::array<float, 3>& centroid(std::size_t cube) const { return centroid_[cube]; }
-  // Per cube, `neighbours` occupied cubes of the 26 around it, nearest
-  // centroid first (equal distances by index); where fewer are occupied the
-  // last is repeated, and a cube with none lists itself.
+  // Per cube, `neighbours` occupied cubes of the 26 around it, faces first,
+  // then edges, then corners (each in a fixed order of offsets); where fewer
+  // are occupied the last is repeated, and a cube with none lists itself.
   std::span<const std::uint32_t> neighbours() const { return neighbours_; }
   std::size_t neighbourCount() const { return k_; }
 

@@ -429,9 +429,9 @@ void fillZeroRadii(std::vector<Splat>& splats) {
 
 // NormalMethod::Moments: each cube's block gives the normal and radius of
 // the cube's points. The cubes, as points at their centroids, are oriented
-// as points are (orient above, over their nearest neighbour cubes); a cube
-// holding points whose normal is kept is an anchor, on the side most of
-// those normals take.
+// as points are (orient above, over their neighbour cubes nearest in the
+// lattice); a cube mostly of points whose normal is kept is an anchor, on
+// the side those normals take.
 void orientedMomentNormals(std::vector<Splat>& splats, const std::vector<std::uint8_t>& needNormal,
                            const std::vector<std::uint8_t>& needRadius,
                            const std::vector<std::uint8_t>& anchored, bool anyNormal,
