@@ -263,10 +263,10 @@ CubeBlocks::CubeBlocks(std::span<const Splat> points, const CubeLattice& lattice
   // the block's covariance, the normal and radius (eigenvectors a batch at
   // a time), and the neighbour cubes nearest in the lattice.
   normal_.resize(count);
+  blockNormal_.resize(count);
   radius_.resize(count);
   neighbours_.resize(count * k_);
   constexpr std::size_t kSide = 6, kCells = kSide * kSide * kSide;
-  constexpr std::size_t kBatch = 256;
   // A window cell's 27 (with itself), and its 26 by lattice distance, as
   // steps in the window's cells.
   constexpr auto windowStep = [](std::ptrdiff_t dx, std::ptrdiff_t dy, std::ptrdiff_t dz) {
@@ -288,6 +288,22 @@ CubeBlocks::CubeBlocks(std::span<const Splat> points, const CubeLattice& lattice
   }
   // Empty cells hold zeros, so a block adds its 27 cells without a branch;
   // the cells filled are listed and emptied again after the brick.
+  // The eight 2x2x2 blocks that hold a cell, as steps: per axis the cell and
+  // the one before it, or the cell and the one after.
+  std::array<std::array<std::ptrdiff_t, 8>, 8> octantSteps{};
+  for (std::size_t o = 0; o < 8; ++o) {
+    std::size_t k = 0;
+    for (std::ptrdiff_t dx = 0; dx < 2; ++dx)
+      for (std::ptrdiff_t dy = 0; dy < 2; ++dy)
+        for (std::ptrdiff_t dz = 0; dz < 2; ++dz)
+          octantSteps[o][k++] =
+              windowStep((o & 1) ? dx : dx - 1, (o & 2) ? dy : dy - 1, (o & 4) ? dz : dz - 1);
+  }
+  // A block is far from flat above this variation (0.01 helped the building
+  // as much and cost the kitten more); a 2x2x2 block needs this many points
+  // to be tried (10 did worse on all three scans).
+  constexpr double kCreaseVariation = 0.03;
+  constexpr double kOctantPoints = 6.0;
   struct Window {
     std::array<std::uint32_t, kCells> cube{};           // cube + 1; 0 empty
     std::array<std::array<double, 10>, kCells> sums{};  // count, sum xyz, squares
@@ -301,30 +317,38 @@ CubeBlocks::CubeBlocks(std::span<const Splat> points, const CubeLattice& lattice
       filledCount = 0;
     }
   };
-  struct Pending {
-    std::array<std::uint32_t, kBatch> cube;
-    std::array<Sym3, kBatch> covariance;
-    std::array<double, kBatch> population;
-    std::array<SmallestEigen3, kBatch> eigen;
-    std::size_t size = 0;
+  // A brick's cubes, their blocks' covariances and eigenvectors, and where a
+  // block is far from flat (an edge or corner runs through it), the eight
+  // 2x2x2 blocks that hold the cube: the flattest of all gives the normal, so
+  // a cube beside an edge takes the face it lies on, not a blend of both. The
+  // 3 M city's mean error 4.8 -> 3.1 degrees, CGAL's building scan's median
+  // 9.0 -> 6.5; its noisy kitten scan's mean 6.3 -> 6.4.
+  constexpr std::size_t kBrickCubes = 64;
+  struct BrickBatch {
+    std::array<std::uint32_t, kBrickCubes> cube;
+    std::array<std::size_t, kBrickCubes> self;
+    std::array<Sym3, kBrickCubes> covariance;
+    std::array<double, kBrickCubes> population;
+    std::array<SmallestEigen3, kBrickCubes> eigen;
+    std::array<Sym3, 8 * kBrickCubes> octant;
+    std::array<std::uint8_t, 8 * kBrickCubes> owner;
+    std::array<SmallestEigen3, 8 * kBrickCubes> octantEigen;
   };
-  const auto finish = [&](Pending& p) {
-    smallestEigen3Batch(std::span<const Sym3>(p.covariance.data(), p.size),
-                        std::span<SmallestEigen3>(p.eigen.data(), p.size));
-    for (std::size_t j = 0; j < p.size; ++j) {
-      const SmallestEigen3& e = p.eigen[j];
-      const double l1 = e.values[2], l2 = e.values[1];
-      const bool plane = p.population[j] >= 3.0 && l1 > 0.0 && l2 > 1e-12 * l1;
-      const Vec3d normal = plane ? e.vector : Vec3d{0.0, 0.0, 1.0};
-      const double length = std::sqrt(dot(normal, normal));
-      for (std::size_t a = 0; a < 3; ++a)
-        normal_[p.cube[j]][a] = static_cast<float>(normal[a] / length);
-      radius_[p.cube[j]] = plane
-                               ? static_cast<float>(std::sqrt(3.0 * 12.0 * std::sqrt(l1 * l2) /
-                                                              (std::numbers::pi * p.population[j])))
-                               : 0.0f;
-    }
-    p.size = 0;
+  // lambda0 / (lambda0 + lambda1 + lambda2): 0 on a plane, 1/3 for a ball.
+  const auto variationOf = [](const SmallestEigen3& e) {
+    const double total = e.values[0] + e.values[1] + e.values[2];
+    return total > 0.0 ? e.values[0] / total : 1.0;
+  };
+  const auto isPlane = [](const SmallestEigen3& e, double population) {
+    const double l1 = e.values[2], l2 = e.values[1];
+    return population >= 3.0 && l1 > 0.0 && l2 > 1e-12 * l1;
+  };
+  const auto covarianceOf = [](const std::array<double, 10>& block) {
+    const double m = block[0];
+    const double mean[3] = {block[1] / m, block[2] / m, block[3] / m};
+    return Sym3{block[4] / m - mean[0] * mean[0], block[5] / m - mean[0] * mean[1],
+                block[6] / m - mean[0] * mean[2], block[7] / m - mean[1] * mean[1],
+                block[8] / m - mean[1] * mean[2], block[9] / m - mean[2] * mean[2]};
   };
   // Per task, the look-ups of bricks it made lately (direct-mapped): bricks
   // next to each other share most of their neighbours.
@@ -419,23 +443,17 @@ CubeBlocks::CubeBlocks(std::span<const Splat> points, const CubeLattice& lattice
               }
         }
   };
-  // Cube c's block from the window (c's cell at `self`): its covariance to
-  // the pending batch, and its neighbour list.
-  const auto addBlock = [&](std::size_t c, std::size_t self, const Window& w, Pending& pending) {
+  // The sums of the window's cells at `self` + each step (empty cells zero).
+  const auto sumCells = [](const Window& w, std::size_t self,
+                           std::span<const std::ptrdiff_t> steps) {
     std::array<double, 10> block{};
-    for (const std::ptrdiff_t step : blockSteps) {
+    for (const std::ptrdiff_t step : steps) {
       const std::size_t cell = self + static_cast<std::size_t>(step);
       for (std::size_t j = 0; j < 10; ++j) block[j] += w.sums[cell][j];
     }
-    const double m = block[0];
-    const double mean[3] = {block[1] / m, block[2] / m, block[3] / m};
-    const std::size_t j = pending.size++;
-    pending.cube[j] = static_cast<std::uint32_t>(c);
-    pending.population[j] = m;
-    pending.covariance[j] = {block[4] / m - mean[0] * mean[0], block[5] / m - mean[0] * mean[1],
-                             block[6] / m - mean[0] * mean[2], block[7] / m - mean[1] * mean[1],
-                             block[8] / m - mean[1] * mean[2], block[9] / m - mean[2] * mean[2]};
-    if (pending.size == kBatch) finish(pending);
+    return block;
+  };
+  const auto listNeighbours = [&](std::size_t c, std::size_t self, const Window& w) {
     std::array<std::uint32_t, 26> occupied;
     std::size_t listed = 0;
     for (const std::ptrdiff_t step : neighbourSteps) {
@@ -449,35 +467,89 @@ CubeBlocks::CubeBlocks(std::span<const Splat> points, const CubeLattice& lattice
                 : listed > 0 ? occupied[listed - 1]
                              : static_cast<std::uint32_t>(c);
   };
+  // A brick's cubes from its window: blocks, eigenvectors, the 2x2x2 blocks
+  // of those far from flat, and each cube's normal and radius.
+  const auto solveBrick = [&](std::size_t brick, const std::int64_t corner[3], const Window& w,
+                              BrickBatch& b) {
+    std::size_t m = 0;
+    for (std::size_t c = brickStart[brick]; c < brickStart[brick + 1]; ++c, ++m) {
+      std::size_t at[3];
+      for (std::size_t a = 0; a < 3; ++a)
+        at[a] = static_cast<std::size_t>(static_cast<std::int64_t>(coordinateOf(c, a)) - corner[a]);
+      const std::size_t self = (at[0] * kSide + at[1]) * kSide + at[2];
+      const std::array<double, 10> block = sumCells(w, self, blockSteps);
+      b.cube[m] = static_cast<std::uint32_t>(c);
+      b.self[m] = self;
+      b.population[m] = block[0];
+      b.covariance[m] = covarianceOf(block);
+      listNeighbours(c, self, w);
+    }
+    smallestEigen3Batch(std::span<const Sym3>(b.covariance.data(), m),
+                        std::span<SmallestEigen3>(b.eigen.data(), m));
+    std::size_t octants = 0;
+    for (std::size_t j = 0; j < m; ++j) {
+      if (b.population[j] < kOctantPoints || variationOf(b.eigen[j]) <= kCreaseVariation) continue;
+      for (const auto& steps : octantSteps) {
+        const std::array<double, 10> block = sumCells(w, b.self[j], steps);
+        if (block[0] < kOctantPoints) continue;
+        b.octant[octants] = covarianceOf(block);
+        b.owner[octants++] = static_cast<std::uint8_t>(j);
+      }
+    }
+    smallestEigen3Batch(std::span<const Sym3>(b.octant.data(), octants),
+                        std::span<SmallestEigen3>(b.octantEigen.data(), octants));
+    std::array<const SmallestEigen3*, kBrickCubes> flattest;
+    std::array<double, kBrickCubes> variation;
+    for (std::size_t j = 0; j < m; ++j) {
+      flattest[j] = &b.eigen[j];
+      variation[j] = variationOf(b.eigen[j]);
+    }
+    for (std::size_t k = 0; k < octants; ++k) {
+      const std::size_t j = b.owner[k];
+      const double v = variationOf(b.octantEigen[k]);
+      if (v < variation[j] && isPlane(b.octantEigen[k], kOctantPoints)) {
+        variation[j] = v;
+        flattest[j] = &b.octantEigen[k];
+      }
+    }
+    const auto unit = [](const Vec3d& v, std::array<float, 3>& out) {
+      const double length = std::sqrt(dot(v, v));
+      for (std::size_t a = 0; a < 3; ++a) out[a] = static_cast<float>(v[a] / length);
+    };
+    for (std::size_t j = 0; j < m; ++j) {
+      const SmallestEigen3& e = b.eigen[j];
+      const bool plane = isPlane(e, b.population[j]);
+      unit(plane ? e.vector : Vec3d{0.0, 0.0, 1.0}, blockNormal_[b.cube[j]]);
+      unit(plane ? flattest[j]->vector : Vec3d{0.0, 0.0, 1.0}, normal_[b.cube[j]]);
+      // The radius from the whole block: its density is the steadier.
+      radius_[b.cube[j]] =
+          plane ? static_cast<float>(std::sqrt(3.0 * 12.0 * std::sqrt(e.values[2] * e.values[1]) /
+                                               (std::numbers::pi * b.population[j])))
+                : 0.0f;
+    }
+  };
   constexpr std::size_t kBricksPerTask = 256;
   parallelFor((bricks + kBricksPerTask - 1) / kBricksPerTask, threads,
               [&](std::size_t task) {
                 // Per thread, reached once a task (a thread_local named in the loops
                 // is looked up at every use).
                 thread_local Window windowOfThread;
-                thread_local Pending pendingOfThread;
+                thread_local BrickBatch batchOfThread;
                 Window& w = windowOfThread;
-                Pending& pending = pendingOfThread;
+                BrickBatch& batch = batchOfThread;
                 RecentBricks recent;
                 recent.fill({kNoBrick, kNotFound});
                 for (std::size_t brick = task * kBricksPerTask;
                      brick < std::min(bricks, (task + 1) * kBricksPerTask); ++brick) {
-                  std::int64_t b[3],
-                      corner[3];  // the window's corner: the cube before the brick's first
+                  // The window's corner: the cube before the brick's first.
+                  std::int64_t b[3], corner[3];
                   for (std::size_t a = 0; a < 3; ++a) {
                     b[a] = static_cast<std::int64_t>(compactBits(brickKey[brick] >> (2 - a)));
                     corner[a] = 4 * b[a] - 1;
                   }
                   fillWindow(findAround(brick, b, recent), w);
-                  for (std::size_t c = brickStart[brick]; c < brickStart[brick + 1]; ++c) {
-                    std::size_t at[3];
-                    for (std::size_t a = 0; a < 3; ++a)
-                      at[a] = static_cast<std::size_t>(
-                          static_cast<std::int64_t>(coordinateOf(c, a)) - corner[a]);
-                    addBlock(c, (at[0] * kSide + at[1]) * kSide + at[2], w, pending);
-                  }
+                  solveBrick(brick, corner, w, batch);
                 }
-                if (pending.size > 0) finish(pending);
               },
               1);
 }

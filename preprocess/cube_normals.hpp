@@ -9,7 +9,8 @@
 // cubes around it, whose summed moments give the covariance of its 15-40
 // points on a surface (about the neighbourhood of 12 nearest neighbours),
 // with no search and no sort: the block's smallest eigenvector is the normal
-// of every point of the cube, and its density gives their radius
+// of every point of the cube (where an edge runs through the block, the
+// flattest 2x2x2 block's), and its density gives their radius
 // (r = sqrt(3 area / (pi n)), area = 12 sqrt(l1 l2) from the two largest
 // eigenvalues, the rule of normals.hpp: pi r^2 = 3 / density).
 //
@@ -82,6 +83,10 @@ class CubeBlocks {
   }
   // The block's smallest eigenvector (unit, either sign); 0,0,1 where the
   // block's points do not fix one (fewer than three, all on a line).
+  const std::array<float, 3>& blockNormal(std::size_t cube) const { return blockNormal_[cube]; }
+  // The normal of the cube's points: the block's, or where the block is far
+  // from flat (an edge runs through it), that of the flattest 2x2x2 block
+  // holding the cube, so points beside an edge take their own face's.
   const std::array<float, 3>& normal(std::size_t cube) const { return normal_[cube]; }
   // sqrt(3 area / (pi n)) over the block; 0 where its points span no area.
   float radius(std::size_t cube) const { return radius_[cube]; }
@@ -100,6 +105,7 @@ class CubeBlocks {
   Filled<std::uint32_t> order_;
   std::vector<std::uint32_t> cubeStart_;
   Filled<std::array<float, 3>> normal_;
+  Filled<std::array<float, 3>> blockNormal_;
   Filled<float> radius_;
   Filled<std::array<float, 3>> centroid_;
   Filled<std::uint32_t> neighbours_;

@@ -461,7 +461,7 @@ void orientedMomentNormals(std::vector<Splat>& splats, const std::vector<std::ui
           Splat& r = representatives[c];
           for (std::size_t a = 0; a < 3; ++a) {
             r.position[a] = blocks.centroid(c)[a];
-            r.normal[a] = blocks.normal(c)[a];
+            r.normal[a] = blocks.blockNormal(c)[a];
           }
           // A cube is an anchor where kept normals are at least half its
           // points and agree with its own normal as an edge must to pass a
@@ -518,14 +518,22 @@ void orientedMomentNormals(std::vector<Splat>& splats, const std::vector<std::ui
   parallelFor(
       cubes, options.threads,
       [&](std::size_t c) {
+        // The points' normal on the side the orientation gave the block's.
+        Splat side{};
+        if (anyNormal) {
+          float agree = 0.0f;
+          for (std::size_t a = 0; a < 3; ++a) {
+            side.normal[a] = blocks.normal(c)[a];
+            agree += side.normal[a] * representatives[c].normal[a];
+          }
+          if (agree < 0.0f) flip(side);
+        }
         for (const std::uint32_t i : blocks.pointsOf(c)) {
           if (anyNormal && needNormal[i]) {
             // A recomputed normal keeps the side of the one it replaces.
-            const bool turn =
-                recomputed && anchored[i] && dotNormals(representatives[c], splats[i]) < 0.0f;
+            const bool turn = recomputed && anchored[i] && dotNormals(side, splats[i]) < 0.0f;
             for (int a = 0; a < 3; ++a)
-              splats[i].normal[a] =
-                  turn ? -representatives[c].normal[a] : representatives[c].normal[a];
+              splats[i].normal[a] = turn ? -side.normal[a] : side.normal[a];
           }
           if (needRadius[i]) splats[i].radius = blocks.radius(c);
         }

@@ -102,7 +102,7 @@ TEST(CubeBlocks, BlocksEqualBruteForceAndListsNameAdjacentCubes) {
         }
     const auto eigen = pointillist::smallestEigen3(acc.covariance());
     if (acc.count() < 10 || !(eigen.values[1] > 1e-3 * eigen.values[2])) continue;
-    const auto& n = blocks.normal(c);
+    const auto& n = blocks.blockNormal(c);
     double d = 0.0;
     for (std::size_t a = 0; a < 3; ++a) d += static_cast<double>(n[a]) * eigen.vector[a];
     d = std::abs(d);
@@ -131,6 +131,44 @@ TEST(CubeBlocks, BlocksEqualBruteForceAndListsNameAdjacentCubes) {
   EXPECT_GT(compared, blocks.cubes() / 2);
 }
 
+// A fold (two planes meeting at a right angle): cubes beside the edge take
+// the normal of the face their points lie on from the flattest 2x2x2 block,
+// where the 3x3x3 block's normal blends both faces.
+TEST(CubeBlocks, CubesBesideAnEdgeTakeTheirOwnFace) {
+  std::vector<Splat> points;
+  const float spacing = 0.01f;
+  for (int i = 0; i < 200; ++i)
+    for (int j = 0; j < 100; ++j) {
+      Splat floor{}, wall{};
+      floor.position[0] = static_cast<float>(i) * spacing;
+      floor.position[1] = static_cast<float>(j) * spacing + 0.003f;  // y > 0: the floor
+      wall.position[0] = static_cast<float>(i) * spacing;
+      wall.position[2] = static_cast<float>(j) * spacing + 0.003f;  // z > 0: the wall
+      points.push_back(floor);
+      points.push_back(wall);
+    }
+  const CubeLattice lattice = latticeFor(points);
+  const CubeBlocks blocks(points, lattice, 6, 2);
+  std::size_t nearEdge = 0, ownFace = 0, blendedOwnFace = 0;
+  for (std::size_t c = 0; c < blocks.cubes(); ++c) {
+    const auto own = blocks.pointsOf(c);
+    const bool onFloor = points[own[0]].position[2] == 0.0f;
+    bool oneFace = true;
+    for (const std::uint32_t i : own)
+      oneFace = oneFace && (points[i].position[2] == 0.0f) == onFloor;
+    const float distance = onFloor ? points[own[0]].position[1] : points[own[0]].position[2];
+    if (!oneFace || distance > 1.5f * static_cast<float>(lattice.side)) continue;
+    ++nearEdge;
+    const std::size_t axis = onFloor ? 2 : 1;  // the face's normal
+    const double within = std::cos(10 * std::numbers::pi / 180);
+    ownFace += std::abs(static_cast<double>(blocks.normal(c)[axis])) > within ? 1u : 0u;
+    blendedOwnFace += std::abs(static_cast<double>(blocks.blockNormal(c)[axis])) > within ? 1u : 0u;
+  }
+  ASSERT_GT(nearEdge, 200u);
+  EXPECT_GT(ownFace, nearEdge * 9 / 10);
+  EXPECT_LT(blendedOwnFace, nearEdge / 2);
+}
+
 TEST(CubeBlocks, ThreadCountDoesNotChangeAnything) {
   const std::vector<Splat> points = generateScene("city", 80000, 5).splats;
   const CubeLattice lattice = latticeFor(points);
@@ -138,6 +176,7 @@ TEST(CubeBlocks, ThreadCountDoesNotChangeAnything) {
   ASSERT_EQ(one.cubes(), three.cubes());
   for (std::size_t c = 0; c < one.cubes(); ++c) {
     ASSERT_EQ(one.normal(c), three.normal(c));
+    ASSERT_EQ(one.blockNormal(c), three.blockNormal(c));
     ASSERT_EQ(one.radius(c), three.radius(c));
     ASSERT_TRUE(std::ranges::equal(one.pointsOf(c), three.pointsOf(c)));
   }
