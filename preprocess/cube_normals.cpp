@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <numbers>
 
 #include "common/geometry.hpp"
 #include "preprocess/eigen_batch.hpp"
@@ -19,10 +18,6 @@ constexpr std::size_t kNotFound = static_cast<std::size_t>(-1);
 // The sample's cubes are taken as the whole cloud's where each holds at least
 // this many sample points: nearly every cube the cloud occupies has one then.
 constexpr double kReliableSamplePoints = 8.0;
-
-[[gnu::always_inline]] inline std::uint64_t mortonKey(const std::uint64_t q[3]) {
-  return spreadBits(q[0]) << 2 | spreadBits(q[1]) << 1 | spreadBits(q[2]);
-}
 
 // A cube's sums, relative to its centre (small numbers: floats suffice).
 struct CubeSums {
@@ -55,7 +50,7 @@ CubeLattice chooseCubeLattice(std::span<const Splat> sample, std::uint64_t every
       const double c = std::floor((static_cast<double>(s.position[a]) - origin[a]) * scale);
       q[a] = c > 0.0 ? std::min<std::uint64_t>(static_cast<std::uint64_t>(c), kMaxCoordinate) : 0;
     }
-    codes.push_back(mortonKey(q));
+    codes.push_back(mortonInterleave(q));
   }
   std::sort(codes.begin(), codes.end());
   // Occupied cubes of side extent / 2^level, per level.
@@ -116,7 +111,7 @@ CubeBlocks::CubeBlocks(std::span<const Splat> points, const CubeLattice& lattice
         for (std::size_t i = b * kBlock; i < std::min(n, (b + 1) * kBlock); ++i) {
           std::uint64_t q[3];
           for (std::size_t a = 0; a < 3; ++a) q[a] = coordinate(points[i].position[a], a);
-          keys[i] = mortonKey(q);
+          keys[i] = mortonInterleave(q);
           highest = std::max(highest, keys[i]);
         }
         blockHighest[b] = highest;
@@ -344,11 +339,8 @@ CubeBlocks::CubeBlocks(std::span<const Splat> points, const CubeLattice& lattice
     return population >= 3.0 && l1 > 0.0 && l2 > 1e-12 * l1;
   };
   const auto covarianceOf = [](const std::array<double, 10>& block) {
-    const double m = block[0];
-    const double mean[3] = {block[1] / m, block[2] / m, block[3] / m};
-    return Sym3{block[4] / m - mean[0] * mean[0], block[5] / m - mean[0] * mean[1],
-                block[6] / m - mean[0] * mean[2], block[7] / m - mean[1] * mean[1],
-                block[8] / m - mean[1] * mean[2], block[9] / m - mean[2] * mean[2]};
+    return covarianceFromSums(block[0], {block[1], block[2], block[3]},
+                              {block[4], block[5], block[6], block[7], block[8], block[9]});
   };
   // Per task, the look-ups of bricks it made lately (direct-mapped): bricks
   // next to each other share most of their neighbours.
@@ -377,7 +369,7 @@ CubeBlocks::CubeBlocks(std::span<const Splat> points, const CubeLattice& lattice
       const std::uint64_t u[3] = {static_cast<std::uint64_t>(q[0]),
                                   static_cast<std::uint64_t>(q[1]),
                                   static_cast<std::uint64_t>(q[2])};
-      aroundKeys[k] = mortonKey(u);
+      aroundKeys[k] = mortonInterleave(u);
       if (recent[recentSlot(aroundKeys[k])].first != aroundKeys[k])
         __builtin_prefetch(&table[slotOf(aroundKeys[k])]);
     }
@@ -523,9 +515,7 @@ CubeBlocks::CubeBlocks(std::span<const Splat> points, const CubeLattice& lattice
       unit(plane ? flattest[j]->vector : Vec3d{0.0, 0.0, 1.0}, normal_[b.cube[j]]);
       // The radius from the whole block: its density is the steadier.
       radius_[b.cube[j]] =
-          plane ? static_cast<float>(std::sqrt(3.0 * 12.0 * std::sqrt(e.values[2] * e.values[1]) /
-                                               (std::numbers::pi * b.population[j])))
-                : 0.0f;
+          static_cast<float>(radiusFromSpread(e.values[2], e.values[1], b.population[j]));
     }
   };
   constexpr std::size_t kBricksPerTask = 256;

@@ -20,8 +20,10 @@
 // normals inside every chunk.
 #include <array>
 #include <bit>
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <numbers>
 #include <span>
 #include <vector>
 
@@ -49,6 +51,16 @@ inline std::uint64_t positionHash(const Splat& s) {
   for (const float c : s.position)
     h = (h ^ std::bit_cast<std::uint32_t>(c)) * 0xC2B2AE3D27D4EB4Full;
   return h ^ (h >> 29);
+}
+
+// The radius rule of normals.hpp (pi r^2 = 3 / density) for n points whose
+// covariance's two largest eigenvalues are l1 >= l2: they span about
+// 12 sqrt(l1 l2) (exact for a uniformly sampled rectangle, l = side^2 / 12).
+// 0 when they span no area (fewer than three, or on a line).
+inline double radiusFromSpread(double l1, double l2, double n) {
+  if (!(n >= 3.0) || !(l1 > 0.0) || !(l2 > 1e-12 * l1)) return 0.0;
+  const double area = 12.0 * std::sqrt(l1 * l2);
+  return std::sqrt(3.0 * area / (std::numbers::pi * n));
 }
 
 // The lattice's sample: points whose positionHash % every == 0, every from

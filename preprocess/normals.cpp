@@ -8,7 +8,6 @@
 #include <cstdint>
 #include <limits>
 #include <nanoflann.hpp>
-#include <numbers>
 #include <numeric>
 #include <optional>
 #include <span>
@@ -741,11 +740,8 @@ float densityRadius(std::span<const Splat> points) {
   CovarianceAccumulator acc;
   for (const Splat& p : points) acc.add(position(p));
   const SmallestEigen3 eigen = smallestEigen3(acc.covariance());
-  const double l1 = eigen.values[2], l2 = eigen.values[1];
-  if (!(l2 > 1e-12 * l1) || !(l1 > 0.0)) return 0.0f;
-  const double area = 12.0 * std::sqrt(l1 * l2);
   return static_cast<float>(
-      std::sqrt(3.0 * area / (std::numbers::pi * static_cast<double>(points.size()))));
+      radiusFromSpread(eigen.values[2], eigen.values[1], static_cast<double>(points.size())));
 }
 
 // sqrt(3 / k) times the median, over a few points spread through the leaf

@@ -103,6 +103,11 @@ inline std::uint64_t compactBits(std::uint64_t v) {
   return v;
 }
 
+// The Morton key of cell coordinates q (each below 2^21), x most significant.
+inline std::uint64_t mortonInterleave(const std::uint64_t q[3]) {
+  return spreadBits(q[0]) << 2 | spreadBits(q[1]) << 1 | spreadBits(q[2]);
+}
+
 // The same for many positions: the scale worked out once, all inline.
 class MortonCoder {
  public:
@@ -114,7 +119,7 @@ class MortonCoder {
   std::uint64_t operator()(const float position[3]) const {
     std::uint64_t q[3];
     quantize(position, q);
-    return spreadBits(q[0]) << 2 | spreadBits(q[1]) << 1 | spreadBits(q[2]);
+    return mortonInterleave(q);
   }
   // The position's cell coordinates at maxDepth, each below 2^maxDepth.
   void quantize(const float position[3], std::uint64_t q[3]) const {
