@@ -7,8 +7,12 @@
 # stacked by stage; rate.png, points/s per core against the goal of 2 M.
 #
 #   deploy/bench-preprocess.sh [--points N] [--inputs ply,xyz,mesh,xyz-knn,big] [--out DIR]
-#                              [--big-points N] [--memory-mb MB]
+#                              [--big-points N] [--memory-mb MB] [--repeat N]
 #                              [-- extra pointillist-preprocess options]
+#
+# --repeat N runs every input N times, the inputs in turn (this VM's speed
+# drifts by half within minutes): the table gives the median run's figures
+# and the range of wall times; the plots show the median run.
 #
 # Inputs (N points each, default 10 M):
 #   ply   binary PLY with normals and colours, no radii (a sampled mesh)
@@ -29,6 +33,7 @@ points=10000000
 inputs=ply,xyz,mesh
 big_points=200000000
 memory_mb=4096
+repeat=1
 extra=()
 while (($#)); do
   case "$1" in
@@ -37,12 +42,14 @@ while (($#)); do
     --out) out="$2"; shift 2 ;;
     --big-points) big_points="$2"; shift 2 ;;
     --memory-mb) memory_mb="$2"; shift 2 ;;
+    --repeat) repeat="$2"; shift 2 ;;
     --) shift; extra=("$@"); break ;;
-    -h|--help) sed -n '2,20p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,24p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "bench-preprocess: unknown option '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
 
+[[ "$repeat" =~ ^[1-9][0-9]*$ ]] || { echo "bench-preprocess: --repeat wants a whole number >= 1, got '$repeat'" >&2; exit 2; }
 command -v gnuplot >/dev/null || {
   echo "bench-preprocess: gnuplot is missing (Debian package gnuplot-nox)" >&2
   exit 1
@@ -65,11 +72,14 @@ table="$out/table.md"
   echo "| input | points | wall s | points/s | points/s per core | CPU s | peak MiB | stages (s) |"
   echo "|---|---:|---:|---:|---:|---:|---:|---|"
 } >"$table"
-stages_tsv="$out/stages.tsv"  # input, stage, seconds
-rates_tsv="$out/rates.tsv"    # input, points/s per core (M)
+stages_tsv="$out/stages.tsv"  # input, stage, seconds (the median run)
+rates_tsv="$out/rates.tsv"    # input, points/s per core (M, the median run)
+runs_tsv="$out/runs.tsv"      # input, run, wall s, peak KiB, user s, sys s
 : >"$stages_tsv"
 : >"$rates_tsv"
+: >"$runs_tsv"
 IFS=',' read -ra kinds <<<"$inputs"
+declare -A input_of points_of
 for kind in "${kinds[@]}"; do
   n="$points"
   case "$kind" in
@@ -82,24 +92,45 @@ for kind in "${kinds[@]}"; do
   if [[ "$kind" != mesh && ! -f "$input" ]]; then
     "$build/bin/pointillist-make-points" "${args[@]}" -o "$input"
   fi
-  dataset="$out/dataset-$kind"
-  log="$out/$kind.log"
-  cmd=("$build/bin/pointillist-preprocess" "$input" -o "$dataset" --force)
-  [[ "$kind" == mesh ]] && cmd+=(--points "$points")
-  [[ "$kind" == big ]] && cmd+=(--memory-mb "$memory_mb")
-  [[ "$kind" == xyz-knn ]] && cmd+=(--normals knn)
-  echo "bench-preprocess: $kind: ${cmd[*]} ${extra[*]}" >&2
-  # Cold page cache would measure the disk, not us: read the input once first.
-  cat "$input" >/dev/null
-  /usr/bin/time -f '%e %M %U %S' -o "$log.time" "${cmd[@]}" "${extra[@]}" 2>"$log" >>"$log"
-  read -r wall rss_kib user sys <"$log.time"
+  input_of[$kind]="$input"
+  points_of[$kind]="$n"
+done
+for ((run = 1; run <= repeat; ++run)); do
+  for kind in "${kinds[@]}"; do
+    input="${input_of[$kind]}"
+    dataset="$out/dataset-$kind"
+    log="$out/$kind.$run.log"
+    cmd=("$build/bin/pointillist-preprocess" "$input" -o "$dataset" --force)
+    [[ "$kind" == mesh ]] && cmd+=(--points "$points")
+    [[ "$kind" == big ]] && cmd+=(--memory-mb "$memory_mb")
+    [[ "$kind" == xyz-knn ]] && cmd+=(--normals knn)
+    echo "bench-preprocess: $kind, run $run of $repeat: ${cmd[*]} ${extra[*]}" >&2
+    # Cold page cache would measure the disk, not us: read the input once first.
+    cat "$input" >/dev/null
+    /usr/bin/time -f '%e %M %U %S' -o "$log.time" "${cmd[@]}" "${extra[@]}" 2>"$log" >>"$log"
+    read -r wall rss_kib user sys <"$log.time"
+    printf '%s\t%s\t%s\t%s\t%s\t%s\n' "$kind" "$run" "$wall" "$rss_kib" "$user" "$sys" >>"$runs_tsv"
+    rm -f "$log.time"
+  done
+done
+for kind in "${kinds[@]}"; do
+  n="${points_of[$kind]}"
+  # The median run by wall time (the lower middle one for an even count).
+  read -r run wall rss_kib user sys low high < <(awk -F'\t' -v k="$kind" '$1 == k { w[++n] = $3; line[n] = $2 " " $3 " " $4 " " $5 " " $6 }
+    END {
+      for (i = 1; i <= n; ++i) for (j = i + 1; j <= n; ++j) if (w[j] < w[i]) { t = w[i]; w[i] = w[j]; w[j] = t; t = line[i]; line[i] = line[j]; line[j] = t }
+      print line[int((n + 1) / 2)], w[1], w[n]
+    }' "$runs_tsv")
+  log="$out/$kind.$run.log"
+  cp "$log" "$out/$kind.log"
   stages=$(sed -n 's/^  \(.*\): done in \([0-9.]*\) s$/\1 \2/p' "$log" | awk '{ t = $NF; $NF = ""; sub(/ $/, ""); printf "%s%s %s", sep, $0, t; sep = ", " }')
   sed -n 's/^  \(.*\): done in \([0-9.]*\) s$/\1\t\2/p' "$log" | sed "s/^/$kind\t/" >>"$stages_tsv"
   awk -v k="$kind" -v p="$n" -v w="$wall" -v c="$cores" 'BEGIN { printf "%s\t%.3f\n", k, p / w / c / 1e6 }' >>"$rates_tsv"
-  [[ "$kind" == big ]] && kind="big (--memory-mb $memory_mb)"
-  awk -v k="$kind" -v p="$n" -v w="$wall" -v r="$rss_kib" -v u="$user" -v s="$sys" -v c="$cores" -v st="$stages" 'BEGIN {
-    printf "| %s | %.1f M | %.2f | %.2f M | %.2f M | %.2f | %.0f | %s |\n", k, p / 1e6, w, p / w / 1e6, p / w / c / 1e6, u + s, r / 1024, st }' >>"$table"
-  rm -f "$log.time"
+  label="$kind"
+  [[ "$kind" == big ]] && label="big (--memory-mb $memory_mb)"
+  awk -v k="$label" -v p="$n" -v w="$wall" -v lo="$low" -v hi="$high" -v reps="$repeat" -v r="$rss_kib" -v u="$user" -v s="$sys" -v c="$cores" -v st="$stages" 'BEGIN {
+    spread = reps > 1 ? sprintf(" (%.2f-%.2f)", lo, hi) : ""
+    printf "| %s | %.1f M | %.2f%s | %.2f M | %.2f M | %.2f | %.0f | %s |\n", k, p / 1e6, w, spread, p / w / 1e6, p / w / c / 1e6, u + s, r / 1024, st }' >>"$table"
 done
 
 # Stages as columns (in the order they first appear), inputs as rows.
@@ -150,5 +181,7 @@ plot "$rates_tsv" using 2:xtic(1) title "measured", 2.0 with lines lw 2 dt 2 lc 
 GNUPLOT
 
 echo
-echo "pointillist-preprocess, $cores cores ($build_type build); logs, datasets and plots (stages.png, rate.png) in $out"
+runs_note=""
+((repeat > 1)) && runs_note="; median of $repeat runs each, the inputs in turn, wall range in brackets (runs.tsv has every run)"
+echo "pointillist-preprocess, $cores cores ($build_type build)$runs_note; logs, datasets and plots (stages.png, rate.png) in $out"
 cat "$table"
