@@ -11,6 +11,11 @@
 #include <system_error>
 #include <utility>
 
+#include <fcntl.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
 #include "common/errors.hpp"
 #include "preprocess/parallel.hpp"
 
@@ -134,6 +139,78 @@ std::string_view FileReader::readLineBlock(std::size_t want) {
     }
     pos_ += take;
     return {first, take};
+  }
+}
+
+std::unique_ptr<MappedLineBlocks> MappedLineBlocks::open(const std::filesystem::path& file,
+                                                         std::uint64_t offset) {
+  // Only regular files; O_NONBLOCK so a pipe that slipped past the check
+  // cannot block the open waiting for a writer.
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(file, ec)) return nullptr;
+  const int fd = ::open(file.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK);
+  if (fd < 0) return nullptr;
+  struct stat status {};
+  if (::fstat(fd, &status) != 0 || !S_ISREG(status.st_mode)) {
+    ::close(fd);
+    return nullptr;
+  }
+  const auto size = static_cast<std::uint64_t>(status.st_size);
+  return std::unique_ptr<MappedLineBlocks>(
+      new MappedLineBlocks(file, fd, size, std::min(offset, size)));
+}
+
+MappedLineBlocks::MappedLineBlocks(std::filesystem::path path, int fd, std::uint64_t size,
+                                   std::uint64_t offset)
+    : path_(std::move(path)), fd_(fd), size_(size), offset_(offset) {}
+
+MappedLineBlocks::~MappedLineBlocks() {
+  unmap();
+  if (fd_ >= 0) ::close(fd_);
+}
+
+void MappedLineBlocks::unmap() {
+  if (window_ != nullptr) ::munmap(window_, windowBytes_);
+  window_ = nullptr;
+  windowBytes_ = 0;
+}
+
+std::string_view MappedLineBlocks::next(std::size_t want, std::uint64_t line) {
+  unmap();
+  if (offset_ >= size_) return {};
+  const auto page = static_cast<std::uint64_t>(::sysconf(_SC_PAGESIZE));
+  const std::uint64_t from = offset_ / page * page;
+  const auto skip = static_cast<std::size_t>(offset_ - from);
+  want = std::max<std::size_t>(want, 1);
+  // A mapped page past the file's end faults (SIGBUS): a file cut short
+  // since it was opened is refused first.
+  struct stat status {};
+  if (::fstat(fd_, &status) != 0 || static_cast<std::uint64_t>(status.st_size) < size_)
+    failAtByte(path_, offset_, "the file shrank while it was being read");
+  // The block ends at the first line end from `want` bytes on: the window
+  // reaches a little past, and further where that line is long.
+  std::size_t span = want + kInitialBuffer;
+  for (;;) {
+    const std::uint64_t rest = size_ - offset_;
+    const bool toEnd = span >= rest;
+    windowBytes_ = skip + static_cast<std::size_t>(toEnd ? rest : span);
+    window_ = ::mmap(nullptr, windowBytes_, PROT_READ, MAP_PRIVATE, fd_, static_cast<off_t>(from));
+    if (window_ == MAP_FAILED) {
+      window_ = nullptr;
+      failAtByte(path_, offset_, std::string("cannot map the file: ") + std::strerror(errno));
+    }
+    ::madvise(window_, windowBytes_, MADV_SEQUENTIAL);
+    const std::string_view text(static_cast<const char*>(window_) + skip, windowBytes_ - skip);
+    const std::size_t end = text.find('\n', std::min(want, text.size()) - 1);
+    if (end == std::string_view::npos && !toEnd) {
+      unmap();
+      if (span - want >= kMaxLine) failAtLine(path_, line + 1, "line too long (binary data?)");
+      span = want + 2 * (span - want);
+      continue;
+    }
+    const std::size_t take = end == std::string_view::npos ? text.size() : end + 1;
+    offset_ += take;
+    return text.substr(0, take);
   }
 }
 

@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <cstdio>
 #include <filesystem>
+#include <memory>
 #include <span>
 #include <string_view>
 #include <vector>
@@ -68,6 +69,42 @@ class FileReader {
   std::size_t pos_ = 0;
   std::size_t end_ = 0;
   std::uint64_t line_ = 0;
+};
+
+// Whole lines of a file from a byte offset on, a block at a time, as views
+// into a read-only mapping of a window of the file: the threads that parse a
+// block read the page cache directly, where FileReader would first copy the
+// block on one thread while the others wait. The window moves on with the
+// blocks, so the mapped pages a process holds stay about one block (what
+// --memory-mb counts). open() gives nothing where the file cannot be mapped
+// (a pipe, a device); the caller then reads through FileReader.
+class MappedLineBlocks {
+ public:
+  static std::unique_ptr<MappedLineBlocks> open(const std::filesystem::path& file,
+                                                std::uint64_t offset);
+  ~MappedLineBlocks();
+  MappedLineBlocks(const MappedLineBlocks&) = delete;
+  MappedLineBlocks& operator=(const MappedLineBlocks&) = delete;
+
+  // As FileReader::readLineBlock: the next whole lines, at least `want` bytes
+  // of them where the file has that many more (the file's last line may have
+  // no "\n"); empty at the end. Valid until the next call. `line` (the
+  // number of the line before the block) names a line too long to be text.
+  std::string_view next(std::size_t want, std::uint64_t line);
+  // The offset of the next byte not yet returned.
+  std::uint64_t offset() const { return offset_; }
+  std::uint64_t size() const { return size_; }
+
+ private:
+  MappedLineBlocks(std::filesystem::path path, int fd, std::uint64_t size, std::uint64_t offset);
+  void unmap();
+
+  std::filesystem::path path_;
+  int fd_ = -1;
+  std::uint64_t size_ = 0;
+  std::uint64_t offset_ = 0;
+  void* window_ = nullptr;
+  std::size_t windowBytes_ = 0;
 };
 
 // Collects points, checks coordinates for NaN/Inf (refuses, or drops with a

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <memory>
 #include <span>
 #include <string>
 #include <string_view>
@@ -212,10 +213,16 @@ class XyzParser {
     // that --memory-mb counts for the reader: a small one then.
     const std::size_t blockBytes = streaming_ ? std::size_t{1} << 20 : std::size_t{8} << 20;
     constexpr std::size_t kPieceBytes = std::size_t{256} << 10;
+    // Mapped, the blocks are not copied on this thread first (a pipe is read
+    // through the buffer).
+    const std::unique_ptr<detail::MappedLineBlocks> mapped =
+        detail::MappedLineBlocks::open(file_, reader_.offset());
+    const auto offset = [&] { return mapped ? mapped->offset() : reader_.offset(); };
     std::vector<LinePiece> pieces;
     for (;;) {
       const std::uint64_t linesBefore = reader_.lineNumber();
-      const std::string_view block = reader_.readLineBlock(blockBytes);
+      const std::string_view block =
+          mapped ? mapped->next(blockBytes, linesBefore) : reader_.readLineBlock(blockBytes);
       if (block.empty()) return;
       // Pieces end after a "\n" (the block's last may not).
       std::size_t count = 0;
@@ -232,33 +239,71 @@ class XyzParser {
       parallelFor(
           count, 0, [&](std::size_t p) { parsePiece(pieces[p]); }, 1);
       std::uint64_t line = linesBefore;
-      for (std::size_t p = 0; p < count; ++p) {
-        LinePiece& piece = pieces[p];
-        const std::span<const Splat> parsed(piece.splats);
-        if (piece.allFinite) {
-          builder_.addPreparedFinite(parsed);
-        } else {
-          for (std::size_t j = 0; j < parsed.size(); ++j)
-            builder_.addPrepared(parsed[j], line + 1 + piece.lineOf[j], 0);
-        }
-        rows_ += parsed.size();
-        if (piece.bad != kNoBadLine) failAtLine(file_, line + 1 + piece.bad, piece.badMessage);
-        line += piece.lines;
+      if (handOverAtOnce(pieces, count)) {
+        for (std::size_t p = 0; p < count; ++p) line += pieces[p].lines;
+      } else {
+        handOverInOrder(pieces, count, line);
       }
       reader_.countLines(line - linesBefore);
       // Sized from the file so far.
-      const std::uint64_t done = reader_.offset();
+      const std::uint64_t done = offset();
       if (done > 0 && done < reader_.size()) {
         const double perByte = static_cast<double>(rows_) / static_cast<double>(done);
         const auto expected =
             static_cast<std::uint64_t>(perByte * static_cast<double>(reader_.size())) + 1024;
         builder_.expect(expected, reader_.size() / 6 + 16);
       }
-      builder_.progress(reader_.offset(), reader_.size());
+      builder_.progress(done, reader_.size());
     }
   }
 
   static constexpr std::uint64_t kNoBadLine = ~std::uint64_t{0};
+
+  struct LinePiece;
+
+  // A block whose pieces all parsed and are finite, copied into the cloud on
+  // all threads (each piece to its place); false, with nothing handed over,
+  // for any other block, or where the points go to a sink.
+  bool handOverAtOnce(std::vector<LinePiece>& pieces, std::size_t count) {
+    std::size_t total = 0;
+    for (std::size_t p = 0; p < count; ++p) {
+      if (!pieces[p].allFinite || pieces[p].bad != kNoBadLine) return false;
+      total += pieces[p].splats.size();
+    }
+    const std::span<Splat> room = builder_.appendRoom(total);
+    if (room.empty()) return total == 0 && !streaming_;
+    std::vector<std::size_t> at(count + 1, 0);
+    for (std::size_t p = 0; p < count; ++p) at[p + 1] = at[p] + pieces[p].splats.size();
+    parallelFor(
+        count, 0,
+        [&](std::size_t p) {
+          std::copy(pieces[p].splats.begin(), pieces[p].splats.end(),
+                    room.begin() + static_cast<std::ptrdiff_t>(at[p]));
+        },
+        1);
+    builder_.keepRoom(false);
+    rows_ += total;
+    return true;
+  }
+
+  // The pieces one after another, checked in line order: the first bad line
+  // or non-finite point is named as reading line by line would. `line` moves
+  // past the block.
+  void handOverInOrder(std::vector<LinePiece>& pieces, std::size_t count, std::uint64_t& line) {
+    for (std::size_t p = 0; p < count; ++p) {
+      LinePiece& piece = pieces[p];
+      const std::span<const Splat> parsed(piece.splats);
+      if (piece.allFinite) {
+        builder_.addPreparedFinite(parsed);
+      } else {
+        for (std::size_t j = 0; j < parsed.size(); ++j)
+          builder_.addPrepared(parsed[j], line + 1 + piece.lineOf[j], 0);
+      }
+      rows_ += parsed.size();
+      if (piece.bad != kNoBadLine) failAtLine(file_, line + 1 + piece.bad, piece.badMessage);
+      line += piece.lines;
+    }
+  }
 
   // Whole lines of a block, and what parsing them on one thread found.
   struct LinePiece {

@@ -2,6 +2,7 @@
 // libcgal-demo scans give the counts and values read by hand from the files;
 // every bad input gives an InputError naming the file and the place.
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -18,6 +19,7 @@
 #include <random>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "common/errors.hpp"
@@ -1354,6 +1356,93 @@ TEST(XyzReader, LinesAcrossBlocksAndPiecesKeepTheirNumbers) {
   bad.replace(at, wanted.size(), "450000.25 oops 7e-3 1 2 3");
   expectInputError([&] { readPointCloud(dir.write("bad.xyz", bad), defaults()); },
                    {"bad.xyz", "line " + std::to_string(lineOf(450'000)), "not a number: 'oops'"});
+}
+
+// Mapped blocks hold the lines FileReader's blocks hold, from any offset and
+// for any size asked: whole lines of at least that many bytes where the file
+// has them (the last may lack its end), a line longer than the block in a
+// larger window, then nothing.
+TEST(MappedLineBlocks, WholeLinesOfTheFileInOrder) {
+  using pointillist::preprocess::detail::FileReader;
+  using pointillist::preprocess::detail::MappedLineBlocks;
+  TempDir dir;
+  std::string text = "# header\n";
+  for (int i = 0; i < 30'000; ++i) {
+    text += std::to_string(i) + " " + std::to_string(i * 7 % 1000) + ".5 3\n";
+    if (i == 12'345) text += std::string(200'000, '1') + "\n";  // longer than most blocks
+  }
+  text += "9 9 9";  // no end of line
+  const fs::path file = dir.write("blocks.xyz", text);
+  for (const std::size_t want : {std::size_t{1}, std::size_t{4096}, std::size_t{65'536},
+                                 std::size_t{1} << 20, std::size_t{64} << 20}) {
+    FileReader buffered(file);
+    std::string_view header;
+    ASSERT_TRUE(buffered.readLine(header));
+    const auto mapped = MappedLineBlocks::open(file, buffered.offset());
+    ASSERT_NE(mapped, nullptr);
+    EXPECT_EQ(mapped->size(), text.size());
+    std::string joined(header);
+    joined += '\n';
+    std::size_t blocks = 0;
+    for (std::string_view block; !(block = mapped->next(want, 0)).empty(); ++blocks) {
+      joined += block;
+      EXPECT_EQ(mapped->offset(), joined.size());
+      if (joined.size() < text.size()) {
+        EXPECT_EQ(block.back(), '\n') << "block " << blocks << " of " << want << " bytes";
+        EXPECT_GE(block.size(), std::min(want, text.size() - (joined.size() - block.size())));
+      }
+    }
+    EXPECT_EQ(joined, text) << want;
+    EXPECT_TRUE(mapped->next(want, 0).empty());
+    // FileReader's blocks of the same file hold the same bytes.
+    std::string viaBuffer(header);
+    viaBuffer += '\n';
+    for (std::string_view block; !(block = buffered.readLineBlock(want)).empty();)
+      viaBuffer += block;
+    EXPECT_EQ(viaBuffer, joined);
+  }
+}
+
+// A pipe cannot be mapped (the XYZ reader then reads it through the buffer,
+// to the same points); a file cut short between blocks is refused, not
+// faulted on.
+TEST(MappedLineBlocks, PipesFallBackAndShrunkFilesAreRefused) {
+  using pointillist::preprocess::detail::MappedLineBlocks;
+  TempDir dir;
+  std::string text;
+  for (int i = 0; i < 200'000; ++i)
+    text += std::to_string(i) + " -2.25 " + std::to_string(i % 13) + "\n";
+  const fs::path file = dir.write("points.xyz", text);
+  const fs::path fifo = dir.path() / "pipe.xyz";
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  EXPECT_EQ(MappedLineBlocks::open(dir.path(), 0), nullptr);
+  std::thread writer([&] {
+    std::ofstream out(fifo, std::ios::binary);
+    out.write(text.data(), static_cast<std::streamsize>(text.size()));
+  });
+  pointillist::preprocess::PointCloud fromPipe;
+  try {
+    fromPipe = readPointCloud(fifo, defaults());
+  } catch (...) {
+    // Let the writer finish (it waits for a reader) before failing.
+    std::ifstream drain(fifo, std::ios::binary);
+    drain.ignore(std::numeric_limits<std::streamsize>::max());
+    writer.join();
+    throw;
+  }
+  writer.join();
+  const auto fromFile = readPointCloud(file, defaults());
+  ASSERT_EQ(fromPipe.splats.size(), 200'000u);
+  ASSERT_EQ(fromFile.splats.size(), fromPipe.splats.size());
+  EXPECT_EQ(std::memcmp(fromFile.splats.data(), fromPipe.splats.data(),
+                        fromFile.splats.size() * sizeof(Splat)),
+            0);
+
+  const auto mapped = MappedLineBlocks::open(file, 0);
+  ASSERT_NE(mapped, nullptr);
+  EXPECT_FALSE(mapped->next(4096, 0).empty());
+  fs::resize_file(file, text.size() / 2);
+  expectInputError([&] { mapped->next(4096, 0); }, {"points.xyz", "shrank"});
 }
 
 // The XYZ blocks parse a line in one pass (parseNumbers) and fall back to
