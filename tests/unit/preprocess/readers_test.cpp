@@ -1443,6 +1443,13 @@ TEST(MappedLineBlocks, PipesFallBackAndShrunkFilesAreRefused) {
   EXPECT_FALSE(mapped->next(4096, 0).empty());
   fs::resize_file(file, text.size() / 2);
   expectInputError([&] { mapped->next(4096, 0); }, {"points.xyz", "shrank"});
+
+  // A "line" past the limit FileReader sets (64 MiB) is not text.
+  const fs::path binary = dir.write("binary.xyz", "1 2 3\n" + std::string((65u << 20) + 10, '7'));
+  const auto huge = MappedLineBlocks::open(binary, 0);
+  ASSERT_NE(huge, nullptr);
+  EXPECT_EQ(huge->next(1, 0), "1 2 3\n");
+  expectInputError([&] { huge->next(4096, 1); }, {"binary.xyz", "line 2", "line too long"});
 }
 
 // The XYZ blocks parse a line in one pass (parseNumbers) and fall back to
