@@ -79,9 +79,20 @@ CubeLattice chooseCubeLattice(std::span<const Splat> sample, std::uint64_t every
 CubeLattice chooseCubeLattice(std::span<const Splat> points, const double origin[3], double extent,
                               double pointsPerCube) {
   const std::uint64_t every = latticeSampleEvery(points.size());
+  // Hashed on all threads, blocks joined in order (the same sample): a hash
+  // and a 64-bit division a point on one thread held the other cores waiting.
+  constexpr std::size_t kBlock = std::size_t{1} << 18;
+  std::vector<std::vector<Splat>> picked((points.size() + kBlock - 1) / kBlock);
+  parallelFor(
+      picked.size(), 0,
+      [&](std::size_t b) {
+        for (const Splat& s :
+             points.subspan(b * kBlock, std::min(kBlock, points.size() - b * kBlock)))
+          if (positionHash(s) % every == 0) picked[b].push_back(s);
+      },
+      1);
   std::vector<Splat> sample;
-  for (const Splat& s : points)
-    if (positionHash(s) % every == 0) sample.push_back(s);
+  for (const auto& block : picked) sample.insert(sample.end(), block.begin(), block.end());
   return chooseCubeLattice(sample, every, origin, extent, pointsPerCube);
 }
 
