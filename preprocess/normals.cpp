@@ -452,7 +452,7 @@ void orientedMomentNormals(std::vector<Splat>& splats, const std::vector<std::ui
 
   std::vector<Splat> representatives;
   if (anyNormal) {
-    representatives.resize(cubes);
+    resizePopulated(representatives, cubes, options.threads);
     std::vector<std::uint8_t> everyCube(cubes, 1), anchoredCube(cubes, 0);
     parallelFor(
         cubes, options.threads,
@@ -559,15 +559,28 @@ void estimateNormalsAndRadii(PointCloud& cloud, const NormalOptions& options) {
   }
   if (options.neighbours < 3) throw UsageError("normal estimation needs at least 3 neighbours");
 
-  std::vector<std::uint8_t> needNormal(n), needRadius(n), anchored(n);
-  bool anyNormal = false, anyRadius = false;
-  for (std::size_t i = 0; i < n; ++i) {
-    needNormal[i] = !options.onlyWhereMissing || !hasNormal(splats[i]);
-    needRadius[i] = !options.onlyWhereMissing || !hasRadius(splats[i]);
-    anchored[i] = hasNormal(splats[i]);  // a normal we trust for orientation
-    anyNormal = anyNormal || needNormal[i];
-    anyRadius = anyRadius || needRadius[i];
-  }
+  // On all threads, the flags' pages mapped first: one pass over the cloud
+  // on one core held the other waiting.
+  std::vector<std::uint8_t> needNormal, needRadius, anchored;
+  for (auto* flags : {&needNormal, &needRadius, &anchored})
+    resizePopulated(*flags, n, options.threads);
+  constexpr std::size_t kFlagBlock = std::size_t{1} << 16;
+  std::atomic<bool> anyNormalSeen{false}, anyRadiusSeen{false};
+  parallelFor((n + kFlagBlock - 1) / kFlagBlock, options.threads,
+              [&](std::size_t b) {
+                bool normals = false, radii = false;
+                for (std::size_t i = b * kFlagBlock; i < std::min(n, (b + 1) * kFlagBlock); ++i) {
+                  needNormal[i] = !options.onlyWhereMissing || !hasNormal(splats[i]);
+                  needRadius[i] = !options.onlyWhereMissing || !hasRadius(splats[i]);
+                  anchored[i] = hasNormal(splats[i]);  // a normal we trust for orientation
+                  normals = normals || needNormal[i];
+                  radii = radii || needRadius[i];
+                }
+                if (normals) anyNormalSeen.store(true, std::memory_order_relaxed);
+                if (radii) anyRadiusSeen.store(true, std::memory_order_relaxed);
+              },
+              1);
+  const bool anyNormal = anyNormalSeen.load(), anyRadius = anyRadiusSeen.load();
   if (!anyNormal && !anyRadius) {
     cloud.hasNormals = cloud.hasRadii = true;
     return;
