@@ -88,7 +88,7 @@ CubeLattice chooseCubeLattice(std::span<const Splat> points, const double origin
       [&](std::size_t b) {
         for (const Splat& s :
              points.subspan(b * kBlock, std::min(kBlock, points.size() - b * kBlock)))
-          if (positionHash(s) % every == 0) picked[b].push_back(s);
+          if (inHashSample(s, every)) picked[b].push_back(s);
       },
       1);
   std::vector<Splat> sample;

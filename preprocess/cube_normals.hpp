@@ -53,6 +53,12 @@ inline std::uint64_t positionHash(const Splat& s) {
   return h ^ (h >> 29);
 }
 
+// Whether a point is in the sample of one point in about `every`: the one
+// rule the in-memory and the out-of-core paths both draw their samples by.
+inline bool inHashSample(const Splat& s, std::uint64_t every) {
+  return positionHash(s) % every == 0;
+}
+
 // The radius rule of normals.hpp (pi r^2 = 3 / density) for n points whose
 // covariance's two largest eigenvalues are l1 >= l2: they span about
 // 12 sqrt(l1 l2) (exact for a uniformly sampled rectangle, l = side^2 / 12).
@@ -63,7 +69,7 @@ inline double radiusFromSpread(double l1, double l2, double n) {
   return std::sqrt(3.0 * area / (std::numbers::pi * n));
 }
 
-// The lattice's sample: points whose positionHash % every == 0, every from
+// The lattice's sample: points inHashSample(s, every), every from
 // the cloud's whole count (about 65536 points).
 std::uint64_t latticeSampleEvery(std::uint64_t points);
 

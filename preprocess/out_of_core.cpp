@@ -470,7 +470,7 @@ constexpr std::uint64_t kSidePoints = std::uint64_t{1} << 20;
 // position: the sample holds points of the cloud itself.
 class SideReference {
  public:
-  // every: a point is in the sample when positionHash % every == 0.
+  // every: a point is in the sample when inHashSample(s, every).
   SideReference(std::vector<Splat> sample, std::uint64_t every, int neighbours, unsigned threads,
                 ProgressFn progress)
       : every_(every) {
@@ -488,7 +488,7 @@ class SideReference {
     std::sort(entries_.begin(), entries_.end(),
               [](const Entry& a, const Entry& b) { return a.key < b.key; });
   }
-  bool inSample(const Splat& s) const { return positionHash(s) % every_ == 0; }
+  bool inSample(const Splat& s) const { return inHashSample(s, every_); }
   bool normalOf(const Splat& s, float normal[3]) const {
     if (!inSample(s)) return false;
     const Key k = key(s);
@@ -758,10 +758,10 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
           writer0.add(block);
           if (sampleEvery > 0)
             for (const Splat& s : block)
-              if (positionHash(s) % sampleEvery == 0) sample.push_back(s);
+              if (inHashSample(s, sampleEvery)) sample.push_back(s);
           if (latticeEvery > 0)
             for (const Splat& s : block)
-              if (positionHash(s) % latticeEvery == 0) latticeSample.push_back(s);
+              if (inHashSample(s, latticeEvery)) latticeSample.push_back(s);
         },
         again);
     if (again != count)

@@ -270,8 +270,9 @@ class XyzParser {
       if (!pieces[p].allFinite || pieces[p].bad != kNoBadLine) return false;
       total += pieces[p].splats.size();
     }
+    if (total == 0) return true;  // comments and blank lines only
     const std::span<Splat> room = builder_.appendRoom(total);
-    if (room.empty()) return total == 0 && !streaming_;
+    if (room.empty()) return false;  // the points go to a sink
     std::vector<std::size_t> at(count + 1, 0);
     for (std::size_t p = 0; p < count; ++p) at[p + 1] = at[p] + pieces[p].splats.size();
     parallelFor(
