@@ -15,9 +15,12 @@
 #       [--points N] [--out DIR] [-- more pointillist-simulate options]
 #
 # --dataset defaults to datasets/city-N (N = --points, default 2000000), the
-# built-in city scene, generated first when it is not there. --calibrate takes
-# T_s (render seconds per splat) from a deploy/bench-loadbalance.sh output
-# directory; other rates are options of pointillist-simulate (see its --help),
+# built-in city scene, generated first when it is not there. --calibrate fits
+# the render's time per packet, per pixel and per splat (T_p, T_px, T_s) to
+# every tile drawn in a deploy/bench-loadbalance.sh output directory (the
+# defaults are the CPU point kernel's on the development machine; OSMesa
+# points: -- --seconds-per-splat 2e-7 --packet-overhead-ms 1
+# --packet-ns-per-pixel 0); other rates are options of pointillist-simulate (see its --help),
 # e.g. -- --bandwidth-mbs 1170 --latency-us 5 --cost-model overlap,paper, or
 # -- --display-bandwidth-mbs 1170 (the display on 10 GbE, the rest on 1 GbE)
 # --tile-tasks-ahead 1 (each traverse asks for one tile at a time, as before;

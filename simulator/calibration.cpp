@@ -1,6 +1,8 @@
 #include "simulator/calibration.hpp"
 
 #include <algorithm>
+#include <array>
+#include <cmath>
 #include <fstream>
 #include <map>
 #include <sstream>
@@ -72,6 +74,50 @@ std::string layoutOf(const fs::path& statsJson) {
   return {};
 }
 
+// Least squares of seconds on the columns in `use` (0: a constant, 1: pixels,
+// 2: splats) by the normal equations, columns scaled to their mean first so
+// the system stays well conditioned. nullopt when it is singular.
+std::optional<std::array<double, 3>> leastSquares(std::span<const PacketSample> samples,
+                                                  const std::array<bool, 3>& use) {
+  const auto column = [](const PacketSample& s, std::size_t c) {
+    return c == 0 ? 1.0 : c == 1 ? s.pixels : s.splats;
+  };
+  std::array<std::size_t, 3> cols{};
+  std::size_t n = 0;
+  for (std::size_t c = 0; c < 3; ++c)
+    if (use[c]) cols[n++] = c;
+  std::array<double, 3> scale{1.0, 1.0, 1.0};
+  for (std::size_t i = 0; i < n; ++i) {
+    double sum = 0.0;
+    for (const PacketSample& s : samples) sum += std::abs(column(s, cols[i]));
+    scale[i] = sum > 0.0 ? sum / static_cast<double>(samples.size()) : 1.0;
+  }
+  std::array<std::array<double, 4>, 3> m{};
+  for (const PacketSample& s : samples) {
+    std::array<double, 3> x{};
+    for (std::size_t i = 0; i < n; ++i) x[i] = column(s, cols[i]) / scale[i];
+    for (std::size_t i = 0; i < n; ++i) {
+      for (std::size_t j = 0; j < n; ++j) m[i][j] += x[i] * x[j];
+      m[i][3] += x[i] * s.seconds;
+    }
+  }
+  for (std::size_t c = 0; c < n; ++c) {  // Gauss-Jordan with partial pivoting
+    std::size_t pivot = c;
+    for (std::size_t r = c + 1; r < n; ++r)
+      if (std::abs(m[r][c]) > std::abs(m[pivot][c])) pivot = r;
+    if (!(std::abs(m[pivot][c]) > 1e-12 * static_cast<double>(samples.size()))) return std::nullopt;
+    std::swap(m[c], m[pivot]);
+    for (std::size_t r = 0; r < n; ++r) {
+      if (r == c) continue;
+      const double f = m[r][c] / m[c][c];
+      for (std::size_t k = c; k < 4; ++k) m[r][k] -= f * m[c][k];
+    }
+  }
+  std::array<double, 3> out{};
+  for (std::size_t i = 0; i < n; ++i) out[cols[i]] = m[i][3] / m[i][i] / scale[i];
+  return out;
+}
+
 MeasuredRun readRun(const fs::path& dir) {
   MeasuredRun run;
   run.name = dir.filename().string();
@@ -97,7 +143,59 @@ MeasuredRun readRun(const fs::path& dir) {
   return run;
 }
 
+// The packets a run's render processes drew (tiles.csv; none without one).
+// Tiles answered without a render (empty) have no render time.
+std::vector<PacketSample> readPackets(const fs::path& dir) {
+  std::vector<PacketSample> samples;
+  if (!fs::exists(dir / "tiles.csv")) return samples;
+  const CsvFile tiles(dir / "tiles.csv");
+  for (std::size_t i = 0; i < tiles.rows(); ++i) {
+    PacketSample s;
+    s.seconds = tiles.number(i, "render_seconds");
+    s.splats = tiles.number(i, "splats");
+    s.pixels = tiles.number(i, "pixels");
+    if (s.seconds > 0.0) samples.push_back(s);
+  }
+  return samples;
+}
+
 }  // namespace
+
+PacketTimeFit fitPacketTimes(std::span<const PacketSample> samples) {
+  double meanSeconds = 0.0;
+  bool anySplats = false;
+  for (const PacketSample& s : samples) {
+    meanSeconds += s.seconds;
+    anySplats = anySplats || s.splats > 0.0;
+  }
+  if (!anySplats) throw InputError("no packet drew a splat, so T_s cannot be fitted");
+  meanSeconds /= static_cast<double>(samples.size());
+  double total = 0.0;
+  for (const PacketSample& s : samples)
+    total += (s.seconds - meanSeconds) * (s.seconds - meanSeconds);
+  // Every model with T_s; of those whose coefficients are all >= 0, the
+  // one that leaves the least squared error.
+  std::optional<PacketTimeFit> best;
+  double bestError = 0.0;
+  for (const std::array<bool, 3> use :
+       {std::array<bool, 3>{true, true, true}, std::array<bool, 3>{true, false, true},
+        std::array<bool, 3>{false, true, true}, std::array<bool, 3>{false, false, true}}) {
+    const auto c = leastSquares(samples, use);
+    if (!c || (*c)[0] < 0.0 || (*c)[1] < 0.0 || !((*c)[2] > 0.0)) continue;
+    double error = 0.0;
+    for (const PacketSample& s : samples) {
+      const double e = s.seconds - ((*c)[0] + (*c)[1] * s.pixels + (*c)[2] * s.splats);
+      error += e * e;
+    }
+    if (best && error >= bestError) continue;
+    best = PacketTimeFit{(*c)[0], (*c)[1], (*c)[2], samples.size(),
+                         total > 0.0 ? 1.0 - error / total : 1.0};
+    bestError = error;
+  }
+  if (!best)
+    throw InputError("the packets' times do not grow with their splats: T_s cannot be fitted");
+  return *best;
+}
 
 Calibration calibrateFromRuns(const fs::path& directory, double packetOverheadSeconds) {
   if (!fs::is_directory(directory)) {
@@ -124,14 +222,26 @@ Calibration calibrateFromRuns(const fs::path& directory, double packetOverheadSe
   Calibration calibration;
   std::uint64_t splats = 0, tiles = 0;
   double busy = 0.0;
+  std::vector<PacketSample> packets;
   for (const fs::path& dir : runDirs) {
     calibration.runs.push_back(readRun(dir));
     splats += calibration.runs.back().splats;
     busy += calibration.runs.back().busySeconds;
     tiles += calibration.runs.back().tiles;
+    const auto drawn = readPackets(dir);
+    packets.insert(packets.end(), drawn.begin(), drawn.end());
   }
   if (splats == 0 || !(busy > 0.0)) {
     throw InputError(directory.string() + ": the runs drew no splats, so T_s cannot be measured");
+  }
+  if (!packets.empty()) {
+    try {
+      calibration.fit = fitPacketTimes(packets);
+    } catch (const InputError& e) {
+      throw InputError(directory.string() + ": tiles.csv: " + e.what());
+    }
+    calibration.secondsPerSplat = calibration.fit->secondsPerSplat;
+    return calibration;
   }
   // The per-packet overhead is modelled apart; take it out, but never more
   // than half of the busy time (the overhead is itself a guess).

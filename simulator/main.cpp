@@ -92,6 +92,7 @@ int run(int argc, char** argv) {
   ModelParameters& p = sweep.parameters;
   double secondsPerSplat = 0.0;
   double packetOverheadMs = p.packetOverheadSeconds * 1e3;
+  double packetNsPerPixel = p.packetSecondsPerPixel * 1e9;
   double bandwidthMBs = p.bandwidthBytesPerSecond / 1e6;
   double displayBandwidthMBs = 0.0;
   double latencyUs = p.latencySeconds * 1e6;
@@ -124,10 +125,18 @@ int run(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--min-tile", sweep.minTileSize, "Smallest tile side in pixels")
       ->capture_default_str();
-  app.add_option("--seconds-per-splat", secondsPerSplat,
-                 "T_s, render seconds per splat (default 2e-7: 5 M splats/s, llvmpipe points)");
-  app.add_option("--packet-overhead-ms", packetOverheadMs, "Render time per packet besides splats")
-      ->capture_default_str();
+  auto* splatOption = app.add_option(
+      "--seconds-per-splat", secondsPerSplat,
+      "T_s, render seconds per splat (default: the CPU point kernel as measured here; OSMesa "
+      "points were about 2e-7)");
+  auto* packetOption =
+      app.add_option("--packet-overhead-ms", packetOverheadMs,
+                     "T_p, render time per packet besides pixels and splats (OSMesa: about 1)")
+          ->capture_default_str();
+  auto* pixelOption = app.add_option("--packet-ns-per-pixel", packetNsPerPixel,
+                                     "T_px, render time per pixel of a packet's rect (clearing, "
+                                     "read-back, sending)")
+                          ->capture_default_str();
   app.add_option("--bandwidth-mbs", bandwidthMBs, "Link bandwidth in MB/s (117: 1 GbE)")
       ->capture_default_str();
   app.add_option("--display-bandwidth-mbs", displayBandwidthMBs,
@@ -206,6 +215,7 @@ int run(int argc, char** argv) {
   if (jobs == 0) throw UsageError("--jobs must be at least 1");
   sweep.jobs = jobs;
   p.packetOverheadSeconds = packetOverheadMs * 1e-3;
+  p.packetSecondsPerPixel = packetNsPerPixel * 1e-9;
   p.bandwidthBytesPerSecond = bandwidthMBs * 1e6;
   p.displayBandwidthBytesPerSecond = displayBandwidthMBs * 1e6;
   p.latencySeconds = latencyUs * 1e-6;
@@ -214,8 +224,11 @@ int run(int argc, char** argv) {
   if (secondsPerSplat < 0.0 || traverseSecondsPerCell < 0.0) {
     throw UsageError("--seconds-per-splat and --traverse-seconds-per-cell must be positive");
   }
-  if (secondsPerSplat > 0.0 && !calibrateDir.empty()) {
-    throw UsageError("give --seconds-per-splat or --calibrate, not both");
+  if (!calibrateDir.empty() &&
+      (splatOption->count() > 0 || packetOption->count() > 0 || pixelOption->count() > 0)) {
+    throw UsageError(
+        "--calibrate measures T_s, T_p and T_px: give it or --seconds-per-splat, "
+        "--packet-overhead-ms and --packet-ns-per-pixel, not both");
   }
 
   Assumptions sources;
@@ -225,6 +238,10 @@ int run(int argc, char** argv) {
   } else if (!calibrateDir.empty()) {
     const Calibration calibration = calibrateFromRuns(calibrateDir, p.packetOverheadSeconds);
     p.secondsPerSplat = calibration.secondsPerSplat;
+    if (calibration.fit) {
+      p.packetOverheadSeconds = calibration.fit->secondsPerPacket;
+      p.packetSecondsPerPixel = calibration.fit->secondsPerPixel;
+    }
     std::string runs;
     for (const MeasuredRun& run : calibration.runs) {
       char line[256];
@@ -234,10 +251,19 @@ int run(int argc, char** argv) {
                     run.framesPerSecondSteady, run.imbalanceBusy);
       runs += line;
     }
-    sources.emplace_back("T_s from", calibrateDir + ": render busy seconds per splat");
+    if (calibration.fit) {
+      char fit[160];
+      std::snprintf(fit, sizeof fit, "%zu packets (tiles.csv), R^2 %.3f", calibration.fit->samples,
+                    calibration.fit->rSquared);
+      sources.emplace_back("T_s, T_p and T_px fitted from",
+                           calibrateDir + ": least squares of render seconds over " + fit);
+    } else {
+      sources.emplace_back("T_s from", calibrateDir + ": render busy seconds per splat");
+    }
     sources.emplace_back("measured there", runs);
   } else {
-    sources.emplace_back("T_s from", "default (llvmpipe points on the 2-core development machine)");
+    sources.emplace_back("T_s from",
+                         "default (the CPU point kernel on the 2-core development machine)");
   }
   validateParameters(p);
 

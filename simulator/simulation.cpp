@@ -34,6 +34,7 @@ void validateParameters(const ModelParameters& p) {
   };
   positive(p.secondsPerSplat, "T_s (--seconds-per-splat)");
   nonNegative(p.packetOverheadSeconds, "the packet overhead (--packet-overhead-ms)");
+  nonNegative(p.packetSecondsPerPixel, "the packet time per pixel (--packet-ns-per-pixel)");
   positive(p.bandwidthBytesPerSecond, "the bandwidth (--bandwidth-mbs)");
   nonNegative(p.displayBandwidthBytesPerSecond, "--display-bandwidth-mbs");
   nonNegative(p.latencySeconds, "the latency (--latency-us)");
@@ -45,6 +46,13 @@ void validateParameters(const ModelParameters& p) {
   positive(p.tileTimeoutSeconds, "the tile time-out (--tile-timeout)");
   if (p.framesInFlight == 0) throw UsageError("--frames-in-flight must be at least 1");
   if (p.maxAttempts == 0) throw UsageError("--max-attempts must be at least 1");
+}
+
+double packetSeconds(const ModelParameters& p, const v1::RenderPacket& packet) {
+  const double pixels =
+      static_cast<double>(packet.rect().width()) * static_cast<double>(packet.rect().height());
+  return p.packetOverheadSeconds + pixels * p.packetSecondsPerPixel +
+         static_cast<double>(packet.total_splats()) * p.secondsPerSplat;
 }
 
 std::string configName(const SimulationConfig& config) {
@@ -610,9 +618,7 @@ class Simulation {
     send(now, peers_.renders[r], effects.messages);
     if (ready) {
       process.busy = true;
-      process.currentSeconds =
-          p_.packetOverheadSeconds +
-          static_cast<double>(ready->packet.total_splats()) * p_.secondsPerSplat;
+      process.currentSeconds = packetSeconds(p_, ready->packet);
       process.current = std::move(ready);
       process.busyIntervals.push_back({now, now + process.currentSeconds});
       schedule(now + process.currentSeconds, Step::RenderDone, peers_.renders[r]);

@@ -6,7 +6,8 @@
 // decision is theirs; the simulator only models time. Modelled instead of run:
 //   traverse  seconds per visited cell * cells visited (+ one per cell found by
 //             the prefetch walk) + a per-tile overhead;
-//   render    a per-packet overhead + splats * T_s, one packet at a time;
+//   render    a per-packet overhead + the rect's pixels * T_px + splats * T_s,
+//             one packet at a time;
 //   network   every message takes latency L; bulk bytes (cell data, render
 //             packets, tile images) serialise on the sender's outgoing and the
 //             receiver's incoming link at bandwidth B (one NIC per process);
@@ -26,10 +27,14 @@
 namespace pointillist::simulator {
 
 // The model's rates. Defaults are measured on the development machine (2-core
-// Xeon, llvmpipe points) or are those of the runtime's options.
+// Xeon; points drawn by the CPU point kernel, the default renderer, fitted from
+// a job's tiles.csv by --calibrate, docs/scheduling.md §15) or are those of the
+// runtime's options. OSMesa (llvmpipe) points were about 2e-7 s a splat and
+// 1 ms a packet.
 struct ModelParameters {
-  double secondsPerSplat = 2e-7;           // T_s: 5 M splats/s per render process
-  double packetOverheadSeconds = 1e-3;     // per render packet (state, viewport, read-back)
+  double secondsPerSplat = 1.16e-8;        // T_s
+  double packetOverheadSeconds = 1.0e-5;   // T_p: per render packet
+  double packetSecondsPerPixel = 1.67e-9;  // T_px: clearing, read-back, sending
   double bandwidthBytesPerSecond = 117e6;  // 1 GbE payload
   // The display's own link (tile images come in on it); 0: as the others.
   double displayBandwidthBytesPerSecond = 0.0;
@@ -46,6 +51,9 @@ struct ModelParameters {
 
 // Throws UsageError naming the first parameter out of range.
 void validateParameters(const ModelParameters& parameters);
+
+// What drawing `packet` takes a render process: T_p + T_px * pixels + T_s * splats.
+double packetSeconds(const ModelParameters& parameters, const v1::RenderPacket& packet);
 
 struct SimulationConfig {
   display::SchedulerKind scheduler = display::SchedulerKind::Cost;

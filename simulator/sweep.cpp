@@ -273,8 +273,10 @@ Assumptions describeAssumptions(const Scene& scene, const ViewOptions& view,
                    (view.noBackfaceCull ? ", no back-face culling" : "")},
       {"render T_s", significant(p.secondsPerSplat, 3) + " s/splat (" +
                          fixed(1e-6 / p.secondsPerSplat, 2) + " M splats/s) + " +
-                         significant(p.packetOverheadSeconds * 1e3, 3) + " ms" +
-                         " per packet; one packet at a time, first ready packet in queue order"},
+                         significant(p.packetOverheadSeconds * 1e3, 3) + " ms per packet + " +
+                         significant(p.packetSecondsPerPixel * 1e9, 3) +
+                         " ns per pixel of its "
+                         "rect; one packet at a time, first ready packet in queue order"},
       {"network", fixed(p.bandwidthBytesPerSecond / 1e6, 0) + " MB/s per link, latency " +
                       fixed(p.latencySeconds * 1e6, 0) + " us" +
                       "; one NIC per process; bulk bytes (cell data, render packets, tile "

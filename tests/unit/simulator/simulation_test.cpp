@@ -547,5 +547,55 @@ TEST(SimulatorCalibration, TimePerSplatComesFromBusySecondsOfTheRuns) {
   EXPECT_THROW(calibrateFromRuns(dir.path() / "bad", 0.0), InputError);
 }
 
+TEST(SimulatorCalibration, PacketTimesAreFittedFromTheTilesDrawn) {
+  // Exact data: 20 us a packet, 2 ns a pixel, 10 ns a splat.
+  std::vector<PacketSample> samples;
+  for (int i = 0; i < 40; ++i) {
+    const double pixels = 256.0 * (1 + i % 7), splats = 1000.0 * (1 + (i * 5) % 11);
+    samples.push_back({20e-6 + 2e-9 * pixels + 1e-8 * splats, splats, pixels});
+  }
+  const PacketTimeFit exact = fitPacketTimes(samples);
+  EXPECT_NEAR(exact.secondsPerPacket, 20e-6, 1e-12);
+  EXPECT_NEAR(exact.secondsPerPixel, 2e-9, 1e-15);
+  EXPECT_NEAR(exact.secondsPerSplat, 1e-8, 1e-15);
+  EXPECT_NEAR(exact.rSquared, 1.0, 1e-9);
+  EXPECT_EQ(exact.samples, 40u);
+
+  // Time that falls with pixels would give T_px < 0: that term is dropped and
+  // the packet overhead and T_s refitted, never a negative rate.
+  std::vector<PacketSample> falling;
+  for (int i = 0; i < 40; ++i) {
+    const double pixels = 256.0 * (1 + i % 7), splats = 1000.0 * (1 + (i * 5) % 11);
+    falling.push_back({1e-3 - 1e-7 * pixels + 1e-8 * splats, splats, pixels});
+  }
+  const PacketTimeFit kept = fitPacketTimes(falling);
+  EXPECT_EQ(kept.secondsPerPixel, 0.0);
+  EXPECT_GT(kept.secondsPerPacket, 0.0);
+  EXPECT_GT(kept.secondsPerSplat, 0.0);
+  EXPECT_LT(kept.rSquared, 1.0);
+
+  // Without a splat drawn there is no T_s to fit.
+  EXPECT_THROW(fitPacketTimes(std::vector<PacketSample>{{2e-3, 0, 64}}), InputError);
+
+  // From a run directory: the tiles.csv lines with a render time (an empty
+  // tile answered by its traverse has none), which then give T_s too.
+  TempDir dir;
+  writeFile(dir.path() / "per_frame_render.csv",
+            "frame,render_rank,splats,busy_seconds\n0,4,3000,0.5\n");
+  std::string tiles = "frame,tile,render_seconds,splats,pixels\n0,9,0,0,1024\n";
+  for (const PacketSample& s : samples) {
+    tiles += "0,1," + std::to_string(s.seconds) + "," + std::to_string(s.splats) + "," +
+             std::to_string(s.pixels) + "\n";
+  }
+  writeFile(dir.path() / "tiles.csv", tiles);
+  const Calibration fromRun = calibrateFromRuns(dir.path(), 1e-3);
+  ASSERT_TRUE(fromRun.fit.has_value());
+  EXPECT_EQ(fromRun.fit->samples, 40u);
+  EXPECT_NEAR(fromRun.secondsPerSplat, 1e-8, 1e-10);  // to_string keeps 6 decimals
+  EXPECT_NEAR(fromRun.fit->secondsPerPacket, 20e-6, 1e-6);
+  writeFile(dir.path() / "tiles.csv", "frame,tile,render_seconds,splats\n0,1,0.001,10\n");
+  EXPECT_THROW(calibrateFromRuns(dir.path(), 1e-3), InputError);  // no pixels column
+}
+
 }  // namespace
 }  // namespace pointillist::simulator
