@@ -24,10 +24,10 @@ v1::Scheduler parseScheduler(const std::string& name);
 // k >= 1 + round trip / walk (docs/scheduling.md §8.1, §10).
 inline constexpr std::uint32_t kDefaultTileTasksAhead = 2;
 inline constexpr std::uint32_t kMaxAutoTileTasksAhead = 8;
-inline constexpr std::uint32_t kTilesPerAutoTileTask = 64;
+inline constexpr std::uint32_t kTilesPerAutoTileTask = 16;
 // The run's count (RunSettings.tile_tasks_ahead; 0: kDefaultTileTasksAhead).
 std::uint32_t tileTasksAhead(const v1::RunSettings& settings);
-// "auto": one request per 64 tiles a traverse walks per frame, from 2 to 8.
+// "auto": one request per 16 tiles a traverse walks per frame, from 2 to 8.
 // The more tiles per traverse, the smaller they are and the shorter each
 // walk, so the more requests it takes to cover a round trip; the fewer, the
 // more a frame's last tiles would wait at one traverse while another idles.

@@ -24,7 +24,7 @@
 # e.g. -- --bandwidth-mbs 1170 --latency-us 5 --cost-model overlap,paper, or
 # -- --display-bandwidth-mbs 1170 (the display on 10 GbE, the rest on 1 GbE)
 # --tile-tasks-ahead 1 (each traverse asks for one tile at a time, as before;
-# the default, auto, keeps one request per 64 tiles a traverse walks per frame,
+# the default, auto, keeps one request per 16 tiles a traverse walks per frame,
 # 2 to 8). A run whose tiles wait at the display for requests while the
 # traverses idle is reported request-bound ("requests") in the table and advice.
 # OUT (default out/simulate) gets simulate.csv (every figure, raw units),

@@ -86,16 +86,16 @@ TEST(RunSettings, SchedulerNamesRoundTrip) {
   EXPECT_THROW(parseScheduler("fastest"), UsageError);
 }
 
-// auto: one request per 64 tiles a traverse walks per frame, at least the
+// auto: one request per 16 tiles a traverse walks per frame, at least the
 // old default (a small job decides as before), at most 8.
 TEST(RunSettings, TileTasksAheadAutoGrowsWithTheTilesEachTraverseWalks) {
   EXPECT_EQ(autoTileTasksAhead(8, 2), kDefaultTileTasksAhead);  // the 1,2,1,4 default job
-  EXPECT_EQ(autoTileTasksAhead(256, 2), 2u);
-  EXPECT_EQ(autoTileTasksAhead(257, 2), 3u);
-  EXPECT_EQ(autoTileTasksAhead(1024, 2), 8u);
-  EXPECT_EQ(autoTileTasksAhead(1024, 4), 4u);
+  EXPECT_EQ(autoTileTasksAhead(64, 2), 2u);
+  EXPECT_EQ(autoTileTasksAhead(65, 2), 3u);
+  EXPECT_EQ(autoTileTasksAhead(256, 4), 4u);
+  EXPECT_EQ(autoTileTasksAhead(256, 2), 8u);
   EXPECT_EQ(autoTileTasksAhead(8192, 4), kMaxAutoTileTasksAhead);
-  EXPECT_EQ(autoTileTasksAhead(200, 0), 4u) << "no traverse counts as one";
+  EXPECT_EQ(autoTileTasksAhead(50, 0), 4u) << "no traverse counts as one";
   for (double tiles = 1; tiles < 5000; tiles *= 1.7) {
     EXPECT_LE(autoTileTasksAhead(tiles, 2), autoTileTasksAhead(tiles * 1.7, 2));
     EXPECT_GE(autoTileTasksAhead(tiles, 2), autoTileTasksAhead(tiles, 3));
