@@ -41,7 +41,7 @@ struct PacketTimeFit {
 // Least squares over the samples. A coefficient the data would make negative
 // (noise, or too little spread in that column) is dropped and the others
 // refitted, so the model never credits time for more work. Throws InputError
-// when no packet drew a splat.
+// when no packet drew a splat or no fit gives splats a positive time.
 PacketTimeFit fitPacketTimes(std::span<const PacketSample> samples);
 
 struct Calibration {
