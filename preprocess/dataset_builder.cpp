@@ -127,16 +127,19 @@ DatasetContent assembleDatasetContent(Octree tree, LevelSplats ls, const Preproc
     } else if (s.unknownNormal || length(axis) == 0.0) {
       clearNormalCone(out);
     } else {
-      // The subtree's level-splats are one range: up to the next cell outside it.
-      const std::uint64_t levelEnd =
-          c.nextSibling == kNoIndex ? splats.size() : ls.cellBegin[c.nextSibling];
+      // The subtree's points are one range; its level-splats are each cell's
+      // own (a packet is laid out by level).
       const auto pts = points.subspan(static_cast<std::size_t>(c.begin),
                                       static_cast<std::size_t>(c.end - c.begin));
-      const auto lvl = splats.subspan(static_cast<std::size_t>(ls.cellBegin[i]),
-                                      static_cast<std::size_t>(levelEnd - ls.cellBegin[i]));
       const ConeAxisQ q = quantizeConeAxis(axis);
       const Vec3d decoded = decodeConeAxis(q);
-      encodeNormalCone(out, q, minDot(decoded, lvl, minDot(decoded, pts, 1.0)));
+      double least = minDot(decoded, pts, 1.0);
+      const std::size_t end = c.nextSibling == kNoIndex ? n : std::size_t{c.nextSibling};
+      for (std::size_t j = i; j < end; ++j)
+        least = minDot(decoded,
+                       splats.subspan(static_cast<std::size_t>(ls.cellBegin[j]), ls.cellCount[j]),
+                       least);
+      encodeNormalCone(out, q, least);
     }
     out.nextSibling = c.nextSibling;
     out.topLevel = c.topLevel;
@@ -150,38 +153,12 @@ DatasetContent assembleDatasetContent(Octree tree, LevelSplats ls, const Preproc
           ls.topLevelBegin[c.topLevel + 1] - ls.topLevelBegin[c.topLevel];
       out.pointsOffset = static_cast<std::uint32_t>(packetSplats + c.begin - top.begin);
       out.pointsCount = static_cast<std::uint32_t>(c.end - c.begin);
-      out.splatsCount = ls.cellCount[i];  // the offset comes with the layering, below
-    }
-  });
-
-  // Packets are layered coarse-first (common/dataset.hpp): within each
-  // top-level cell, its cells' level-splats by level from the highest down,
-  // cells of one level in depth-first order. Done in place, after the cones
-  // (which read each subtree's splats as one depth-first range), through a
-  // packet-sized copy: a second array of all level-splats would be fresh
-  // memory, zeroed and faulted in on one thread.
-  const std::size_t topCount = tree.topLevelCells.size();
-  parallelFor(topCount, options.threads, [&](std::size_t k) {
-    const std::uint32_t root = tree.topLevelCells[k];
-    const std::uint32_t end = cells[root].nextSibling == kNoIndex ? static_cast<std::uint32_t>(n)
-                                                                  : cells[root].nextSibling;
-    thread_local std::vector<std::uint32_t> order;
-    thread_local std::vector<Splat> packet;
-    order.clear();
-    for (std::uint32_t i = root; i < end; ++i)
-      if (ls.cellCount[i] > 0) order.push_back(i);
-    std::stable_sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
-      return cells[a].level > cells[b].level;
-    });
-    const std::uint64_t first = ls.topLevelBegin[k];
-    const auto whole = ls.splats.begin() + static_cast<std::ptrdiff_t>(first);
-    packet.assign(whole, ls.splats.begin() + static_cast<std::ptrdiff_t>(ls.topLevelBegin[k + 1]));
-    std::uint64_t at = 0;
-    for (const std::uint32_t i : order) {
-      content.cells[i].splatsOffset = static_cast<std::uint32_t>(at);
-      std::copy_n(packet.begin() + static_cast<std::ptrdiff_t>(ls.cellBegin[i] - first),
-                  ls.cellCount[i], whole + static_cast<std::ptrdiff_t>(at));
-      at += ls.cellCount[i];
+      out.splatsCount = ls.cellCount[i];
+      // Level-splats come laid out as packets are (coarse first).
+      out.splatsOffset =
+          ls.cellCount[i] == 0
+              ? 0
+              : static_cast<std::uint32_t>(ls.cellBegin[i] - ls.topLevelBegin[c.topLevel]);
     }
   });
 
@@ -266,8 +243,20 @@ DatasetContent buildDatasetContent(std::vector<Splat> points, const PreprocessOp
   // After the top-level cells: a leaf's radius never looks above its own.
   if (options.radiiInLeaves)
     estimateRadiiInLeaves(tree, options.radiusNeighbours, options.threads, stage("radii"));
+  LevelSplatPacketFn onPacket;
+  if (options.packetSink) {
+    if (options.instancing || options.statistical)
+      throw Error(
+          "internal error: packets are streamed only without --instanced and --statistical");
+    onPacket = [&](std::size_t k, std::span<const Splat> levelSplats) {
+      const BuildCell& top = tree.cells[tree.topLevelCells[k]];
+      options.packetSink(levelSplats, std::span<const Splat>(tree.points)
+                                          .subspan(static_cast<std::size_t>(top.begin),
+                                                   static_cast<std::size_t>(top.end - top.begin)));
+    };
+  }
   LevelSplats ls =
-      buildLevelSplats(tree, options.levelSplats, stage("level-splats"), options.threads);
+      buildLevelSplats(tree, options.levelSplats, stage("level-splats"), options.threads, onPacket);
   if (progress) progress("cells", 0, total);
   DatasetContent content = assembleDatasetContent(std::move(tree), std::move(ls), options, normals);
   if (progress) progress("cells", total, total);

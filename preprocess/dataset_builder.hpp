@@ -55,6 +55,11 @@ struct PreprocessOptions {
   // *statisticalStats when it is set.
   std::optional<StatisticalOptions> statistical;
   StatisticalStats* statisticalStats = nullptr;
+  // Each packet's bytes, in packet order, as soon as its level-splats are made
+  // (on the thread that called buildDatasetContent, while the others go on):
+  // DatasetWriter::appendPacket writes the dataset meanwhile. Not with
+  // instancing or statistical, which add to packets afterwards.
+  std::function<void(std::span<const Splat> levelSplats, std::span<const Splat> points)> packetSink;
 };
 
 // stage is "octree", "normals and radii", "radii", "level-splats" or "cells";

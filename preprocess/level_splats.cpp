@@ -345,7 +345,8 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
 }
 
 LevelSplats buildLevelSplats(const Octree& tree, const LevelSplatOptions& options,
-                             const ProgressFn& progress, unsigned threads) {
+                             const ProgressFn& progress, unsigned threads,
+                             const LevelSplatPacketFn& onPacket) {
   const auto& cells = tree.cells;
   const std::size_t nTop = tree.topLevelCells.size();
   struct TopResult {
@@ -382,27 +383,36 @@ LevelSplats buildLevelSplats(const Octree& tree, const LevelSplatOptions& option
       perCell[i - root] =
           clusterSplats(inputs, levelSplatTarget(inputs.size(), options), options).splats;
     }
+    // Laid out as the packet: by level from the highest down, cells of one
+    // level in depth-first order.
+    std::vector<std::uint32_t> order(count);
+    std::iota(order.begin(), order.end(), 0u);
+    std::stable_sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
+      return cells[root + a].level > cells[root + b].level;
+    });
     TopResult& r = results[k];
     r.begin.resize(count);
     r.count.resize(count);
     std::size_t total = 0;
     for (const auto& v : perCell) total += v.size();
     r.splats.reserve(total);
-    for (std::size_t j = 0; j < count; ++j) {
+    for (const std::uint32_t j : order) {
       r.begin[j] = static_cast<std::uint32_t>(r.splats.size());
       r.count[j] = static_cast<std::uint32_t>(perCell[j].size());
       r.splats.insert(r.splats.end(), perCell[j].begin(), perCell[j].end());
     }
   };
 
-  // Workers take top-level cells in turn; this thread reports progress, so a
-  // progress callback that throws (interrupt) stops the workers cleanly.
+  // Workers take top-level cells in turn; this thread reports progress and
+  // hands finished packets on in order, so a callback that throws (interrupt,
+  // a full disk) stops the workers cleanly.
   std::atomic<std::size_t> next{0};
   std::atomic<std::uint64_t> pointsDone{0};
   std::atomic<bool> stop{false};
   std::mutex mutex;
   std::condition_variable cv;
   std::size_t finishedWorkers = 0;
+  std::vector<std::uint8_t> finished(onPacket ? nTop : 0, 0);  // under mutex
   std::exception_ptr error;
   if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
   threads = static_cast<unsigned>(std::min<std::size_t>(threads, std::max<std::size_t>(nTop, 1)));
@@ -412,6 +422,11 @@ LevelSplats buildLevelSplats(const Octree& tree, const LevelSplatOptions& option
         process(k);
         const BuildCell& root = cells[tree.topLevelCells[k]];
         pointsDone += root.end - root.begin;
+        if (onPacket) {
+          std::lock_guard lock(mutex);
+          finished[k] = 1;
+          cv.notify_all();
+        }
       }
     } catch (...) {
       std::lock_guard lock(mutex);
@@ -426,10 +441,21 @@ LevelSplats buildLevelSplats(const Octree& tree, const LevelSplatOptions& option
   std::vector<std::thread> pool;
   for (unsigned t = 0; t < threads; ++t) pool.emplace_back(worker);
   try {
+    std::size_t handedOn = 0;
+    auto lastProgress = std::chrono::steady_clock::now();
     std::unique_lock lock(mutex);
-    while (finishedWorkers < pool.size()) {
-      cv.wait_for(lock, std::chrono::milliseconds(200));
-      if (progress) {
+    while (finishedWorkers < pool.size() || (onPacket && !error && handedOn < nTop)) {
+      if (onPacket && handedOn < nTop && finished[handedOn] != 0) {
+        lock.unlock();
+        onPacket(handedOn, results[handedOn].splats);
+        ++handedOn;
+        lock.lock();
+      } else {
+        cv.wait_for(lock, std::chrono::milliseconds(200));
+      }
+      if (progress &&
+          std::chrono::steady_clock::now() - lastProgress >= std::chrono::milliseconds(200)) {
+        lastProgress = std::chrono::steady_clock::now();
         lock.unlock();
         progress(pointsDone.load(), tree.points.size());
         lock.lock();
@@ -469,7 +495,7 @@ LevelSplats buildLevelSplats(const Octree& tree, const LevelSplatOptions& option
         results[k] = {};
       },
       16);
-  // Cells above the top-level depth: their subtree's splats start with their first child's.
+  // Cells above the top-level depth: where their subtree's packets begin.
   for (std::size_t i = cells.size(); i-- > 0;)
     if (cells[i].topLevel == kNoIndex) out.cellBegin[i] = out.cellBegin[i + 1];
   if (progress) progress(tree.points.size(), tree.points.size());

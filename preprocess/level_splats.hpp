@@ -20,6 +20,7 @@
 // coarse LOD); radii grow about 1.5-2x a level as counts fall 4x.
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <span>
 #include <vector>
 
@@ -53,9 +54,10 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
                          const LevelSplatOptions& options);
 
 struct LevelSplats {
-  // Grouped by top-level cell (table order); within one, cells in depth-first
-  // order, each cell's splats contiguous. Hence a subtree's level-splats are
-  // one contiguous range starting with its root's own.
+  // Grouped by top-level cell (table order), each group laid out as its packet
+  // is (common/dataset.hpp): coarse first, its cells' splats by level from the
+  // highest down, cells of one level in depth-first order, each cell's splats
+  // contiguous.
   std::vector<Splat> splats;
   std::vector<std::uint64_t> cellBegin;      // per cell; for cells above the top-level depth:
                                              // where their subtree's level-splats begin
@@ -63,9 +65,16 @@ struct LevelSplats {
   std::vector<std::uint64_t> topLevelBegin;  // per top-level cell, plus one final entry
 };
 
+// Top-level cell k's level-splats, laid out as in LevelSplats, as soon as
+// they are made: in order of k, on the thread that called buildLevelSplats,
+// while the workers go on (a dataset's packets are written meanwhile).
+using LevelSplatPacketFn = std::function<void(std::size_t k, std::span<const Splat> levelSplats)>;
+
 // Needs assignTopLevelCells first. Runs top-level cells in parallel on
 // `threads` threads (0: all cores). progress(points done, points total).
+// An exception from progress or onPacket stops the workers and is rethrown.
 LevelSplats buildLevelSplats(const Octree& tree, const LevelSplatOptions& options,
-                             const ProgressFn& progress = {}, unsigned threads = 0);
+                             const ProgressFn& progress = {}, unsigned threads = 0,
+                             const LevelSplatPacketFn& onPacket = {});
 
 }  // namespace pointillist::preprocess

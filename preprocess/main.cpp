@@ -13,11 +13,14 @@
 #include <filesystem>
 #include <iostream>
 #include <new>
+#include <optional>
+#include <span>
 #include <string>
 #include <thread>
 #include <vector>
 
 #include "common/dataset.hpp"
+#include "common/dataset_writer.hpp"
 #include "common/errors.hpp"
 #include "common/instanced_section.hpp"
 #include "preprocess/dataset_builder.hpp"
@@ -589,6 +592,16 @@ int run(const Options& o) {
     po.statisticalStats = &statisticalStats;
   }
   const auto buildStart = Clock::now();
+  // Without the stages that add to packets, each packet is written as soon as
+  // its level-splats are made, while the other cores make the next ones.
+  std::optional<pointillist::DatasetWriter> writer;
+  if (!o.instanced && !o.statistical) {
+    writer.emplace(output, o.force);
+    po.packetSink = [&](std::span<const pointillist::Splat> levelSplats,
+                        std::span<const pointillist::Splat> points) {
+      writer->appendPacket(levelSplats, {}, points);
+    };
+  }
   pointillist::DatasetContent content = pp::buildDatasetContent(
       std::move(cloud.splats), po, [&](const char* stage, std::uint64_t done, std::uint64_t total) {
         progress.update(stage, done, total);
@@ -596,9 +609,13 @@ int run(const Options& o) {
   progress.finishStage();
   content.manifest.createdBy = std::string(kTool) + " (max depth " + std::to_string(o.maxDepth) +
                                ", leaf points " + std::to_string(o.leafPoints) + ")";
-  const std::uint64_t bytes = pointillist::writeDataset(
-      output, content, o.force,
-      [&](std::uint64_t done, std::uint64_t total) { progress.update("writing", done, total); });
+  progress.update("writing", 0, 1);
+  const std::uint64_t bytes =
+      writer ? writer->commit(content)
+             : pointillist::writeDataset(output, content, o.force,
+                                         [&](std::uint64_t done, std::uint64_t total) {
+                                           progress.update("writing", done, total);
+                                         });
   progress.finishStage();
   const double buildSeconds = seconds(buildStart);
   const double total = seconds(start);

@@ -27,14 +27,15 @@ struct Keyed {
 // a pass over hundreds of megabytes on one thread.
 using KeyedVector = std::vector<Keyed, UninitializedAllocator<Keyed>>;
 
-// Orders points by Morton code. Only the top 8 levels are radix sorted; a run
+// Orders points by Morton code. Only the top 8 levels are radix sorted (two
+// passes of 12 bits: a third of the bytes moved by three of 8); a run
 // sharing that prefix is sorted further only if it holds more than a leaf's
 // worth of points (otherwise it is one leaf and its inner order is free).
 // Ties keep input order, so the result is deterministic.
 void mortonSort(KeyedVector& items, unsigned totalBits, std::uint32_t leafPoints,
                 const ProgressFn& progress, unsigned threads) {
   const unsigned lowBit = totalBits > 24 ? totalBits - 24 : 0;
-  radixSort(
+  radixSort<12>(
       items, lowBit, totalBits, [](const Keyed& k) { return k.code; }, progress, threads);
   if (lowBit == 0) return;
   auto less = [](const Keyed& a, const Keyed& b) {

@@ -5,10 +5,12 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <random>
 #include <set>
 #include <vector>
 
+#include "common/errors.hpp"
 #include "common/geometry.hpp"
 #include "preprocess/octree_builder.hpp"
 
@@ -192,11 +194,61 @@ TEST(LevelSplats, EveryCellCoversItsLevelBelow) {
   // Level 1 is about a quarter of the points (ceil per leaf adds a little).
   EXPECT_GE(leafSplats * 4, points);
   EXPECT_LE(leafSplats * 3, points);
-  // Subtree level-splats are contiguous and start with the cell's own.
-  for (std::uint32_t i = 0; i + 1 < cells.size(); ++i)
-    if (cells[i].topLevel != kNoIndex && !cells[i].isLeaf()) {
-      EXPECT_EQ(ls.cellBegin[i + 1], ls.cellBegin[i] + ls.cellCount[i]);
-    }
+  // Each top-level cell's level-splats are laid out as its packet: by level
+  // from the highest down, cells of one level in depth-first order, each
+  // cell's contiguous, the group ending where the next begins.
+  ASSERT_EQ(ls.topLevelBegin.size(), tree.topLevelCells.size() + 1);
+  for (std::size_t k = 0; k < tree.topLevelCells.size(); ++k) {
+    const std::uint32_t root = tree.topLevelCells[k];
+    const std::uint32_t end = cells[root].nextSibling == kNoIndex
+                                  ? static_cast<std::uint32_t>(cells.size())
+                                  : cells[root].nextSibling;
+    std::uint64_t at = ls.topLevelBegin[k];
+    for (int level = cells[root].level; level >= 1; --level)
+      for (std::uint32_t i = root; i < end; ++i)
+        if (cells[i].level == level) {
+          EXPECT_EQ(ls.cellBegin[i], at) << "cell " << i;
+          at += ls.cellCount[i];
+        }
+    EXPECT_EQ(at, ls.topLevelBegin[k + 1]) << "top-level cell " << k;
+  }
+}
+
+TEST(LevelSplats, PacketsAreHandedOnInOrderAsTheyAreMade) {
+  std::vector<Splat> pts;
+  for (std::uint32_t s = 0; s < 4; ++s) {
+    auto p = patch(1500, 20 + s, 0.3f * static_cast<float>(s));
+    pts.insert(pts.end(), p.begin(), p.end());
+  }
+  OctreeOptions oo;
+  oo.maxDepth = 8;
+  oo.leafPoints = 24;
+  Octree tree = buildOctree(pts, oo);
+  assignTopLevelCells(tree, 3);
+  ASSERT_GT(tree.topLevelCells.size(), 8u);
+  std::vector<std::size_t> order;
+  std::vector<std::vector<Splat>> handed;
+  const LevelSplats ls = buildLevelSplats(tree, LevelSplatOptions{}, {}, 3,
+                                          [&](std::size_t k, std::span<const Splat> splats) {
+                                            order.push_back(k);
+                                            handed.emplace_back(splats.begin(), splats.end());
+                                          });
+  ASSERT_EQ(order.size(), tree.topLevelCells.size());
+  for (std::size_t k = 0; k < order.size(); ++k) {
+    EXPECT_EQ(order[k], k);
+    // The bytes handed on are the packet's level-splats, as the result holds them.
+    ASSERT_EQ(handed[k].size(), ls.topLevelBegin[k + 1] - ls.topLevelBegin[k]);
+    EXPECT_EQ(std::memcmp(handed[k].data(), ls.splats.data() + ls.topLevelBegin[k],
+                          handed[k].size() * sizeof(Splat)),
+              0);
+  }
+
+  // A callback that throws (a full disk) stops the build with its error.
+  EXPECT_THROW(buildLevelSplats(tree, LevelSplatOptions{}, {}, 2,
+                                [&](std::size_t k, std::span<const Splat>) {
+                                  if (k == 2) throw InputError("disk full");
+                                }),
+               InputError);
 }
 
 }  // namespace

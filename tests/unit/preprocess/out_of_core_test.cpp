@@ -12,10 +12,12 @@
 #include <fstream>
 #include <iterator>
 #include <random>
+#include <span>
 #include <string>
 #include <vector>
 
 #include "common/dataset.hpp"
+#include "common/dataset_writer.hpp"
 #include "common/errors.hpp"
 #include "preprocess/dataset_builder.hpp"
 #include "preprocess/generator.hpp"
@@ -253,6 +255,62 @@ TEST(OutOfCore, AFailureMidwayRemovesTheTemporaryFiles) {
   std::size_t entries = 0;
   for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir.path())) ++entries;
   EXPECT_EQ(entries, 1u);  // the input alone
+}
+
+// In memory, preprocess writes each packet as soon as its level-splats are
+// made (PreprocessOptions::packetSink): the dataset must be the one written
+// from the whole content, and a failure midway must leave nothing behind.
+TEST(StreamedPackets, WriteTheDatasetTheWholeContentWrites) {
+  TempDir dir;
+  PreprocessOptions o;
+  o.threads = 2;
+  o.topLevelDepth = 3;
+  o.radiiInLeaves = true;
+  DatasetContent whole = buildDatasetContent(city(40000), o);
+  whole.manifest.createdBy = "test";
+  pointillist::writeDataset(dir.path() / "whole", whole);
+
+  std::size_t packets = 0;
+  {
+    pointillist::DatasetWriter writer(dir.path() / "streamed");
+    PreprocessOptions streamed = o;
+    streamed.packetSink = [&](std::span<const Splat> levelSplats, std::span<const Splat> points) {
+      writer.appendPacket(levelSplats, {}, points);
+      ++packets;
+    };
+    DatasetContent content = buildDatasetContent(city(40000), streamed);
+    content.manifest.createdBy = "test";
+    writer.commit(content);
+  }
+  EXPECT_EQ(packets, whole.topLevel.size());
+  for (const char* name :
+       {"manifest.txt", "cells.bin", "top-level.bin", "packet-checksums.bin", "points.bin"}) {
+    const std::string a = fileBytes(dir.path() / "whole" / name);
+    const std::string b = fileBytes(dir.path() / "streamed" / name);
+    EXPECT_EQ(a.size(), b.size()) << name;
+    EXPECT_TRUE(a == b) << name << " differs";
+  }
+  EXPECT_NO_THROW(pointillist::Dataset::open(dir.path() / "streamed"));
+
+  // A write that fails midway stops the build and leaves no files.
+  {
+    PreprocessOptions failing = o;
+    pointillist::DatasetWriter writer(dir.path() / "failed");
+    failing.packetSink = [&](std::span<const Splat> levelSplats, std::span<const Splat> points) {
+      if (writer.packetsAppended() == 5) throw pointillist::Error("disk full");
+      writer.appendPacket(levelSplats, {}, points);
+    };
+    EXPECT_THROW(buildDatasetContent(city(40000), failing), pointillist::Error);
+  }
+  std::size_t entries = 0;
+  for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir.path())) ++entries;
+  EXPECT_EQ(entries, 2u);  // the two datasets alone
+
+  // Instancing adds to packets afterwards: streaming is refused with it.
+  PreprocessOptions instanced = o;
+  instanced.instancing = InstancingOptions{};
+  instanced.packetSink = [](std::span<const Splat>, std::span<const Splat>) {};
+  EXPECT_THROW(buildDatasetContent(city(2000), instanced), pointillist::Error);
 }
 
 TEST(StreamPointClouds, BlocksHoldWhatTheWholeReaderReads) {
