@@ -88,84 +88,92 @@ void mergeChildCones(std::span<OctreeCell> cells, std::size_t index, const CellN
   encodeNormalCone(out, q, minDot);
 }
 
-DatasetContent assembleDatasetContent(Octree tree, LevelSplats ls, const PreprocessOptions& options,
-                                      std::vector<CellNormals>* normals) {
+namespace {
+
+// The record of cell c from its subtree's summary; the cone and the offsets
+// are the caller's.
+void describeCell(const BuildCell& c, const Summary& s, OctreeCell& out) {
+  out = OctreeCell{};
+  for (int a = 0; a < 3; ++a) {
+    out.boundsMin[a] = s.lo[a];
+    out.boundsMax[a] = s.hi[a];
+  }
+  out.maxSplatRadius = s.maxRadius;
+  out.nextSibling = c.nextSibling;
+  out.topLevel = c.topLevel;
+  out.level = c.level;
+  out.depth = c.depth;
+  out.childCount = c.childCount;
+  out.flags = c.isLeaf() ? kCellFlagLeaf : 0;
+}
+
+// The records and summaries of the cells of one packet's subtree, from its
+// points and its level-splats (laid out coarse first). Bounds, radius and
+// normal sum: each cell's own splats, then merged bottom-up (children follow
+// their parent in depth-first order); the cone's half angle needs every
+// normal of the subtree against the axis.
+void describePacket(const Octree& tree, const MadePacket& packet, std::span<OctreeCell> records,
+                    std::span<Summary> summary) {
   const auto& cells = tree.cells;
-  const std::size_t n = cells.size();
   const std::span<const Splat> points(tree.points);
-  const std::span<const Splat> splats(ls.splats);
-  DatasetContent content;
-  content.cells.resize(n);
+  const std::uint32_t root = tree.topLevelCells[packet.k];
+  const std::size_t end =
+      cells[root].nextSibling == kNoIndex ? cells.size() : std::size_t{cells[root].nextSibling};
+  const auto own = [&](std::size_t i) {
+    return packet.levelSplats.subspan(packet.cellBegin[i - root], packet.cellCount[i - root]);
+  };
+  const auto pointsOf = [&](const BuildCell& c) {
+    return points.subspan(static_cast<std::size_t>(c.begin),
+                          static_cast<std::size_t>(c.end - c.begin));
+  };
+  for (std::size_t i = root; i < end; ++i) {
+    summary[i] = Summary{};
+    if (cells[i].isLeaf()) accumulate(summary[i], pointsOf(cells[i]));
+    accumulate(summary[i], own(i));
+  }
+  for (std::size_t i = end; i-- > root + 1;) merge(summary[cells[i].parent], summary[i]);
 
-  // Bounds, radius and normal sum: own splats in parallel, then merged
-  // bottom-up (children follow their parent in depth-first order).
-  std::vector<Summary> summary(n);
-  parallelFor(n, options.threads, [&](std::size_t i) {
-    const BuildCell& c = cells[i];
-    if (c.isLeaf())
-      accumulate(summary[i], points.subspan(static_cast<std::size_t>(c.begin),
-                                            static_cast<std::size_t>(c.end - c.begin)));
-    accumulate(summary[i],
-               splats.subspan(static_cast<std::size_t>(ls.cellBegin[i]), ls.cellCount[i]));
-  });
-  for (std::size_t i = n; i-- > 1;) merge(summary[cells[i].parent], summary[i]);
-
-  // The cone's half angle needs every normal of the subtree against the axis.
-  parallelFor(n, options.threads, [&](std::size_t i) {
+  const BuildCell& top = cells[root];
+  for (std::size_t i = root; i < end; ++i) {
     const BuildCell& c = cells[i];
     const Summary& s = summary[i];
-    OctreeCell& out = content.cells[i];
-    out = OctreeCell{};
-    for (int a = 0; a < 3; ++a) {
-      out.boundsMin[a] = s.lo[a];
-      out.boundsMax[a] = s.hi[a];
-    }
-    out.maxSplatRadius = s.maxRadius;
+    OctreeCell& out = records[i];
+    describeCell(c, s, out);
     const Vec3d axis = normalized(s.normalSum);
-    if (c.topLevel == kNoIndex) {
-      // Above the top-level depth: from the children's cones, below.
-    } else if (s.unknownNormal || length(axis) == 0.0) {
+    if (s.unknownNormal || length(axis) == 0.0) {
       clearNormalCone(out);
     } else {
-      // The subtree's points are one range; its level-splats are each cell's
-      // own (a packet is laid out by level).
-      const auto pts = points.subspan(static_cast<std::size_t>(c.begin),
-                                      static_cast<std::size_t>(c.end - c.begin));
+      // The subtree's points are one range; its level-splats are each cell's own.
       const ConeAxisQ q = quantizeConeAxis(axis);
       const Vec3d decoded = decodeConeAxis(q);
-      double least = minDot(decoded, pts, 1.0);
-      const std::size_t end = c.nextSibling == kNoIndex ? n : std::size_t{c.nextSibling};
-      for (std::size_t j = i; j < end; ++j)
-        least = minDot(decoded,
-                       splats.subspan(static_cast<std::size_t>(ls.cellBegin[j]), ls.cellCount[j]),
-                       least);
+      double least = minDot(decoded, pointsOf(c), 1.0);
+      const std::size_t subtreeEnd = c.nextSibling == kNoIndex ? end : std::size_t{c.nextSibling};
+      for (std::size_t j = i; j < subtreeEnd; ++j) least = minDot(decoded, own(j), least);
       encodeNormalCone(out, q, least);
     }
-    out.nextSibling = c.nextSibling;
-    out.topLevel = c.topLevel;
-    out.level = c.level;
-    out.depth = c.depth;
-    out.childCount = c.childCount;
-    out.flags = c.isLeaf() ? kCellFlagLeaf : 0;
-    if (c.topLevel != kNoIndex) {
-      const BuildCell& top = cells[tree.topLevelCells[c.topLevel]];
-      const std::uint64_t packetSplats =
-          ls.topLevelBegin[c.topLevel + 1] - ls.topLevelBegin[c.topLevel];
-      out.pointsOffset = static_cast<std::uint32_t>(packetSplats + c.begin - top.begin);
-      out.pointsCount = static_cast<std::uint32_t>(c.end - c.begin);
-      out.splatsCount = ls.cellCount[i];
-      // Level-splats come laid out as packets are (coarse first).
-      out.splatsOffset =
-          ls.cellCount[i] == 0
-              ? 0
-              : static_cast<std::uint32_t>(ls.cellBegin[i] - ls.topLevelBegin[c.topLevel]);
-    }
-  });
+    out.pointsOffset = static_cast<std::uint32_t>(packet.levelSplats.size() + c.begin - top.begin);
+    out.pointsCount = static_cast<std::uint32_t>(c.end - c.begin);
+    out.splatsCount = packet.cellCount[i - root];
+    out.splatsOffset = out.splatsCount == 0 ? 0 : packet.cellBegin[i - root];
+  }
+}
 
-  // Children follow their parent, so from the back every child is done first.
+// What is left once every packet is described: the cells above the top-level
+// depth (their summaries merged from their children's, their cones from the
+// children's cones), the top-level table and the manifest.
+void finishDescription(const Octree& tree, const LevelSplats& ls, std::vector<Summary>& summary,
+                       const PreprocessOptions& options, std::vector<CellNormals>* normals,
+                       DatasetContent& content) {
+  const auto& cells = tree.cells;
+  const std::size_t n = cells.size();
+  // From the back every child is done first.
+  for (std::size_t i = n; i-- > 1;)
+    if (cells[cells[i].parent].topLevel == kNoIndex) merge(summary[cells[i].parent], summary[i]);
   for (std::size_t i = n; i-- > 0;)
-    if (cells[i].topLevel == kNoIndex)
+    if (cells[i].topLevel == kNoIndex) {
+      describeCell(cells[i], summary[i], content.cells[i]);
       mergeChildCones(content.cells, i, {summary[i].normalSum, summary[i].unknownNormal});
+    }
   if (normals != nullptr) {
     normals->resize(n);
     for (std::size_t i = 0; i < n; ++i)
@@ -194,6 +202,36 @@ DatasetContent assembleDatasetContent(Octree tree, LevelSplats ls, const Preproc
   m.maxDepth = options.octree.maxDepth;
   m.leafPoints = options.octree.leafPoints;
   m.levelSplatReduction = options.levelSplats.reduction;
+}
+
+}  // namespace
+
+DatasetContent assembleDatasetContent(Octree tree, LevelSplats ls, const PreprocessOptions& options,
+                                      std::vector<CellNormals>* normals) {
+  const std::size_t n = tree.cells.size();
+  DatasetContent content;
+  content.cells.resize(n);
+  std::vector<Summary> summary(n);
+  parallelFor(
+      tree.topLevelCells.size(), options.threads,
+      [&](std::size_t k) {
+        const std::uint32_t root = tree.topLevelCells[k];
+        const std::size_t end = tree.cells[root].nextSibling == kNoIndex
+                                    ? n
+                                    : std::size_t{tree.cells[root].nextSibling};
+        thread_local std::vector<std::uint32_t> begin;
+        begin.resize(end - root);
+        for (std::size_t i = root; i < end; ++i)
+          begin[i - root] = static_cast<std::uint32_t>(ls.cellBegin[i] - ls.topLevelBegin[k]);
+        const MadePacket packet{
+            k,
+            std::span<const Splat>(ls.splats).subspan(
+                ls.topLevelBegin[k], ls.topLevelBegin[k + 1] - ls.topLevelBegin[k]),
+            begin, std::span<const std::uint32_t>(ls.cellCount).subspan(root, end - root)};
+        describePacket(tree, packet, content.cells, summary);
+      },
+      4);
+  finishDescription(tree, ls, summary, options, normals, content);
   content.points = std::move(tree.points);
   content.levelSplats = std::move(ls.splats);
   return content;
@@ -243,20 +281,38 @@ DatasetContent buildDatasetContent(std::vector<Splat> points, const PreprocessOp
   // After the top-level cells: a leaf's radius never looks above its own.
   if (options.radiiInLeaves)
     estimateRadiiInLeaves(tree, options.radiusNeighbours, options.threads, stage("radii"));
-  LevelSplatPacketFn onPacket;
   if (options.packetSink) {
+    // Each packet is described by the worker that made it and written by
+    // this thread as soon as the ones before it are: no second pass over all
+    // points and level-splats, and no array of all level-splats.
     if (options.instancing || options.statistical)
       throw Error(
           "internal error: packets are streamed only without --instanced and --statistical");
-    onPacket = [&](std::size_t k, std::span<const Splat> levelSplats) {
-      const BuildCell& top = tree.cells[tree.topLevelCells[k]];
-      options.packetSink(levelSplats, std::span<const Splat>(tree.points)
-                                          .subspan(static_cast<std::size_t>(top.begin),
-                                                   static_cast<std::size_t>(top.end - top.begin)));
+    DatasetContent content;
+    content.cells.resize(tree.cells.size());
+    std::vector<Summary> summary(tree.cells.size());
+    LevelSplatHooks hooks;
+    hooks.made = [&](const MadePacket& packet) {
+      describePacket(tree, packet, content.cells, summary);
     };
+    hooks.handOn = [&](const MadePacket& packet) {
+      const BuildCell& top = tree.cells[tree.topLevelCells[packet.k]];
+      options.packetSink(packet.levelSplats,
+                         std::span<const Splat>(tree.points)
+                             .subspan(static_cast<std::size_t>(top.begin),
+                                      static_cast<std::size_t>(top.end - top.begin)));
+    };
+    hooks.keepSplats = false;
+    const LevelSplats ls =
+        buildLevelSplats(tree, options.levelSplats, stage("level-splats"), options.threads, hooks);
+    if (progress) progress("cells", 0, total);
+    finishDescription(tree, ls, summary, options, normals, content);
+    content.points = std::move(tree.points);
+    if (progress) progress("cells", total, total);
+    return content;
   }
   LevelSplats ls =
-      buildLevelSplats(tree, options.levelSplats, stage("level-splats"), options.threads, onPacket);
+      buildLevelSplats(tree, options.levelSplats, stage("level-splats"), options.threads);
   if (progress) progress("cells", 0, total);
   DatasetContent content = assembleDatasetContent(std::move(tree), std::move(ls), options, normals);
   if (progress) progress("cells", total, total);

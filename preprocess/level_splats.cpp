@@ -346,15 +346,19 @@ Clustering clusterSplats(std::span<const Splat> input, std::size_t target,
 
 LevelSplats buildLevelSplats(const Octree& tree, const LevelSplatOptions& options,
                              const ProgressFn& progress, unsigned threads,
-                             const LevelSplatPacketFn& onPacket) {
+                             const LevelSplatHooks& hooks) {
   const auto& cells = tree.cells;
   const std::size_t nTop = tree.topLevelCells.size();
   struct TopResult {
     std::vector<Splat> splats;
     std::vector<std::uint32_t> begin;  // per cell of the subtree
     std::vector<std::uint32_t> count;
+    std::size_t size = 0;  // splats, still known when they are dropped
   };
   std::vector<TopResult> results(nTop);
+  const auto madePacket = [&](std::size_t k) {
+    return MadePacket{k, results[k].splats, results[k].begin, results[k].count};
+  };
 
   auto process = [&](std::size_t k) {
     const std::uint32_t root = tree.topLevelCells[k];
@@ -401,6 +405,8 @@ LevelSplats buildLevelSplats(const Octree& tree, const LevelSplatOptions& option
       r.count[j] = static_cast<std::uint32_t>(perCell[j].size());
       r.splats.insert(r.splats.end(), perCell[j].begin(), perCell[j].end());
     }
+    r.size = r.splats.size();
+    if (hooks.made) hooks.made(madePacket(k));
   };
 
   // Workers take top-level cells in turn; this thread reports progress and
@@ -412,7 +418,8 @@ LevelSplats buildLevelSplats(const Octree& tree, const LevelSplatOptions& option
   std::mutex mutex;
   std::condition_variable cv;
   std::size_t finishedWorkers = 0;
-  std::vector<std::uint8_t> finished(onPacket ? nTop : 0, 0);  // under mutex
+  const bool handOn = static_cast<bool>(hooks.handOn);
+  std::vector<std::uint8_t> finished(handOn ? nTop : 0, 0);  // under mutex
   std::exception_ptr error;
   if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
   threads = static_cast<unsigned>(std::min<std::size_t>(threads, std::max<std::size_t>(nTop, 1)));
@@ -422,7 +429,7 @@ LevelSplats buildLevelSplats(const Octree& tree, const LevelSplatOptions& option
         process(k);
         const BuildCell& root = cells[tree.topLevelCells[k]];
         pointsDone += root.end - root.begin;
-        if (onPacket) {
+        if (handOn) {
           std::lock_guard lock(mutex);
           finished[k] = 1;
           cv.notify_all();
@@ -444,10 +451,11 @@ LevelSplats buildLevelSplats(const Octree& tree, const LevelSplatOptions& option
     std::size_t handedOn = 0;
     auto lastProgress = std::chrono::steady_clock::now();
     std::unique_lock lock(mutex);
-    while (finishedWorkers < pool.size() || (onPacket && !error && handedOn < nTop)) {
-      if (onPacket && handedOn < nTop && finished[handedOn] != 0) {
+    while (finishedWorkers < pool.size() || (handOn && !error && handedOn < nTop)) {
+      if (handOn && handedOn < nTop && finished[handedOn] != 0) {
         lock.unlock();
-        onPacket(handedOn, results[handedOn].splats);
+        hooks.handOn(madePacket(handedOn));
+        if (!hooks.keepSplats) results[handedOn].splats = {};
         ++handedOn;
         lock.lock();
       } else {
@@ -476,12 +484,12 @@ LevelSplats buildLevelSplats(const Octree& tree, const LevelSplatOptions& option
   std::size_t total = 0;
   for (std::size_t k = 0; k < nTop; ++k) {
     out.topLevelBegin[k] = total;
-    total += results[k].splats.size();
+    total += results[k].size;
   }
   out.topLevelBegin[nTop] = total;
   // Gathered on all threads: a copy of a third of the points' bytes, into
   // pages mapped on all threads first (the resize only zeroes them).
-  resizePopulated(out.splats, total, threads);
+  if (hooks.keepSplats) resizePopulated(out.splats, total, threads);
   parallelFor(
       nTop, threads,
       [&](std::size_t k) {
@@ -490,8 +498,9 @@ LevelSplats buildLevelSplats(const Octree& tree, const LevelSplatOptions& option
           out.cellBegin[root + j] = out.topLevelBegin[k] + results[k].begin[j];
           out.cellCount[root + j] = results[k].count[j];
         }
-        std::copy(results[k].splats.begin(), results[k].splats.end(),
-                  out.splats.begin() + static_cast<std::ptrdiff_t>(out.topLevelBegin[k]));
+        if (hooks.keepSplats)
+          std::copy(results[k].splats.begin(), results[k].splats.end(),
+                    out.splats.begin() + static_cast<std::ptrdiff_t>(out.topLevelBegin[k]));
         results[k] = {};
       },
       16);

@@ -65,16 +65,35 @@ struct LevelSplats {
   std::vector<std::uint64_t> topLevelBegin;  // per top-level cell, plus one final entry
 };
 
-// Top-level cell k's level-splats, laid out as in LevelSplats, as soon as
-// they are made: in order of k, on the thread that called buildLevelSplats,
-// while the workers go on (a dataset's packets are written meanwhile).
-using LevelSplatPacketFn = std::function<void(std::size_t k, std::span<const Splat> levelSplats)>;
+// Top-level cell k's level-splats, laid out as in LevelSplats, once they are
+// made; cellBegin and cellCount per cell of its subtree (cell index - the
+// top-level cell's), cellBegin into levelSplats.
+struct MadePacket {
+  std::size_t k = 0;
+  std::span<const Splat> levelSplats;
+  std::span<const std::uint32_t> cellBegin;
+  std::span<const std::uint32_t> cellCount;
+};
+
+// What the caller does with each packet as it is made. An exception from
+// either stops the workers and is rethrown.
+struct LevelSplatHooks {
+  // On the worker that made it, packets in any order (a packet's cells are
+  // described while its splats are in the cache).
+  std::function<void(const MadePacket&)> made;
+  // In order of k, on the thread that called buildLevelSplats, while the
+  // workers go on (a dataset's packets are written meanwhile).
+  std::function<void(const MadePacket&)> handOn;
+  // false: splats are dropped once handed on and the result's stay empty
+  // (its tables are filled all the same).
+  bool keepSplats = true;
+};
 
 // Needs assignTopLevelCells first. Runs top-level cells in parallel on
 // `threads` threads (0: all cores). progress(points done, points total).
-// An exception from progress or onPacket stops the workers and is rethrown.
+// An exception from progress stops the workers and is rethrown.
 LevelSplats buildLevelSplats(const Octree& tree, const LevelSplatOptions& options,
                              const ProgressFn& progress = {}, unsigned threads = 0,
-                             const LevelSplatPacketFn& onPacket = {});
+                             const LevelSplatHooks& hooks = {});
 
 }  // namespace pointillist::preprocess

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <mutex>
 #include <random>
 #include <set>
 #include <vector>
@@ -228,27 +229,58 @@ TEST(LevelSplats, PacketsAreHandedOnInOrderAsTheyAreMade) {
   ASSERT_GT(tree.topLevelCells.size(), 8u);
   std::vector<std::size_t> order;
   std::vector<std::vector<Splat>> handed;
-  const LevelSplats ls = buildLevelSplats(tree, LevelSplatOptions{}, {}, 3,
-                                          [&](std::size_t k, std::span<const Splat> splats) {
-                                            order.push_back(k);
-                                            handed.emplace_back(splats.begin(), splats.end());
-                                          });
+  std::mutex mutex;
+  std::vector<std::size_t> made;  // by the workers, in any order
+  std::vector<std::vector<std::uint32_t>> madeBegin(tree.topLevelCells.size());
+  LevelSplatHooks hooks;
+  hooks.made = [&](const MadePacket& p) {
+    std::lock_guard lock(mutex);
+    made.push_back(p.k);
+    madeBegin[p.k].assign(p.cellBegin.begin(), p.cellBegin.end());
+  };
+  hooks.handOn = [&](const MadePacket& p) {
+    order.push_back(p.k);
+    handed.emplace_back(p.levelSplats.begin(), p.levelSplats.end());
+  };
+  const LevelSplats ls = buildLevelSplats(tree, LevelSplatOptions{}, {}, 3, hooks);
   ASSERT_EQ(order.size(), tree.topLevelCells.size());
+  std::sort(made.begin(), made.end());
   for (std::size_t k = 0; k < order.size(); ++k) {
     EXPECT_EQ(order[k], k);
-    // The bytes handed on are the packet's level-splats, as the result holds them.
+    EXPECT_EQ(made[k], k);
+    // The bytes handed on are the packet's level-splats, as the result holds
+    // them, and each cell's begin is its own within them.
     ASSERT_EQ(handed[k].size(), ls.topLevelBegin[k + 1] - ls.topLevelBegin[k]);
     EXPECT_EQ(std::memcmp(handed[k].data(), ls.splats.data() + ls.topLevelBegin[k],
                           handed[k].size() * sizeof(Splat)),
               0);
+    const std::uint32_t root = tree.topLevelCells[k];
+    for (std::size_t j = 0; j < madeBegin[k].size(); ++j)
+      EXPECT_EQ(madeBegin[k][j] + ls.topLevelBegin[k], ls.cellBegin[root + j]);
   }
 
+  // Without keeping them, the same tables and no array of all level-splats.
+  hooks.keepSplats = false;
+  order.clear();
+  made.clear();
+  const LevelSplats dropped = buildLevelSplats(tree, LevelSplatOptions{}, {}, 2, hooks);
+  EXPECT_TRUE(dropped.splats.empty());
+  EXPECT_EQ(dropped.cellBegin, ls.cellBegin);
+  EXPECT_EQ(dropped.cellCount, ls.cellCount);
+  EXPECT_EQ(dropped.topLevelBegin, ls.topLevelBegin);
+  EXPECT_EQ(order.size(), tree.topLevelCells.size());
+
   // A callback that throws (a full disk) stops the build with its error.
-  EXPECT_THROW(buildLevelSplats(tree, LevelSplatOptions{}, {}, 2,
-                                [&](std::size_t k, std::span<const Splat>) {
-                                  if (k == 2) throw InputError("disk full");
-                                }),
-               InputError);
+  LevelSplatHooks failing;
+  failing.handOn = [](const MadePacket& p) {
+    if (p.k == 2) throw InputError("disk full");
+  };
+  EXPECT_THROW(buildLevelSplats(tree, LevelSplatOptions{}, {}, 2, failing), InputError);
+  failing = {};
+  failing.made = [](const MadePacket& p) {
+    if (p.k == 5) throw InputError("no room");
+  };
+  EXPECT_THROW(buildLevelSplats(tree, LevelSplatOptions{}, {}, 2, failing), InputError);
 }
 
 }  // namespace

@@ -279,6 +279,7 @@ TEST(StreamedPackets, WriteTheDatasetTheWholeContentWrites) {
       ++packets;
     };
     DatasetContent content = buildDatasetContent(city(40000), streamed);
+    EXPECT_TRUE(content.levelSplats.empty());  // written, not gathered
     content.manifest.createdBy = "test";
     writer.commit(content);
   }
