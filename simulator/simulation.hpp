@@ -32,7 +32,7 @@ namespace pointillist::simulator {
 // runtime's options. OSMesa (llvmpipe) points were about 2e-7 s a splat and
 // 1 ms a packet.
 struct ModelParameters {
-  double secondsPerSplat = traverse::RenderModel::kCpuKernelSecondsPerSplat;  // T_s
+  double secondsPerSplat = 1.16e-8;        // T_s
   double packetOverheadSeconds = 1.0e-5;   // T_p: per render packet
   double packetSecondsPerPixel = 1.67e-9;  // T_px: clearing, read-back, sending
   double bandwidthBytesPerSecond = 117e6;  // 1 GbE payload

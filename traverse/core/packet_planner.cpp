@@ -37,8 +37,6 @@ PacketPlanner::PacketPlanner(PeerRanks peers, int selfRank, const v1::RunSetting
       model_(peers_.renders.size(), costModelOf(settings.cost_model())) {
   model_.setCoreShares({settings.render_core_share().data(),
                         static_cast<std::size_t>(settings.render_core_share_size())});
-  model_.setDefaultSecondsPerSplat(
-      RenderModel::defaultSecondsPerSplat(resolveRenderer(settings.renderer(), settings.mode())));
   if (!layers_ || owners_.size() != layers_->cellCount()) {
     throw UsageError("packet planner: " + std::to_string(owners_.size()) + " owners for " +
                      std::to_string(layers_ ? layers_->cellCount() : 0) + " top-level cells");

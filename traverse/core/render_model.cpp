@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
-#include <string>
 
 #include "common/errors.hpp"
 #include "common/splat.hpp"
@@ -21,13 +20,6 @@ CostModel costModelOf(v1::CostModel model) {
 RenderModel::RenderModel(std::size_t renderCount, CostModel costModel)
     : renders_(renderCount), costModel_(costModel) {
   if (renderCount == 0) throw UsageError("a render model needs at least one render process");
-}
-
-void RenderModel::setDefaultSecondsPerSplat(double seconds) {
-  if (!(seconds > 0.0) || !std::isfinite(seconds))
-    throw UsageError("a render model's default seconds a splat must be positive, got " +
-                     std::to_string(seconds));
-  defaultSecondsPerSplat_ = seconds;
 }
 
 void RenderModel::setCoreShares(std::span<const float> shares) {
@@ -79,7 +71,7 @@ double meanMeasured(const auto& renders, Get get, double fallback) {
 
 double RenderModel::secondsPerSplat() const {
   return meanMeasured(
-      renders_, [](const RenderState& s) { return s.secondsPerSplat; }, defaultSecondsPerSplat_);
+      renders_, [](const RenderState& s) { return s.secondsPerSplat; }, kDefaultSecondsPerSplat);
 }
 
 double RenderModel::secondsPerByte() const {

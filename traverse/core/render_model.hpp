@@ -64,19 +64,7 @@ class RenderModel {
  public:
   using Clock = std::chrono::steady_clock;
 
-  // Seconds a splat until render processes report their own, by what draws:
-  // OSMesa (llvmpipe) points, or the CPU point kernel (fitted to real jobs'
-  // tiles, docs/scheduling.md §15), 17 times faster. Taking OSMesa's for the
-  // kernel made the first frames weigh queues far above the bytes moved.
-  static constexpr double kOsMesaSecondsPerSplat = 2e-7;
-  static constexpr double kCpuKernelSecondsPerSplat = 1.16e-8;
-  static double defaultSecondsPerSplat(v1::Renderer resolved) {
-    return resolved == v1::RENDERER_CPU ? kCpuKernelSecondsPerSplat : kOsMesaSecondsPerSplat;
-  }
-
   RenderModel(std::size_t renderCount, CostModel costModel = costModelOf(kDefaultCostModel));
-  // The figure secondsPerSplat gives until a render has reported one.
-  void setDefaultSecondsPerSplat(double seconds);
   void setCostModel(CostModel model) { costModel_ = model; }
   // Per render process: the share of a core each job process has on its
   // machine (common/core_share.hpp); the cost function weighs the render's
@@ -177,8 +165,8 @@ class RenderModel {
     double coreShare = 1.0;
     bool retired = false;
   };
-  static constexpr double kDefaultSecondsPerByte = 1e-8;  // until measured: 100 MB/s
-  double defaultSecondsPerSplat_ = kOsMesaSecondsPerSplat;
+  static constexpr double kDefaultSecondsPerSplat = 2e-7;  // until measured: 5 M splats/s
+  static constexpr double kDefaultSecondsPerByte = 1e-8;   // until measured: 100 MB/s
   std::vector<RenderState> renders_;
   CostModel costModel_;
   mutable std::size_t rotation_ = 0;

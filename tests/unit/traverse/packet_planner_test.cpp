@@ -173,20 +173,6 @@ TEST(PacketPlanner, SendsThePacketToTheRenderHoldingTheDataAndOrdersTheRestFromT
   EXPECT_EQ(out.entries().back().destinations, (std::vector<int>{0}));
 }
 
-// Before the renders report, the model takes the rate of what draws the
-// run's mode: the CPU point kernel for points (auto or cpu), OSMesa else.
-TEST(PacketPlanner, StartsFromTheRateOfTheRendererThatDraws) {
-  EXPECT_EQ(planner().model().secondsPerSplat(), RenderModel::kCpuKernelSecondsPerSplat);
-  v1::RunSettings gl = settings();
-  gl.set_renderer(v1::RENDERER_GL);
-  EXPECT_EQ(PacketPlanner(kPeers, kSelf, gl, layers(), kOwners).model().secondsPerSplat(),
-            RenderModel::kOsMesaSecondsPerSplat);
-  v1::RunSettings splats = settings();
-  splats.set_mode(v1::RENDER_MODE_SPLATS);
-  EXPECT_EQ(PacketPlanner(kPeers, kSelf, splats, layers(), kOwners).model().secondsPerSplat(),
-            RenderModel::kOsMesaSecondsPerSplat);
-}
-
 TEST(PacketPlanner, OrderedCellsCountAsPresentUntilAReportSaysOtherwise) {
   PacketPlanner p = planner();
   Outbox first;

@@ -69,29 +69,6 @@ TEST(RenderModel, PaperCostIsWorkloadTimesTsPlusMissingBytesTimesTn) {
   EXPECT_NEAR(cost, (500 + 100) * 1e-6 + 9600 * 1e-5, 1e-9);
 }
 
-// Until render processes report, a splat costs what the renderer that draws
-// it takes: the CPU point kernel's 17 times less than OSMesa's, so a tile
-// stays with the render that holds its data where OSMesa's figure moved it.
-TEST(RenderModel, UntilMeasuredASplatCostsWhatItsRendererTakes) {
-  EXPECT_EQ(RenderModel::defaultSecondsPerSplat(v1::RENDERER_CPU),
-            RenderModel::kCpuKernelSecondsPerSplat);
-  EXPECT_EQ(RenderModel::defaultSecondsPerSplat(v1::RENDERER_GL),
-            RenderModel::kOsMesaSecondsPerSplat);
-  const Table cells{65536};
-  for (const bool kernel : {false, true}) {
-    RenderModel model(2);
-    if (kernel) model.setDefaultSecondsPerSplat(RenderModel::kCpuKernelSecondsPerSplat);
-    // Render 0 holds the cell and has 20 k splats queued: 4 ms at OSMesa's
-    // rate, 0.23 ms at the kernel's, against 0.66 ms to move the cell.
-    model.applyReport(0, {.workloadSplats = 20'000, .loaded = whole(cells, {0})}, kNow);
-    EXPECT_EQ(model.secondsPerSplat(), kernel ? RenderModel::kCpuKernelSecondsPerSplat
-                                              : RenderModel::kOsMesaSecondsPerSplat);
-    EXPECT_EQ(model.choose(whole(cells, {0}), 1000, kNow).render, kernel ? 0u : 1u) << kernel;
-  }
-  RenderModel model(1);
-  EXPECT_THROW(model.setDefaultSecondsPerSplat(0.0), UsageError);
-}
-
 // Where processes outnumber a machine's cores, a render's queue counts by the
 // share of a core each process has: a shorter queue elsewhere does not draw
 // sooner, while moving the data costs CPU all of them share.
