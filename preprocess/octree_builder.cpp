@@ -28,7 +28,7 @@ struct Keyed {
 using KeyedVector = std::vector<Keyed, UninitializedAllocator<Keyed>>;
 
 // Orders points by Morton code. Only the top 8 levels are radix sorted (two
-// passes of 12 bits: a third of the bytes moved by three of 8); a run
+// passes of 12 bits, which move a third fewer bytes than three of 8); a run
 // sharing that prefix is sorted further only if it holds more than a leaf's
 // worth of points (otherwise it is one leaf and its inner order is free).
 // Ties keep input order, so the result is deterministic.
