@@ -57,7 +57,7 @@ struct LevelSplats {
   // Grouped by top-level cell (table order), each group laid out as its packet
   // is (common/dataset.hpp): coarse first, its cells' splats by level from the
   // highest down, cells of one level in depth-first order, each cell's splats
-  // contiguous.
+  // contiguous. Empty when LevelSplatHooks::keepSplats is false.
   std::vector<Splat> splats;
   std::vector<std::uint64_t> cellBegin;      // per cell; for cells above the top-level depth:
                                              // where their subtree's level-splats begin

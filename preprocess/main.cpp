@@ -609,7 +609,7 @@ int run(const Options& o) {
   progress.finishStage();
   content.manifest.createdBy = std::string(kTool) + " (max depth " + std::to_string(o.maxDepth) +
                                ", leaf points " + std::to_string(o.leafPoints) + ")";
-  progress.update("writing", 0, 1);
+  if (writer) progress.update("writing", 0, 1);  // the tables and the rename
   const std::uint64_t bytes =
       writer ? writer->commit(content)
              : pointillist::writeDataset(output, content, o.force,
