@@ -643,9 +643,11 @@ class Simulation {
         ready, packet.total_splats(), process.currentSeconds, timeAfterEpoch(now), effects));
     ++trace(packet.frame_id()).packetsRendered;
     ++packetsRendered_;
-    // The traverse counted the image as render processes send it (a part of
-    // a split tile as 8-byte words); a header goes with it.
-    const std::uint64_t imageBytes = packet.image_bytes() + 128;
+    // A part of a split tile goes as 8-byte words (depth and colour).
+    const std::uint64_t imageBytes = static_cast<std::uint64_t>(packet.rect().width()) *
+                                         packet.rect().height() *
+                                         (packet.part_count() > 1 ? 8 : 4) +
+                                     128;
     schedule(bulk(now, peers_.renders[r], peers_.display, imageBytes), Step::Deliver,
              peers_.display, Delivery{peers_.renders[r], MessageKind::TileImage, header});
     send(now, peers_.renders[r], effects.messages);

@@ -156,9 +156,8 @@ void RenderCore::receivePacket(int sourceRank, v1::RenderPacket packet, TimePoin
     ++misses_;
     askUnlessPending(need, packet.frame_id(), now, requests);
   }
-  sendRequests(requests, packet.frame_id(), now, effects);
+  sendRequests(requests, packet.frame_id(), effects);
   workload_ += packet.total_splats();
-  queuedImageBytes_ += packet.image_bytes();
   QueuedPacket& queued = queue_.emplace_back();
   queued.arrived = now;
   queued.sequence = ++packetsQueued_;
@@ -209,7 +208,7 @@ DataIntake RenderCore::receiveData(std::uint32_t cell, std::uint32_t first, std:
     if (const auto asked = requestedAt_.find(cell); asked != requestedAt_.end()) {
       Requests requests;
       ask({cell, asked->second.splats}, asked->second.frame, now, requests);
-      sendRequests(requests, asked->second.frame, now, effects);
+      sendRequests(requests, asked->second.frame, effects);
     }
     return {DataVerdict::Dropped};
   }
@@ -267,7 +266,7 @@ std::optional<ReadyPacket> RenderCore::nextPacket(TimePoint now, RenderEffects& 
       return packet;
     }
   }
-  if (reportDirty_) sendReport(now, effects);
+  if (reportDirty_) sendReport(effects);
   return std::nullopt;
 }
 
@@ -289,15 +288,14 @@ void RenderCore::pinHeadPacket(TimePoint now, RenderEffects& effects) {
     pinnedCells_.push_back(need.cell);
     askUnlessPending(need, packet.frame_id(), now, requests);
   }
-  sendRequests(requests, packet.frame_id(), now, effects);
+  sendRequests(requests, packet.frame_id(), effects);
 }
 
-void RenderCore::sendRequests(Requests& requests, std::uint64_t frame, TimePoint now,
-                              RenderEffects& effects) {
+void RenderCore::sendRequests(Requests& requests, std::uint64_t frame, RenderEffects& effects) {
   if (requests.empty()) return;
   // Data-send must hear of an eviction before a request for the same cell,
   // or it would take the request for splats already sent.
-  if (!evicted_.empty()) sendReport(now, effects);
+  if (!evicted_.empty()) sendReport(effects);
   // Owners in ascending order, so the same state always sends the same messages.
   std::vector<std::uint32_t> ownersAsked;
   for (const auto& [owner, prefixes] : requests) ownersAsked.push_back(owner);
@@ -329,16 +327,7 @@ void RenderCore::rerequestLateCells(TimePoint now, RenderEffects& effects) {
       frame = std::max(frame, asked.frame);
     }
   }
-  sendRequests(requests, frame, now, effects);
-}
-
-std::uint64_t RenderCore::pendingImageBytes(TimePoint now) const {
-  std::uint64_t onLink = 0;
-  if (secondsPerByte_ > 0.0 && imageLinkFreeAt_ > now) {
-    onLink = static_cast<std::uint64_t>(
-        std::chrono::duration<double>(imageLinkFreeAt_ - now).count() / secondsPerByte_);
-  }
-  return queuedImageBytes_ + onLink;
+  sendRequests(requests, frame, effects);
 }
 
 void RenderCore::evict(std::uint32_t cell, RenderEffects& effects) {
@@ -358,15 +347,6 @@ v1::TileImageHeader RenderCore::packetDrawn(const ReadyPacket& ready, std::uint6
   }
   busySeconds_ += seconds;
   workload_ -= std::min(workload_, packet.total_splats());
-  // The image goes out after those before it, at the link's measured pace
-  // (T_n: links are taken as symmetric). Not measured yet: taken as free.
-  queuedImageBytes_ -= std::min(queuedImageBytes_, packet.image_bytes());
-  if (secondsPerByte_ > 0.0) {
-    imageLinkFreeAt_ =
-        std::max(imageLinkFreeAt_, now) +
-        std::chrono::duration_cast<TimePoint::duration>(std::chrono::duration<double>(
-            static_cast<double>(packet.image_bytes()) * secondsPerByte_));
-  }
   ++packetsDone_;
   splatsDone_ += splats;
 
@@ -400,7 +380,7 @@ v1::TileImageHeader RenderCore::packetDrawn(const ReadyPacket& ready, std::uint6
   header.set_evictions(cache_.evictions());
   header.set_peak_cache_bytes(cache_.peakBytes());
   header.set_data_bytes_received(dataBytesReceived_);
-  sendReport(now, effects);
+  sendReport(effects);
   // The drawn packet may have been the head: its cells need no pin any more,
   // and the next head's missing cells are asked for now.
   pinHeadPacket(now, effects);
@@ -409,13 +389,12 @@ v1::TileImageHeader RenderCore::packetDrawn(const ReadyPacket& ready, std::uint6
 
 // Workload and cache changes to every traverse; evictions (and dropped
 // prefetches) to every data-send, which only reads those.
-void RenderCore::sendReport(TimePoint now, RenderEffects& effects) {
+void RenderCore::sendReport(RenderEffects& effects) {
   reportDirty_ = false;
   v1::RenderReport report;
   report.set_render_rank(selfRank_);
   report.set_sequence(++reportSequence_);
   report.set_workload_splats(workload_);
-  report.set_pending_image_bytes(pendingImageBytes(now));
   for (const CellPrefix& prefix : loaded_) {
     report.add_loaded_cells(prefix.cell);
     report.add_loaded_splats(prefix.splats);

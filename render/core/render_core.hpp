@@ -118,13 +118,6 @@ class RenderCore {
   const CellCache& cache() const { return cache_; }
   std::size_t queuedPackets() const { return queue_.size(); }
   std::uint64_t workloadSplats() const { return workload_; }
-  // What the outgoing link still owes at `now` (the reports'
-  // pending_image_bytes): the images of the packets queued (their
-  // RenderPacket.image_bytes) and what is left of those drawn, each sent
-  // after the one before at the measured T_n. A model of this process's own
-  // link: a display whose link is the bottleneck holds every render back
-  // alike, and spreading tiles would not help.
-  std::uint64_t pendingImageBytes(TimePoint now) const;
   std::uint64_t packetsDone() const { return packetsDone_; }
   std::uint64_t splatsDone() const { return splatsDone_; }
   std::uint64_t hits() const { return hits_; }
@@ -177,10 +170,10 @@ class RenderCore {
   // Asks for the prefix unless it is held or already asked for.
   void askUnlessPending(CellPrefix need, std::uint64_t frame, TimePoint now, Requests& requests);
   void ask(CellPrefix need, std::uint64_t frame, TimePoint now, Requests& requests);
-  void sendRequests(Requests& requests, std::uint64_t frame, TimePoint now, RenderEffects& effects);
+  void sendRequests(Requests& requests, std::uint64_t frame, RenderEffects& effects);
   void rerequestLateCells(TimePoint now, RenderEffects& effects);
   void evict(std::uint32_t cell, RenderEffects& effects);
-  void sendReport(TimePoint now, RenderEffects& effects);
+  void sendReport(RenderEffects& effects);
 
   RenderCoreConfig config_;
   PeerRanks peers_;
@@ -210,8 +203,6 @@ class RenderCore {
   std::uint64_t reportSequence_ = 0;
   std::uint64_t orderSequence_ = 0;
   std::uint64_t workload_ = 0;
-  std::uint64_t queuedImageBytes_ = 0;  // image_bytes of the packets queued
-  TimePoint imageLinkFreeAt_{};         // when the drawn images have left
   std::uint64_t packetsDone_ = 0;
   std::uint64_t splatsDone_ = 0;
   std::uint64_t hits_ = 0;

@@ -12,20 +12,6 @@ TileWalk walkOf(const TraversalResult& result) {
   return TileWalk{result.needs, result.splats, result.ranges, {}};
 }
 
-std::uint64_t tileImageBytes(const v1::TileTask& task, std::uint32_t partCount,
-                             v1::RenderMode runMode) {
-  const std::uint64_t pixels =
-      static_cast<std::uint64_t>(task.rect().width()) * task.rect().height();
-  const v1::FrameSettings& frame = task.frame_settings();
-  const v1::RenderMode mode =
-      task.has_frame_settings() && frame.mode() != v1::RENDER_MODE_UNSPECIFIED ? frame.mode()
-                                                                               : runMode;
-  const bool depth =
-      task.has_frame_settings() && frame.tile_depth() && mode != v1::RENDER_MODE_BLENDED;
-  const std::uint64_t colourBytes = partCount > 1 ? 8 : 4;
-  return pixels * (colourBytes + (depth ? 4 : 0));
-}
-
 TraversalSettings traversalSettings(const v1::RunSettings& settings) {
   TraversalSettings traversal;
   traversal.lodPixels = settings.lod_pixels() > 0.0f ? settings.lod_pixels() : 1.0f;
@@ -250,33 +236,32 @@ PacketPlan PacketPlanner::planPart(const v1::TileTask& task, const TileWalk& wal
     const CellPrefix& need = walk.needs[i];
     plan.needs.push_back({need.cell, layers_->needPrefix(need.cell, need.splats)});
   }
-  const PacketLoad load{part.splats, tileImageBytes(task, partCount, settings_.mode())};
   const v1::Scheduler scheduler = schedulerFor(task);
   if (scheduler == v1::SCHEDULER_COST || (scheduler == v1::SCHEDULER_REGIONS && partIndex > 0)) {
     // The parts after the first go where the cost function sends them: the
     // region's render already has the first.
-    plan.choice = model_.choose(plan.needs, load, now);
+    plan.choice = model_.choose(plan.needs, part.splats, now);
     if (std::find(taken.begin(), taken.end(), plan.choice.render) != taken.end()) {
       // Stacked on a render that draws another part, this part waits about
       // its own drawing time; elsewhere it runs beside it. So another render
       // (one that could start before the least loaded could draw the tile
       // whole) wins if it costs at most that much more, data included.
       const double partSeconds = static_cast<double>(part.splats) * model_.secondsPerSplat();
-      auto spread = model_.chooseApart(plan.needs, load, now, taken,
+      auto spread = model_.chooseApart(plan.needs, part.splats, now, taken,
                                        static_cast<double>(walk.splats) * model_.secondsPerSplat());
       if (spread && spread->cost <= plan.choice.cost + partSeconds)
         plan.choice = std::move(*spread);
     }
   } else if (scheduler == v1::SCHEDULER_REGIONS) {
-    plan.choice = model_.chooseNearHome(task.assigned_render(), plan.needs, load, now);
+    plan.choice = model_.chooseNearHome(task.assigned_render(), plan.needs, part.splats, now);
   } else {
-    plan.choice = model_.assigned(task.assigned_render(), plan.needs, load, now);
+    plan.choice = model_.assigned(task.assigned_render(), plan.needs, part.splats);
   }
   const auto& avoid = task.avoid_renders();
   if (std::find(avoid.begin(), avoid.end(), plan.choice.render) != avoid.end()) {
     // The display holds a tile of that render overdue: wherever else it can.
     if (auto elsewhere = model_.chooseExcept(
-            plan.needs, load, now,
+            plan.needs, part.splats, now,
             std::span<const std::uint32_t>(avoid.data(), static_cast<std::size_t>(avoid.size())))) {
       plan.choice = std::move(*elsewhere);
       ++renderAvoided_;
@@ -358,10 +343,9 @@ PacketPlan PacketPlanner::planPart(const v1::TileTask& task, const TileWalk& wal
     packet.set_part_index(partIndex);
     packet.set_part_count(partCount);
   }
-  packet.set_image_bytes(load.imageBytes);
   if (task.has_frame_settings()) *packet.mutable_frame_settings() = task.frame_settings();
   out.send(plan.renderRank, std::move(packet));
-  model_.recordPacket(choice.render, packetsSent_, load, choice.missing, now);
+  model_.recordPacket(choice.render, packetsSent_, part.splats, choice.missing, now);
 
   std::uint64_t packetBytes = 0;
   for (const CellPrefix& need : plan.needs)
@@ -376,7 +360,6 @@ void PacketPlanner::applyReport(int sourceRank, const v1::RenderReport& report, 
   const std::size_t render = peers_.indexOf(v1::ROLE_RENDER, sourceRank);
   RenderReportView view;
   view.workloadSplats = report.workload_splats();
-  view.pendingImageBytes = report.pending_image_bytes();
   if (report.loaded_splats_size() != report.loaded_cells_size()) {
     throw ProtocolError("render report from rank " + std::to_string(sourceRank) + " gives " +
                         std::to_string(report.loaded_splats_size()) + " prefixes for " +

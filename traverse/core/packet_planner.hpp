@@ -56,13 +56,6 @@ struct WalkPart {
 // ranges and needs disagree.
 std::vector<WalkPart> splitWalk(const TileWalk& walk, std::size_t parts);
 
-// Bytes of the tile image a render sends back for a packet of `task` cut in
-// `partCount` parts: 4 a pixel (8, depth and colour, for a part of a split
-// tile), and 4 more where the frame asks for depth (not in blended mode,
-// whose tiles have no single surface), as render processes send them.
-std::uint64_t tileImageBytes(const v1::TileTask& task, std::uint32_t partCount,
-                             v1::RenderMode runMode);
-
 // The traversal settings of a run (level of detail, size scale, culling).
 TraversalSettings traversalSettings(const v1::RunSettings& settings);
 

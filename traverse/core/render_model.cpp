@@ -33,21 +33,8 @@ void RenderModel::setCoreShares(std::span<const float> shares) {
 std::uint64_t RenderModel::workload(std::size_t render) const {
   const RenderState& state = renders_.at(render);
   std::uint64_t total = state.reportedWorkload;
-  for (const auto& packet : state.unreported) total += packet.load.splats;
+  for (const auto& [id, splats] : state.unreported) total += splats;
   return total;
-}
-
-double RenderModel::imageLinkSeconds(std::size_t render, Clock::time_point now) const {
-  const RenderState& state = renders_.at(render);
-  const double byteSeconds = secondsPerByte(render);
-  // The link has been sending since the report.
-  const double sinceReport =
-      now > state.reportedAt ? std::chrono::duration<double>(now - state.reportedAt).count() : 0.0;
-  double seconds =
-      std::max(0.0, static_cast<double>(state.reportedImageBytes) * byteSeconds - sinceReport);
-  for (const auto& packet : state.unreported)
-    seconds += static_cast<double>(packet.load.imageBytes) * byteSeconds;
-  return seconds;
 }
 
 std::uint32_t RenderModel::heldSplats(std::size_t render, std::uint32_t cell) const {
@@ -105,8 +92,8 @@ double RenderModel::secondsPerByte(std::size_t render) const {
   return own > 0.0 && workload(render) > 0 ? own : secondsPerByte();
 }
 
-double RenderModel::cost(std::size_t render, std::span<const CellPrefix> needs, PacketLoad load,
-                         Clock::time_point now, std::uint64_t* missingBytes) const {
+double RenderModel::cost(std::size_t render, std::span<const CellPrefix> needs,
+                         std::uint64_t splats, std::uint64_t* missingBytes) const {
   std::uint64_t missing = 0;
   for (const CellPrefix& need : needs) {
     const std::uint32_t held = heldSplats(render, need.cell);
@@ -118,14 +105,10 @@ double RenderModel::cost(std::size_t render, std::span<const CellPrefix> needs, 
   const double splatSeconds = secondsPerSplat(render);
   const double queued =
       static_cast<double>(workload(render)) * splatSeconds * renders_[render].coreShare;
-  const double byteSeconds = secondsPerByte(render);
-  const double transfer = static_cast<double>(missing) * byteSeconds;
-  const double own = static_cast<double>(load.splats) * splatSeconds;
-  const double drawn =
-      costModel_ == CostModel::Paper ? queued + transfer + own : std::max(queued, transfer) + own;
-  // The image leaves once drawn and once the link has sent those before it.
-  return std::max(drawn, imageLinkSeconds(render, now)) +
-         static_cast<double>(load.imageBytes) * byteSeconds;
+  const double transfer = static_cast<double>(missing) * secondsPerByte(render);
+  const double own = static_cast<double>(splats) * splatSeconds;
+  if (costModel_ == CostModel::Paper) return queued + transfer + own;
+  return std::max(queued, transfer) + own;
 }
 
 bool RenderModel::suspectedStalled(std::size_t render, Clock::time_point now) const {
@@ -170,7 +153,7 @@ std::size_t RenderModel::rendersForParts(double slack, Clock::time_point now) co
 }
 
 std::optional<RenderChoice> RenderModel::chooseAmong(
-    std::span<const CellPrefix> needs, PacketLoad load, Clock::time_point now,
+    std::span<const CellPrefix> needs, std::uint64_t splats, Clock::time_point now,
     const std::function<bool(std::size_t)>& candidate) const {
   const std::size_t count = renders_.size();
   if (liveCount() == 0) throw ProtocolError("no render process is left to draw a packet");
@@ -187,13 +170,13 @@ std::optional<RenderChoice> RenderModel::chooseAmong(
     if (!allStalled && suspectedStalled(render, now)) continue;
     if (candidate && !candidate(render)) continue;
     std::uint64_t missing = 0;
-    const double value = cost(render, needs, load, now, &missing);
-    const std::uint64_t queuedSplats = workload(render);
+    const double value = cost(render, needs, splats, &missing);
+    const std::uint64_t load = workload(render);
     const bool tie = best && value == best->cost;
     if (!best || value < best->cost || (tie && missing < best->missingBytes) ||
-        (tie && missing == best->missingBytes && queuedSplats < bestWorkload)) {
+        (tie && missing == best->missingBytes && load < bestWorkload)) {
       best = RenderChoice{render, value, missing, {}};
-      bestWorkload = queuedSplats;
+      bestWorkload = load;
     }
   }
   if (best) {
@@ -203,33 +186,33 @@ std::optional<RenderChoice> RenderModel::chooseAmong(
   return best;
 }
 
-RenderChoice RenderModel::choose(std::span<const CellPrefix> needs, PacketLoad load,
+RenderChoice RenderModel::choose(std::span<const CellPrefix> needs, std::uint64_t splats,
                                  Clock::time_point now) const {
   // Some live render is always a candidate (stalled ones too when all are).
-  return *chooseAmong(needs, load, now, {});
+  return *chooseAmong(needs, splats, now, {});
 }
 
 std::optional<RenderChoice> RenderModel::chooseApart(std::span<const CellPrefix> needs,
-                                                     PacketLoad load, Clock::time_point now,
+                                                     std::uint64_t splats, Clock::time_point now,
                                                      std::span<const std::size_t> avoid,
                                                      double slack) const {
   const double least = leastQueuedSeconds(now);
-  return chooseAmong(needs, load, now, [&](std::size_t render) {
+  return chooseAmong(needs, splats, now, [&](std::size_t render) {
     return std::find(avoid.begin(), avoid.end(), render) == avoid.end() &&
            canTakePart(render, least, slack, now);
   });
 }
 
 std::optional<RenderChoice> RenderModel::chooseExcept(std::span<const CellPrefix> needs,
-                                                      PacketLoad load, Clock::time_point now,
+                                                      std::uint64_t splats, Clock::time_point now,
                                                       std::span<const std::uint32_t> avoid) const {
-  return chooseAmong(needs, load, now, [&](std::size_t render) {
+  return chooseAmong(needs, splats, now, [&](std::size_t render) {
     return std::find(avoid.begin(), avoid.end(), render) == avoid.end();
   });
 }
 
 RenderChoice RenderModel::chooseNearHome(std::size_t home, std::span<const CellPrefix> needs,
-                                         PacketLoad load, Clock::time_point now) const {
+                                         std::uint64_t splats, Clock::time_point now) const {
   if (liveCount() == 0) throw ProtocolError("no render process is left to draw a packet");
   home %= renders_.size();
   while (renders_[home].retired) home = (home + 1) % renders_.size();
@@ -239,12 +222,12 @@ RenderChoice RenderModel::chooseNearHome(std::size_t home, std::span<const CellP
     leastQueued = std::min(leastQueued, queuedSeconds(render));
   }
   const bool othersStalled = std::isinf(leastQueued);
-  if (othersStalled) return assigned(home, needs, load, now);
-  const double slack = kHomeSlackPackets * static_cast<double>(load.splats) * secondsPerSplat();
+  if (othersStalled) return assigned(home, needs, splats);
+  const double slack = kHomeSlackPackets * static_cast<double>(splats) * secondsPerSplat();
   if (!suspectedStalled(home, now) && queuedSeconds(home) <= leastQueued + slack) {
-    return assigned(home, needs, load, now);
+    return assigned(home, needs, splats);
   }
-  return choose(needs, load, now);
+  return choose(needs, splats, now);
 }
 
 double RenderModel::queuedSeconds(std::size_t render) const {
@@ -252,12 +235,12 @@ double RenderModel::queuedSeconds(std::size_t render) const {
 }
 
 RenderChoice RenderModel::assigned(std::size_t render, std::span<const CellPrefix> needs,
-                                   PacketLoad load, Clock::time_point now) const {
+                                   std::uint64_t splats) const {
   RenderChoice choice;
   if (liveCount() == 0) throw ProtocolError("no render process is left to draw a packet");
   choice.render = render % renders_.size();
   while (renders_[choice.render].retired) choice.render = (choice.render + 1) % renders_.size();
-  choice.cost = cost(choice.render, needs, load, now, &choice.missingBytes);
+  choice.cost = cost(choice.render, needs, splats, &choice.missingBytes);
   choice.missing = missing(choice.render, needs);
   return choice;
 }
@@ -273,11 +256,11 @@ std::size_t RenderModel::liveCount() const {
                                                 [](const RenderState& s) { return !s.retired; }));
 }
 
-void RenderModel::recordPacket(std::size_t render, std::uint64_t packetId, PacketLoad load,
+void RenderModel::recordPacket(std::size_t render, std::uint64_t packetId, std::uint64_t splats,
                                std::span<const CellPrefix> ordered, Clock::time_point now) {
   RenderState& state = renders_.at(render);
   if (!state.waitingSince) state.waitingSince = now;
-  state.unreported.push_back({packetId, load});
+  state.unreported.emplace_back(packetId, splats);
   recordPrefetch(render, ordered);
 }
 
@@ -307,11 +290,9 @@ void RenderModel::applyReport(std::size_t render, const RenderReportView& report
   }
   state.packetsDone = std::max(state.packetsDone, report.packetsDone);
   state.reportedWorkload = report.workloadSplats;
-  state.reportedImageBytes = report.pendingImageBytes;
-  state.reportedAt = now;
   state.lastPacketSeen = std::max(state.lastPacketSeen, report.lastPacketFromUs);
   std::erase_if(state.unreported,
-                [&](const auto& packet) { return packet.id <= state.lastPacketSeen; });
+                [&](const auto& packet) { return packet.first <= state.lastPacketSeen; });
   for (const CellPrefix& loaded : report.loaded) {
     state.cached[loaded.cell] = loaded.splats;
     // An order for a longer prefix is still on its way.

@@ -11,14 +11,6 @@
 //   Cost(i) = max(workload(i) * T_s, missing_bytes(i) * T_n) + packet_splats * T_s
 // Where processes outnumber a machine's cores, workload(i) * T_s is weighed by
 // the share of a core each has (common/core_share.hpp, docs/scheduling.md §11).
-// A render also sends each packet's tile image over its own outgoing link,
-// which may be the shorter resource (2 MB a tile at 4K over 1 GbE), so the
-// figure is when the packet's image has left, not when it is drawn:
-//   Cost(i) = max(drawn(i), link_busy(i)) + image_bytes * T_n
-// with T_n also standing for the outgoing link (links are symmetric) and
-// link_busy the time the link needs for the images of the packets queued and
-// drawn but not yet sent: the render's reported figure, less the time since
-// the report, plus the images of packets sent since (docs/scheduling.md §17).
 // T_s (seconds per splat) and T_n (seconds per byte) are measured by each
 // render process while running and kept per process, so a render process on a
 // slower node (or behind a slower link) gets proportionally less work while it
@@ -40,7 +32,6 @@ namespace pointillist::traverse {
 
 struct RenderReportView {
   std::uint64_t workloadSplats = 0;
-  std::uint64_t pendingImageBytes = 0;   // images queued or drawn, not yet sent
   std::span<const CellPrefix> loaded{};  // the prefix now held
   std::span<const std::uint32_t> evicted{};
   double secondsPerSplat = 0.0;  // 0: not measured yet
@@ -62,17 +53,6 @@ enum class CostModel {
 v1::CostModel costModelMessage(CostModel model);
 CostModel costModelOf(v1::CostModel model);
 
-// What a packet asks of a render process: splats to draw and the tile image
-// to send back (RenderPacket.image_bytes). From a bare count: no image.
-struct PacketLoad {
-  std::uint64_t splats = 0;
-  std::uint64_t imageBytes = 0;
-  PacketLoad() = default;
-  // Implicit: callers that weigh splats alone pass the count.
-  PacketLoad(std::uint64_t splatCount, std::uint64_t imageByteCount = 0)  // NOLINT
-      : splats(splatCount), imageBytes(imageByteCount) {}
-};
-
 struct RenderChoice {
   std::size_t render = 0;  // index among render processes
   double cost = 0.0;
@@ -92,27 +72,27 @@ class RenderModel {
   void setCoreShares(std::span<const float> shares);
   CostModel costModel() const { return costModel_; }
 
-  // Cost of sending a packet of `load` that needs `needs` to render i at `now`.
-  double cost(std::size_t render, std::span<const CellPrefix> needs, PacketLoad load,
-              Clock::time_point now, std::uint64_t* missingBytes = nullptr) const;
+  // Cost of sending a packet of `splats` splats that needs `needs` to render i.
+  double cost(std::size_t render, std::span<const CellPrefix> needs, std::uint64_t splats,
+              std::uint64_t* missingBytes = nullptr) const;
   // The render with the lowest cost; ties go to the fewest missing bytes, then
   // the lowest pending work, then rotate from the last choice so idle renders
   // share the first frames.
   // A render that has had work for much longer than that work should take
   // without finishing a packet is suspected stalled and only chosen when every
   // render is.
-  RenderChoice choose(std::span<const CellPrefix> needs, PacketLoad load,
+  RenderChoice choose(std::span<const CellPrefix> needs, std::uint64_t splats,
                       Clock::time_point now) const;
   // The same choice among the renders not in `avoid` (those drawing the other
   // parts of a split tile) that may take a part (rendersForParts with
   // `slack`); nullopt when there is none.
-  std::optional<RenderChoice> chooseApart(std::span<const CellPrefix> needs, PacketLoad load,
+  std::optional<RenderChoice> chooseApart(std::span<const CellPrefix> needs, std::uint64_t splats,
                                           Clock::time_point now, std::span<const std::size_t> avoid,
                                           double slack) const;
   // The cost function's choice among the renders not in `avoid` (the display
   // suspects them: they hold a tile past its deadline); nullopt when none is
   // left.
-  std::optional<RenderChoice> chooseExcept(std::span<const CellPrefix> needs, PacketLoad load,
+  std::optional<RenderChoice> chooseExcept(std::span<const CellPrefix> needs, std::uint64_t splats,
                                            Clock::time_point now,
                                            std::span<const std::uint32_t> avoid) const;
   bool suspectedStalled(std::size_t render, Clock::time_point now) const;
@@ -126,16 +106,16 @@ class RenderModel {
   // least loaded live render's, or it is suspected stalled; then the cost
   // function chooses among all. So no render idles while another holds more
   // than two tiles' worth of work.
-  RenderChoice chooseNearHome(std::size_t home, std::span<const CellPrefix> needs, PacketLoad load,
-                              Clock::time_point now) const;
+  RenderChoice chooseNearHome(std::size_t home, std::span<const CellPrefix> needs,
+                              std::uint64_t splats, Clock::time_point now) const;
   static constexpr double kHomeSlackPackets = 2.0;
   // The same figures for a render chosen by someone else (other schedulers).
-  RenderChoice assigned(std::size_t render, std::span<const CellPrefix> needs, PacketLoad load,
-                        Clock::time_point now) const;
+  RenderChoice assigned(std::size_t render, std::span<const CellPrefix> needs,
+                        std::uint64_t splats) const;
 
   // Records that a packet went to `render` with the given id, and that its
   // missing prefixes were ordered (they count as present from now on).
-  void recordPacket(std::size_t render, std::uint64_t packetId, PacketLoad load,
+  void recordPacket(std::size_t render, std::uint64_t packetId, std::uint64_t splats,
                     std::span<const CellPrefix> ordered, Clock::time_point now);
   // Prefixes ordered for `render` ahead of any packet (prefetch along the camera path).
   void recordPrefetch(std::size_t render, std::span<const CellPrefix> ordered);
@@ -144,9 +124,7 @@ class RenderModel {
   void applyReport(std::size_t render, const RenderReportView& report, Clock::time_point now);
 
   std::uint64_t workload(std::size_t render) const;  // reported + sent since the report
-  // Seconds the render's outgoing link needs at `now` for the images it owes.
-  double imageLinkSeconds(std::size_t render, Clock::time_point now) const;
-  double queuedSeconds(std::size_t render) const;  // workload * its T_s
+  double queuedSeconds(std::size_t render) const;    // workload * its T_s
   // The prefix of `cell` that `render` holds or has on order, in splats.
   std::uint32_t heldSplats(std::size_t render, std::uint32_t cell) const;
   std::size_t cachedCellCount(std::size_t render) const;
@@ -166,7 +144,7 @@ class RenderModel {
  private:
   // The lowest-cost render for which `candidate` holds (every live one when
   // empty); nullopt when none does.
-  std::optional<RenderChoice> chooseAmong(std::span<const CellPrefix> needs, PacketLoad load,
+  std::optional<RenderChoice> chooseAmong(std::span<const CellPrefix> needs, std::uint64_t splats,
                                           Clock::time_point now,
                                           const std::function<bool(std::size_t)>& candidate) const;
   double leastQueuedSeconds(Clock::time_point now) const;
@@ -174,15 +152,9 @@ class RenderModel {
 
   struct RenderState {
     std::uint64_t reportedWorkload = 0;
-    std::uint64_t reportedImageBytes = 0;
-    Clock::time_point reportedAt{};  // when the last report was applied
     std::uint64_t lastPacketSeen = 0;
-    // Packets sent to this render after its last report.
-    struct Unreported {
-      std::uint64_t id = 0;
-      PacketLoad load;
-    };
-    std::vector<Unreported> unreported;
+    // Packets sent to this render after its last report: id -> splats.
+    std::vector<std::pair<std::uint64_t, std::uint64_t>> unreported;
     std::unordered_map<std::uint32_t, std::uint32_t> cached;   // prefix confirmed by reports
     std::unordered_map<std::uint32_t, std::uint32_t> ordered;  // ordered by us, not yet confirmed
     std::uint64_t packetsDone = 0;

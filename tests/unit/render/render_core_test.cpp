@@ -323,44 +323,6 @@ TEST(RenderCore, ReportsGoToEveryTraverseWithEachOnesLastPacketAndToDataSendOnly
   EXPECT_THROW(core.receivePacket(kTraverse, packet(1, {4}), kStart, drawn), ProtocolError);
 }
 
-// What the outgoing link still owes goes to the traverses: the images of the
-// packets queued, and what is left of those drawn, each sent after the one
-// before at the measured T_n.
-TEST(RenderCore, ReportsTheImageBytesItsLinkStillOwes) {
-  RenderCore core = makeCore(4);
-  RenderEffects effects;
-  v1::RenderPacket first = packet(1, {0});
-  first.set_image_bytes(100'000);
-  v1::RenderPacket second = packet(2, {0});
-  second.set_image_bytes(400'000);
-  core.receivePacket(kTraverse, first, kStart, effects);
-  core.receivePacket(kTraverse, second, kStart, effects);
-  EXPECT_EQ(core.pendingImageBytes(kStart), 500'000u);
-  // T_n = 1e-8 s a byte: 1 ms for 100 kB.
-  EXPECT_EQ(whole(core, 0, kCellBytes * 1e-8, kStart, effects), DataVerdict::Store);
-  ASSERT_NEAR(core.secondsPerByte(), 1e-8, 1e-12);
-  auto ready = core.nextPacket(kStart, effects);
-  ASSERT_TRUE(ready);
-  RenderEffects drawn;
-  core.packetDrawn(*ready, 5000, 0.01, kStart, drawn);
-  ASSERT_EQ(drawn.messages.entries().size(), 1u);
-  // The drawn packet's image has not left yet.
-  EXPECT_EQ(drawn.messages.entries()[0].as<v1::RenderReport>().pending_image_bytes(), 500'000u);
-  // Half a millisecond on, half of it has.
-  EXPECT_NEAR(static_cast<double>(core.pendingImageBytes(kStart + 500us)), 450'000.0, 1.0);
-  ready = core.nextPacket(kStart + 500us, effects);
-  ASSERT_TRUE(ready);
-  RenderEffects secondDrawn;
-  core.packetDrawn(*ready, 5000, 0.01, kStart + 500us, secondDrawn);
-  // The second image goes after the rest of the first: 4.5 ms of sending.
-  EXPECT_NEAR(static_cast<double>(
-                  secondDrawn.messages.entries()[0].as<v1::RenderReport>().pending_image_bytes()),
-              450'000.0, 1.0);
-  EXPECT_NEAR(static_cast<double>(core.pendingImageBytes(kStart + 3ms)), 200'000.0, 1.0);
-  EXPECT_EQ(core.pendingImageBytes(kStart + 5ms), 0u);
-  EXPECT_EQ(core.pendingImageBytes(kStart + 1s), 0u);
-}
-
 TEST(RenderCore, AStalledProcessKeepsTakingMessagesButDrawsNothing) {
   RenderCore core = makeCore(4, 1);
   RenderEffects effects;

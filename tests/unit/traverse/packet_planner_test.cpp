@@ -366,34 +366,6 @@ TEST(PacketPlanner, AServedFramesSettingsOverrideTheRunsForItsTile) {
   EXPECT_FALSE(packetIn(plainOut).has_frame_settings());
 }
 
-// The tile image a packet makes its render send: 4 bytes a pixel, 8 for a
-// part of a split tile (depth and colour), 4 more with a depth image, which
-// blended tiles never carry.
-TEST(PacketPlanner, CountsTheTileImageItsRenderSendsBack) {
-  v1::TileTask plain = task(0, 0);
-  EXPECT_EQ(tileImageBytes(plain, 1, v1::RENDER_MODE_POINTS), 64u * 64u * 4u);
-  EXPECT_EQ(tileImageBytes(plain, 3, v1::RENDER_MODE_POINTS), 64u * 64u * 8u);
-  v1::TileTask depth = task(0, 0);
-  depth.mutable_frame_settings()->set_tile_depth(true);
-  EXPECT_EQ(tileImageBytes(depth, 1, v1::RENDER_MODE_POINTS), 64u * 64u * 8u);
-  EXPECT_EQ(tileImageBytes(depth, 1, v1::RENDER_MODE_BLENDED), 64u * 64u * 4u);
-  depth.mutable_frame_settings()->set_mode(v1::RENDER_MODE_BLENDED);
-  EXPECT_EQ(tileImageBytes(depth, 1, v1::RENDER_MODE_POINTS), 64u * 64u * 4u);
-  // The packet carries it, and the model counts it on the chosen render's link.
-  PacketPlanner core = planner();
-  Outbox out;
-  const Walk walk({0});
-  const auto plans = core.planPackets(plain, walk.view(), {}, kStart, out);
-  ASSERT_EQ(plans.size(), 1u);
-  const v1::RenderPacket* packet = nullptr;
-  for (const Outgoing& outgoing : out.entries()) {
-    if (outgoing.kind == MessageKind::RenderPacket) packet = &outgoing.as<v1::RenderPacket>();
-  }
-  ASSERT_NE(packet, nullptr);
-  EXPECT_EQ(packet->image_bytes(), 64u * 64u * 4u);
-  EXPECT_GT(core.model().imageLinkSeconds(plans[0].choice.render, kStart), 0.0);
-}
-
 TEST(PacketPlanner, RefusesStrangersAndCellsOutsideTheDataset) {
   PacketPlanner p = planner();
   EXPECT_THROW(p.applyReport(2, report(0), kStart), ProtocolError);

@@ -64,7 +64,7 @@ TEST(RenderModel, PaperCostIsWorkloadTimesTsPlusMissingBytesTimesTn) {
   EXPECT_NEAR(model.secondsPerByte(), 1e-5, 1e-8);
   const auto needed = whole(cells, {0, 1});
   std::uint64_t missing = 0;
-  const double cost = model.cost(0, needed, 100, kNow, &missing);
+  const double cost = model.cost(0, needed, 100, &missing);
   EXPECT_EQ(missing, 9600u);
   EXPECT_NEAR(cost, (500 + 100) * 1e-6 + 9600 * 1e-5, 1e-9);
 }
@@ -101,7 +101,7 @@ TEST(RenderModel, ACoreShareWeighsTheQueueAndKeepsTilesWithTheirData) {
   shared.setCoreShares(shares);
   EXPECT_EQ(shared.choose(needed, 1000, kNow).render, 0u);  // 0.25 ms of queue < 0.32 ms
   std::uint64_t missing = 0;
-  EXPECT_NEAR(shared.cost(0, needed, 1000, kNow, &missing), (100'000 * 0.25 + 1000) * 1e-8, 1e-12);
+  EXPECT_NEAR(shared.cost(0, needed, 1000, &missing), (100'000 * 0.25 + 1000) * 1e-8, 1e-12);
   EXPECT_EQ(missing, 0u);
   // Shares a display would not send count as a node each.
   const std::vector<float> odd{0.0f, 2.0f};
@@ -119,10 +119,10 @@ TEST(RenderModel, OverlapCostLetsTheTransferHideBehindQueuedWork) {
   const auto needed = whole(cells, {0, 1});
   // 9.6 kB at 1e-7 s/B = 0.96 ms arrives while the 500 queued splats (0.5 ms)
   // are drawn: the transfer is the longer of the two.
-  EXPECT_NEAR(model.cost(0, needed, 100, kNow, nullptr), 9600 * 1e-7 + 100 * 1e-6, 1e-9);
+  EXPECT_NEAR(model.cost(0, needed, 100, nullptr), 9600 * 1e-7 + 100 * 1e-6, 1e-9);
   // With 5000 splats queued (5 ms) the transfer is hidden entirely.
   model.applyReport(0, {.workloadSplats = 5000}, kNow);
-  EXPECT_NEAR(model.cost(0, needed, 100, kNow, nullptr), (5000 + 100) * 1e-6, 1e-9);
+  EXPECT_NEAR(model.cost(0, needed, 100, nullptr), (5000 + 100) * 1e-6, 1e-9);
 }
 
 TEST(RenderModel, OverlapCostSendsDataToABusyRenderWhoseQueueHidesTheTransfer) {
@@ -191,9 +191,9 @@ TEST(RenderModel, MissingBytesArePrefixesBeyondWhatARenderHoldsOrHasOnOrder) {
   model.applyReport(0, {.loaded = coarse}, kNow);
   const CellPrefix fine[] = {{0, 400}, {1, 50}};
   std::uint64_t missing = 0;
-  model.cost(0, fine, 10, kNow, &missing);
+  model.cost(0, fine, 10, &missing);
   EXPECT_EQ(missing, (300u + 50u) * sizeof(Splat));
-  model.cost(1, fine, 10, kNow, &missing);
+  model.cost(1, fine, 10, &missing);
   EXPECT_EQ(missing, (400u + 50u) * sizeof(Splat));
   EXPECT_EQ(model.missing(0, fine), (std::vector<CellPrefix>{{0, 400}, {1, 50}}));
   const CellPrefix covered[] = {{0, 80}};
@@ -338,93 +338,14 @@ TEST(RenderModel, ARetiredRenderIsNeverChosenAgain) {
     EXPECT_NE(choice.render, 1u);
     model.recordPacket(choice.render, static_cast<std::uint64_t>(i), 10, choice.missing, kNow);
   }
-  EXPECT_EQ(model.assigned(1, needed, 10, kNow).render, 2u);
-  EXPECT_EQ(model.assigned(4, needed, 10, kNow).render, 2u);  // 4 % 3 = 1: retired, so 2
+  EXPECT_EQ(model.assigned(1, needed, 10).render, 2u);
+  EXPECT_EQ(model.assigned(4, needed, 10).render, 2u);  // 4 % 3 = 1: retired, so 2
   model.applyReport(1, {.workloadSplats = 0, .loaded = loaded}, kNow);
   EXPECT_NE(model.choose(needed, 10, kNow).render, 1u);
   model.retire(0);
   model.retire(2);
   EXPECT_THROW((void)model.choose(needed, 10, kNow), ProtocolError);
-  EXPECT_THROW((void)model.assigned(0, needed, 10, kNow), ProtocolError);
-}
-
-// A render sends every packet's tile image over its own outgoing link. The
-// cost is when the image has left: the draw, or the link's backlog of images
-// if that ends later, then the packet's own image (docs/scheduling.md §17).
-TEST(RenderModel, CostIsWhenTheImageHasLeftTheRendersLink) {
-  const Table cells{3200};
-  RenderModel model(2);
-  for (int i = 0; i < 200; ++i) {
-    for (std::size_t render : {0u, 1u}) {
-      model.applyReport(render,
-                        {.workloadSplats = 1000,
-                         .pendingImageBytes = render == 0 ? 4'000'000u : 100'000u,
-                         .secondsPerSplat = 1e-6,
-                         .secondsPerByte = 1e-8},
-                        kNow);
-    }
-  }
-  const auto needed = whole(cells, {0});
-  const PacketLoad load{100, 500'000};
-  // Render 0: its link owes 40 ms of images, beyond its 1.1 ms of drawing.
-  EXPECT_NEAR(model.cost(0, needed, load, kNow), 4'000'000 * 1e-8 + 500'000 * 1e-8, 1e-9);
-  // Render 1: its link is free by the time the packet is drawn.
-  EXPECT_NEAR(model.cost(1, needed, load, kNow), (1000 + 100) * 1e-6 + 3200 * 1e-8 + 500'000 * 1e-8,
-              1e-9);
-  EXPECT_NEAR(model.cost(1, needed, 100, kNow), (1000 + 100) * 1e-6 + 3200 * 1e-8, 1e-9);
-  EXPECT_NEAR(model.imageLinkSeconds(0, kNow), 4'000'000 * 1e-8, 1e-12);
-}
-
-// The case that halved the city at 4K with 8 renders (docs/scheduling.md §16):
-// the render holding the data has a link full of images; the tile goes to a
-// free link though its data must move.
-TEST(RenderModel, AFullOutgoingLinkOutweighsHoldingTheData) {
-  const Table cells{320'000};  // 10 000 splats
-  const auto needed = whole(cells, {0});
-  const auto modelWithBacklog = [&](std::uint64_t imageBytes) {
-    RenderModel model(2);
-    for (int i = 0; i < 200; ++i) {
-      for (std::size_t render : {0u, 1u}) {
-        model.applyReport(render,
-                          {.workloadSplats = 10'000,
-                           .pendingImageBytes = render == 0 ? imageBytes : 0u,
-                           .loaded = render == 0 ? std::span<const CellPrefix>(needed)
-                                                 : std::span<const CellPrefix>(),
-                           .secondsPerSplat = 1.16e-8,
-                           .secondsPerByte = 8.5e-9},  // 1 GbE
-                          kNow);
-      }
-    }
-    return model;
-  };
-  const PacketLoad tile4k{10'000, 2'000'000};  // a 1000x500 tile
-  EXPECT_EQ(modelWithBacklog(8'000'000).choose(needed, tile4k, kNow).render, 1u);
-  // With its link free the render holding the data keeps the tile.
-  EXPECT_EQ(modelWithBacklog(0).choose(needed, tile4k, kNow).render, 0u);
-}
-
-// Images of packets sent since the render's last report count too, until a
-// report that saw those packets gives the render's own figure; the link
-// sends what a report said it owed as time passes.
-TEST(RenderModel, ImagesOwedDrainAfterTheReportAndPacketsSentSinceAdd) {
-  using namespace std::chrono_literals;
-  RenderModel model(2);
-  for (int i = 0; i < 200; ++i) model.applyReport(0, {.secondsPerByte = 1e-8}, kNow);
-  model.recordPacket(0, 1, PacketLoad{100, 300'000}, {}, kNow);
-  model.recordPacket(0, 2, PacketLoad{100, 200'000}, {}, kNow);
-  EXPECT_NEAR(model.imageLinkSeconds(0, kNow), 500'000 * 1e-8, 1e-12);
-  EXPECT_EQ(model.workload(0), 200u);
-  EXPECT_EQ(model.imageLinkSeconds(1, kNow), 0.0);
-  model.applyReport(0, {.workloadSplats = 100, .pendingImageBytes = 250'000, .lastPacketFromUs = 1},
-                    kNow);
-  EXPECT_NEAR(model.imageLinkSeconds(0, kNow), 450'000 * 1e-8, 1e-12);
-  // 1 ms on, the link has sent 100 000 of the 250 000 bytes reported.
-  EXPECT_NEAR(model.imageLinkSeconds(0, kNow + 1ms), 350'000 * 1e-8, 1e-9);
-  // Once past what the report owed only the unreported packet's image is left.
-  EXPECT_NEAR(model.imageLinkSeconds(0, kNow + 1s), 200'000 * 1e-8, 1e-12);
-  model.applyReport(0, {.workloadSplats = 0, .pendingImageBytes = 0, .lastPacketFromUs = 2},
-                    kNow + 2ms);
-  EXPECT_EQ(model.imageLinkSeconds(0, kNow + 2ms), 0.0);
+  EXPECT_THROW((void)model.assigned(0, needed, 10), ProtocolError);
 }
 
 }  // namespace
