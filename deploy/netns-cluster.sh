@@ -4,7 +4,8 @@
 # between hosts really crosses TCP (as between cluster nodes), never shared memory.
 #
 #   deploy/netns-cluster.sh [--hosts N] [--layout D,T,S,R] [--subnet A.B.C] [--keep]
-#                           [--cut-link H:AFTER:SECONDS] -- [RUN.SH OPTIONS]
+#                           [--cut-link H:AFTER:SECONDS] [--link-mbit MBIT]
+#                           [--host-link-mbit H:MBIT ...] -- [RUN.SH OPTIONS]
 #   deploy/netns-cluster.sh --teardown ID|all
 #
 # Needs root (CAP_SYS_ADMIN and CAP_NET_ADMIN) and iproute2; exits 77 when the
@@ -16,6 +17,12 @@
 # later with --teardown ID, or --teardown all for every cluster whose script
 # is no longer running). --cut-link H:AFTER:SECONDS takes host H's link down
 # AFTER seconds into the job, for SECONDS (a pulled cable, a switch reboot).
+# --link-mbit MBIT makes every host's link that fast each way (a token bucket
+# on both ends of its veth, as a NIC of that speed; default: unshaped), and
+# --host-link-mbit H:MBIT sets host H's alone (0: unshaped), so that a
+# display can have a faster link than the render hosts. Ranks fill hosts in
+# order: with --hosts 8 and layout 1,2,1,4, host 1 holds the display and
+# hosts 5-8 the render processes.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 
@@ -26,6 +33,8 @@ subnet="10.213.0"
 keep=0
 teardown_id=""
 cut_link=""
+link_mbit=0
+declare -A host_mbit
 run_args=()
 usage() { awk 'NR > 1 && !/^#/ { exit } NR > 1 { sub(/^# ?/, ""); print }' "${BASH_SOURCE[0]}"; }
 say() { printf 'netns-cluster: %s\n' "$*" >&2; }
@@ -36,6 +45,8 @@ while (($#)); do
     --subnet) subnet="$2"; shift 2 ;;
     --keep) keep=1; shift ;;
     --cut-link) cut_link="$2"; shift 2 ;;
+    --link-mbit) link_mbit="$2"; shift 2 ;;
+    --host-link-mbit) host_mbit[${2%%:*}]="${2#*:}"; shift 2 ;;
     --teardown) teardown_id="$2"; shift 2 ;;
     -h|--help) usage; exit 0 ;;
     --) shift; run_args=("$@"); break ;;
@@ -198,6 +209,25 @@ for ((h = 1; h <= hosts; h++)); do
   ip -n "$ns" link set lo up
   ip -n "$ns" addr add "$addr/24" dev eth0
   ip -n "$ns" link set eth0 up
+  mbit="${host_mbit[$h]:-$link_mbit}"
+  if ! [[ "$mbit" =~ ^[0-9]+$ ]]; then
+    say "--link-mbit/--host-link-mbit: '$mbit' for host $h is not a whole number of Mbit/s"
+    exit 2
+  fi
+  if ((mbit > 0)); then
+    # Both directions: the host's sending (its eth0) and its receiving (the
+    # bridge's port towards it). The bucket holds 64 KiB, a switch's few
+    # frames; a packet waits at most 200 ms before it is dropped (TCP resends).
+    for end in "$ns eth0" "$sw h$h"; do
+      read -r where dev <<<"$end"
+      if ! err=$(ip netns exec "$where" tc qdisc add dev "$dev" root tbf rate "${mbit}mbit" \
+        burst 64kb latency 200ms 2>&1); then
+        say "cannot shape host $h's link here ($err); needs tc (iproute2) and sch_tbf"
+        exit "$EXIT_UNSUPPORTED"
+      fi
+    done
+    say "host $h: link shaped to $mbit Mbit/s each way"
+  fi
   # Host names are the addresses: Open MPI needs no name resolution then.
   echo "$addr slots=$slots" >>"$workdir/hostfile"
   echo "$addr $ns" >>"$workdir/hosts.map"
