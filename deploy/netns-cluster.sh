@@ -46,7 +46,14 @@ while (($#)); do
     --keep) keep=1; shift ;;
     --cut-link) cut_link="$2"; shift 2 ;;
     --link-mbit) link_mbit="$2"; shift 2 ;;
-    --host-link-mbit) host_mbit[${2%%:*}]="${2#*:}"; shift 2 ;;
+    --host-link-mbit)
+      if ! [[ "$2" =~ ^[0-9]+:[0-9]+$ ]]; then
+        say "--host-link-mbit $2: expected HOST:MBIT, two whole numbers"
+        exit 2
+      fi
+      host_mbit[${2%%:*}]="${2#*:}"
+      shift 2
+      ;;
     --teardown) teardown_id="$2"; shift 2 ;;
     -h|--help) usage; exit 0 ;;
     --) shift; run_args=("$@"); break ;;
@@ -126,6 +133,16 @@ if ! [[ "$hosts" =~ ^[0-9]+$ ]] || ((hosts < 1 || hosts > 200)); then
   say "--hosts '$hosts' is not a number from 1 to 200"
   exit 2
 fi
+if ! [[ "$link_mbit" =~ ^[0-9]+$ ]]; then
+  say "--link-mbit '$link_mbit' is not a whole number of Mbit/s"
+  exit 2
+fi
+for h in "${!host_mbit[@]}"; do
+  if ((h < 1 || h > hosts)); then
+    say "--host-link-mbit $h:${host_mbit[$h]}: host $h is not one of 1..$hosts"
+    exit 2
+  fi
+done
 if ! [[ "$layout" =~ ^[0-9]+,[0-9]+,[0-9]+,[0-9]+$ ]]; then
   say "--layout '$layout' is not D,T,S,R (four counts)"
   exit 2
@@ -210,10 +227,6 @@ for ((h = 1; h <= hosts; h++)); do
   ip -n "$ns" addr add "$addr/24" dev eth0
   ip -n "$ns" link set eth0 up
   mbit="${host_mbit[$h]:-$link_mbit}"
-  if ! [[ "$mbit" =~ ^[0-9]+$ ]]; then
-    say "--link-mbit/--host-link-mbit: '$mbit' for host $h is not a whole number of Mbit/s"
-    exit 2
-  fi
   if ((mbit > 0)); then
     # Both directions: the host's sending (its eth0) and its receiving (the
     # bridge's port towards it). The bucket holds 64 KiB, a switch's few

@@ -4,6 +4,7 @@
 #   - ranks were placed on every host,
 #   - the traffic between hosts crossed the links (TCP): at least MIN_CROSS_BYTES,
 #   - the frames are pixel-identical to the single-process reference,
+#   - a host whose link is shaped (--host-link-mbit) still takes part,
 #   - nothing of the simulated cluster is left behind.
 #   netns_cluster_test.sh BIN_DIR DATASET
 # Exits 77 (ctest SKIP_RETURN_CODE) when this machine allows no namespaces.
@@ -20,7 +21,8 @@ export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
 # clean up after instead of being killed.
 set +e
 POINTILLIST_BUILD="$(dirname "$bin")" timeout --kill-after=20 240 \
-  bash "$root/deploy/netns-cluster.sh" --hosts "$hosts" --layout "$layout" -- \
+  bash "$root/deploy/netns-cluster.sh" --hosts "$hosts" --layout "$layout" \
+  --host-link-mbit 3:200 -- \
   --mpirun-arg --display-map \
   --dataset "$dataset" --camera-path "$path" --frames "$frames" --size "$size" --mode points \
   --out "$work/job" >"$work/job.log" 2>&1
@@ -33,6 +35,11 @@ if ((code == 77)); then
 fi
 if ((code != 0)); then
   echo "FAIL: the job on the simulated cluster exited with code $code"
+  exit 1
+fi
+
+if ! grep -q '^netns-cluster: host 3: link shaped to 200 Mbit/s each way$' "$work/job.log"; then
+  echo "FAIL: host 3's link was not shaped"
   exit 1
 fi
 
