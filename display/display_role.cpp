@@ -499,6 +499,7 @@ class DisplayProcess {
         std::vector<std::uint8_t> composed;
         if (header.format() == v1::PIXEL_FORMAT_POINT_WORDS64) {
           parts_.merge(header.frame_id(), header.tile_id(), header.attempt(), rect,
+                       header.has_drawn_rect() ? header.drawn_rect() : rect,
                        std::span<const std::byte>(envelope.payload.data(), pixelBytes));
           if (arrival == TileArrival::Part) return;
           composed = parts_.take(header.frame_id(), header.tile_id(), header.attempt(),

@@ -16,6 +16,7 @@
 #include "common/shared_packets.hpp"
 #include "render/core/render_core.hpp"
 #include "render/gl/tile_renderers.hpp"
+#include "render/raster/cpu_point_renderer.hpp"
 
 namespace pointillist::render {
 namespace {
@@ -270,14 +271,26 @@ class RenderProcess final : public WorkerProcess {
           "lighting; this render process draws with " +
           renderer_->describe());
     }
-    const auto pixels = part ? std::as_bytes(words) : std::as_bytes(renderer_->pixels());
-    const auto depths = settings.keepDepth ? renderer_->depths() : std::span<const float>();
-    if (settings.keepDepth) header.set_depth(v1::DEPTH_FORMAT_EYE_FLOAT32);
     auto payload = std::make_shared<std::vector<std::byte>>();
-    payload->reserve(pixels.size() + depths.size_bytes());
-    payload->insert(payload->end(), pixels.begin(), pixels.end());
-    payload->insert(payload->end(), reinterpret_cast<const std::byte*>(depths.data()),
-                    reinterpret_cast<const std::byte*>(depths.data()) + depths.size_bytes());
+    if (part) {
+      // Only the box it drew in: a part draws some of its tile's cells, and
+      // the display's link is what limits many render processes.
+      const WordsBox box = drawnWordsBox(words, packet.rect().width(), packet.rect().height());
+      v1::TileRect& drawn = *header.mutable_drawn_rect();
+      drawn.set_x(packet.rect().x() + box.x);
+      drawn.set_y(packet.rect().y() + box.y);
+      drawn.set_width(box.width);
+      drawn.set_height(box.height);
+      *payload = wordsInBox(words, packet.rect().width(), box);
+    } else {
+      const auto pixels = std::as_bytes(renderer_->pixels());
+      const auto depths = settings.keepDepth ? renderer_->depths() : std::span<const float>();
+      if (settings.keepDepth) header.set_depth(v1::DEPTH_FORMAT_EYE_FLOAT32);
+      payload->reserve(pixels.size() + depths.size_bytes());
+      payload->insert(payload->end(), pixels.begin(), pixels.end());
+      payload->insert(payload->end(), reinterpret_cast<const std::byte*>(depths.data()),
+                      reinterpret_cast<const std::byte*>(depths.data()) + depths.size_bytes());
+    }
     const std::span<const std::byte> bytes(*payload);
     job_.sends().post(job_.displayRank(), MessageKind::TileImage, header, bytes,
                       std::move(payload));

@@ -21,6 +21,8 @@ Scene::Scene(std::string name, std::vector<OctreeCell> cells, std::vector<TopLev
   if (cells_.empty() || topLevel_.empty()) {
     throw InputError(name_ + ": the dataset has no cells to simulate");
   }
+  // Where each need draws: a part of a split tile sends only that box.
+  traversal_.screenBoxes = traversal_.statistical == nullptr;
   if (cameras_.empty()) throw UsageError("the camera path has no frames to simulate");
 }
 
@@ -72,6 +74,7 @@ const TileWork& Scene::tileWork(std::uint64_t frame, const TileRect& rect) const
       traverse::traverseTile(*culling_, cameras_.at(frame), rect, traversal_);
   TileWork work;
   work.needs = result.needs;
+  work.boxes = result.needBoxes;
   work.splats = result.splats;
   work.cellsVisited = result.cellsVisited;
   work.ranges = static_cast<std::uint32_t>(result.ranges.size());

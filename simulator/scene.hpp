@@ -24,8 +24,9 @@ struct TileWork {
   std::vector<CellPrefix> needs;  // distinct cells, ascending (TraversalResult::needs)
   std::uint64_t splats = 0;
   std::uint64_t cellsVisited = 0;
-  std::uint32_t ranges = 0;          // draw ranges in the render packet
-  std::vector<std::uint32_t> drawn;  // splats drawn from each need (to split the tile)
+  std::uint32_t ranges = 0;                // draw ranges in the render packet
+  std::vector<std::uint32_t> drawn;        // splats drawn from each need (to split the tile)
+  std::vector<traverse::ScreenBox> boxes;  // where each need draws (TraversalResult::needBoxes)
 };
 
 class Scene {

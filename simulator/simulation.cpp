@@ -404,10 +404,10 @@ class Simulation {
         // The display blits on its one CPU, tiles in arrival order; a part
         // is merged by the minimum at about the same cost per pixel.
         // A background tile leaves the blank image as it is.
-        const double pixels =
-            header.format() == v1::PIXEL_FORMAT_BACKGROUND
-                ? 0.0
-                : static_cast<double>(header.rect().width()) * header.rect().height();
+        const v1::TileRect& sent = header.has_drawn_rect() ? header.drawn_rect() : header.rect();
+        const double pixels = header.format() == v1::PIXEL_FORMAT_BACKGROUND
+                                  ? 0.0
+                                  : static_cast<double>(sent.width()) * sent.height();
         const double start = std::max(now, displayCpuFree_);
         displayCpuFree_ = start + pixels * p_.composeSecondsPerPixel;
         displayCpu_.push_back({start, displayCpuFree_});
@@ -497,7 +497,7 @@ class Simulation {
     const TileWork& work = *traverse.work;
     Outbox out;
     const std::vector<traverse::PacketPlan> plans = traverse.planner.planPackets(
-        task, traverse::TileWalk{work.needs, work.splats, {}, work.drawn},
+        task, traverse::TileWalk{work.needs, work.splats, {}, work.drawn, work.boxes},
         traverse.ahead != nullptr ? std::span<const CellPrefix>(*traverse.ahead)
                                   : std::span<const CellPrefix>(),
         timeAfterEpoch(now), out);
@@ -639,15 +639,19 @@ class Simulation {
     process.current.reset();
     const v1::RenderPacket& packet = ready.packet;
     render::RenderEffects effects;
-    auto header = std::make_shared<const v1::TileImageHeader>(process.core.packetDrawn(
-        ready, packet.total_splats(), process.currentSeconds, timeAfterEpoch(now), effects));
+    v1::TileImageHeader drawn = process.core.packetDrawn(
+        ready, packet.total_splats(), process.currentSeconds, timeAfterEpoch(now), effects);
+    // A part of a split tile goes as 8-byte words (depth and colour), of the
+    // box it drew in: taken to be the box of its cells the traverse gave.
+    const bool part = packet.part_count() > 1;
+    if (part && packet.has_part_screen_rect())
+      *drawn.mutable_drawn_rect() = packet.part_screen_rect();
+    const v1::TileRect& sent = drawn.has_drawn_rect() ? drawn.drawn_rect() : packet.rect();
+    auto header = std::make_shared<const v1::TileImageHeader>(std::move(drawn));
     ++trace(packet.frame_id()).packetsRendered;
     ++packetsRendered_;
-    // A part of a split tile goes as 8-byte words (depth and colour).
-    const std::uint64_t imageBytes = static_cast<std::uint64_t>(packet.rect().width()) *
-                                         packet.rect().height() *
-                                         (packet.part_count() > 1 ? 8 : 4) +
-                                     128;
+    const std::uint64_t imageBytes =
+        static_cast<std::uint64_t>(sent.width()) * sent.height() * (part ? 8 : 4) + 128;
     schedule(bulk(now, peers_.renders[r], peers_.display, imageBytes), Step::Deliver,
              peers_.display, Delivery{peers_.renders[r], MessageKind::TileImage, header});
     send(now, peers_.renders[r], effects.messages);

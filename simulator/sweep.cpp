@@ -186,6 +186,7 @@ SweepRow summarize(const SimulationResult& result, double wallSeconds) {
   row.imbalanceBusyRun = k.imbalanceBusyRun;
   row.bytesFirstFrame = static_cast<double>(k.bytesFirstFrame);
   row.bytesPerFrameSteady = k.bytesPerFrameSteady;
+  row.imageBytesPerFrameSteady = k.imageBytesPerFrameSteady;
   row.splatsPerFrame = k.splatsPerFrame;
   row.tilesPerFrame = result.tilesPerFrame;
   row.cacheHitRate = k.cacheHitRate;
@@ -433,7 +434,7 @@ std::string formatCsv(const std::vector<SweepRow>& rows) {
          "traverse_utilisation_mean,traverse_utilisation_max,network_utilisation_max,"
          "display_link_utilisation,display_cpu_utilisation,request_wait,bottleneck,"
          "bottleneck_utilisation,reissued_tiles,failed_tiles,packets_rendered,events,wall_"
-         "seconds\n";
+         "seconds,image_bytes_per_frame_steady\n";
   for (const SweepRow& row : rows) {
     const Utilisation& u = row.utilisation;
     out << configName(row.config) << ',' << row.config.renders << ',' << row.config.traverses << ','
@@ -449,7 +450,8 @@ std::string formatCsv(const std::vector<SweepRow>& rows) {
         << number(u.displayLink) << ',' << number(u.displayCpu) << ',' << number(u.requestWait)
         << ',' << row.bottleneck << ',' << number(row.bottleneckUtilisation) << ','
         << row.reissuedTiles << ',' << row.failedTiles << ',' << row.packetsRendered << ','
-        << row.events << ',' << number(row.wallSeconds) << '\n';
+        << row.events << ',' << number(row.wallSeconds) << ','
+        << number(row.imageBytesPerFrameSteady) << '\n';
   }
   return out.str();
 }

@@ -54,6 +54,7 @@ struct SweepRow {
   double imbalanceBusyRun = 0.0;  // max/mean of busy time summed over the steady frames
   double bytesFirstFrame = 0.0;
   double bytesPerFrameSteady = 0.0;
+  double imageBytesPerFrameSteady = 0.0;  // tile images into the display
   double splatsPerFrame = 0.0;
   double tilesPerFrame = 0.0;
   double cacheHitRate = 0.0;

@@ -173,6 +173,7 @@ TileArrival FrameAssembly::tileArrived(const v1::TileImageHeader& header, TimePo
   record.splats += header.splats_rendered();
   record.bytesOrdered += header.ordered_bytes() + header.prefetch_bytes();
   record.bytesPrefetched += header.prefetch_bytes();
+  record.imageBytes += tileImageBytes(header);
   record.splatsPerRender[render] += header.splats_rendered();
   record.busySecondsPerRender[render] += tile.renderSeconds;
   if (part && parts_.at({header.frame_id(), header.tile_id(), header.attempt()}).missing > 0) {
@@ -322,6 +323,14 @@ std::uint32_t FrameAssembly::renderLost(int renderRank, TimePoint now, const std
   return frames_.renderLost(render);
 }
 
+std::uint64_t tileImageBytes(const v1::TileImageHeader& header) {
+  if (header.format() == v1::PIXEL_FORMAT_BACKGROUND) return 0;
+  const bool words = header.format() == v1::PIXEL_FORMAT_POINT_WORDS64;
+  const v1::TileRect& sent = words && header.has_drawn_rect() ? header.drawn_rect() : header.rect();
+  const std::uint64_t pixels = std::uint64_t{sent.width()} * sent.height();
+  return pixels * (words ? 8 : 4) * (header.depth() == v1::DEPTH_FORMAT_EYE_FLOAT32 ? 2 : 1);
+}
+
 std::uint64_t tileImagePixelBytes(const v1::TileImageHeader& header, std::size_t payloadBytes,
                                   int sourceRank) {
   const v1::TileRect& rect = header.rect();
@@ -344,9 +353,15 @@ std::uint64_t tileImagePixelBytes(const v1::TileImageHeader& header, std::size_t
     throw ProtocolError("tile image from rank " + std::to_string(sourceRank) +
                         " has point words and a depth image");
   }
-  // In 64 bits: two 32-bit sides times 8 bytes cannot wrap.
+  if (header.has_drawn_rect() && !words) {
+    throw ProtocolError("tile image from rank " + std::to_string(sourceRank) +
+                        " has a drawn rectangle without point words");
+  }
+  // A part sends the box it drew in (TilePartCompositor::merge checks it
+  // lies in the tile). In 64 bits: two 32-bit sides times 8 bytes cannot wrap.
+  const v1::TileRect& sent = header.has_drawn_rect() ? header.drawn_rect() : rect;
   const std::uint64_t pixelBytes =
-      static_cast<std::uint64_t>(rect.width()) * rect.height() * (words ? 8 : 4);
+      static_cast<std::uint64_t>(sent.width()) * sent.height() * (words ? 8 : 4);
   const std::uint64_t expectedBytes = pixelBytes * (withDepth ? 2 : 1);
   if ((header.format() != v1::PIXEL_FORMAT_RGBA8 && !words) || payloadBytes != expectedBytes) {
     throw ProtocolError("tile image from rank " + std::to_string(sourceRank) + " has " +

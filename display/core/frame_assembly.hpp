@@ -63,10 +63,14 @@ struct FinishedFrame {
   std::vector<int> failedTileRenders;
 };
 
+// The bytes a tile image's header says its payload holds (pixels and depth),
+// as checked by tileImagePixelBytes: what it moved into the display.
+std::uint64_t tileImageBytes(const v1::TileImageHeader& header);
 // The bytes of a TileImage's pixels (RGBA8 rows of its rect, or the point
-// kernel's words for a part of a split tile), checked against its payload
-// (`payloadBytes`: the pixels, then as many again of float depth when the
-// header says so). Throws ProtocolError naming `sourceRank`.
+// kernel's words for a part of a split tile: of its drawn_rect where given),
+// checked against its payload (`payloadBytes`: the pixels, then as many again
+// of float depth when the header says so). Throws ProtocolError naming
+// `sourceRank`.
 std::uint64_t tileImagePixelBytes(const v1::TileImageHeader& header, std::size_t payloadBytes,
                                   int sourceRank);
 

@@ -102,6 +102,7 @@ std::vector<std::pair<std::string, std::string>> keyFigureFields(const KeyFigure
       {"bytes_total", count(k.bytesTotal)},
       {"bytes_first_frame", count(k.bytesFirstFrame)},
       {"bytes_per_frame_steady", number(k.bytesPerFrameSteady)},
+      {"image_bytes_per_frame_steady", number(k.imageBytesPerFrameSteady)},
       {"cache_hits", count(k.cacheHits)},
       {"cache_misses", count(k.cacheMisses)},
       {"cache_hit_rate", number(k.cacheHitRate)},
@@ -130,6 +131,7 @@ void FrameSums::add(const FrameRecord& frame, const FrameBalance& balance) {
   ++frames;
   splats += frame.splats;
   bytesOrdered += frame.bytesOrdered;
+  imageBytes += frame.imageBytes;
   reissuedTiles += frame.reissuedTiles;
   failedTiles += frame.failedTiles;
   for (const auto& [rank, s] : frame.splatsPerRender) splatsPerRender[rank] += s;
@@ -151,6 +153,7 @@ void FrameSums::add(const FrameSums& other) {
   frames += other.frames;
   splats += other.splats;
   bytesOrdered += other.bytesOrdered;
+  imageBytes += other.imageBytes;
   reissuedTiles += other.reissuedTiles;
   failedTiles += other.failedTiles;
   busySeconds += other.busySeconds;
@@ -316,6 +319,7 @@ KeyFigures RunStats::keyFigures() const {
   }
   if (!totals.first.empty()) k.bytesFirstFrame = totals.first.front().bytesOrdered;
   k.bytesPerFrameSteady = ratio(steady.bytesOrdered, steady.frames);
+  k.imageBytesPerFrameSteady = ratio(steady.imageBytes, steady.frames);
 
   double sumRate = 0.0;
   double minRate = std::numeric_limits<double>::infinity();
@@ -384,7 +388,8 @@ void RunStats::writeJsonTo(std::ostream& out) const {
         << ", \"seconds\": " << number(f.endSeconds - f.startSeconds)
         << ", \"splats\": " << f.splats << ", \"tiles\": " << f.tiles
         << ", \"reissued_tiles\": " << f.reissuedTiles << ", \"failed_tiles\": " << f.failedTiles
-        << ", \"bytes_sent\": " << f.bytesOrdered << ", \"splats_per_render\": {";
+        << ", \"bytes_sent\": " << f.bytesOrdered << ", \"image_bytes\": " << f.imageBytes
+        << ", \"splats_per_render\": {";
     bool first = true;
     for (const auto& [rank, splats] : f.splatsPerRender) {
       out << (first ? "" : ", ") << '"' << rank << "\": " << splats;
@@ -462,7 +467,7 @@ void RunStats::writeCsv(const std::filesystem::path& dir) const {
   std::ostream& perFrameCsv = perFrameFile.stream();
   std::ostream& tilesCsv = tilesFile.stream();
   framesCsv << "frame,start,end,seconds,splats,tiles,reissued,failed,bytes_sent,max_render_busy,"
-               "mean_render_busy,imbalance_busy,imbalance_splats,bytes_prefetched\n";
+               "mean_render_busy,imbalance_busy,imbalance_splats,bytes_prefetched,image_bytes\n";
   perFrameCsv << "frame,render_rank,splats,busy_seconds\n";
   for (const FrameRecord& f : frames) {
     const FrameBalance b = balance(f);
@@ -471,7 +476,7 @@ void RunStats::writeCsv(const std::filesystem::path& dir) const {
               << f.reissuedTiles << ',' << f.failedTiles << ',' << f.bytesOrdered << ','
               << number(b.maxBusySeconds) << ',' << number(b.meanBusySeconds) << ','
               << optionalNumber(b.busy) << ',' << optionalNumber(b.splats) << ','
-              << f.bytesPrefetched << '\n';
+              << f.bytesPrefetched << ',' << f.imageBytes << '\n';
     std::map<int, std::pair<std::uint64_t, double>> perRender;
     for (const auto& [rank, s] : f.splatsPerRender) perRender[rank].first = s;
     for (const auto& [rank, busy] : f.busySecondsPerRender) perRender[rank].second = busy;
@@ -544,10 +549,11 @@ std::string RunStats::summary() const {
     out << line;
   }
   std::snprintf(line, sizeof line,
-                "bytes sent: %.2f MiB total, first frame %.2f MiB, %.3f MiB per frame steady\n",
+                "bytes sent: %.2f MiB total, first frame %.2f MiB, %.3f MiB per frame steady; "
+                "tile images %.3f MiB per frame steady\n",
                 static_cast<double>(k.bytesTotal) / 1048576.0,
                 static_cast<double>(k.bytesFirstFrame) / 1048576.0,
-                k.bytesPerFrameSteady / 1048576.0);
+                k.bytesPerFrameSteady / 1048576.0, k.imageBytesPerFrameSteady / 1048576.0);
   out << line;
   std::snprintf(line, sizeof line,
                 "cache: hit rate %.1f%% (%llu hits, %llu misses), %.1f%% steady, %llu evictions, "

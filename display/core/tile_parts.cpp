@@ -21,13 +21,28 @@ void pointWordsToRgba(std::span<const std::uint64_t> words, std::uint32_t backgr
 }
 
 void TilePartCompositor::merge(std::uint64_t frame, std::uint32_t tile, std::uint32_t attempt,
-                               const TileRect& rect, std::span<const std::byte> words) {
-  const std::size_t pixels = static_cast<std::size_t>(rect.width()) * rect.height();
-  if (words.size() != pixels * sizeof(std::uint64_t)) {
-    throw ProtocolError("part of tile " + std::to_string(tile) + " of frame " +
-                        std::to_string(frame) + " has " + std::to_string(words.size()) +
-                        " bytes of words for " + std::to_string(pixels) + " pixels");
+                               const TileRect& rect, const TileRect& drawn,
+                               std::span<const std::byte> words) {
+  const std::string which =
+      "part of tile " + std::to_string(tile) + " of frame " + std::to_string(frame);
+  const bool empty = drawn.width() == 0 || drawn.height() == 0;
+  if (!empty &&
+      (drawn.x() < rect.x() || drawn.y() < rect.y() ||
+       std::uint64_t{drawn.x()} + drawn.width() > std::uint64_t{rect.x()} + rect.width() ||
+       std::uint64_t{drawn.y()} + drawn.height() > std::uint64_t{rect.y()} + rect.height())) {
+    throw ProtocolError(which + " drew " + std::to_string(drawn.width()) + "x" +
+                        std::to_string(drawn.height()) + " at (" + std::to_string(drawn.x()) + "," +
+                        std::to_string(drawn.y()) + "), outside its tile " +
+                        std::to_string(rect.width()) + "x" + std::to_string(rect.height()) +
+                        " at (" + std::to_string(rect.x()) + "," + std::to_string(rect.y()) + ")");
   }
+  const std::size_t drawnPixels =
+      empty ? 0 : static_cast<std::size_t>(drawn.width()) * drawn.height();
+  if (words.size() != drawnPixels * sizeof(std::uint64_t)) {
+    throw ProtocolError(which + " has " + std::to_string(words.size()) + " bytes of words for " +
+                        std::to_string(drawnPixels) + " pixels");
+  }
+  const std::size_t pixels = static_cast<std::size_t>(rect.width()) * rect.height();
   auto [found, fresh] = tiles_.try_emplace({frame, tile, attempt});
   Composing& composing = found->second;
   if (fresh) {
@@ -38,14 +53,21 @@ void TilePartCompositor::merge(std::uint64_t frame, std::uint32_t tile, std::uin
     throw ProtocolError("parts of tile " + std::to_string(tile) + " of frame " +
                         std::to_string(frame) + " disagree on its rectangle");
   }
+  if (empty) return;
   // The payload need not be aligned for uint64: copy a block at a time.
   constexpr std::size_t kBlock = 256;
   std::uint64_t block[kBlock];
-  for (std::size_t at = 0; at < pixels; at += kBlock) {
-    const std::size_t count = std::min(kBlock, pixels - at);
-    std::memcpy(block, words.data() + at * sizeof(std::uint64_t), count * sizeof(std::uint64_t));
-    std::uint64_t* into = composing.words.data() + at;
-    for (std::size_t i = 0; i < count; ++i) into[i] = std::min(into[i], block[i]);
+  const std::size_t width = drawn.width();
+  for (std::size_t row = 0; row < drawn.height(); ++row) {
+    const std::byte* from = words.data() + row * width * sizeof(std::uint64_t);
+    std::uint64_t* into = composing.words.data() +
+                          (drawn.y() - rect.y() + row) * std::size_t{rect.width()} +
+                          (drawn.x() - rect.x());
+    for (std::size_t at = 0; at < width; at += kBlock) {
+      const std::size_t count = std::min(kBlock, width - at);
+      std::memcpy(block, from + at * sizeof(std::uint64_t), count * sizeof(std::uint64_t));
+      for (std::size_t i = 0; i < count; ++i) into[at + i] = std::min(into[at + i], block[i]);
+    }
   }
 }
 

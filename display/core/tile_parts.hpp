@@ -31,13 +31,19 @@ void pointWordsToRgba(std::span<const std::uint64_t> words, std::uint32_t backgr
 
 class TilePartCompositor {
  public:
-  // Merges one part's words (rect.width x rect.height little-endian uint64,
-  // rows bottom-up) into its tile's buffer, keyed by frame, tile and attempt
-  // (a re-issued tile's parts never mix with the earlier attempt's).
-  // ProtocolError when the bytes do not fit the rect, or the rect differs
-  // from the tile's earlier parts.
+  // Merges one part's words (drawn.width x drawn.height little-endian uint64,
+  // rows bottom-up; `drawn` in screen pixels inside the tile's `rect`, which
+  // is all a part drew) into its tile's buffer, keyed by frame, tile and
+  // attempt (a re-issued tile's parts never mix with the earlier attempt's).
+  // ProtocolError when the bytes do not fit `drawn`, `drawn` lies outside
+  // `rect`, or `rect` differs from the tile's earlier parts.
   void merge(std::uint64_t frame, std::uint32_t tile, std::uint32_t attempt, const TileRect& rect,
-             std::span<const std::byte> words);
+             const TileRect& drawn, std::span<const std::byte> words);
+  // The same for a part that sends its whole tile.
+  void merge(std::uint64_t frame, std::uint32_t tile, std::uint32_t attempt, const TileRect& rect,
+             std::span<const std::byte> words) {
+    merge(frame, tile, attempt, rect, rect, words);
+  }
   // The composed tile as RGBA8 (rows bottom-up); forgets every attempt of
   // the tile. UsageError when no part of it was merged.
   std::vector<std::uint8_t> take(std::uint64_t frame, std::uint32_t tile, std::uint32_t attempt,

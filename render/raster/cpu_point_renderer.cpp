@@ -401,6 +401,43 @@ std::uint8_t unitToByte(float value) {
 
 }  // namespace
 
+WordsBox drawnWordsBox(std::span<const std::uint64_t> words, std::uint32_t width,
+                       std::uint32_t height) {
+  if (words.size() != std::size_t{width} * height)
+    throw UsageError("drawnWordsBox: " + std::to_string(words.size()) + " words for a " +
+                     std::to_string(width) + "x" + std::to_string(height) + " tile");
+  std::uint32_t left = width, right = 0, bottom = height, top = 0;
+  for (std::uint32_t y = 0; y < height; ++y) {
+    const std::uint64_t* row = words.data() + std::size_t{y} * width;
+    // From both ends: a row's drawn words are found without reading between
+    // its first and last once the box already spans them.
+    std::uint32_t first = 0;
+    while (first < width && row[first] == kEmptyPixel) ++first;
+    if (first == width) continue;
+    std::uint32_t last = width - 1;
+    while (last > first && last > right && row[last] == kEmptyPixel) --last;
+    left = std::min(left, first);
+    right = std::max(right, last);
+    bottom = std::min(bottom, y);
+    top = y;
+  }
+  if (bottom == height) return {};
+  return {left, bottom, right - left + 1, top - bottom + 1};
+}
+
+std::vector<std::byte> wordsInBox(std::span<const std::uint64_t> words, std::uint32_t width,
+                                  const WordsBox& box) {
+  if (std::uint64_t{box.x} + box.width > width ||
+      (std::uint64_t{box.y} + box.height) * width > words.size())
+    throw UsageError("wordsInBox: the box does not fit the tile");
+  std::vector<std::byte> bytes(std::size_t{box.width} * box.height * sizeof(std::uint64_t));
+  const std::size_t rowBytes = std::size_t{box.width} * sizeof(std::uint64_t);
+  for (std::uint32_t r = 0; r < box.height; ++r)
+    std::memcpy(bytes.data() + r * rowBytes, words.data() + std::size_t{box.y + r} * width + box.x,
+                rowBytes);
+  return bytes;
+}
+
 PointRaster pointRaster(const Camera& camera, const TileRect& rect,
                         const RenderSettings& settings) {
   PointRaster raster;

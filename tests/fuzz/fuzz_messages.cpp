@@ -90,6 +90,7 @@ void tileImage(const v1::TileImageHeader& header, std::span<const std::byte> pay
   if (header.format() == v1::PIXEL_FORMAT_POINT_WORDS64) {  // a part of a split tile
     display::TilePartCompositor parts;
     parts.merge(header.frame_id(), header.tile_id(), header.attempt(), header.rect(),
+                header.has_drawn_rect() ? header.drawn_rect() : header.rect(),
                 payload.first(pixelBytes));
     if (arrival == display::TileArrival::Part) return;
     composed = parts.take(header.frame_id(), header.tile_id(), header.attempt(), 0xff000000u);

@@ -4,6 +4,8 @@
 #include <array>
 #include <cmath>
 #include <cstring>
+#include <optional>
+#include <utility>
 
 #include "common/errors.hpp"
 #include "common/geometry.hpp"
@@ -135,6 +137,39 @@ bool subtreeDrawsPoints(const CullingTable& table, std::uint32_t root, const glm
   return false;
 }
 
+// The boxes of the walk's top-level cells, as it meets them, for needBoxes.
+class BoxesByTopLevel {
+ public:
+  BoxesByTopLevel(const Camera& camera, const TraversalSettings& settings)
+      : projector_(camera, settings.marginPixels) {}
+  void add(std::uint32_t topLevel, const CellCulling& culling) {
+    const ScreenBox box = projector_.project(culling.low, culling.high);
+    if (!boxes_.empty() && boxes_.back().first == topLevel) {
+      boxes_.back().second.add(box);
+    } else {
+      boxes_.emplace_back(topLevel, box);
+    }
+  }
+  // Parallel to `needs` (ascending cells).
+  std::vector<ScreenBox> forNeeds(std::span<const CellPrefix> needs) {
+    const auto byCell = [](const auto& a, const auto& b) { return a.first < b.first; };
+    if (!std::is_sorted(boxes_.begin(), boxes_.end(), byCell))
+      std::stable_sort(boxes_.begin(), boxes_.end(), byCell);
+    std::vector<ScreenBox> out(needs.size());
+    std::size_t at = 0;
+    for (std::size_t i = 0; i < needs.size(); ++i) {
+      while (at < boxes_.size() && boxes_[at].first < needs[i].cell) ++at;
+      for (; at < boxes_.size() && boxes_[at].first == needs[i].cell; ++at)
+        out[i].add(boxes_[at].second);
+    }
+    return out;
+  }
+
+ private:
+  ScreenBoxProjector projector_;
+  std::vector<std::pair<std::uint32_t, ScreenBox>> boxes_;
+};
+
 // The table's grown bounds must be those the settings ask for.
 void checkScale(const CullingTable& table, const TraversalSettings& settings) {
   if (table.sizeScale() != settings.sizeScale) {
@@ -144,6 +179,63 @@ void checkScale(const CullingTable& table, const TraversalSettings& settings) {
 }
 
 }  // namespace
+
+void ScreenBox::add(const ScreenBox& other) {
+  if (other.empty()) return;
+  if (empty()) {
+    *this = other;
+    return;
+  }
+  x0 = std::min(x0, other.x0);
+  y0 = std::min(y0, other.y0);
+  x1 = std::max(x1, other.x1);
+  y1 = std::max(y1, other.y1);
+}
+
+TileRect clipScreenBox(const ScreenBox& box, const TileRect& rect) {
+  if (box.empty()) return makeTileRect(rect.x(), rect.y(), 0, 0);
+  const auto clip = [](float v, std::uint32_t low, std::uint32_t size) {
+    const double high = static_cast<double>(low) + size;
+    return static_cast<std::uint32_t>(
+        std::clamp(static_cast<double>(v), static_cast<double>(low), high));
+  };
+  const std::uint32_t x0 = clip(std::floor(box.x0), rect.x(), rect.width());
+  const std::uint32_t x1 = clip(std::ceil(box.x1), rect.x(), rect.width());
+  const std::uint32_t y0 = clip(std::floor(box.y0), rect.y(), rect.height());
+  const std::uint32_t y1 = clip(std::ceil(box.y1), rect.y(), rect.height());
+  if (x1 <= x0 || y1 <= y0) return makeTileRect(rect.x(), rect.y(), 0, 0);
+  return makeTileRect(x0, y0, x1 - x0, y1 - y0);
+}
+
+ScreenBoxProjector::ScreenBoxProjector(const Camera& camera, float marginPixels)
+    : viewProjection_(viewProjectionMatrix(camera)),
+      width_(static_cast<float>(camera.image_width())),
+      height_(static_cast<float>(camera.image_height())),
+      // A pixel more than the walk's margin: float rounding of the corners.
+      margin_(marginPixels + 1.0f) {}
+
+ScreenBox ScreenBoxProjector::project(const glm::vec3& low, const glm::vec3& high) const {
+  constexpr float kEverywhere = 1e30f;
+  ScreenBox box{kEverywhere, kEverywhere, -kEverywhere, -kEverywhere};
+  for (int corner = 0; corner < 8; ++corner) {
+    const glm::vec4 clip =
+        viewProjection_ * glm::vec4((corner & 1) ? high.x : low.x, (corner & 2) ? high.y : low.y,
+                                    (corner & 4) ? high.z : low.z, 1.0f);
+    // At or behind the eye the projection wraps: the box is the whole frame.
+    if (!(clip.w > 1e-6f)) return {-kEverywhere, -kEverywhere, kEverywhere, kEverywhere};
+    const float x = (clip.x / clip.w + 1.0f) * 0.5f * width_;
+    const float y = (clip.y / clip.w + 1.0f) * 0.5f * height_;
+    box.x0 = std::min(box.x0, x);
+    box.x1 = std::max(box.x1, x);
+    box.y0 = std::min(box.y0, y);
+    box.y1 = std::max(box.y1, y);
+  }
+  box.x0 -= margin_;
+  box.y0 -= margin_;
+  box.x1 += margin_;
+  box.y1 += margin_;
+  return box;
+}
 
 InstancedCells::InstancedCells(std::span<const OctreeCell> cells,
                                std::span<const TopLevelCell> topLevel,
@@ -311,6 +403,8 @@ TraversalResult traverseTile(const CullingTable& table, const Camera& camera, co
   };
   std::vector<Known> known;
   PacketOrderRanges found(result.ranges);
+  std::optional<BoxesByTopLevel> boxes;
+  if (settings.screenBoxes) boxes.emplace(camera, settings);
   std::uint32_t index = 0;
   while (index != kNoIndex && index < size) {
     // Only this record is read until the cell is drawn (culling_table.hpp).
@@ -365,6 +459,7 @@ TraversalResult traverseTile(const CullingTable& table, const Camera& camera, co
       if (section.records > 0 && subtreeDrawsPoints(table, index, eye, focal, settings)) {
         found.add({culling.topLevel, section.offset, section.records, true},
                   PacketOrderRanges::kSections);
+        if (boxes) boxes->add(culling.topLevel, culling);
         result.splats +=
             cells[index].pointsCount;  // what the section generates, with its remainder
         ++result.sections;
@@ -378,18 +473,21 @@ TraversalResult traverseTile(const CullingTable& table, const Camera& camera, co
         const OctreeCell& cell = cells[index];
         found.add({culling.topLevel, cell.pointsOffset, cell.pointsCount},
                   PacketOrderRanges::kPoints);
+        if (boxes) boxes->add(culling.topLevel, culling);
       }
       index = culling.nextSibling;
     } else if (coarse && culling.hasSplats()) {
       const OctreeCell& cell = cells[index];
       found.add({culling.topLevel, cell.splatsOffset, cell.splatsCount},
                 PacketOrderRanges::levelSplats(culling.level()));
+      if (boxes) boxes->add(culling.topLevel, culling);
       index = culling.nextSibling;
     } else if (const ChildrenSplats* children = childrenAllDrawnCoarse(
                    table, index, inside == allPlanes, facingEye, distance, focal, settings)) {
       // Every child would be visited only to be drawn from its level-splats.
       found.add({culling.topLevel, children->offset, children->count},
                 PacketOrderRanges::levelSplats(children->level));
+      if (boxes) boxes->add(culling.topLevel, culling);
       index = culling.nextSibling;
     } else {
       descend();
@@ -405,6 +503,7 @@ TraversalResult traverseTile(const CullingTable& table, const Camera& camera, co
     }
     result.needs.back().splats = std::max(result.needs.back().splats, range.offset + range.count);
   }
+  if (boxes) result.needBoxes = boxes->forNeeds(result.needs);
   return result;
 }
 

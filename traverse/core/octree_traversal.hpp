@@ -91,6 +91,31 @@ struct TraversalSettings {
   // --mode statistical (seed 004): the octree plays no part; the ranges are
   // node ranges of the cut (common/statistical_cut.hpp) in statistical packets.
   std::shared_ptr<StatisticalCutMemo> statistical;
+  // Fill TraversalResult::needBoxes (the walk projects every drawn cell's
+  // bounds): for tiles that may be split, whose parts send only what they
+  // cover. Not for statistical walks.
+  bool screenBoxes = false;
+};
+
+// Frame pixels [x0, x1) x [y0, y1) (bottom-left origin), not clipped to any
+// tile; a box of a cell reaching behind the eye spans everything.
+struct ScreenBox {
+  float x0 = 0.0f, y0 = 0.0f, x1 = 0.0f, y1 = 0.0f;
+  bool empty() const { return !(x1 > x0 && y1 > y0); }
+  void add(const ScreenBox& other);  // the union
+};
+// The part of `rect` that boxes cover, whole pixels; zero sides when none.
+TileRect clipScreenBox(const ScreenBox& box, const TileRect& rect);
+
+// Where a camera puts the grown bounds of cells on its frame.
+class ScreenBoxProjector {
+ public:
+  ScreenBoxProjector(const Camera& camera, float marginPixels);
+  ScreenBox project(const glm::vec3& low, const glm::vec3& high) const;
+
+ private:
+  glm::mat4 viewProjection_;
+  float width_, height_, margin_;
 };
 
 // A view's level of detail, size scale and back-face culling (the tools'
@@ -114,6 +139,10 @@ struct TraversalResult {
   // The top-level cells drawn from (distinct, ascending), each with the
   // shortest prefix holding its ranges (the largest range end).
   std::vector<CellPrefix> needs;
+  // With TraversalSettings::screenBoxes, parallel to needs: the box that the
+  // drawn cells of each need's top-level cell cover (their grown bounds
+  // projected, grown by the margin). Empty otherwise.
+  std::vector<ScreenBox> needBoxes;
   // To draw: an instanced section counts the points it generates, a
   // statistical node its estimated generated points.
   std::uint64_t splats = 0;

@@ -9,7 +9,7 @@
 
 namespace pointillist::traverse {
 TileWalk walkOf(const TraversalResult& result) {
-  return TileWalk{result.needs, result.splats, result.ranges, {}};
+  return TileWalk{result.needs, result.splats, result.ranges, {}, result.needBoxes};
 }
 
 TraversalSettings traversalSettings(const v1::RunSettings& settings) {
@@ -73,9 +73,11 @@ v1::Scheduler PacketPlanner::schedulerFor(const v1::TileTask& task) const {
 }
 
 TraversalSettings PacketPlanner::traversalFor(const v1::TileTask& task) const {
-  if (!task.has_frame_settings() || task.frame_settings().lod_pixels() <= 0.0f) return traversal_;
   TraversalSettings traversal = traversal_;
-  traversal.lodPixels = task.frame_settings().lod_pixels();
+  // A tile that may be split: its parts' boxes come from the walk.
+  traversal.screenBoxes = task.part_splats() > 0;
+  if (task.has_frame_settings() && task.frame_settings().lod_pixels() > 0.0f)
+    traversal.lodPixels = task.frame_settings().lod_pixels();
   return traversal;
 }
 
@@ -342,6 +344,11 @@ PacketPlan PacketPlanner::planPart(const v1::TileTask& task, const TileWalk& wal
   if (partCount > 1) {
     packet.set_part_index(partIndex);
     packet.set_part_count(partCount);
+    if (walk.needBoxes.size() == walk.needs.size()) {
+      ScreenBox box;
+      for (std::size_t i = part.firstNeed; i < part.endNeed; ++i) box.add(walk.needBoxes[i]);
+      *packet.mutable_part_screen_rect() = clipScreenBox(box, task.rect());
+    }
   }
   if (task.has_frame_settings()) *packet.mutable_frame_settings() = task.frame_settings();
   out.send(plan.renderRank, std::move(packet));

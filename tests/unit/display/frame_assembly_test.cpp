@@ -2,6 +2,7 @@
 // traverse processes, re-issue of late tiles, frames in order, feedback to
 // the tile planner only from frames that fully came back.
 #include "display/core/frame_assembly.hpp"
+#include "display/core/tile_parts.hpp"
 
 #include <algorithm>
 #include <map>
@@ -368,6 +369,57 @@ TEST(FrameAssembly, ATileImagePayloadMustMatchItsRectAndDepth) {
   header.mutable_rect()->set_width(0xFFFFFFFFu);  // 32-bit sides do not wrap in 64 bits
   header.mutable_rect()->set_height(0xFFFFFFFFu);
   EXPECT_THROW(tileImagePixelBytes(header, 0, 4), ProtocolError);
+}
+
+// A part of a split tile sends the point words of the box it drew in: the
+// payload is that box's, and the box must lie in the tile.
+TEST(FrameAssembly, APartSendsTheWordsOfTheBoxItDrewIn) {
+  v1::TileImageHeader header;
+  *header.mutable_rect() = makeTileRect(100, 40, 16, 8);
+  header.set_format(v1::PIXEL_FORMAT_POINT_WORDS64);
+  header.set_part_count(2);
+  EXPECT_EQ(tileImagePixelBytes(header, 16 * 8 * 8, 4), 1024u) << "no box: the whole tile";
+  *header.mutable_drawn_rect() = makeTileRect(103, 42, 5, 3);
+  EXPECT_EQ(tileImagePixelBytes(header, 5 * 3 * 8, 4), 120u);
+  EXPECT_THROW(tileImagePixelBytes(header, 1024, 4), ProtocolError);
+  *header.mutable_drawn_rect() = makeTileRect(0, 0, 0, 0);
+  EXPECT_EQ(tileImagePixelBytes(header, 0, 4), 0u) << "a part that drew nothing";
+  header.set_format(v1::PIXEL_FORMAT_RGBA8);
+  EXPECT_THROW(tileImagePixelBytes(header, 16 * 8 * 4, 4), ProtocolError)
+      << "only point words come boxed";
+
+  // Composed: the box's words at their place, the rest of the tile untouched.
+  const TileRect rect = header.rect();
+  TilePartCompositor parts;
+  std::vector<std::uint64_t> words(5 * 3, 0);
+  for (std::size_t i = 0; i < words.size(); ++i) words[i] = 0xff0000ffu + (i << 8);
+  parts.merge(1, 2, 0, rect, makeTileRect(103, 42, 5, 3), std::as_bytes(std::span(words)));
+  parts.merge(1, 2, 0, rect, makeTileRect(0, 0, 0, 0), {});
+  EXPECT_THROW(
+      parts.merge(1, 2, 0, rect, makeTileRect(112, 42, 5, 3), std::as_bytes(std::span(words))),
+      ProtocolError)
+      << "reaches past the tile's right side";
+  EXPECT_THROW(
+      parts.merge(1, 2, 0, rect, makeTileRect(103, 39, 5, 3), std::as_bytes(std::span(words))),
+      ProtocolError)
+      << "starts below the tile";
+  EXPECT_THROW(
+      parts.merge(1, 2, 0, rect, makeTileRect(103, 42, 5, 2), std::as_bytes(std::span(words))),
+      ProtocolError)
+      << "more words than the box";
+  const std::vector<std::uint8_t> rgba = parts.take(1, 2, 0, 0xff000000u);
+  ASSERT_EQ(rgba.size(), 16u * 8u * 4u);
+  for (std::uint32_t y = 0; y < 8; ++y) {
+    for (std::uint32_t x = 0; x < 16; ++x) {
+      const std::size_t at = (y * 16 + x) * 4;
+      const bool inBox = x >= 3 && x < 8 && y >= 2 && y < 5;
+      const std::uint32_t expected =
+          inBox ? static_cast<std::uint32_t>(words[(y - 2) * 5 + (x - 3)]) : 0xff000000u;
+      const std::uint32_t got = rgba[at] | rgba[at + 1] << 8 | rgba[at + 2] << 16 |
+                                static_cast<std::uint32_t>(rgba[at + 3]) << 24;
+      EXPECT_EQ(got, expected) << x << "," << y;
+    }
+  }
 }
 
 // Serve mode: each client's frame carries its own mode and level of detail to

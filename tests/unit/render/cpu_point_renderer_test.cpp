@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <random>
 #include <vector>
 
@@ -134,6 +135,9 @@ TEST(CpuPointRenderer, TilesAndThreadsMatchTheFullFrame) {
 TEST(CpuPointRenderer, SplitTilePartsComposedAtTheDisplayEqualTheWholeTile) {
   const Camera camera = cameraForBounds({-1, -1, -1}, {1, 1, 1}, 257, 190, 35.0f, 25.0f, 0.8f);
   std::vector<Splat> splats = mixedScene(40000, 21);
+  // Cells of nearby points, as the octree's are, so parts draw in a part of the tile.
+  std::sort(splats.begin(), splats.end(),
+            [](const Splat& a, const Splat& b) { return a.position[0] < b.position[0]; });
   // Exact depth ties across parts: the same position in two cells, two colours.
   for (int i = 0; i < 200; ++i) {
     Splat twin = splats[static_cast<std::size_t>(i) * 7];
@@ -166,18 +170,69 @@ TEST(CpuPointRenderer, SplitTilePartsComposedAtTheDisplayEqualTheWholeTile) {
     ASSERT_EQ(words.size(), std::size_t{rect.width()} * rect.height());
     partWords.emplace_back(words.begin(), words.end());
   }
-  for (const std::vector<std::size_t>& order :
-       {std::vector<std::size_t>{0, 1, 2}, std::vector<std::size_t>{2, 0, 1}}) {
-    display::TilePartCompositor compositor;
-    for (std::size_t part : order) {
-      compositor.merge(4, 9, 1, rect, std::as_bytes(std::span(partWords[part])));
+  for (const bool boxed : {false, true}) {
+    for (const std::vector<std::size_t>& order :
+         {std::vector<std::size_t>{0, 1, 2}, std::vector<std::size_t>{2, 0, 1}}) {
+      display::TilePartCompositor compositor;
+      for (std::size_t part : order) {
+        if (!boxed) {
+          compositor.merge(4, 9, 1, rect, std::as_bytes(std::span(partWords[part])));
+          continue;
+        }
+        // As a render sends a part: only the box it drew in.
+        const WordsBox box = drawnWordsBox(partWords[part], rect.width(), rect.height());
+        EXPECT_GT(box.width, 0u);
+        if (part == 0) {
+          EXPECT_LT(box.width, rect.width()) << "the first part's box should be narrower";
+        }
+        TileRect drawn;
+        drawn.set_x(rect.x() + box.x);
+        drawn.set_y(rect.y() + box.y);
+        drawn.set_width(box.width);
+        drawn.set_height(box.height);
+        compositor.merge(4, 9, 1, rect, drawn, wordsInBox(partWords[part], rect.width(), box));
+      }
+      const std::vector<std::uint8_t> rgba =
+          compositor.take(4, 9, 1, display::packRgba({0, 0, 0, 255}));
+      const ImageDiff diff = compareImages(expected, Image(rect.width(), rect.height(), rgba));
+      EXPECT_EQ(diff.differingPixels, 0u)
+          << (boxed ? "boxed" : "whole") << ", first at " << diff.firstX << "," << diff.firstY;
+      EXPECT_EQ(compositor.tilesHeld(), 0u);
     }
-    const std::vector<std::uint8_t> rgba =
-        compositor.take(4, 9, 1, display::packRgba({0, 0, 0, 255}));
-    const ImageDiff diff = compareImages(expected, Image(rect.width(), rect.height(), rgba));
-    EXPECT_EQ(diff.differingPixels, 0u) << "first at " << diff.firstX << "," << diff.firstY;
-    EXPECT_EQ(compositor.tilesHeld(), 0u);
   }
+}
+
+// The box holds every drawn word and is no bigger: each side touches one.
+TEST(CpuPointRenderer, DrawnWordsBoxIsTheSmallestHoldingEveryDrawnWord) {
+  constexpr std::uint32_t kWidth = 37, kHeight = 23;
+  std::vector<std::uint64_t> words(kWidth * kHeight, kEmptyPixel);
+  EXPECT_EQ(drawnWordsBox(words, kWidth, kHeight), WordsBox{});
+  EXPECT_TRUE(wordsInBox(words, kWidth, WordsBox{}).empty());
+  const auto at = [&](std::uint32_t x, std::uint32_t y) -> std::uint64_t& {
+    return words[std::size_t{y} * kWidth + x];
+  };
+  at(5, 7) = 1;
+  EXPECT_EQ(drawnWordsBox(words, kWidth, kHeight), (WordsBox{5, 7, 1, 1}));
+  at(30, 2) = 2;
+  at(12, 20) = 3;
+  at(0, 9) = 0;  // a drawn word may be zero (depth 0, black)
+  const WordsBox box = drawnWordsBox(words, kWidth, kHeight);
+  EXPECT_EQ(box, (WordsBox{0, 2, 31, 19}));
+  const std::vector<std::byte> bytes = wordsInBox(words, kWidth, box);
+  ASSERT_EQ(bytes.size(), std::size_t{box.width} * box.height * 8);
+  std::size_t drawn = 0;
+  for (std::size_t i = 0; i < bytes.size() / 8; ++i) {
+    std::uint64_t word;
+    std::memcpy(&word, bytes.data() + 8 * i, 8);
+    const std::uint32_t x = box.x + static_cast<std::uint32_t>(i % box.width);
+    const std::uint32_t y = box.y + static_cast<std::uint32_t>(i / box.width);
+    EXPECT_EQ(word, at(x, y)) << x << "," << y;
+    drawn += word != kEmptyPixel ? 1 : 0;
+  }
+  EXPECT_EQ(drawn, 4u);
+  at(kWidth - 1, kHeight - 1) = 4;
+  EXPECT_EQ(drawnWordsBox(words, kWidth, kHeight), (WordsBox{0, 2, kWidth, kHeight - 2}));
+  EXPECT_THROW(drawnWordsBox(words, kWidth, kHeight - 1), UsageError);
 }
 
 // Depth and colour are compared as one word, so the drawing order never shows.

@@ -217,6 +217,62 @@ TEST(OctreeTraversal, TilesDrawOnlyWhatTheFullFrameDrawsAndLoseNothingThatTouche
   EXPECT_GT(tilesCulled, 0u);
 }
 
+// A split tile's part sends the box of its needs: every splat a need draws
+// lies in that need's box with its whole footprint, and the walk's ranges
+// are those of a walk without boxes.
+TEST(OctreeTraversal, NeedBoxesHoldEverySplatTheirCellDraws) {
+  const Fixture& f = cityFixture();
+  std::size_t needs = 0, smallBoxes = 0;
+  for (const Camera& camera : testCameras(f)) {
+    TraversalSettings settings;
+    const TileRect rect = makeTileRect(40, 30, 150, 120);
+    const auto plain = traverseTile(f.content.cells, camera, rect, settings);
+    EXPECT_TRUE(plain.needBoxes.empty());
+    settings.screenBoxes = true;
+    const auto walk = traverseTile(f.content.cells, camera, rect, settings);
+    EXPECT_EQ(walk.ranges, plain.ranges);
+    ASSERT_EQ(walk.needBoxes.size(), walk.needs.size());
+    for (std::size_t i = 0; i < walk.needs.size(); ++i) {
+      const ScreenBox& box = walk.needBoxes[i];
+      ASSERT_FALSE(box.empty());
+      ++needs;
+      const TileRect clipped = clipScreenBox(box, rect);
+      smallBoxes += std::uint64_t{clipped.width()} * clipped.height() <
+                    std::uint64_t{rect.width()} * rect.height() / 2;
+      for (const PacketRange& range : walk.ranges) {
+        if (range.topLevel != walk.needs[i].cell) continue;
+        for (std::uint32_t k = 0; k < range.count; ++k) {
+          const Splat& s = splatAt(f.content, range.topLevel, range.offset + k);
+          const glm::vec4 window =
+              projectToWindow(camera, glm::vec3(s.position[0], s.position[1], s.position[2]));
+          ASSERT_GT(window.w, 0.0f);
+          const float reach = projectedRadiusPixels(camera, s.radius, window.w) + 0.5f;
+          ASSERT_GE(window.x - reach, box.x0) << "need " << i;
+          ASSERT_LE(window.x + reach, box.x1) << "need " << i;
+          ASSERT_GE(window.y - reach, box.y0) << "need " << i;
+          ASSERT_LE(window.y + reach, box.y1) << "need " << i;
+        }
+      }
+    }
+  }
+  EXPECT_GT(needs, 4u);
+  EXPECT_GT(smallBoxes, 0u) << "no need covers less than half the tile: the boxes show nothing";
+
+  // Clipping: whole pixels inside the rect, nothing for a box outside it.
+  const TileRect rect = makeTileRect(10, 20, 30, 40);
+  const TileRect inside = clipScreenBox({12.5f, 25.2f, 19.1f, 70.0f}, rect);
+  EXPECT_EQ(inside.x(), 12u);
+  EXPECT_EQ(inside.y(), 25u);
+  EXPECT_EQ(inside.width(), 8u);
+  EXPECT_EQ(inside.height(), 35u);
+  EXPECT_EQ(clipScreenBox({50.0f, 25.0f, 60.0f, 30.0f}, rect).width(), 0u);
+  EXPECT_EQ(clipScreenBox({}, rect).width(), 0u);
+  const TileRect everything = clipScreenBox({-1e30f, -1e30f, 1e30f, 1e30f}, rect);
+  EXPECT_EQ(everything.x(), 10u);
+  EXPECT_EQ(everything.width(), 30u);
+  EXPECT_EQ(everything.height(), 40u);
+}
+
 std::vector<std::uint32_t> cellsOf(std::span<const CellPrefix> prefixes) {
   std::vector<std::uint32_t> cells;
   for (const CellPrefix& prefix : prefixes) cells.push_back(prefix.cell);

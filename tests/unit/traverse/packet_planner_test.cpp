@@ -101,7 +101,7 @@ struct Walk {
   std::vector<CellPrefix> needs;
   std::uint64_t splats;
   std::vector<PacketRange> ranges;
-  TileWalk view() const { return {needs, splats, ranges, {}}; }
+  TileWalk view() const { return {needs, splats, ranges, {}, {}}; }
 };
 
 v1::RenderReport report(std::uint64_t workload, std::vector<std::uint32_t> loaded = {},
@@ -413,8 +413,8 @@ struct SplitCase {
       splats += drawn[cell];
     }
   }
-  TileWalk withRanges() const { return {needs, splats, ranges, {}}; }
-  TileWalk withCounts() const { return {needs, splats, {}, drawn}; }
+  TileWalk withRanges() const { return {needs, splats, ranges, {}, {}}; }
+  TileWalk withCounts() const { return {needs, splats, {}, drawn, {}}; }
   std::vector<std::uint32_t> drawn;
   std::vector<CellPrefix> needs;
   std::vector<PacketRange> ranges;
@@ -532,6 +532,43 @@ TEST(PacketPlanner, AHeavyTileIsSplitByItsCellsAndThePartsGoWhereTheirDataIs) {
             1);
   EXPECT_EQ(p.tasksDone(), 1u);
   EXPECT_EQ(p.tilesSplit(), 1u);
+}
+
+// Each part's packet carries the box its cells draw in, inside the tile: the
+// image the part sends is no bigger (the simulator sends that much).
+TEST(PacketPlanner, APartCarriesTheBoxOfItsCellsInsideItsTile) {
+  PacketPlanner p = planner();
+  p.applyReport(kRender0, report(0, {0, 1, 2}), kStart);
+  p.applyReport(kRender1, report(0, {3, 4, 5}), kStart);
+  SplitCase split({3000, 3000, 3000, 3000, 3000, 3000});
+  // The tile is (0,0) 64x64; cells 0-2 draw on its left, 3-5 reach past its top.
+  const std::vector<ScreenBox> boxes = {{2.5f, 1.0f, 10.0f, 20.0f},   {5.0f, 8.0f, 20.2f, 12.0f},
+                                        {9.0f, 3.0f, 12.0f, 4.0f},    {40.0f, 30.0f, 50.0f, 90.0f},
+                                        {33.0f, 40.0f, 34.0f, 41.0f}, {}};
+  TileWalk walk = split.withRanges();
+  walk.needBoxes = boxes;
+  Outbox out;
+  ASSERT_EQ(p.planPackets(splitTask(8000), walk, {}, kStart, out).size(), 2u);
+  const auto packets = packetsIn(out);
+  ASSERT_EQ(packets.size(), 2u);
+  const v1::TileRect& left = packets[0].second.part_screen_rect();
+  EXPECT_EQ(left.x(), 2u);
+  EXPECT_EQ(left.y(), 1u);
+  EXPECT_EQ(left.width(), 19u);  // to 20.2, rounded up
+  EXPECT_EQ(left.height(), 19u);
+  const v1::TileRect& right = packets[1].second.part_screen_rect();
+  EXPECT_EQ(right.x(), 33u);
+  EXPECT_EQ(right.y(), 30u);
+  EXPECT_EQ(right.width(), 17u);
+  EXPECT_EQ(right.height(), 34u) << "clipped at the tile's top";
+
+  // Without boxes (a walk that made none) a part carries none: its whole tile.
+  PacketPlanner q = planner();
+  q.applyReport(kRender0, report(0, {0, 1, 2}), kStart);
+  q.applyReport(kRender1, report(0, {3, 4, 5}), kStart);
+  Outbox plain;
+  ASSERT_EQ(q.planPackets(splitTask(8000), split.withRanges(), {}, kStart, plain).size(), 2u);
+  for (const auto& [rank, packet] : packetsIn(plain)) EXPECT_FALSE(packet.has_part_screen_rect());
 }
 
 TEST(PacketPlanner, ATileIsSplitOnlyWhereComposingItsPartsIsExact) {
