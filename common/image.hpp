@@ -16,6 +16,11 @@ namespace pointillist {
 
 using Rgba8 = std::array<std::uint8_t, 4>;
 
+// The background of a composed frame: the display's blank image, and what a
+// tile shows where its render sent nothing (a background tile, or outside a
+// tile image's drawn_rect).
+inline constexpr Rgba8 kFrameBackground{0, 0, 0, 255};
+
 // Bytes that resize() leaves unwritten.
 using UninitializedBytes = std::vector<std::uint8_t, UninitializedAllocator<std::uint8_t>>;
 

@@ -33,7 +33,7 @@
 namespace pointillist::display {
 namespace {
 
-constexpr Rgba8 kBackground{0, 0, 0, 255};
+constexpr Rgba8 kBackground = kFrameBackground;
 constexpr Rgba8 kFailedTile{255, 0, 255, 255};  // a tile that never came back
 
 struct DisplayOptions {
@@ -509,11 +509,15 @@ class DisplayProcess {
         if (image == images_.end()) {
           image = images_.emplace(header.frame_id(), blankImage(header.frame_id())).first;
         }
-        // A background tile leaves the blank image and +infinity depth as they are.
-        if (header.format() != v1::PIXEL_FORMAT_BACKGROUND) {
-          blit(composed.empty() ? std::span<const std::uint8_t>(bytes, pixelBytes)
-                                : std::span<const std::uint8_t>(composed),
-               rect.width(), rect.height(), image->second, rect.x(), rect.y());
+        // A background tile leaves the blank image and +infinity depth as
+        // they are; a whole tile's drawn box leaves them around it.
+        if (!composed.empty()) {
+          blit(composed, rect.width(), rect.height(), image->second, rect.x(), rect.y());
+        } else if (header.format() != v1::PIXEL_FORMAT_BACKGROUND) {
+          const v1::TileRect& drawn = header.has_drawn_rect() ? header.drawn_rect() : rect;
+          if (drawn.width() > 0 && drawn.height() > 0)
+            blit(std::span<const std::uint8_t>(bytes, pixelBytes), drawn.width(), drawn.height(),
+                 image->second, drawn.x(), drawn.y());
         }
         if (withDepth && depthFrames_.contains(header.frame_id())) {
           composeDepth(header.frame_id(), image->second, rect, bytes + pixelBytes);

@@ -1,6 +1,7 @@
 #include "render/render_role.hpp"
 
 #include <chrono>
+#include <cmath>
 #include <limits>
 #include <map>
 #include <memory>
@@ -9,6 +10,7 @@
 #include "common/checksum.hpp"
 #include "common/cpu_activity.hpp"
 #include "common/dataset.hpp"
+#include "common/image.hpp"
 #include "common/mpi/worker.hpp"
 #include "common/ownership.hpp"
 #include "common/point_groups.hpp"
@@ -20,6 +22,17 @@
 
 namespace pointillist::render {
 namespace {
+
+// Whether the tile is cleared to the colour the display composes on.
+bool clearIsFrameBackground(const RenderSettings& settings) {
+  for (std::size_t c = 0; c < 4; ++c) {
+    const float channel = settings.clearColor[c];
+    if (!(channel >= 0.0f && channel <= 1.0f) ||
+        static_cast<std::uint8_t>(std::lround(channel * 255.0f)) != kFrameBackground[c])
+      return false;
+  }
+  return true;
+}
 
 struct RenderOptions {
   double cacheMegabytes = 1024.0;
@@ -282,6 +295,18 @@ class RenderProcess final : public WorkerProcess {
       drawn.set_width(box.width);
       drawn.set_height(box.height);
       *payload = wordsInBox(words, packet.rect().width(), box);
+    } else if (!settings.keepDepth && clearIsFrameBackground(settings)) {
+      // The box of what differs from the background: the display shows the
+      // background around it, as it would have from these pixels.
+      const auto rgba = renderer_->pixels();
+      const WordsBox box =
+          drawnRgbaBox(rgba, packet.rect().width(), packet.rect().height(), kFrameBackground);
+      v1::TileRect& drawn = *header.mutable_drawn_rect();
+      drawn.set_x(packet.rect().x() + box.x);
+      drawn.set_y(packet.rect().y() + box.y);
+      drawn.set_width(box.width);
+      drawn.set_height(box.height);
+      *payload = rgbaInBox(rgba, packet.rect().width(), box);
     } else {
       const auto pixels = std::as_bytes(renderer_->pixels());
       const auto depths = settings.keepDepth ? renderer_->depths() : std::span<const float>();

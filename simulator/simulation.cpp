@@ -641,11 +641,13 @@ class Simulation {
     render::RenderEffects effects;
     v1::TileImageHeader drawn = process.core.packetDrawn(
         ready, packet.total_splats(), process.currentSeconds, timeAfterEpoch(now), effects);
-    // A part of a split tile goes as 8-byte words (depth and colour), of the
-    // box it drew in: taken to be the box of its cells the traverse gave.
+    // A part of a split tile goes as 8-byte words (depth and colour). A tile
+    // goes as the box it drew in, taken to be the box of its cells the
+    // traverse gave, unless it carries depth.
     const bool part = packet.part_count() > 1;
-    if (part && packet.has_part_screen_rect())
-      *drawn.mutable_drawn_rect() = packet.part_screen_rect();
+    if (packet.has_screen_box() &&
+        !(packet.has_frame_settings() && packet.frame_settings().tile_depth()))
+      *drawn.mutable_drawn_rect() = packet.screen_box();
     const v1::TileRect& sent = drawn.has_drawn_rect() ? drawn.drawn_rect() : packet.rect();
     auto header = std::make_shared<const v1::TileImageHeader>(std::move(drawn));
     ++trace(packet.frame_id()).packetsRendered;

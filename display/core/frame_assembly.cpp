@@ -326,7 +326,7 @@ std::uint32_t FrameAssembly::renderLost(int renderRank, TimePoint now, const std
 std::uint64_t tileImageBytes(const v1::TileImageHeader& header) {
   if (header.format() == v1::PIXEL_FORMAT_BACKGROUND) return 0;
   const bool words = header.format() == v1::PIXEL_FORMAT_POINT_WORDS64;
-  const v1::TileRect& sent = words && header.has_drawn_rect() ? header.drawn_rect() : header.rect();
+  const v1::TileRect& sent = header.has_drawn_rect() ? header.drawn_rect() : header.rect();
   const std::uint64_t pixels = std::uint64_t{sent.width()} * sent.height();
   return pixels * (words ? 8 : 4) * (header.depth() == v1::DEPTH_FORMAT_EYE_FLOAT32 ? 2 : 1);
 }
@@ -353,12 +353,21 @@ std::uint64_t tileImagePixelBytes(const v1::TileImageHeader& header, std::size_t
     throw ProtocolError("tile image from rank " + std::to_string(sourceRank) +
                         " has point words and a depth image");
   }
-  if (header.has_drawn_rect() && !words) {
-    throw ProtocolError("tile image from rank " + std::to_string(sourceRank) +
-                        " has a drawn rectangle without point words");
+  if (header.has_drawn_rect()) {
+    const v1::TileRect& d = header.drawn_rect();
+    const bool empty = d.width() == 0 || d.height() == 0;
+    if (withDepth ||
+        (!empty && (d.x() < rect.x() || d.y() < rect.y() ||
+                    std::uint64_t{d.x()} + d.width() > std::uint64_t{rect.x()} + rect.width() ||
+                    std::uint64_t{d.y()} + d.height() > std::uint64_t{rect.y()} + rect.height()))) {
+      throw ProtocolError("tile image from rank " + std::to_string(sourceRank) + " drew " +
+                          std::to_string(d.width()) + "x" + std::to_string(d.height()) + " at (" +
+                          std::to_string(d.x()) + "," + std::to_string(d.y()) + ")" +
+                          (withDepth ? " with a depth image" : ", outside its tile"));
+    }
   }
-  // A part sends the box it drew in (TilePartCompositor::merge checks it
-  // lies in the tile). In 64 bits: two 32-bit sides times 8 bytes cannot wrap.
+  // Only the box drawn in travels. In 64 bits: two 32-bit sides times 8
+  // bytes cannot wrap.
   const v1::TileRect& sent = header.has_drawn_rect() ? header.drawn_rect() : rect;
   const std::uint64_t pixelBytes =
       static_cast<std::uint64_t>(sent.width()) * sent.height() * (words ? 8 : 4);

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <string>
 #include <thread>
 
 #include "common/errors.hpp"
@@ -401,21 +402,20 @@ std::uint8_t unitToByte(float value) {
 
 }  // namespace
 
-WordsBox drawnWordsBox(std::span<const std::uint64_t> words, std::uint32_t width,
-                       std::uint32_t height) {
-  if (words.size() != std::size_t{width} * height)
-    throw UsageError("drawnWordsBox: " + std::to_string(words.size()) + " words for a " +
-                     std::to_string(width) + "x" + std::to_string(height) + " tile");
+namespace {
+
+// The box of the pixels for which `drawn(row, x)` holds, rows bottom-up.
+template <typename Drawn>
+WordsBox drawnBox(std::uint32_t width, std::uint32_t height, const Drawn& drawn) {
   std::uint32_t left = width, right = 0, bottom = height, top = 0;
   for (std::uint32_t y = 0; y < height; ++y) {
-    const std::uint64_t* row = words.data() + std::size_t{y} * width;
-    // From both ends: a row's drawn words are found without reading between
+    // From both ends: a row's drawn pixels are found without reading between
     // its first and last once the box already spans them.
     std::uint32_t first = 0;
-    while (first < width && row[first] == kEmptyPixel) ++first;
+    while (first < width && !drawn(y, first)) ++first;
     if (first == width) continue;
     std::uint32_t last = width - 1;
-    while (last > first && last > right && row[last] == kEmptyPixel) --last;
+    while (last > first && last > right && !drawn(y, last)) --last;
     left = std::min(left, first);
     right = std::max(right, last);
     bottom = std::min(bottom, y);
@@ -425,17 +425,55 @@ WordsBox drawnWordsBox(std::span<const std::uint64_t> words, std::uint32_t width
   return {left, bottom, right - left + 1, top - bottom + 1};
 }
 
+void checkTile(std::size_t pixels, std::uint32_t width, std::uint32_t height, const char* what) {
+  if (pixels != std::size_t{width} * height)
+    throw UsageError(std::string(what) + ": " + std::to_string(pixels) + " pixels for a " +
+                     std::to_string(width) + "x" + std::to_string(height) + " tile");
+}
+
+std::vector<std::byte> bytesInBox(std::span<const std::byte> pixels, std::size_t pixelBytes,
+                                  std::uint32_t width, const WordsBox& box) {
+  const std::size_t rowBytes = std::size_t{box.width} * pixelBytes;
+  if (std::uint64_t{box.x} + box.width > width ||
+      (std::uint64_t{box.y} + box.height) * width * pixelBytes > pixels.size())
+    throw UsageError("the drawn box does not fit the tile");
+  std::vector<std::byte> bytes(rowBytes * box.height);
+  for (std::uint32_t r = 0; r < box.height; ++r)
+    std::memcpy(bytes.data() + r * rowBytes,
+                pixels.data() + (std::size_t{box.y + r} * width + box.x) * pixelBytes, rowBytes);
+  return bytes;
+}
+
+}  // namespace
+
+WordsBox drawnWordsBox(std::span<const std::uint64_t> words, std::uint32_t width,
+                       std::uint32_t height) {
+  checkTile(words.size(), width, height, "drawnWordsBox");
+  return drawnBox(width, height, [&](std::uint32_t y, std::uint32_t x) {
+    return words[std::size_t{y} * width + x] != kEmptyPixel;
+  });
+}
+
 std::vector<std::byte> wordsInBox(std::span<const std::uint64_t> words, std::uint32_t width,
                                   const WordsBox& box) {
-  if (std::uint64_t{box.x} + box.width > width ||
-      (std::uint64_t{box.y} + box.height) * width > words.size())
-    throw UsageError("wordsInBox: the box does not fit the tile");
-  std::vector<std::byte> bytes(std::size_t{box.width} * box.height * sizeof(std::uint64_t));
-  const std::size_t rowBytes = std::size_t{box.width} * sizeof(std::uint64_t);
-  for (std::uint32_t r = 0; r < box.height; ++r)
-    std::memcpy(bytes.data() + r * rowBytes, words.data() + std::size_t{box.y + r} * width + box.x,
-                rowBytes);
-  return bytes;
+  return bytesInBox(std::as_bytes(words), sizeof(std::uint64_t), width, box);
+}
+
+WordsBox drawnRgbaBox(std::span<const std::uint8_t> rgba, std::uint32_t width, std::uint32_t height,
+                      const std::array<std::uint8_t, 4>& background) {
+  checkTile(rgba.size() / 4, width, height, "drawnRgbaBox");
+  std::uint32_t empty;
+  std::memcpy(&empty, background.data(), 4);
+  return drawnBox(width, height, [&](std::uint32_t y, std::uint32_t x) {
+    std::uint32_t pixel;
+    std::memcpy(&pixel, rgba.data() + 4 * (std::size_t{y} * width + x), 4);
+    return pixel != empty;
+  });
+}
+
+std::vector<std::byte> rgbaInBox(std::span<const std::uint8_t> rgba, std::uint32_t width,
+                                 const WordsBox& box) {
+  return bytesInBox(std::as_bytes(rgba), 4, width, box);
 }
 
 PointRaster pointRaster(const Camera& camera, const TileRect& rect,

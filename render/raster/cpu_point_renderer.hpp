@@ -16,6 +16,7 @@
 // every splat the same pixels and the same word, bit for bit, whatever the
 // target and wherever the splat falls in a batch: job tiles are compared
 // pixel for pixel with a full frame drawn elsewhere.
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <memory>
@@ -68,6 +69,13 @@ WordsBox drawnWordsBox(std::span<const std::uint64_t> words, std::uint32_t width
 // The box's words, row after row, as raw bytes.
 std::vector<std::byte> wordsInBox(std::span<const std::uint64_t> words, std::uint32_t width,
                                   const WordsBox& box);
+// The same for RGBA8 pixels (4 bytes a pixel, rows bottom-up): the box of
+// every pixel that is not `background`. A whole tile sends only this box
+// when its background is the display's.
+WordsBox drawnRgbaBox(std::span<const std::uint8_t> rgba, std::uint32_t width, std::uint32_t height,
+                      const std::array<std::uint8_t, 4>& background);
+std::vector<std::byte> rgbaInBox(std::span<const std::uint8_t> rgba, std::uint32_t width,
+                                 const WordsBox& box);
 
 // Where one splat lands: pixels [x0, x1) x [y0, y1) of the tile, and its word.
 // All zero when it is not drawn.

@@ -98,10 +98,12 @@ void tileImage(const v1::TileImageHeader& header, std::span<const std::byte> pay
   // A background tile leaves the frame as it is, as at the display.
   if (header.format() != v1::PIXEL_FORMAT_BACKGROUND) {
     Image frame(128, 64, {0, 0, 0, 255});
-    blit(composed.empty() ? std::span<const std::uint8_t>(bytes, pixelBytes)
-                          : std::span<const std::uint8_t>(composed),
-         header.rect().width(), header.rect().height(), frame, header.rect().x(),
-         header.rect().y());
+    const v1::TileRect& drawn =
+        composed.empty() && header.has_drawn_rect() ? header.drawn_rect() : header.rect();
+    if (drawn.width() > 0 && drawn.height() > 0)
+      blit(composed.empty() ? std::span<const std::uint8_t>(bytes, pixelBytes)
+                            : std::span<const std::uint8_t>(composed),
+           drawn.width(), drawn.height(), frame, drawn.x(), drawn.y());
   }
   (void)assembly.finishFrames(kStart + 2ms);
 }

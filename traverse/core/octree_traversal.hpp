@@ -92,8 +92,8 @@ struct TraversalSettings {
   // node ranges of the cut (common/statistical_cut.hpp) in statistical packets.
   std::shared_ptr<StatisticalCutMemo> statistical;
   // Fill TraversalResult::needBoxes (the walk projects every drawn cell's
-  // bounds): for tiles that may be split, whose parts send only what they
-  // cover. Not for statistical walks.
+  // bounds): the screen box of a packet, which the simulator takes for the
+  // box its render draws in and sends. Not for statistical walks.
   bool screenBoxes = false;
 };
 

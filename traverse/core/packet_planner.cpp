@@ -74,8 +74,8 @@ v1::Scheduler PacketPlanner::schedulerFor(const v1::TileTask& task) const {
 
 TraversalSettings PacketPlanner::traversalFor(const v1::TileTask& task) const {
   TraversalSettings traversal = traversal_;
-  // A tile that may be split: its parts' boxes come from the walk.
-  traversal.screenBoxes = task.part_splats() > 0;
+  // The packets' screen boxes (what a render draws lies in them).
+  traversal.screenBoxes = true;
   if (task.has_frame_settings() && task.frame_settings().lod_pixels() > 0.0f)
     traversal.lodPixels = task.frame_settings().lod_pixels();
   return traversal;
@@ -344,11 +344,11 @@ PacketPlan PacketPlanner::planPart(const v1::TileTask& task, const TileWalk& wal
   if (partCount > 1) {
     packet.set_part_index(partIndex);
     packet.set_part_count(partCount);
-    if (walk.needBoxes.size() == walk.needs.size()) {
-      ScreenBox box;
-      for (std::size_t i = part.firstNeed; i < part.endNeed; ++i) box.add(walk.needBoxes[i]);
-      *packet.mutable_part_screen_rect() = clipScreenBox(box, task.rect());
-    }
+  }
+  if (!walk.needBoxes.empty() && walk.needBoxes.size() == walk.needs.size()) {
+    ScreenBox box;
+    for (std::size_t i = part.firstNeed; i < part.endNeed; ++i) box.add(walk.needBoxes[i]);
+    *packet.mutable_screen_box() = clipScreenBox(box, task.rect());
   }
   if (task.has_frame_settings()) *packet.mutable_frame_settings() = task.frame_settings();
   out.send(plan.renderRank, std::move(packet));

@@ -35,8 +35,8 @@ struct TileWalk {
   // Splats drawn from each need (parallel to needs), for a walk without
   // ranges; with ranges they are counted from those.
   std::span<const std::uint32_t> drawn;
-  // Parallel to needs where known (TraversalResult::needBoxes): a part's
-  // packet carries the box of its needs' (RenderPacket.part_screen_rect).
+  // Parallel to needs where known (TraversalResult::needBoxes): a packet
+  // carries the box of its needs' (RenderPacket.screen_box).
   std::span<const ScreenBox> needBoxes;
 };
 

@@ -384,9 +384,23 @@ TEST(FrameAssembly, APartSendsTheWordsOfTheBoxItDrewIn) {
   EXPECT_THROW(tileImagePixelBytes(header, 1024, 4), ProtocolError);
   *header.mutable_drawn_rect() = makeTileRect(0, 0, 0, 0);
   EXPECT_EQ(tileImagePixelBytes(header, 0, 4), 0u) << "a part that drew nothing";
+  // A whole tile sends its box of RGBA8 pixels, never with depth.
   header.set_format(v1::PIXEL_FORMAT_RGBA8);
-  EXPECT_THROW(tileImagePixelBytes(header, 16 * 8 * 4, 4), ProtocolError)
-      << "only point words come boxed";
+  header.set_part_count(0);
+  *header.mutable_drawn_rect() = makeTileRect(103, 42, 5, 3);
+  EXPECT_EQ(tileImagePixelBytes(header, 5 * 3 * 4, 4), 60u);
+  EXPECT_EQ(tileImageBytes(header), 60u);
+  EXPECT_THROW(tileImagePixelBytes(header, 16 * 8 * 4, 4), ProtocolError);
+  *header.mutable_drawn_rect() = makeTileRect(99, 42, 5, 3);
+  EXPECT_THROW(tileImagePixelBytes(header, 5 * 3 * 4, 4), ProtocolError) << "left of its tile";
+  *header.mutable_drawn_rect() = makeTileRect(103, 42, 5, 7);
+  EXPECT_THROW(tileImagePixelBytes(header, 5 * 7 * 4, 4), ProtocolError) << "above its tile";
+  *header.mutable_drawn_rect() = makeTileRect(103, 42, 5, 3);
+  header.set_depth(v1::DEPTH_FORMAT_EYE_FLOAT32);
+  EXPECT_THROW(tileImagePixelBytes(header, 5 * 3 * 8, 4), ProtocolError) << "boxed with depth";
+  header.clear_drawn_rect();
+  EXPECT_EQ(tileImagePixelBytes(header, 16 * 8 * 8, 4), 512u);
+  EXPECT_EQ(tileImageBytes(header), 1024u);
 
   // Composed: the box's words at their place, the rest of the tile untouched.
   const TileRect rect = header.rect();

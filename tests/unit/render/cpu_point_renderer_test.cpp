@@ -235,6 +235,28 @@ TEST(CpuPointRenderer, DrawnWordsBoxIsTheSmallestHoldingEveryDrawnWord) {
   EXPECT_THROW(drawnWordsBox(words, kWidth, kHeight - 1), UsageError);
 }
 
+// A whole tile's box: every pixel that is not the background, any channel.
+TEST(CpuPointRenderer, DrawnRgbaBoxHoldsEveryPixelThatIsNotTheBackground) {
+  constexpr std::uint32_t kWidth = 20, kHeight = 10;
+  const std::array<std::uint8_t, 4> background{0, 0, 0, 255};
+  std::vector<std::uint8_t> rgba(kWidth * kHeight * 4);
+  for (std::size_t i = 0; i < rgba.size(); i += 4)
+    std::copy(background.begin(), background.end(), rgba.begin() + static_cast<std::ptrdiff_t>(i));
+  EXPECT_EQ(drawnRgbaBox(rgba, kWidth, kHeight, background), WordsBox{});
+  const auto set = [&](std::uint32_t x, std::uint32_t y, std::size_t channel, std::uint8_t v) {
+    rgba[(std::size_t{y} * kWidth + x) * 4 + channel] = v;
+  };
+  set(4, 3, 3, 254);  // alpha alone differs
+  set(15, 6, 0, 1);
+  const WordsBox box = drawnRgbaBox(rgba, kWidth, kHeight, background);
+  EXPECT_EQ(box, (WordsBox{4, 3, 12, 4}));
+  const std::vector<std::byte> bytes = rgbaInBox(rgba, kWidth, box);
+  ASSERT_EQ(bytes.size(), 12u * 4u * 4u);
+  EXPECT_EQ(std::to_integer<int>(bytes[3]), 254) << "the box's first pixel is (4,3)";
+  EXPECT_EQ(std::to_integer<int>(bytes[((3 * 12) + 11) * 4]), 1) << "its last is (15,6)";
+  EXPECT_THROW(drawnRgbaBox(rgba, kWidth + 1, kHeight, background), UsageError);
+}
+
 // Depth and colour are compared as one word, so the drawing order never shows.
 TEST(CpuPointRenderer, OrderOfSplatsDoesNotMatter) {
   const Camera camera = frontCamera(200, 150);

@@ -80,8 +80,9 @@ traverse::DecisionLog recordedLog(const fs::path& file) {
         task.set_tile_id(tile);
         *task.mutable_camera() = city.cameras[frame];
         *task.mutable_rect() = makeTileRect(tile * 80, 0, 80, 90);
+        // Walked as the traverse role walks (its packets carry screen boxes).
         const auto walk = traverse::traverseTile(city.content.cells, task.camera(), task.rect(),
-                                                 planner.traversal());
+                                                 planner.traversalFor(task));
         Outbox out;
         planner.planPackets(task, traverse::walkOf(walk), {}, now + 1ms, out);
         writer.recordTask(now + 1ms, 0, task, out.entries());

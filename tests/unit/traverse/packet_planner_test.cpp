@@ -551,12 +551,12 @@ TEST(PacketPlanner, APartCarriesTheBoxOfItsCellsInsideItsTile) {
   ASSERT_EQ(p.planPackets(splitTask(8000), walk, {}, kStart, out).size(), 2u);
   const auto packets = packetsIn(out);
   ASSERT_EQ(packets.size(), 2u);
-  const v1::TileRect& left = packets[0].second.part_screen_rect();
+  const v1::TileRect& left = packets[0].second.screen_box();
   EXPECT_EQ(left.x(), 2u);
   EXPECT_EQ(left.y(), 1u);
   EXPECT_EQ(left.width(), 19u);  // to 20.2, rounded up
   EXPECT_EQ(left.height(), 19u);
-  const v1::TileRect& right = packets[1].second.part_screen_rect();
+  const v1::TileRect& right = packets[1].second.screen_box();
   EXPECT_EQ(right.x(), 33u);
   EXPECT_EQ(right.y(), 30u);
   EXPECT_EQ(right.width(), 17u);
@@ -568,7 +568,7 @@ TEST(PacketPlanner, APartCarriesTheBoxOfItsCellsInsideItsTile) {
   q.applyReport(kRender1, report(0, {3, 4, 5}), kStart);
   Outbox plain;
   ASSERT_EQ(q.planPackets(splitTask(8000), split.withRanges(), {}, kStart, plain).size(), 2u);
-  for (const auto& [rank, packet] : packetsIn(plain)) EXPECT_FALSE(packet.has_part_screen_rect());
+  for (const auto& [rank, packet] : packetsIn(plain)) EXPECT_FALSE(packet.has_screen_box());
 }
 
 TEST(PacketPlanner, ATileIsSplitOnlyWhereComposingItsPartsIsExact) {
