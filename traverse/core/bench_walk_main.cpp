@@ -83,11 +83,15 @@ int run(int argc, char** argv) {
   ViewOptions view;
   std::vector<std::string> grids{"1x1", "4x2"};
   unsigned repeat = 5;
+  bool noScreenBoxes = false;
   app.add_option("--dataset", datasetPath, "Dataset directory")->required();
   addViewOptions(app, view);
   app.add_option("--tiles", grids, "Tile grids to walk each frame as, COLUMNSxROWS (repeatable)");
   app.add_option("--repeat", repeat, "Passes over the path per grid; the fastest is reported")
       ->check(CLI::Range(1, 1000));
+  app.add_flag("--no-screen-boxes", noScreenBoxes,
+               "Walk without projecting the drawn cells' bounds (the traverse projects them for "
+               "each packet's screen box)");
   app.name("pointillist-bench-walk");
   try {
     app.parse(argc, argv);
@@ -107,6 +111,7 @@ int run(int argc, char** argv) {
                        " frame has pixels");
   }
   TraversalSettings settings = traversalSettings(view);
+  settings.screenBoxes = !noScreenBoxes;  // as the traverse walks
   const v1::RenderMode mode = parseRenderMode(view.mode);
   if (mode == v1::RENDER_MODE_STATISTICAL)
     throw UsageError(

@@ -137,37 +137,44 @@ bool subtreeDrawsPoints(const CullingTable& table, std::uint32_t root, const glm
   return false;
 }
 
-// The boxes of the walk's top-level cells, as it meets them, for needBoxes.
+// The boxes of the walk's top-level cells, for needBoxes: the bounds of
+// each one's drawn cells joined in world space as the walk meets them, and
+// projected once per need (projecting every drawn cell took half the walk).
 class BoxesByTopLevel {
  public:
   BoxesByTopLevel(const Camera& camera, const TraversalSettings& settings)
       : projector_(camera, settings.marginPixels) {}
   void add(std::uint32_t topLevel, const CellCulling& culling) {
-    const ScreenBox box = projector_.project(culling.low, culling.high);
-    if (!boxes_.empty() && boxes_.back().first == topLevel) {
-      boxes_.back().second.add(box);
+    if (!bounds_.empty() && bounds_.back().topLevel == topLevel) {
+      Bounds& b = bounds_.back();
+      b.low = glm::min(b.low, culling.low);
+      b.high = glm::max(b.high, culling.high);
     } else {
-      boxes_.emplace_back(topLevel, box);
+      bounds_.push_back({topLevel, culling.low, culling.high});
     }
   }
   // Parallel to `needs` (ascending cells).
   std::vector<ScreenBox> forNeeds(std::span<const CellPrefix> needs) {
-    const auto byCell = [](const auto& a, const auto& b) { return a.first < b.first; };
-    if (!std::is_sorted(boxes_.begin(), boxes_.end(), byCell))
-      std::stable_sort(boxes_.begin(), boxes_.end(), byCell);
+    const auto byCell = [](const Bounds& a, const Bounds& b) { return a.topLevel < b.topLevel; };
+    if (!std::is_sorted(bounds_.begin(), bounds_.end(), byCell))
+      std::stable_sort(bounds_.begin(), bounds_.end(), byCell);
     std::vector<ScreenBox> out(needs.size());
     std::size_t at = 0;
     for (std::size_t i = 0; i < needs.size(); ++i) {
-      while (at < boxes_.size() && boxes_[at].first < needs[i].cell) ++at;
-      for (; at < boxes_.size() && boxes_[at].first == needs[i].cell; ++at)
-        out[i].add(boxes_[at].second);
+      while (at < bounds_.size() && bounds_[at].topLevel < needs[i].cell) ++at;
+      for (; at < bounds_.size() && bounds_[at].topLevel == needs[i].cell; ++at)
+        out[i].add(projector_.project(bounds_[at].low, bounds_[at].high));
     }
     return out;
   }
 
  private:
+  struct Bounds {
+    std::uint32_t topLevel;
+    glm::vec3 low, high;
+  };
   ScreenBoxProjector projector_;
-  std::vector<std::pair<std::uint32_t, ScreenBox>> boxes_;
+  std::vector<Bounds> bounds_;
 };
 
 // The table's grown bounds must be those the settings ask for.
