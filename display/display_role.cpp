@@ -496,11 +496,13 @@ class DisplayProcess {
         const TileArrival arrival = assembly.tileArrived(header, Clock::now());
         if (arrival == TileArrival::Late) return;
         const auto* bytes = reinterpret_cast<const std::uint8_t*>(envelope.payload.data());
+        std::vector<std::byte> expanded;
+        const std::span<const std::byte> pixels =
+            tileImagePixels(header, envelope.payload, pixelBytes, expanded);
         std::vector<std::uint8_t> composed;
         if (header.format() == v1::PIXEL_FORMAT_POINT_WORDS64) {
           parts_.merge(header.frame_id(), header.tile_id(), header.attempt(), rect,
-                       header.has_drawn_rect() ? header.drawn_rect() : rect,
-                       std::span<const std::byte>(envelope.payload.data(), pixelBytes));
+                       header.has_drawn_rect() ? header.drawn_rect() : rect, pixels);
           if (arrival == TileArrival::Part) return;
           composed = parts_.take(header.frame_id(), header.tile_id(), header.attempt(),
                                  packRgba(kBackground));
@@ -516,8 +518,9 @@ class DisplayProcess {
         } else if (header.format() != v1::PIXEL_FORMAT_BACKGROUND) {
           const v1::TileRect& drawn = header.has_drawn_rect() ? header.drawn_rect() : rect;
           if (drawn.width() > 0 && drawn.height() > 0)
-            blit(std::span<const std::uint8_t>(bytes, pixelBytes), drawn.width(), drawn.height(),
-                 image->second, drawn.x(), drawn.y());
+            blit(std::span<const std::uint8_t>(reinterpret_cast<const std::uint8_t*>(pixels.data()),
+                                               pixels.size()),
+                 drawn.width(), drawn.height(), image->second, drawn.x(), drawn.y());
         }
         if (withDepth && depthFrames_.contains(header.frame_id())) {
           composeDepth(header.frame_id(), image->second, rect, bytes + pixelBytes);

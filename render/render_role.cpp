@@ -13,6 +13,7 @@
 #include "common/image.hpp"
 #include "common/mpi/worker.hpp"
 #include "common/ownership.hpp"
+#include "common/pixel_runs.hpp"
 #include "common/point_groups.hpp"
 #include "common/run_settings.hpp"
 #include "common/shared_packets.hpp"
@@ -285,28 +286,38 @@ class RenderProcess final : public WorkerProcess {
           renderer_->describe());
     }
     auto payload = std::make_shared<std::vector<std::byte>>();
-    if (part) {
-      // Only the box it drew in: a part draws some of its tile's cells, and
-      // the display's link is what limits many render processes.
-      const WordsBox box = drawnWordsBox(words, packet.rect().width(), packet.rect().height());
+    // Only the box drawn in, as runs where they are fewer bytes: a part
+    // draws some of its tile's cells, a tile some of its sky, and the
+    // display's link is what limits many render processes.
+    const auto sendBox = [&](const WordsBox& box, std::span<const std::byte> tile,
+                             std::span<const std::byte> empty) {
+      const v1::TileRect& rect = packet.rect();
       v1::TileRect& drawn = *header.mutable_drawn_rect();
-      drawn.set_x(packet.rect().x() + box.x);
-      drawn.set_y(packet.rect().y() + box.y);
+      drawn.set_x(rect.x() + box.x);
+      drawn.set_y(rect.y() + box.y);
       drawn.set_width(box.width);
       drawn.set_height(box.height);
-      *payload = wordsInBox(words, packet.rect().width(), box);
+      const PixelBox pixelBox{box.x, box.y, box.width, box.height};
+      std::vector<std::byte> runs =
+          encodePixelRuns(tile, empty.size(), rect.width(), pixelBox, empty);
+      if (runs.size() < std::size_t{box.width} * box.height * empty.size()) {
+        header.set_runs_bytes(runs.size());
+        *payload = std::move(runs);
+      } else {
+        *payload = empty.size() == 8 ? wordsInBox(words, rect.width(), box)
+                                     : rgbaInBox(renderer_->pixels(), rect.width(), box);
+      }
+    };
+    if (part) {
+      constexpr std::uint64_t kEmpty = kEmptyPixel;
+      sendBox(drawnWordsBox(words, packet.rect().width(), packet.rect().height()),
+              std::as_bytes(words), std::as_bytes(std::span(&kEmpty, 1)));
     } else if (!settings.keepDepth && clearIsFrameBackground(settings)) {
       // The box of what differs from the background: the display shows the
       // background around it, as it would have from these pixels.
       const auto rgba = renderer_->pixels();
-      const WordsBox box =
-          drawnRgbaBox(rgba, packet.rect().width(), packet.rect().height(), kFrameBackground);
-      v1::TileRect& drawn = *header.mutable_drawn_rect();
-      drawn.set_x(packet.rect().x() + box.x);
-      drawn.set_y(packet.rect().y() + box.y);
-      drawn.set_width(box.width);
-      drawn.set_height(box.height);
-      *payload = rgbaInBox(rgba, packet.rect().width(), box);
+      sendBox(drawnRgbaBox(rgba, packet.rect().width(), packet.rect().height(), kFrameBackground),
+              std::as_bytes(rgba), std::as_bytes(std::span(kFrameBackground)));
     } else {
       const auto pixels = std::as_bytes(renderer_->pixels());
       const auto depths = settings.keepDepth ? renderer_->depths() : std::span<const float>();

@@ -1,8 +1,11 @@
 #include "display/core/frame_assembly.hpp"
 
 #include <algorithm>
+#include <array>
 #include <numeric>
 
+#include "common/image.hpp"
+#include "common/pixel_runs.hpp"
 #include "common/run_settings.hpp"
 #include "display/core/tiling.hpp"
 
@@ -325,6 +328,7 @@ std::uint32_t FrameAssembly::renderLost(int renderRank, TimePoint now, const std
 
 std::uint64_t tileImageBytes(const v1::TileImageHeader& header) {
   if (header.format() == v1::PIXEL_FORMAT_BACKGROUND) return 0;
+  if (header.runs_bytes() != 0) return header.runs_bytes();
   const bool words = header.format() == v1::PIXEL_FORMAT_POINT_WORDS64;
   const v1::TileRect& sent = header.has_drawn_rect() ? header.drawn_rect() : header.rect();
   const std::uint64_t pixels = std::uint64_t{sent.width()} * sent.height();
@@ -366,6 +370,18 @@ std::uint64_t tileImagePixelBytes(const v1::TileImageHeader& header, std::size_t
                           (withDepth ? " with a depth image" : ", outside its tile"));
     }
   }
+  if (header.runs_bytes() != 0) {
+    if (!header.has_drawn_rect() || withDepth ||
+        (header.format() != v1::PIXEL_FORMAT_RGBA8 && !words) ||
+        payloadBytes != header.runs_bytes()) {
+      throw ProtocolError("tile image from rank " + std::to_string(sourceRank) + " has " +
+                          std::to_string(payloadBytes) + " bytes for " +
+                          std::to_string(header.runs_bytes()) + " bytes of runs" +
+                          (header.has_drawn_rect() ? "" : " and no drawn rectangle") +
+                          (withDepth ? " and a depth image" : ""));
+    }
+    return payloadBytes;
+  }
   // Only the box drawn in travels. In 64 bits: two 32-bit sides times 8
   // bytes cannot wrap.
   const v1::TileRect& sent = header.has_drawn_rect() ? header.drawn_rect() : rect;
@@ -378,6 +394,22 @@ std::uint64_t tileImagePixelBytes(const v1::TileImageHeader& header, std::size_t
                         std::to_string(expectedBytes));
   }
   return pixelBytes;
+}
+
+std::span<const std::byte> tileImagePixels(const v1::TileImageHeader& header,
+                                           std::span<const std::byte> payload,
+                                           std::uint64_t pixelBytes,
+                                           std::vector<std::byte>& storage) {
+  const std::span<const std::byte> pixels = payload.first(static_cast<std::size_t>(pixelBytes));
+  if (header.runs_bytes() == 0) return pixels;
+  const bool words = header.format() == v1::PIXEL_FORMAT_POINT_WORDS64;
+  const std::array<std::uint8_t, 8> emptyWord{0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF};
+  const std::span<const std::byte> empty =
+      words ? std::span<const std::byte>(std::as_bytes(std::span(emptyWord)))
+            : std::span<const std::byte>(std::as_bytes(std::span(kFrameBackground)));
+  const v1::TileRect& box = header.drawn_rect();
+  storage = decodePixelRuns(pixels, words ? 8 : 4, std::size_t{box.width()} * box.height(), empty);
+  return storage;
 }
 
 }  // namespace pointillist::display

@@ -73,6 +73,14 @@ std::uint64_t tileImageBytes(const v1::TileImageHeader& header);
 // `sourceRank`.
 std::uint64_t tileImagePixelBytes(const v1::TileImageHeader& header, std::size_t payloadBytes,
                                   int sourceRank);
+// The pixels of the box the payload covers (drawn_rect, or the rect), dense:
+// runs (TileImageHeader.runs_bytes) expanded into `storage`, empty pixels
+// the background or the empty word. `pixelBytes` from tileImagePixelBytes.
+// ProtocolError for runs that do not cover the box.
+std::span<const std::byte> tileImagePixels(const v1::TileImageHeader& header,
+                                           std::span<const std::byte> payload,
+                                           std::uint64_t pixelBytes,
+                                           std::vector<std::byte>& storage);
 
 class FrameAssembly {
  public:

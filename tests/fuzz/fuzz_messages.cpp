@@ -85,13 +85,15 @@ void tileImage(const v1::TileImageHeader& header, std::span<const std::byte> pay
   const std::uint64_t pixelBytes = display::tileImagePixelBytes(header, payload.size(), 4);
   const display::TileArrival arrival = assembly.tileArrived(header, kStart + 1ms);
   if (arrival == display::TileArrival::Late) return;
-  const auto* bytes = reinterpret_cast<const std::uint8_t*>(payload.data());
+  std::vector<std::byte> expanded;
+  const std::span<const std::byte> pixels =
+      display::tileImagePixels(header, payload, pixelBytes, expanded);
+  const auto* bytes = reinterpret_cast<const std::uint8_t*>(pixels.data());
   std::vector<std::uint8_t> composed;
   if (header.format() == v1::PIXEL_FORMAT_POINT_WORDS64) {  // a part of a split tile
     display::TilePartCompositor parts;
     parts.merge(header.frame_id(), header.tile_id(), header.attempt(), header.rect(),
-                header.has_drawn_rect() ? header.drawn_rect() : header.rect(),
-                payload.first(pixelBytes));
+                header.has_drawn_rect() ? header.drawn_rect() : header.rect(), pixels);
     if (arrival == display::TileArrival::Part) return;
     composed = parts.take(header.frame_id(), header.tile_id(), header.attempt(), 0xff000000u);
   }
@@ -101,7 +103,7 @@ void tileImage(const v1::TileImageHeader& header, std::span<const std::byte> pay
     const v1::TileRect& drawn =
         composed.empty() && header.has_drawn_rect() ? header.drawn_rect() : header.rect();
     if (drawn.width() > 0 && drawn.height() > 0)
-      blit(composed.empty() ? std::span<const std::uint8_t>(bytes, pixelBytes)
+      blit(composed.empty() ? std::span<const std::uint8_t>(bytes, pixels.size())
                             : std::span<const std::uint8_t>(composed),
            drawn.width(), drawn.height(), frame, drawn.x(), drawn.y());
   }

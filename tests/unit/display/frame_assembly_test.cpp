@@ -5,9 +5,13 @@
 #include "display/core/tile_parts.hpp"
 
 #include <algorithm>
+#include <cstring>
 #include <map>
 
 #include <gtest/gtest.h>
+
+#include "common/image.hpp"
+#include "common/pixel_runs.hpp"
 
 namespace pointillist::display {
 namespace {
@@ -401,6 +405,33 @@ TEST(FrameAssembly, APartSendsTheWordsOfTheBoxItDrewIn) {
   header.clear_drawn_rect();
   EXPECT_EQ(tileImagePixelBytes(header, 16 * 8 * 8, 4), 512u);
   EXPECT_EQ(tileImageBytes(header), 1024u);
+
+  // As runs: the payload is the runs, expanded to the box with the
+  // background where they skip; they must cover the box.
+  header.set_depth(v1::DEPTH_FORMAT_NONE);
+  *header.mutable_drawn_rect() = makeTileRect(103, 42, 5, 3);
+  std::vector<std::uint8_t> box(5 * 3 * 4);
+  for (std::size_t i = 0; i < box.size(); i += 4) {
+    std::copy(kFrameBackground.begin(), kFrameBackground.end(),
+              box.begin() + static_cast<std::ptrdiff_t>(i));
+  }
+  box[4 * 7] = 200;  // pixel (2,1) of the box
+  const std::vector<std::byte> runs =
+      encodePixelRuns(std::as_bytes(std::span(box)), 4, 5, PixelBox{0, 0, 5, 3},
+                      std::as_bytes(std::span(kFrameBackground)));
+  header.set_runs_bytes(runs.size());
+  EXPECT_EQ(tileImagePixelBytes(header, runs.size(), 4), runs.size());
+  EXPECT_EQ(tileImageBytes(header), runs.size());
+  EXPECT_THROW(tileImagePixelBytes(header, runs.size() + 1, 4), ProtocolError);
+  std::vector<std::byte> storage;
+  const std::span<const std::byte> pixels = tileImagePixels(header, runs, runs.size(), storage);
+  ASSERT_EQ(pixels.size(), box.size());
+  EXPECT_EQ(std::memcmp(pixels.data(), box.data(), box.size()), 0);
+  *header.mutable_drawn_rect() = makeTileRect(103, 42, 5, 4);
+  EXPECT_THROW(tileImagePixels(header, runs, runs.size(), storage), ProtocolError)
+      << "runs that do not cover the box";
+  header.clear_drawn_rect();
+  EXPECT_THROW(tileImagePixelBytes(header, runs.size(), 4), ProtocolError) << "runs without a box";
 
   // Composed: the box's words at their place, the rest of the tile untouched.
   const TileRect rect = header.rect();
