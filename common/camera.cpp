@@ -141,6 +141,13 @@ bool tileInsideFrame(const Camera& camera, const TileRect& rect) {
          std::uint64_t{rect.y()} + rect.height() <= camera.image_height();
 }
 
+bool rectWithin(const TileRect& inner, const TileRect& outer) {
+  if (inner.width() == 0 || inner.height() == 0) return true;
+  return inner.x() >= outer.x() && inner.y() >= outer.y() &&
+         std::uint64_t{inner.x()} + inner.width() <= std::uint64_t{outer.x()} + outer.width() &&
+         std::uint64_t{inner.y()} + inner.height() <= std::uint64_t{outer.y()} + outer.height();
+}
+
 glm::mat4 tileNdcTransform(const Camera& camera, const TileRect& rect) {
   return glm::mat4(tileNdcTransformD(camera, rect));
 }

@@ -38,6 +38,8 @@ TileRect fullFrameRect(const Camera& camera);
 TileRect makeTileRect(std::uint32_t x, std::uint32_t y, std::uint32_t width, std::uint32_t height);
 // The rectangle is non-empty and lies inside the camera's image.
 bool tileInsideFrame(const Camera& camera, const TileRect& rect);
+// Whether `inner` lies inside `outer`; a rect with a zero side lies anywhere.
+bool rectWithin(const TileRect& inner, const TileRect& outer);
 
 // Maps the frame's NDC to the tile's NDC: x' = x * W / rw + (W - 2 rx - rw) / rw,
 // likewise for y; z and w unchanged. tileProjectionMatrix = this * projection:

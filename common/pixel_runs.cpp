@@ -15,16 +15,19 @@ void appendWord(std::vector<std::byte>& out, std::uint32_t value) {
   out.insert(out.end(), bytes, bytes + 4);
 }
 
+void checkBox(std::span<const std::byte> tile, std::size_t pixelBytes, std::uint32_t tileWidth,
+              const PixelBox& box, const char* what) {
+  if (std::uint64_t{box.x} + box.width > tileWidth ||
+      (std::uint64_t{box.y} + box.height) * tileWidth * pixelBytes > tile.size())
+    throw UsageError(std::string(what) + ": the box does not fit the tile");
+}
+
 std::uint32_t readWord(const std::byte* at) {
   std::uint32_t value = 0;
   for (int i = 0; i < 4; ++i)
     value |= std::uint32_t{std::to_integer<std::uint8_t>(at[i])} << (8 * i);
   return value;
 }
-
-}  // namespace
-
-namespace {
 
 // One pixel a Word (4 or 8 bytes): a compare a pixel, not a memcmp call.
 template <typename Word>
@@ -68,14 +71,23 @@ std::vector<std::byte> encodeRuns(std::span<const std::byte> tile, std::uint32_t
 
 }  // namespace
 
+std::vector<std::byte> pixelsInBox(std::span<const std::byte> tile, std::size_t pixelBytes,
+                                   std::uint32_t tileWidth, const PixelBox& box) {
+  checkBox(tile, pixelBytes, tileWidth, box, "pixelsInBox");
+  const std::size_t rowBytes = std::size_t{box.width} * pixelBytes;
+  std::vector<std::byte> bytes(rowBytes * box.height);
+  for (std::uint32_t r = 0; r < box.height; ++r)
+    std::memcpy(bytes.data() + r * rowBytes,
+                tile.data() + (std::size_t{box.y + r} * tileWidth + box.x) * pixelBytes, rowBytes);
+  return bytes;
+}
+
 std::vector<std::byte> encodePixelRuns(std::span<const std::byte> tile, std::size_t pixelBytes,
                                        std::uint32_t tileWidth, const PixelBox& box,
                                        std::span<const std::byte> empty) {
   if (empty.size() != pixelBytes || (pixelBytes != 4 && pixelBytes != 8))
     throw UsageError("encodePixelRuns: pixels of 4 or 8 bytes, and one empty pixel");
-  if (std::uint64_t{box.x} + box.width > tileWidth ||
-      (std::uint64_t{box.y} + box.height) * tileWidth * pixelBytes > tile.size())
-    throw UsageError("encodePixelRuns: the box does not fit the tile");
+  checkBox(tile, pixelBytes, tileWidth, box, "encodePixelRuns");
   if (pixelBytes == 4) {
     std::uint32_t word;
     std::memcpy(&word, empty.data(), 4);

@@ -16,7 +16,13 @@ namespace pointillist {
 // Where a box lies in a tile's pixels (rows bottom-up, `tileWidth` a row).
 struct PixelBox {
   std::uint32_t x = 0, y = 0, width = 0, height = 0;
+  bool operator==(const PixelBox&) const = default;
 };
+
+// The box's pixels of `tile` (pixelBytes each), row after row: a tile image
+// that carries its box as it is.
+std::vector<std::byte> pixelsInBox(std::span<const std::byte> tile, std::size_t pixelBytes,
+                                   std::uint32_t tileWidth, const PixelBox& box);
 
 // The box's pixels of `tile` (pixelBytes each: 4 or 8) as runs, skipping
 // the pixels whose bytes equal `empty` (pixelBytes long). A run ends at its

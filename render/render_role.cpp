@@ -292,7 +292,7 @@ class RenderProcess final : public WorkerProcess {
     // this machine gets the box itself: memory is no link worth the CPU that
     // runs cost on both sides (8 % of the frame rate on two cores).
     const bool runsPay = !job_.onThisMachine(job_.displayRank());
-    const auto sendBox = [&](const WordsBox& box, std::span<const std::byte> tile,
+    const auto sendBox = [&](const PixelBox& box, std::span<const std::byte> tile,
                              std::span<const std::byte> empty) {
       const v1::TileRect& rect = packet.rect();
       v1::TileRect& drawn = *header.mutable_drawn_rect();
@@ -300,15 +300,13 @@ class RenderProcess final : public WorkerProcess {
       drawn.set_y(rect.y() + box.y);
       drawn.set_width(box.width);
       drawn.set_height(box.height);
-      const PixelBox pixelBox{box.x, box.y, box.width, box.height};
       std::vector<std::byte> runs;
-      if (runsPay) runs = encodePixelRuns(tile, empty.size(), rect.width(), pixelBox, empty);
+      if (runsPay) runs = encodePixelRuns(tile, empty.size(), rect.width(), box, empty);
       if (runsPay && runs.size() < std::size_t{box.width} * box.height * empty.size()) {
         header.set_runs_bytes(runs.size());
         *payload = std::move(runs);
       } else {
-        *payload = empty.size() == 8 ? wordsInBox(words, rect.width(), box)
-                                     : rgbaInBox(renderer_->pixels(), rect.width(), box);
+        *payload = pixelsInBox(tile, empty.size(), rect.width(), box);
       }
     };
     if (part) {

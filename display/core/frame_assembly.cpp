@@ -359,11 +359,7 @@ std::uint64_t tileImagePixelBytes(const v1::TileImageHeader& header, std::size_t
   }
   if (header.has_drawn_rect()) {
     const v1::TileRect& d = header.drawn_rect();
-    const bool empty = d.width() == 0 || d.height() == 0;
-    if (withDepth ||
-        (!empty && (d.x() < rect.x() || d.y() < rect.y() ||
-                    std::uint64_t{d.x()} + d.width() > std::uint64_t{rect.x()} + rect.width() ||
-                    std::uint64_t{d.y()} + d.height() > std::uint64_t{rect.y()} + rect.height()))) {
+    if (withDepth || !rectWithin(d, rect)) {
       throw ProtocolError("tile image from rank " + std::to_string(sourceRank) + " drew " +
                           std::to_string(d.width()) + "x" + std::to_string(d.height()) + " at (" +
                           std::to_string(d.x()) + "," + std::to_string(d.y()) + ")" +

@@ -26,10 +26,7 @@ void TilePartCompositor::merge(std::uint64_t frame, std::uint32_t tile, std::uin
   const std::string which =
       "part of tile " + std::to_string(tile) + " of frame " + std::to_string(frame);
   const bool empty = drawn.width() == 0 || drawn.height() == 0;
-  if (!empty &&
-      (drawn.x() < rect.x() || drawn.y() < rect.y() ||
-       std::uint64_t{drawn.x()} + drawn.width() > std::uint64_t{rect.x()} + rect.width() ||
-       std::uint64_t{drawn.y()} + drawn.height() > std::uint64_t{rect.y()} + rect.height())) {
+  if (!rectWithin(drawn, rect)) {
     throw ProtocolError(which + " drew " + std::to_string(drawn.width()) + "x" +
                         std::to_string(drawn.height()) + " at (" + std::to_string(drawn.x()) + "," +
                         std::to_string(drawn.y()) + "), outside its tile " +

@@ -400,13 +400,9 @@ std::uint8_t unitToByte(float value) {
   return static_cast<std::uint8_t>(std::clamp(value, 0.0f, 1.0f) * 255.0f + 0.5f);
 }
 
-}  // namespace
-
-namespace {
-
 // The box of the pixels for which `drawn(row, x)` holds, rows bottom-up.
 template <typename Drawn>
-WordsBox drawnBox(std::uint32_t width, std::uint32_t height, const Drawn& drawn) {
+PixelBox drawnBox(std::uint32_t width, std::uint32_t height, const Drawn& drawn) {
   std::uint32_t left = width, right = 0, bottom = height, top = 0;
   for (std::uint32_t y = 0; y < height; ++y) {
     // From both ends: a row's drawn pixels are found without reading between
@@ -431,22 +427,9 @@ void checkTile(std::size_t pixels, std::uint32_t width, std::uint32_t height, co
                      std::to_string(width) + "x" + std::to_string(height) + " tile");
 }
 
-std::vector<std::byte> bytesInBox(std::span<const std::byte> pixels, std::size_t pixelBytes,
-                                  std::uint32_t width, const WordsBox& box) {
-  const std::size_t rowBytes = std::size_t{box.width} * pixelBytes;
-  if (std::uint64_t{box.x} + box.width > width ||
-      (std::uint64_t{box.y} + box.height) * width * pixelBytes > pixels.size())
-    throw UsageError("the drawn box does not fit the tile");
-  std::vector<std::byte> bytes(rowBytes * box.height);
-  for (std::uint32_t r = 0; r < box.height; ++r)
-    std::memcpy(bytes.data() + r * rowBytes,
-                pixels.data() + (std::size_t{box.y + r} * width + box.x) * pixelBytes, rowBytes);
-  return bytes;
-}
-
 }  // namespace
 
-WordsBox drawnWordsBox(std::span<const std::uint64_t> words, std::uint32_t width,
+PixelBox drawnWordsBox(std::span<const std::uint64_t> words, std::uint32_t width,
                        std::uint32_t height) {
   checkTile(words.size(), width, height, "drawnWordsBox");
   return drawnBox(width, height, [&](std::uint32_t y, std::uint32_t x) {
@@ -454,12 +437,7 @@ WordsBox drawnWordsBox(std::span<const std::uint64_t> words, std::uint32_t width
   });
 }
 
-std::vector<std::byte> wordsInBox(std::span<const std::uint64_t> words, std::uint32_t width,
-                                  const WordsBox& box) {
-  return bytesInBox(std::as_bytes(words), sizeof(std::uint64_t), width, box);
-}
-
-WordsBox drawnRgbaBox(std::span<const std::uint8_t> rgba, std::uint32_t width, std::uint32_t height,
+PixelBox drawnRgbaBox(std::span<const std::uint8_t> rgba, std::uint32_t width, std::uint32_t height,
                       const std::array<std::uint8_t, 4>& background) {
   checkTile(rgba.size() / 4, width, height, "drawnRgbaBox");
   std::uint32_t empty;
@@ -469,11 +447,6 @@ WordsBox drawnRgbaBox(std::span<const std::uint8_t> rgba, std::uint32_t width, s
     std::memcpy(&pixel, rgba.data() + 4 * (std::size_t{y} * width + x), 4);
     return pixel != empty;
   });
-}
-
-std::vector<std::byte> rgbaInBox(std::span<const std::uint8_t> rgba, std::uint32_t width,
-                                 const WordsBox& box) {
-  return bytesInBox(std::as_bytes(rgba), 4, width, box);
 }
 
 PointRaster pointRaster(const Camera& camera, const TileRect& rect,

@@ -28,6 +28,7 @@
 
 #include <glm/glm.hpp>
 
+#include "common/pixel_runs.hpp"
 #include "common/point_groups.hpp"
 #include "render/raster/tile_renderer.hpp"
 
@@ -56,26 +57,16 @@ PointRaster pointRaster(const Camera& camera, const TileRect& rect, const Render
 // The packed word of an empty pixel.
 inline constexpr std::uint64_t kEmptyPixel = ~std::uint64_t{0};
 
-// Pixels [x, x + width) x [y, y + height) of a tile's words.
-struct WordsBox {
-  std::uint32_t x = 0, y = 0, width = 0, height = 0;
-  bool operator==(const WordsBox&) const = default;
-};
 // The smallest box of a width x height tile of words (rows bottom-up) that
 // holds every word drawn (not kEmptyPixel); width and height 0 when none is.
 // A part of a split tile sends only this box (v1::TileImageHeader.drawn_rect).
-WordsBox drawnWordsBox(std::span<const std::uint64_t> words, std::uint32_t width,
+PixelBox drawnWordsBox(std::span<const std::uint64_t> words, std::uint32_t width,
                        std::uint32_t height);
-// The box's words, row after row, as raw bytes.
-std::vector<std::byte> wordsInBox(std::span<const std::uint64_t> words, std::uint32_t width,
-                                  const WordsBox& box);
 // The same for RGBA8 pixels (4 bytes a pixel, rows bottom-up): the box of
 // every pixel that is not `background`. A whole tile sends only this box
 // when its background is the display's.
-WordsBox drawnRgbaBox(std::span<const std::uint8_t> rgba, std::uint32_t width, std::uint32_t height,
+PixelBox drawnRgbaBox(std::span<const std::uint8_t> rgba, std::uint32_t width, std::uint32_t height,
                       const std::array<std::uint8_t, 4>& background);
-std::vector<std::byte> rgbaInBox(std::span<const std::uint8_t> rgba, std::uint32_t width,
-                                 const WordsBox& box);
 
 // Where one splat lands: pixels [x0, x1) x [y0, y1) of the tile, and its word.
 // All zero when it is not drawn.

@@ -180,7 +180,7 @@ TEST(CpuPointRenderer, SplitTilePartsComposedAtTheDisplayEqualTheWholeTile) {
           continue;
         }
         // As a render sends a part: only the box it drew in.
-        const WordsBox box = drawnWordsBox(partWords[part], rect.width(), rect.height());
+        const PixelBox box = drawnWordsBox(partWords[part], rect.width(), rect.height());
         EXPECT_GT(box.width, 0u);
         if (part == 0) {
           EXPECT_LT(box.width, rect.width()) << "the first part's box should be narrower";
@@ -190,7 +190,9 @@ TEST(CpuPointRenderer, SplitTilePartsComposedAtTheDisplayEqualTheWholeTile) {
         drawn.set_y(rect.y() + box.y);
         drawn.set_width(box.width);
         drawn.set_height(box.height);
-        compositor.merge(4, 9, 1, rect, drawn, wordsInBox(partWords[part], rect.width(), box));
+        compositor.merge(
+            4, 9, 1, rect, drawn,
+            pixelsInBox(std::as_bytes(std::span(partWords[part])), 8, rect.width(), box));
       }
       const std::vector<std::uint8_t> rgba =
           compositor.take(4, 9, 1, display::packRgba({0, 0, 0, 255}));
@@ -206,19 +208,19 @@ TEST(CpuPointRenderer, SplitTilePartsComposedAtTheDisplayEqualTheWholeTile) {
 TEST(CpuPointRenderer, DrawnWordsBoxIsTheSmallestHoldingEveryDrawnWord) {
   constexpr std::uint32_t kWidth = 37, kHeight = 23;
   std::vector<std::uint64_t> words(kWidth * kHeight, kEmptyPixel);
-  EXPECT_EQ(drawnWordsBox(words, kWidth, kHeight), WordsBox{});
-  EXPECT_TRUE(wordsInBox(words, kWidth, WordsBox{}).empty());
+  EXPECT_EQ(drawnWordsBox(words, kWidth, kHeight), PixelBox{});
+  EXPECT_TRUE(pixelsInBox(std::as_bytes(std::span(words)), 8, kWidth, PixelBox{}).empty());
   const auto at = [&](std::uint32_t x, std::uint32_t y) -> std::uint64_t& {
     return words[std::size_t{y} * kWidth + x];
   };
   at(5, 7) = 1;
-  EXPECT_EQ(drawnWordsBox(words, kWidth, kHeight), (WordsBox{5, 7, 1, 1}));
+  EXPECT_EQ(drawnWordsBox(words, kWidth, kHeight), (PixelBox{5, 7, 1, 1}));
   at(30, 2) = 2;
   at(12, 20) = 3;
   at(0, 9) = 0;  // a drawn word may be zero (depth 0, black)
-  const WordsBox box = drawnWordsBox(words, kWidth, kHeight);
-  EXPECT_EQ(box, (WordsBox{0, 2, 31, 19}));
-  const std::vector<std::byte> bytes = wordsInBox(words, kWidth, box);
+  const PixelBox box = drawnWordsBox(words, kWidth, kHeight);
+  EXPECT_EQ(box, (PixelBox{0, 2, 31, 19}));
+  const std::vector<std::byte> bytes = pixelsInBox(std::as_bytes(std::span(words)), 8, kWidth, box);
   ASSERT_EQ(bytes.size(), std::size_t{box.width} * box.height * 8);
   std::size_t drawn = 0;
   for (std::size_t i = 0; i < bytes.size() / 8; ++i) {
@@ -231,7 +233,7 @@ TEST(CpuPointRenderer, DrawnWordsBoxIsTheSmallestHoldingEveryDrawnWord) {
   }
   EXPECT_EQ(drawn, 4u);
   at(kWidth - 1, kHeight - 1) = 4;
-  EXPECT_EQ(drawnWordsBox(words, kWidth, kHeight), (WordsBox{0, 2, kWidth, kHeight - 2}));
+  EXPECT_EQ(drawnWordsBox(words, kWidth, kHeight), (PixelBox{0, 2, kWidth, kHeight - 2}));
   EXPECT_THROW(drawnWordsBox(words, kWidth, kHeight - 1), UsageError);
 }
 
@@ -242,15 +244,15 @@ TEST(CpuPointRenderer, DrawnRgbaBoxHoldsEveryPixelThatIsNotTheBackground) {
   std::vector<std::uint8_t> rgba(kWidth * kHeight * 4);
   for (std::size_t i = 0; i < rgba.size(); i += 4)
     std::copy(background.begin(), background.end(), rgba.begin() + static_cast<std::ptrdiff_t>(i));
-  EXPECT_EQ(drawnRgbaBox(rgba, kWidth, kHeight, background), WordsBox{});
+  EXPECT_EQ(drawnRgbaBox(rgba, kWidth, kHeight, background), PixelBox{});
   const auto set = [&](std::uint32_t x, std::uint32_t y, std::size_t channel, std::uint8_t v) {
     rgba[(std::size_t{y} * kWidth + x) * 4 + channel] = v;
   };
   set(4, 3, 3, 254);  // alpha alone differs
   set(15, 6, 0, 1);
-  const WordsBox box = drawnRgbaBox(rgba, kWidth, kHeight, background);
-  EXPECT_EQ(box, (WordsBox{4, 3, 12, 4}));
-  const std::vector<std::byte> bytes = rgbaInBox(rgba, kWidth, box);
+  const PixelBox box = drawnRgbaBox(rgba, kWidth, kHeight, background);
+  EXPECT_EQ(box, (PixelBox{4, 3, 12, 4}));
+  const std::vector<std::byte> bytes = pixelsInBox(std::as_bytes(std::span(rgba)), 4, kWidth, box);
   ASSERT_EQ(bytes.size(), 12u * 4u * 4u);
   EXPECT_EQ(std::to_integer<int>(bytes[3]), 254) << "the box's first pixel is (4,3)";
   EXPECT_EQ(std::to_integer<int>(bytes[((3 * 12) + 11) * 4]), 1) << "its last is (15,6)";
