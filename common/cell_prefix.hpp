@@ -1,8 +1,9 @@
 #pragma once
-// What a render process needs of one top-level cell: the first `splats` splats
-// of its packet. Packets are layered coarse-first (common/dataset.hpp), so a
-// cell drawn coarsely needs, holds and receives only a prefix; traverse,
-// data-send and render processes all count in prefixes.
+// The first `splats` splats of a top-level cell's packet. Packets are layered
+// coarse-first (common/dataset.hpp), so what a walk draws of a cell ends
+// inside such a prefix (TraversalResult::needs), a statistical cut needs one
+// whole, and a view is estimated to need one when ordering ahead. What
+// travels and is held is counted in ranges (common/cell_ranges.hpp).
 #include <cstdint>
 
 namespace pointillist {

@@ -42,6 +42,19 @@ std::uint32_t parseTileTasksAhead(const std::string& text);
 float parseRenderCoreShare(const std::string& text);
 const char* schedulerName(v1::Scheduler scheduler);
 
+// A tile needs the ranges it draws of each packet, and ranges at most this
+// many splats apart are needed as one (docs/scheduling.md §19): a range costs
+// the processes it passes through about half a microsecond of CPU in all, a
+// gap its bytes. Over links the bytes cost more (32 B a splat is 0.26 us at
+// 1 GbE); read in place on one machine they cost the pages mapped, far less.
+inline constexpr std::uint32_t kNeedGapSplatsCopied = 8;
+inline constexpr std::uint32_t kNeedGapSplatsInPlace = 256;
+// The run's (RunSettings.need_gap_splats; 0: kNeedGapSplatsCopied).
+std::uint32_t needGapSplats(const v1::RunSettings& settings);
+// "auto" (0: the handshake's choice) | a gap in splats from 0 (the drawn
+// ranges only) to 65536; a UsageError names the accepted ones.
+std::uint32_t parseNeedGapSplats(const std::string& text);
+
 // Heavy tiles split by their data (RunSettings.no_tile_split): a part holds
 // at least this many splats, so its fixed costs (a packet, a composed image)
 // stay small beside its drawing.

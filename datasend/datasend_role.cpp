@@ -40,13 +40,15 @@ class DataSendProcess final : public WorkerProcess {
     segment_ = std::make_shared<SharedSegment>(
         splats * sizeof(Splat), "pointillist-packets-" + std::to_string(job.worldRank()));
     auto* records = reinterpret_cast<Splat*>(segment_->data());
+    packets_.resize(dataset_.packetCount());
     std::uint64_t at = 0;
     for (std::uint32_t cell = 0; cell < dataset_.packetCount(); ++cell) {
       if (!ledger_.owns(cell)) continue;
       const std::span<Splat> packet(records + at,
                                     static_cast<std::size_t>(dataset_.packetSplats(cell)));
       dataset_.readTopLevelInto(cell, packet);
-      packets_.emplace(cell, packet);
+      packets_[cell] = packet;
+      ++packetsOwned_;
       at += packet.size();
     }
     bytesHeld_ = at * sizeof(Splat);
@@ -56,7 +58,7 @@ class DataSendProcess final : public WorkerProcess {
   std::string readyDetail() const override {
     char line[240];
     int length = std::snprintf(
-        line, sizeof line, "owns %zu of %u packets, %.1f MiB, loaded in %.2f s", packets_.size(),
+        line, sizeof line, "owns %zu of %u packets, %.1f MiB, loaded in %.2f s", packetsOwned_,
         dataset_.packetCount(), static_cast<double>(bytesHeld_) / (1024.0 * 1024.0), loadSeconds_);
     if (groups_ && length > 0 && static_cast<std::size_t>(length) < sizeof line) {
       std::snprintf(line + length, sizeof line - static_cast<std::size_t>(length),
@@ -111,17 +113,16 @@ class DataSendProcess final : public WorkerProcess {
 
  private:
   void send(const v1::SendOrder& order) {
-    for (int i = 0; i < order.top_level_cells_size() && i < order.top_level_splats_size(); ++i) {
-      const auto found = packets_.find(order.top_level_cells(i));
-      if (found != packets_.end() && order.top_level_splats(i) > found->second.size()) {
-        throw ProtocolError("rank " + std::to_string(order.requester_rank()) + " ordered " +
-                            std::to_string(order.top_level_splats(i)) +
-                            " splats of top-level cell " + std::to_string(found->first) +
-                            ", which holds " + std::to_string(found->second.size()));
+    const std::vector<CellRange> ranges = ledger_.rangesToSend(order);
+    for (const CellRange& range : ranges) {
+      if (range.end() > packets_.at(range.cell).size()) {
+        throw ProtocolError("rank " + std::to_string(order.requester_rank()) + " ordered splats " +
+                            std::to_string(range.first) + "+" + std::to_string(range.count) +
+                            " of top-level cell " + std::to_string(range.cell) + ", which holds " +
+                            std::to_string(packets_[range.cell].size()));
       }
     }
-    const std::vector<SplatRange> ranges = ledger_.rangesToSend(order);
-    for (const std::span<const SplatRange> group : dataPacketGroups(ranges)) {
+    for (const std::span<const CellRange> group : dataPacketGroups(ranges)) {
       sendGroup(order.render_rank(), group);
     }
   }
@@ -131,13 +132,18 @@ class DataSendProcess final : public WorkerProcess {
   void layOutGroups() {
     const auto start = std::chrono::steady_clock::now();
     std::uint64_t bytes = 0;
-    for (const auto& [cell, splats] : packets_) bytes += PointGroups::blockBytes(splats.size());
+    for (std::uint32_t cell = 0; cell < packets_.size(); ++cell) {
+      if (ledger_.owns(cell)) bytes += PointGroups::blockBytes(packets_[cell].size());
+    }
     groups_ = std::make_shared<SharedSegment>(
         bytes, "pointillist-point-groups-" + std::to_string(job_.worldRank()));
     std::uint64_t at = 0;
-    for (const auto& [cell, splats] : packets_) {
+    groupsAt_.resize(packets_.size());
+    for (std::uint32_t cell = 0; cell < packets_.size(); ++cell) {
+      if (!ledger_.owns(cell)) continue;
+      const std::span<const Splat> splats = packets_[cell];
       auto* values = reinterpret_cast<float*>(groups_->data() + at);
-      groupsAt_.emplace(cell, GroupsPlace{at, writePointGroups(splats, 0, values)});
+      groupsAt_[cell] = GroupsPlace{at, writePointGroups(splats, 0, values)};
       at += PointGroups::blockBytes(splats.size());
     }
     groupSeconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -153,7 +159,7 @@ class DataSendProcess final : public WorkerProcess {
   // One data packet. To a render process of this machine it names where the
   // parts lie in the shared segment; otherwise a single range goes straight
   // from the held packet, and more are copied back to back into one payload.
-  void sendGroup(int renderRank, std::span<const SplatRange> group) {
+  void sendGroup(int renderRank, std::span<const CellRange> group) {
     const bool shared = sharedPackets_ && job_.onThisMachine(renderRank);
     v1::DataPacketHeader header;
     header.set_record_size(sizeof(Splat));
@@ -163,9 +169,10 @@ class DataSendProcess final : public WorkerProcess {
       if (groups_) name(groups_->id(), *header.mutable_shared_groups());
     }
     std::uint64_t total = 0;
-    for (const SplatRange& range : group) {
-      const std::span<const Splat> splats =
-          packets_.at(range.cell).subspan(range.first, range.count);
+    header.mutable_parts()->Reserve(static_cast<int>(group.size()));
+    for (const CellRange& range : group) {
+      const std::span<const Splat> packet = packets_[range.cell];
+      const std::span<const Splat> splats = packet.subspan(range.first, range.count);
       v1::DataPart& part = *header.add_parts();
       part.set_top_level_cell(range.cell);
       part.set_first_splat(range.first);
@@ -174,13 +181,13 @@ class DataSendProcess final : public WorkerProcess {
         part.set_shared_offset(static_cast<std::uint64_t>(
             reinterpret_cast<const std::byte*>(splats.data()) - segment_->data()));
         if (groups_) {
-          const GroupsPlace& place = groupsAt_.at(range.cell);
+          const GroupsPlace& place = groupsAt_[range.cell];
           part.set_shared_groups_offset(place.offset);
           part.set_shared_has_normals(place.hasNormals);
         }
       } else {
         // The whole packet's checksum was verified at load; a part gets its own.
-        part.set_checksum(range.first == 0 && range.count == packets_.at(range.cell).size()
+        part.set_checksum(range.first == 0 && range.count == packet.size()
                               ? dataset_.packetChecksum(range.cell)
                               : checksum64(splats.data(), splats.size_bytes()));
       }
@@ -198,7 +205,7 @@ class DataSendProcess final : public WorkerProcess {
       return;
     }
     if (group.size() == 1) {
-      const SplatRange& range = group.front();
+      const CellRange& range = group.front();
       const std::span<const Splat> splats =
           packets_.at(range.cell).subspan(range.first, range.count);
       job_.sends().post(renderRank, MessageKind::DataPacket, header, std::as_bytes(splats),
@@ -207,7 +214,7 @@ class DataSendProcess final : public WorkerProcess {
     }
     auto payload = std::make_shared<std::vector<std::byte>>(total);
     std::byte* out = payload->data();
-    for (const SplatRange& range : group) {
+    for (const CellRange& range : group) {
       const std::span<const Splat> splats =
           packets_.at(range.cell).subspan(range.first, range.count);
       std::memcpy(out, splats.data(), splats.size_bytes());
@@ -226,9 +233,10 @@ class DataSendProcess final : public WorkerProcess {
     bool hasNormals = false;
   };
   std::shared_ptr<SharedSegment> groups_;  // the same in the CPU kernel's layout, or none
-  std::map<std::uint32_t, GroupsPlace> groupsAt_;
+  std::vector<GroupsPlace> groupsAt_;      // by cell, for the cells owned
   double groupSeconds_ = 0.0;
-  std::map<std::uint32_t, std::span<const Splat>> packets_;
+  std::vector<std::span<const Splat>> packets_;  // by cell: empty for cells not owned
+  std::size_t packetsOwned_ = 0;
   bool sharedPackets_ = true;
   std::uint64_t sharedMessages_ = 0;  // data packets sent as places in segment_
   std::uint64_t bytesInPlace_ = 0;    // of bytesSent_, in those: read in place, not copied

@@ -60,6 +60,7 @@ struct DisplayOptions {
   std::string renderCoreShare = "auto";
   std::string tileSplit = "auto";
   std::string sharedPackets = "on";
+  std::string needGap = "auto";
   bool quiet = false;
   // Serve mode: frames are asked for by clients over ZeroMQ.
   bool serve = false;
@@ -118,6 +119,8 @@ v1::RunSettings runSettings(const DisplayOptions& options, const DatasetManifest
                 : autoTileTasksAhead(options.tilesPerRender * layout.render, layout.traverse));
   parseTileSplit(options.tileSplit, settings);
   settings.set_no_shared_packets(options.sharedPackets == "off");
+  // A number here; auto is filled in at the handshake, from where processes run.
+  settings.set_need_gap_splats(parseNeedGapSplats(options.needGap));
   // A number here; auto is filled in at the handshake, from every process's host.
   if (const float share = parseRenderCoreShare(options.renderCoreShare); share > 0.0f) {
     for (std::uint32_t render = 0; render < layout.render; ++render) {
@@ -754,6 +757,13 @@ int runDisplayMain(int argc, char** argv) {
                  "data-send process on their machine (common/shared_packets.hpp); off: every "
                  "packet is copied through MPI")
       ->check(CLI::IsMember({"on", "off"}))
+      ->capture_default_str();
+  app.add_option("--need-gap", options.needGap,
+                 "Drawn ranges of a packet at most this many splats apart are needed and sent "
+                 "as one range; auto: " +
+                     std::to_string(kNeedGapSplatsInPlace) +
+                     " where every render process reads packets in place on its machine, else " +
+                     std::to_string(kNeedGapSplatsCopied))
       ->capture_default_str();
   app.add_flag("--equal-tiles", options.equalTiles,
                "Cost scheduler: equal tiles instead of tiles sized by last frame's work");

@@ -151,6 +151,21 @@ class RenderProcess final : public WorkerProcess {
             ? &sharedView(header.shared_groups(), envelope.source, sharedGroupViews_)
             : nullptr;
     const auto* payload = reinterpret_cast<const Splat*>(envelope.payload.data());
+    // Per cell of the packet: its extent once every part is stored (a copy
+    // makes room once), and the span of the parts stored, whose groups a
+    // renderer drawing in place maps and takes once (a packet carries many
+    // ranges of a cell).
+    struct CellIntake {
+      std::size_t room = 0;
+      std::size_t from = std::numeric_limits<std::size_t>::max(), to = 0;
+      std::uint64_t groupsOffset = 0;
+      bool hasNormals = false;
+    };
+    std::map<std::uint32_t, CellIntake> cells;
+    for (const v1::DataPart& part : header.parts()) {
+      std::size_t& room = cells[part.top_level_cell()].room;
+      room = std::max<std::size_t>(room, part.first_splat() + part.splat_count());
+    }
     for (const v1::DataPart& part : header.parts()) {
       const auto count = static_cast<std::size_t>(part.splat_count());
       std::span<const Splat> splats;
@@ -161,9 +176,33 @@ class RenderProcess final : public WorkerProcess {
         splats = {payload, count};
         payload += count;
       }
-      receivePart(part, splats, shared == nullptr, groups,
-                  secondsPerSplat * static_cast<double>(part.splat_count()), envelope.source,
-                  effects);
+      CellIntake& cell = cells[part.top_level_cell()];
+      if (storePart(part, splats, shared == nullptr, groups != nullptr, cell.room,
+                    secondsPerSplat * static_cast<double>(part.splat_count()), envelope.source,
+                    effects)) {
+        cell.from = std::min<std::size_t>(cell.from, part.first_splat());
+        cell.to = std::max<std::size_t>(cell.to, part.first_splat() + count);
+        cell.groupsOffset = part.shared_groups_offset();
+        cell.hasNormals = part.shared_has_normals();
+      }
+    }
+    if (groups != nullptr) {
+      for (const auto& [cell, intake] : cells) {
+        const std::size_t extent = core_.heldExtent(cell);
+        if (intake.to == 0 || extent == 0) continue;  // nothing stored, or dropped since
+        const auto block = groups->bytes(intake.groupsOffset, PointGroups::blockBytes(extent));
+        // The groups the parts lie in: the rest is mapped as other parts arrive.
+        const std::size_t from = intake.from / PointGroups::kPad * PointGroups::kPad;
+        SharedSegmentView::populate(
+            block.subspan(PointGroups::blockBytes(from),
+                          PointGroups::blockBytes(intake.to) - PointGroups::blockBytes(from)));
+        for (const auto& renderer : renderers_) {
+          if (renderer->viewsInPlace()) {
+            renderer->viewCell(cell, reinterpret_cast<const float*>(block.data()), extent,
+                               intake.hasNormals);
+          }
+        }
+      }
     }
     if (header.byte_size() >= kMinTransferSampleBytes) {
       storeSecondsPerByte_ =
@@ -194,11 +233,13 @@ class RenderProcess final : public WorkerProcess {
 
   // `carried`: the bytes came in a payload, so their checksum is checked;
   // parts read in place were checked when their data-send loaded them.
-  // `groups`: the data-send's packets in the CPU kernel's layout, which a
-  // renderer that can draws from in place.
-  void receivePart(const v1::DataPart& part, std::span<const Splat> splats, bool carried,
-                   const SharedSegmentView* groups, double seconds, int source,
-                   RenderEffects& effects) {
+  // `inPlace`: renderers that draw in place take the cell from the
+  // data-send's groups afterwards; the others are written the splats.
+  // `room`: the cell's extent once the data packet is stored. True when the
+  // part was stored.
+  bool storePart(const v1::DataPart& part, std::span<const Splat> splats, bool carried,
+                 bool inPlace, std::size_t room, double seconds, int source,
+                 RenderEffects& effects) {
     const std::uint32_t cell = part.top_level_cell();
     const auto first = static_cast<std::uint32_t>(part.first_splat());
     const auto count = static_cast<std::uint32_t>(part.splat_count());
@@ -210,31 +251,21 @@ class RenderProcess final : public WorkerProcess {
                           std::to_string(source) + " (splats " + std::to_string(first) + "+" +
                           std::to_string(count) + ") fails its checksum");
     }
-    const DataIntake intake = core_.receiveData(cell, first, count, seconds, Clock::now(), effects);
+    const DataVerdict verdict =
+        core_.receiveData(cell, first, count, seconds, Clock::now(), effects);
     // Evicted cells' buffers go first (the cell itself when it was dropped).
     for (std::uint32_t victim : effects.released) releaseEverywhere(victim);
     effects.released.clear();
-    if (intake.verdict != DataVerdict::Store) return;
-    const std::size_t held = std::size_t{first} + intake.skip + intake.count;
-    const float* laidOut = nullptr;
-    if (groups != nullptr) {
-      const auto block = groups->bytes(part.shared_groups_offset(), PointGroups::blockBytes(held));
-      // The groups the new splats start in onwards: the earlier ones are mapped.
-      const std::size_t known = (held - intake.count) / PointGroups::kPad * PointGroups::kPad;
-      SharedSegmentView::populate(block.subspan(PointGroups::blockBytes(known)));
-      laidOut = reinterpret_cast<const float*>(block.data());
-    }
-    const std::span<const Splat> added = splats.subspan(intake.skip, intake.count);
+    if (verdict != DataVerdict::Store) return false;
+    const std::size_t extent = core_.heldExtent(cell);
     bool populated = carried;
     for (const auto& renderer : renderers_) {
-      if (laidOut != nullptr &&
-          renderer->viewCell(cell, laidOut, held, part.shared_has_normals())) {
-        continue;
-      }
-      if (!populated) SharedSegmentView::populate(std::as_bytes(added));
+      if (inPlace && renderer->viewsInPlace()) continue;
+      if (!populated) SharedSegmentView::populate(std::as_bytes(splats));
       populated = true;
-      renderer->appendToCell(cell, added);
+      renderer->writeToCell(cell, first, splats, std::max(room, extent));
     }
+    return true;
   }
 
   void draw(const ReadyPacket& ready) {

@@ -4,6 +4,8 @@
 
 #include "common/dataset.hpp"
 #include "common/errors.hpp"
+#include "common/splat.hpp"
+#include "traverse/core/packet_planner.hpp"
 
 namespace pointillist::simulator {
 
@@ -77,14 +79,7 @@ const TileWork& Scene::tileWork(std::uint64_t frame, const TileRect& rect) const
   work.boxes = result.needBoxes;
   work.splats = result.splats;
   work.cellsVisited = result.cellsVisited;
-  work.ranges = static_cast<std::uint32_t>(result.ranges.size());
-  work.drawn.assign(work.needs.size(), 0);
-  for (std::size_t need = 0, range = 0; need < work.needs.size(); ++need) {
-    for (; range < result.ranges.size() && result.ranges[range].topLevel == work.needs[need].cell;
-         ++range) {
-      work.drawn[need] += result.ranges[range].count;
-    }
-  }
+  work.ranges = result.ranges;
   const std::lock_guard lock(mutex_);
   return memo_.emplace(key, std::move(work)).first->second;
 }
@@ -101,14 +96,13 @@ const std::vector<CellPrefix>& Scene::cellsInTile(std::uint64_t frame, const Til
   return cellsMemo_.emplace(key, std::move(cells)).first->second;
 }
 
-std::uint64_t Scene::frameWorkingSetBytes(std::uint64_t frame) const {
+std::uint64_t Scene::frameWorkingSetBytes(std::uint64_t frame, std::uint32_t gapSplats) const {
   const Camera& camera = cameras_.at(frame);
   const TileWork& work = tileWork(frame, fullFrameRect(camera));
-  std::uint64_t bytes = 0;
-  for (const CellPrefix& need : work.needs) {
-    bytes += std::uint64_t{layers_->needPrefix(need.cell, need.splats)} * sizeof(Splat);
-  }
-  return bytes;
+  const traverse::TileWalk walk{work.needs, work.splats, work.ranges, work.boxes};
+  return rangeSplats(traverse::needRanges(walk, 0, work.needs.size(), 0, work.ranges.size(),
+                                          *layers_, gapSplats)) *
+         sizeof(Splat);
 }
 
 double Scene::measureTraverseSecondsPerCell() const {

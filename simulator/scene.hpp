@@ -24,9 +24,8 @@ struct TileWork {
   std::vector<CellPrefix> needs;  // distinct cells, ascending (TraversalResult::needs)
   std::uint64_t splats = 0;
   std::uint64_t cellsVisited = 0;
-  std::uint32_t ranges = 0;                // draw ranges in the render packet
-  std::vector<std::uint32_t> drawn;        // splats drawn from each need (to split the tile)
-  std::vector<traverse::ScreenBox> boxes;  // where each need draws (TraversalResult::needBoxes)
+  std::vector<traverse::PacketRange> ranges;  // drawn (TraversalResult::ranges)
+  std::vector<traverse::ScreenBox> boxes;     // where each need draws (TraversalResult::needBoxes)
 };
 
 class Scene {
@@ -62,8 +61,11 @@ class Scene {
   const std::vector<CellPrefix>& cellsInTile(std::uint64_t frame, const TileRect& rect) const;
   // The layers of every top-level packet (shared with the simulated traverses).
   const std::shared_ptr<const traverse::PacketLayers>& layers() const { return layers_; }
-  // Bytes of the prefixes a whole-frame traversal of `frame` needs.
-  std::uint64_t frameWorkingSetBytes(std::uint64_t frame) const;
+  // Bytes of the ranges a whole-frame traversal of `frame` draws, joined
+  // where at most `gapSplats` apart: with 0 the least any tiling moves, with
+  // the traverse's gap (needGapSplats) the most one render holding every tile
+  // is sent (a tile's joins are the whole frame's too).
+  std::uint64_t frameWorkingSetBytes(std::uint64_t frame, std::uint32_t gapSplats = 0) const;
   // Times whole-frame traversals of the first frames: seconds per visited cell.
   double measureTraverseSecondsPerCell() const;
 

@@ -497,7 +497,7 @@ class Simulation {
     const TileWork& work = *traverse.work;
     Outbox out;
     const std::vector<traverse::PacketPlan> plans = traverse.planner.planPackets(
-        task, traverse::TileWalk{work.needs, work.splats, {}, work.drawn, work.boxes},
+        task, traverse::TileWalk{work.needs, work.splats, work.ranges, work.boxes},
         traverse.ahead != nullptr ? std::span<const CellPrefix>(*traverse.ahead)
                                   : std::span<const CellPrefix>(),
         timeAfterEpoch(now), out);
@@ -510,10 +510,10 @@ class Simulation {
       trace(task.frame_id()).bytesOrdered += plan.choice.missingBytes + plan.prefetchBytes;
       trace(task.frame_id()).bytesPrefetched += plan.prefetchBytes;
     }
-    // A render packet carries the camera, the cells and three numbers per
-    // range; a split tile's parts share them.
-    const std::uint64_t packetBytes = 160 + (8 * work.needs.size() + 12ull * work.ranges) /
-                                                std::max<std::size_t>(1, plans.size());
+    // A render packet carries the camera and three numbers per drawn range
+    // and per needed one (about as many); a split tile's parts share them.
+    const std::uint64_t packetBytes =
+        160 + 24ull * work.ranges.size() / std::max<std::size_t>(1, plans.size());
     send(now, rankOf(traverse), out, packetBytes);
     traverse.busy = false;
     traverse.task.reset();
@@ -537,14 +537,13 @@ class Simulation {
     switch (delivery.kind) {
       case MessageKind::SendOrder: {
         const auto& order = delivery.as<v1::SendOrder>();
-        const std::vector<datasend::SplatRange> ranges = ledger.rangesToSend(order);
-        for (const std::span<const datasend::SplatRange> group :
-             datasend::dataPacketGroups(ranges)) {
+        const std::vector<CellRange> ranges = ledger.rangesToSend(order);
+        for (const std::span<const CellRange> group : datasend::dataPacketGroups(ranges)) {
           std::uint64_t bytes = 0;
           v1::DataPacketHeader header;
           header.set_record_size(sizeof(Splat));
           header.set_datasend_rank(peers_.datasends[s]);
-          for (const datasend::SplatRange& range : group) {
+          for (const CellRange& range : group) {
             v1::DataPart& part = *header.add_parts();
             part.set_top_level_cell(range.cell);
             part.set_first_splat(range.first);

@@ -212,20 +212,32 @@ void Channel::send(int dest, MessageKind kind, const google::protobuf::MessageLi
 Channel::Incoming Channel::startReceive(MPI_Message& message, MPI_Status& status) {
   int count = 0;
   checkMpi(MPI_Get_count(&status, MPI_BYTE, &count), "MPI_Get_count");
-  std::string frame(static_cast<std::size_t>(count), '\0');
-  checkMpi(MPI_Mrecv(frame.data(), count, MPI_BYTE, &message, MPI_STATUS_IGNORE), "MPI_Mrecv");
-
   Incoming incoming;
+  incoming.envelope.source = status.MPI_SOURCE;
+  incoming.envelope.kind = static_cast<MessageKind>(status.MPI_TAG);
+  incoming.frame = std::make_unique<std::string>(static_cast<std::size_t>(count), '\0');
+  // Not a blocking receive: a header past the eager limit (a render packet or
+  // a data packet of many ranges) moves only while its sender is alive, and
+  // one that died mid-message would hold this process, shutdown included.
+  checkMpi(MPI_Imrecv(incoming.frame->data(), count, MPI_BYTE, &message, &incoming.header),
+           "MPI_Imrecv");
+  incoming.started = std::chrono::steady_clock::now();
+  incoming.allowed = payloadTimeout_;
+  return incoming;
+}
+
+void Channel::postPayload(Incoming& incoming) {
   Envelope& envelope = incoming.envelope;
-  envelope.source = status.MPI_SOURCE;
-  envelope.kind = static_cast<MessageKind>(status.MPI_TAG);
+  const std::string& frame = *incoming.frame;
   if (frame.size() < kPrefixBytes || getLE(frame.data(), 4) != kFrameMagic) {
-    throw ProtocolError("rank " + std::to_string(status.MPI_SOURCE) + " sent a " +
+    throw ProtocolError("rank " + std::to_string(envelope.source) + " sent a " +
                         std::to_string(frame.size()) + "-byte message on tag " +
-                        std::to_string(status.MPI_TAG) + " without the Pointillist frame prefix");
+                        std::to_string(static_cast<int>(envelope.kind)) +
+                        " without the Pointillist frame prefix");
   }
   const std::uint64_t payloadBytes = getLE(frame.data() + 8, 8);
   envelope.header = frame.substr(kPrefixBytes);
+  incoming.frame.reset();
 
   incoming.started = std::chrono::steady_clock::now();
   envelope.payload.resize(payloadBytes);
@@ -237,43 +249,73 @@ Channel::Incoming Channel::startReceive(MPI_Message& message, MPI_Status& status
              "MPI_Irecv(payload)");
     incoming.requests.push_back(request);
   }
+  incoming.payloadPosted = true;
   // The sender posted every chunk with the header, so these complete promptly
   // unless the sender died or its link is down mid-message.
   incoming.allowed =
       payloadTimeout_ + std::chrono::milliseconds(static_cast<long long>(payloadBytes / 10'000));
-  return incoming;
 }
 
 void Channel::abandon(Incoming& incoming) {
   bool named = false;
+  if (incoming.header != MPI_REQUEST_NULL) {
+    MPI_Cancel(&incoming.header);
+    MPI_Request_free(&incoming.header);
+    named = true;
+  }
   for (MPI_Request& pending : incoming.requests) {
     if (pending == MPI_REQUEST_NULL) continue;
     MPI_Cancel(&pending);
     MPI_Request_free(&pending);
     named = true;
   }
-  // The buffer may still be named by a cancelled receive: keep it.
+  // The buffers may still be named by a cancelled receive: keep them.
   static std::vector<PayloadBytes> orphans;
-  if (named) orphans.push_back(std::move(incoming.envelope.payload));
+  static std::vector<std::unique_ptr<std::string>> orphanFrames;
+  if (named) {
+    orphans.push_back(std::move(incoming.envelope.payload));
+    if (incoming.frame) orphanFrames.push_back(std::move(incoming.frame));
+  }
 }
 
-bool Channel::progress(Incoming& incoming) {
+bool Channel::progress(Incoming& incoming, bool mayPostPayload) {
   if (incoming.complete) return true;
+  const auto silent = [&](const std::string& message) {
+    abandon(incoming);
+    throw PeerSilentError(incoming.envelope.source, message);
+  };
+  const auto overdue = [&] {
+    return std::chrono::steady_clock::now() - incoming.started >= incoming.allowed;
+  };
+  if (incoming.header != MPI_REQUEST_NULL) {
+    int done = 0;
+    checkMpi(MPI_Test(&incoming.header, &done, MPI_STATUS_IGNORE), "MPI_Test(header)");
+    if (done == 0) {
+      if (!overdue()) return false;
+      silent("rank " + std::to_string(incoming.envelope.source) + " began the " +
+             std::to_string(incoming.frame->size()) + "-byte header of a " +
+             messageKindName(incoming.envelope.kind) + " message but did not finish it within " +
+             std::to_string(incoming.allowed.count()) + " ms");
+    }
+  }
+  if (!incoming.payloadPosted) {
+    // An earlier message of its sender and kind posts its payload first: the
+    // chunks match receives in the order they are posted.
+    if (!mayPostPayload) return false;
+    postPayload(incoming);
+  }
   if (!incoming.requests.empty()) {
     int done = 0;
     checkMpi(MPI_Testall(static_cast<int>(incoming.requests.size()), incoming.requests.data(),
                          &done, MPI_STATUSES_IGNORE),
              "MPI_Testall");
     if (done == 0) {
-      if (std::chrono::steady_clock::now() - incoming.started < incoming.allowed) return false;
+      if (!overdue()) return false;
       const Envelope& envelope = incoming.envelope;
-      const std::string message =
-          "rank " + std::to_string(envelope.source) + " sent the header of a " +
-          messageKindName(envelope.kind) + " message but not its " +
-          std::to_string(envelope.payload.size()) + "-byte payload within " +
-          std::to_string(incoming.allowed.count()) + " ms";
-      abandon(incoming);
-      throw PeerSilentError(incoming.envelope.source, message);
+      silent("rank " + std::to_string(envelope.source) + " sent the header of a " +
+             messageKindName(envelope.kind) + " message but not its " +
+             std::to_string(envelope.payload.size()) + "-byte payload within " +
+             std::to_string(incoming.allowed.count()) + " ms");
     }
   }
   incoming.complete = true;
@@ -290,15 +332,20 @@ std::optional<Envelope> Channel::takeArrived(int source, std::optional<MessageKi
     return true;
   });
   std::set<int> waiting;  // senders with an unfinished message the caller would take
+  // (sender, kind) of messages before this one whose payload is not posted yet.
+  std::set<std::pair<int, MessageKind>> unposted;
   for (auto it = incoming_.begin(); it != incoming_.end(); ++it) {
     const int from = it->envelope.source;
+    const std::pair<int, MessageKind> stream{from, it->envelope.kind};
     if ((source != MPI_ANY_SOURCE && from != source) || (kind && it->envelope.kind != *kind) ||
         waiting.contains(from)) {
+      if (!it->payloadPosted) unposted.insert(stream);
       continue;
     }
     bool arrived = false;
     try {
-      arrived = progress(*it);
+      arrived = progress(*it, !unposted.contains(stream));
+      if (!it->payloadPosted) unposted.insert(stream);
     } catch (...) {
       incoming_.erase(it);
       throw;

@@ -170,9 +170,12 @@ class Channel {
   static void waitFor(MPI_Request& request, std::chrono::milliseconds timeout, const char* what);
 
  private:
-  // A message whose header is in and whose payload receives are posted.
+  // A message being received: its header, then its payload.
   struct Incoming {
-    Envelope envelope;
+    Envelope envelope;  // source and kind from the probe; the rest once the header is in
+    std::unique_ptr<std::string> frame;  // the header's bytes while they arrive
+    MPI_Request header = MPI_REQUEST_NULL;
+    bool payloadPosted = false;
     std::vector<MPI_Request> requests;
     std::chrono::steady_clock::time_point started;
     std::chrono::milliseconds allowed{};
@@ -180,9 +183,14 @@ class Channel {
   };
 
   static int payloadTag(MessageKind kind);
+  // Starts receiving the probed message's header.
   Incoming startReceive(MPI_Message& message, MPI_Status& status);
-  // Tests the payload; past its allowance the sender is taken as lost.
-  bool progress(Incoming& incoming);
+  // The header is in: reads its frame prefix and posts the payload's receives.
+  void postPayload(Incoming& incoming);
+  // Tests the header, then the payload (posted only `mayPostPayload`: no
+  // earlier message of its sender and kind is waiting to post its own); past
+  // its allowance the sender is taken as lost.
+  bool progress(Incoming& incoming, bool mayPostPayload);
   // Cancels what is still posted for it (a lost or silent sender).
   static void abandon(Incoming& incoming);
   // The oldest whole message matching the filter that no unfinished earlier

@@ -2,6 +2,7 @@
 
 #include "common/core_share.hpp"
 #include "common/peer_watch.hpp"
+#include "common/run_settings.hpp"
 #include "common/shared_packets.hpp"
 
 #include <sys/resource.h>
@@ -258,6 +259,18 @@ void Job::handshake(const HandshakeOptions& options) {
   if (settings.render_core_share().empty()) {  // auto: from where the processes run
     for (float share : renderCoreShares(placements)) settings.add_render_core_share(share);
   }
+  if (settings.need_gap_splats() == 0) {
+    // Where every render reads its data-sends' packets in place, a range
+    // costs more than the bytes a gap adds (docs/scheduling.md §19).
+    bool inPlace = !settings.no_shared_packets();
+    for (int render : ranksOf(v1::ROLE_RENDER)) {
+      for (int datasend : ranksOf(v1::ROLE_DATASEND)) {
+        inPlace = inPlace && machines_[static_cast<std::size_t>(render)] ==
+                                 machines_[static_cast<std::size_t>(datasend)];
+      }
+    }
+    settings.set_need_gap_splats(inPlace ? kNeedGapSplatsInPlace : kNeedGapSplatsCopied);
+  }
   *reply.mutable_settings() = settings;
   runSettings_ = settings;
   channel_->setPayloadTimeout(livenessOf(runSettings_).peerTimeout);
@@ -355,6 +368,7 @@ void Job::shutdownAll(const std::string& reason, std::chrono::milliseconds timeo
   // packing, data-send processes stop sending, render processes drain last.
   v1::Shutdown shutdown;
   shutdown.set_reason(reason);
+  for (int rank : lost_) shutdown.add_lost_ranks(rank);
   acks_.clear();
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   for (v1::Role role : {v1::ROLE_TRAVERSE, v1::ROLE_DATASEND, v1::ROLE_RENDER}) {
@@ -391,6 +405,7 @@ std::vector<int> Job::shutdownSurvivors(const std::string& reason,
                                         std::chrono::milliseconds timeout) {
   v1::Shutdown shutdown;
   shutdown.set_reason(reason);
+  for (int rank : lost_) shutdown.add_lost_ranks(rank);
   acks_.clear();
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   std::set<int> waiting;

@@ -71,6 +71,9 @@ void serveUntilShutdown(Job& job, WorkerProcess* process, SelfKill selfKill) {
         continue;
       }
       if (envelope->kind == MessageKind::Shutdown) {
+        // A lost process will not take what is still on its way to it.
+        const auto shutdown = envelope->as<v1::Shutdown>();
+        for (int lost : shutdown.lost_ranks()) job.markLost(lost);
         job.acknowledgeShutdown(process != nullptr ? process->summary() : std::string());
         return;
       }

@@ -7,9 +7,9 @@
 
 namespace pointillist::datasend {
 
-std::vector<std::span<const SplatRange>> dataPacketGroups(std::span<const SplatRange> ranges,
-                                                          std::uint64_t targetBytes) {
-  std::vector<std::span<const SplatRange>> groups;
+std::vector<std::span<const CellRange>> dataPacketGroups(std::span<const CellRange> ranges,
+                                                         std::uint64_t targetBytes) {
+  std::vector<std::span<const CellRange>> groups;
   std::size_t begin = 0;
   std::uint64_t bytes = 0;
   for (std::size_t i = 0; i < ranges.size(); ++i) {
@@ -35,32 +35,34 @@ bool SendLedger::owns(std::uint32_t cell) const {
   return cell < owners_.size() && owners_[cell] == selfIndex_;
 }
 
-std::vector<SplatRange> SendLedger::rangesToSend(const v1::SendOrder& order) {
+std::vector<CellRange> SendLedger::rangesToSend(const v1::SendOrder& order) {
   auto& sent = sentTo_.at(peers_.indexOf(v1::ROLE_RENDER, order.render_rank()));
-  if (order.top_level_splats_size() != order.top_level_cells_size()) {
-    throw ProtocolError("rank " + std::to_string(order.requester_rank()) + " ordered " +
-                        std::to_string(order.top_level_cells_size()) + " cells with " +
-                        std::to_string(order.top_level_splats_size()) + " prefixes");
-  }
-  std::vector<SplatRange> ranges;
-  for (int i = 0; i < order.top_level_cells_size(); ++i) {
-    const std::uint32_t cell = order.top_level_cells(i);
-    if (!owns(cell)) {
+  const std::vector<CellRange> wanted =
+      rangesFromFields(order.range_top_level(), order.range_first(), order.range_count(),
+                       "send order " + std::to_string(order.order_id()) + " from rank " +
+                           std::to_string(order.requester_rank()));
+  std::vector<CellRange> ranges;
+  for (const CellRange& range : wanted) {
+    if (!owns(range.cell)) {
       throw ProtocolError("rank " + std::to_string(order.requester_rank()) +
-                          " ordered top-level cell " + std::to_string(cell) +
+                          " ordered top-level cell " + std::to_string(range.cell) +
                           ", which this data-send process does not own");
     }
     // Never the same splats to the same render twice while it holds them or
-    // they are on their way: only what lies beyond the prefix sent before.
-    std::uint32_t& done = sent[cell];
-    const std::uint32_t wanted = order.top_level_splats(i);
-    if (wanted <= done) {
+    // they are on their way: only what of the range went there before.
+    SpanSet& done = sent[range.cell];
+    const bool some = !done.empty();
+    const auto end = static_cast<std::uint32_t>(range.end());
+    const std::size_t before = ranges.size();
+    done.forEachGap(range.first, end, [&](std::uint32_t begin, std::uint32_t stop) {
+      ranges.push_back({range.cell, begin, stop - begin});
+    });
+    if (ranges.size() == before) {
       ++duplicatesSkipped_;
       continue;
     }
-    if (done > 0) ++extensionsSent_;
-    ranges.push_back({cell, done, wanted - done});
-    done = wanted;
+    if (some) extensionsSent_ += ranges.size() - before;
+    done.add(range.first, end);
   }
   return ranges;
 }

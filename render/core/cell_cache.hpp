@@ -2,9 +2,10 @@
 // The render process's cache of top-level cells (seed 003 §4.5): least
 // recently used cells go first when the memory cap is reached, and cells unused
 // for longer than the time-out are dropped. Cells needed by queued render
-// packets are pinned and never evicted. A cell grows as longer prefixes of its
-// layered packet arrive. The cache only keeps the books; the caller owns the
-// data (GL buffers, kernel arrays) and is told what to drop.
+// packets are pinned and never evicted. A cell grows as ranges of its packet
+// arrive; it counts the room up to the last splat held (a copy's size, holes
+// included). The cache only keeps the books; the caller owns the data (GL
+// buffers, kernel arrays) and is told what to drop.
 #include <chrono>
 #include <cstdint>
 #include <optional>

@@ -26,6 +26,7 @@ RenderCore::RenderCore(const RenderCoreConfig& config, PeerRanks peers, int self
   }
   nodeRangesFrom_ = static_cast<std::uint32_t>(cellSplats_.size());
   for (const StatisticalPacketEntry& entry : statistical) cellSplats_.push_back(entry.records);
+  held_.resize(cellSplats_.size());
   if (owners_.size() != cellSplats_.size()) {
     throw UsageError("render core: " + std::to_string(owners_.size()) + " owners for " +
                      std::to_string(cellSplats_.size()) + " top-level cells");
@@ -36,9 +37,43 @@ bool RenderCore::stalled() const {
   return config_.stallAfterPackets && packetsDone_ >= *config_.stallAfterPackets;
 }
 
-std::uint32_t RenderCore::heldSplats(std::uint32_t cell) const {
-  const auto found = held_.find(cell);
-  return found == held_.end() ? 0 : found->second;
+std::uint64_t RenderCore::heldSplats(std::uint32_t cell) const {
+  return cell < held_.size() ? held_[cell].splats() : 0;
+}
+
+std::uint32_t RenderCore::heldExtent(std::uint32_t cell) const {
+  return cell < held_.size() ? held_[cell].extent() : 0;
+}
+
+bool RenderCore::holds(std::uint32_t cell, std::uint32_t first, std::uint32_t count) const {
+  return count == 0 || (cell < held_.size() && held_[cell].covers(first, first + count));
+}
+
+namespace {
+
+// Calls block(cell, first, end) for each run of need_* entries [first, end)
+// of one cell (the needs are sorted by cell).
+template <class Block>
+void forEachNeedCell(const v1::RenderPacket& packet, Block&& block) {
+  const int needs = packet.need_top_level_size();
+  for (int at = 0; at < needs;) {
+    int end = at + 1;
+    while (end < needs && packet.need_top_level(end) == packet.need_top_level(at)) ++end;
+    block(packet.need_top_level(at), at, end);
+    at = end;
+  }
+}
+
+}  // namespace
+
+bool RenderCore::holdsNeeds(std::uint32_t cell, const v1::RenderPacket& packet, int first,
+                            int end) const {
+  const SpanSet& held = held_[cell];  // the packet's cells were checked against the table
+  for (int i = first; i < end; ++i) {
+    if (!held.covers(packet.need_first(i), packet.need_first(i) + packet.need_count(i)))
+      return false;
+  }
+  return true;
 }
 
 RenderCore::QueuedPacket& RenderCore::queuedPacket(std::uint64_t sequence) {
@@ -55,85 +90,124 @@ RenderCore::QueuedPacket& RenderCore::queuedPacket(std::uint64_t sequence) {
 
 void RenderCore::countMissing(QueuedPacket& queued) {
   queued.missing = 0;
-  const v1::RenderPacket& packet = queued.packet;
-  for (int i = 0; i < packet.top_level_cells_size(); ++i) {
-    const CellPrefix need{packet.top_level_cells(i), packet.top_level_splats(i)};
-    if (heldSplats(need.cell) >= need.splats) continue;
+  forEachNeedCell(queued.packet, [&](std::uint32_t cell, int first, int end) {
+    if (holdsNeeds(cell, queued.packet, first, end)) return;
     ++queued.missing;
-    waiting_[need.cell].push_back({queued.sequence, need.splats});
-  }
+    waiting_[cell].push_back({queued.sequence, first, end});
+  });
 }
 
-void RenderCore::heldGrew(std::uint32_t cell, std::uint32_t splats, TimePoint now) {
-  held_[cell] = splats;
+void RenderCore::heldGrew(std::uint32_t cell, TimePoint now) {
   const auto found = waiting_.find(cell);
   if (found == waiting_.end()) return;
   std::erase_if(found->second, [&](const Need& need) {
-    if (need.splats > splats) return false;
     QueuedPacket& queued = queuedPacket(need.sequence);
+    if (!holdsNeeds(cell, queued.packet, need.first, need.end)) return false;
     if (--queued.missing == 0 && !queued.dataComplete) queued.dataComplete = now;
     return true;
   });
   if (found->second.empty()) waiting_.erase(found);
 }
 
-void RenderCore::ask(CellPrefix need, std::uint64_t frame, TimePoint now, Requests& requests) {
-  requests[owners_[need.cell]].push_back(need);
-  requestedAt_[need.cell] = {now, frame, need.splats};
+void RenderCore::ask(std::uint32_t cell, std::uint32_t begin, std::uint32_t end,
+                     std::uint64_t frame, TimePoint now, Requests& requests) {
+  requests[owners_[cell]].push_back({cell, begin, end - begin});
+  Request& request = requestedAt_[cell];
+  request.at = now;
+  request.frame = frame;
+  request.spans.add(begin, end);
 }
 
-void RenderCore::askUnlessPending(CellPrefix need, std::uint64_t frame, TimePoint now,
+void RenderCore::askUnlessPending(const v1::RenderPacket& packet, int first, int end, TimePoint now,
                                   Requests& requests) {
-  if (heldSplats(need.cell) >= need.splats) return;
-  const auto asked = requestedAt_.find(need.cell);
-  if (asked != requestedAt_.end() && asked->second.splats >= need.splats) return;
-  ask(need, frame, now, requests);
+  static const SpanSet kNone;
+  const std::uint32_t cell = packet.need_top_level(first);
+  const SpanSet& have = held_[cell];
+  // What is asked for already is not asked again here (late data is, by
+  // rerequestLateCells).
+  const auto asked = requestedAt_.find(cell);
+  const SpanSet& pending = asked != requestedAt_.end() ? asked->second.spans : kNone;
+  std::vector<SplatSpan> lacking;
+  for (int i = first; i < end; ++i) {
+    const std::uint32_t begin = packet.need_first(i);
+    have.forEachGap(begin, begin + packet.need_count(i), [&](std::uint32_t b, std::uint32_t e) {
+      pending.forEachGap(b, e, [&](std::uint32_t gb, std::uint32_t ge) {
+        lacking.push_back({gb, ge});
+      });
+    });
+  }
+  for (const SplatSpan& span : lacking)
+    ask(cell, span.begin, span.end, packet.frame_id(), now, requests);
 }
 
 namespace {
 
-// Every range lies inside the prefix the packet names for its cell; both
-// lists are sorted by cell (the traversal's order).
+// The needs are sorted by cell and first splat, disjoint and inside their
+// packets; every drawn range lies inside its cell's needs (a statistical
+// packet's ranges are nodes, inside the nodes of its needed prefix).
 void checkRanges(const v1::RenderPacket& packet, int sourceRank,
                  std::span<const std::uint32_t> cellSplats, std::uint32_t nodeRangesFrom) {
   const auto fail = [&](const std::string& what) {
     throw ProtocolError("render packet " + std::to_string(packet.packet_id()) + " from rank " +
                         std::to_string(sourceRank) + ": " + what);
   };
-  const int cells = packet.top_level_cells_size();
-  if (packet.top_level_splats_size() != cells) {
-    fail(std::to_string(packet.top_level_splats_size()) + " prefixes for " + std::to_string(cells) +
-         " top-level cells");
+  const int needs = packet.need_top_level_size();
+  if (packet.need_first_size() != needs || packet.need_count_size() != needs) {
+    fail("need arrays of different lengths");
   }
-  for (int i = 0; i < cells; ++i) {
-    const std::uint32_t cell = packet.top_level_cells(i);
-    if (cell >= cellSplats.size() || packet.top_level_splats(i) > cellSplats[cell]) {
-      fail("names " + std::to_string(packet.top_level_splats(i)) + " splats of top-level cell " +
-           std::to_string(cell) + ", beyond the dataset's packet");
+  for (int i = 0; i < needs; ++i) {
+    const std::uint32_t cell = packet.need_top_level(i);
+    const std::uint64_t end = std::uint64_t{packet.need_first(i)} + packet.need_count(i);
+    if (cell >= cellSplats.size() || packet.need_count(i) == 0 || end > cellSplats[cell]) {
+      fail("needs splats " + std::to_string(packet.need_first(i)) + "+" +
+           std::to_string(packet.need_count(i)) + " of top-level cell " + std::to_string(cell) +
+           ", not a range inside the dataset's packet");
     }
-    if (i > 0 && cell <= packet.top_level_cells(i - 1)) fail("top-level cells not ascending");
+    if (i > 0 && (cell < packet.need_top_level(i - 1) ||
+                  (cell == packet.need_top_level(i - 1) &&
+                   packet.need_first(i) <=
+                       std::uint64_t{packet.need_first(i - 1)} + packet.need_count(i - 1)))) {
+      fail("needs not sorted by cell and splat, or touching");
+    }
+    if (cell >= nodeRangesFrom && packet.need_first(i) != 0) {
+      fail("needs statistical packet " + std::to_string(cell) + " from splat " +
+           std::to_string(packet.need_first(i)) + ", not from its start");
+    }
   }
   const int ranges = packet.range_top_level_size();
   if (packet.range_offset_size() != ranges || packet.range_count_size() != ranges) {
     fail("range arrays of different lengths");
   }
+  // Both lists ascend (the traversal's order): one pass over the needs.
   int at = 0;
   for (int r = 0; r < ranges; ++r) {
     const std::uint32_t cell = packet.range_top_level(r);
-    while (at < cells && packet.top_level_cells(at) < cell) ++at;
-    if (at == cells || packet.top_level_cells(at) != cell) {
-      fail("range " + std::to_string(r) + " draws from top-level cell " + std::to_string(cell) +
-           ", which the packet does not name (or ranges not sorted)");
+    const std::uint64_t first = packet.range_offset(r);
+    const std::uint64_t end = first + packet.range_count(r);
+    if (r > 0 && cell < packet.range_top_level(r - 1)) fail("ranges not sorted by cell");
+    const bool nodes = cell >= nodeRangesFrom;
+    const auto needEnd = [&](int i) {
+      return std::uint64_t{packet.need_first(i)} + packet.need_count(i);
+    };
+    while (at < needs && (packet.need_top_level(at) < cell ||
+                          (!nodes && packet.need_top_level(at) == cell && needEnd(at) <= first))) {
+      ++at;
     }
-    const std::uint64_t end = std::uint64_t{packet.range_offset(r)} + packet.range_count(r);
-    const std::uint32_t prefix = packet.top_level_splats(at);
-    // A statistical packet's ranges are nodes (common/statistical_node.hpp).
-    const std::uint64_t limit =
-        cell >= nodeRangesFrom ? statisticalNodesInRecords(prefix, ~std::uint32_t{0}) : prefix;
-    if (end > limit) {
-      fail("range " + std::to_string(r) + " ends at splat " + std::to_string(end) +
-           " of top-level cell " + std::to_string(cell) + ", beyond the prefix of " +
-           std::to_string(packet.top_level_splats(at)) + " it waits for");
+    if (packet.range_count(r) == 0) continue;
+    if (at < needs && packet.need_top_level(at) == cell && nodes) {
+      // A statistical packet's ranges are nodes (common/statistical_node.hpp).
+      if (end > statisticalNodesInRecords(packet.need_count(at), ~std::uint32_t{0})) {
+        fail("range " + std::to_string(r) + " ends at node " + std::to_string(end) +
+             " of statistical packet " + std::to_string(cell) + ", beyond the " +
+             std::to_string(packet.need_count(at)) + " records it waits for");
+      }
+      continue;
+    }
+    if (at == needs || packet.need_top_level(at) != cell || packet.need_first(at) > first ||
+        needEnd(at) < end) {
+      fail("range " + std::to_string(r) + " draws splats " + std::to_string(first) + "+" +
+           std::to_string(packet.range_count(r)) + " of top-level cell " + std::to_string(cell) +
+           ", which the packet does not wait for (or ranges not sorted)");
     }
   }
 }
@@ -145,30 +219,31 @@ void RenderCore::receivePacket(int sourceRank, v1::RenderPacket packet, TimePoin
   checkRanges(packet, sourceRank, cellSplats_, nodeRangesFrom_);
   const std::size_t traverse = peers_.indexOf(v1::ROLE_TRAVERSE, sourceRank);
   lastPacketFrom_[traverse] = std::max(lastPacketFrom_[traverse], packet.packet_id());
-  Requests requests;
-  for (int i = 0; i < packet.top_level_cells_size(); ++i) {
-    const CellPrefix need{packet.top_level_cells(i), packet.top_level_splats(i)};
-    if (heldSplats(need.cell) >= need.splats) {
-      ++hits_;
-      cache_.touch(need.cell, now);
-      continue;
-    }
-    ++misses_;
-    askUnlessPending(need, packet.frame_id(), now, requests);
-  }
-  sendRequests(requests, packet.frame_id(), effects);
   workload_ += packet.total_splats();
   QueuedPacket& queued = queue_.emplace_back();
   queued.arrived = now;
   queued.sequence = ++packetsQueued_;
   queued.packet = std::move(packet);
-  countMissing(queued);
+  // Hits, misses and what it waits for, in one pass over its cells.
+  Requests requests;
+  forEachNeedCell(queued.packet, [&](std::uint32_t cell, int first, int end) {
+    if (holdsNeeds(cell, queued.packet, first, end)) {
+      ++hits_;
+      cache_.touch(cell, now);
+      return;
+    }
+    ++misses_;
+    askUnlessPending(queued.packet, first, end, now, requests);
+    ++queued.missing;
+    waiting_[cell].push_back({queued.sequence, first, end});
+  });
   if (queued.missing == 0) queued.dataComplete = now;
   reportDirty_ = true;
+  sendRequests(requests, queued.packet.frame_id(), effects);
 }
 
-DataIntake RenderCore::receiveData(std::uint32_t cell, std::uint32_t first, std::uint32_t count,
-                                   double transferSeconds, TimePoint now, RenderEffects& effects) {
+DataVerdict RenderCore::receiveData(std::uint32_t cell, std::uint32_t first, std::uint32_t count,
+                                    double transferSeconds, TimePoint now, RenderEffects& effects) {
   if (cell >= cellSplats_.size() || count == 0 ||
       std::uint64_t{first} + count > cellSplats_[cell]) {
     throw ProtocolError("data for top-level cell " + std::to_string(cell) + " holds splats " +
@@ -182,66 +257,46 @@ DataIntake RenderCore::receiveData(std::uint32_t cell, std::uint32_t first, std:
     transferSamples_.add(transferSeconds / static_cast<double>(bytes));
     secondsPerByte_ = transferSamples_.lowerQuartile();
   }
-  const std::uint32_t held = heldSplats(cell);
   const std::uint32_t end = first + count;
+  // What was asked for and is held now is no longer awaited.
   const auto settle = [&] {
     const auto asked = requestedAt_.find(cell);
-    if (asked != requestedAt_.end() && asked->second.splats <= heldSplats(cell)) {
-      requestedAt_.erase(asked);
-    }
+    if (asked == requestedAt_.end()) return;
+    asked->second.spans.remove(first, end);
+    if (asked->second.spans.empty()) requestedAt_.erase(asked);
   };
-  if (end <= held) {
+  if (holds(cell, first, count)) {
     settle();
-    return {DataVerdict::Duplicate};
+    return DataVerdict::Duplicate;
   }
-  if (first > held) {
-    // Parts of one cell come from one data-send in order, and it restarts a
-    // cell from splat 0 once it reads our eviction: a later part can only
-    // find nothing held (this process evicted or dropped the cell while the
-    // part was on its way). Ask again now for what was asked.
-    if (held > 0) {
-      throw ProtocolError("data for top-level cell " + std::to_string(cell) + " starts at splat " +
-                          std::to_string(first) + " but this process holds " +
-                          std::to_string(held) + ": a gap in its packet");
-    }
-    ++droppedPrefetches_;
-    if (const auto asked = requestedAt_.find(cell); asked != requestedAt_.end()) {
-      Requests requests;
-      ask({cell, asked->second.splats}, asked->second.frame, now, requests);
-      sendRequests(requests, asked->second.frame, effects);
-    }
-    return {DataVerdict::Dropped};
-  }
-  const std::uint64_t newBytes = std::uint64_t{end} * sizeof(Splat);
+  // A copy takes the room up to the last splat held (holes included).
+  const std::uint32_t extent = heldExtent(cell);
+  const std::uint64_t newBytes = std::uint64_t{std::max(extent, end)} * sizeof(Splat);
   if (!cache_.pinned(cell) && !cache_.canFit(newBytes)) {
     // Prefetched data that cannot fit beside the packet being waited for:
     // drop it (and what is held of the cell) and say so, so that the cell is
-    // sent again from its start when it is needed (asked for again once its
-    // packet is the head).
+    // sent again when it is needed (asked for again once its packet is the
+    // head).
     ++droppedPrefetches_;
     requestedAt_.erase(cell);
-    if (held > 0) {
+    if (extent > 0) {
       cache_.evict(cell);
       evict(cell, effects);
     } else {
       evicted_.push_back(cell);
       reportDirty_ = true;
     }
-    return {DataVerdict::Dropped};
+    return DataVerdict::Dropped;
   }
   for (std::uint32_t victim : cache_.insert(cell, newBytes, now)) evict(victim, effects);
-  if (held > 0) ++extensions_;
-  heldGrew(cell, end, now);
+  SpanSet& held = held_[cell];
+  if (!held.empty()) ++extensions_;
+  held.add(first, end);
+  heldGrew(cell, now);
   settle();
-  // One entry per cell in a report: the longest prefix held.
-  if (const auto listed = loadedIndex_.find(cell); listed != loadedIndex_.end()) {
-    loaded_[listed->second].splats = end;
-  } else {
-    loadedIndex_.emplace(cell, loaded_.size());
-    loaded_.push_back({cell, end});
-  }
+  loaded_.push_back({cell, first, count});
   reportDirty_ = true;
-  return {DataVerdict::Store, held - first, end - held};
+  return DataVerdict::Store;
 }
 
 std::optional<ReadyPacket> RenderCore::nextPacket(TimePoint now, RenderEffects& effects) {
@@ -253,11 +308,6 @@ std::optional<ReadyPacket> RenderCore::nextPacket(TimePoint now, RenderEffects& 
     rerequestLateCells(now, effects);
   }
   pinHeadPacket(now, effects);
-  if (recountMissing_) {
-    recountMissing_ = false;
-    waiting_.clear();
-    for (QueuedPacket& queued : queue_) countMissing(queued);
-  }
   if (!stalled()) {
     for (auto it = queue_.begin(); it != queue_.end(); ++it) {
       if (it->missing > 0) continue;
@@ -274,20 +324,30 @@ std::optional<ReadyPacket> RenderCore::nextPacket(TimePoint now, RenderEffects& 
 // queued packet could hold more than the memory cap. Cells of later packets
 // may be evicted and are asked for again when their packet comes first.
 void RenderCore::pinHeadPacket(TimePoint now, RenderEffects& effects) {
+  // Evictions since the last count: every queued packet counts what it lacks
+  // again (the head's count decides what it asks for).
+  if (recountMissing_) {
+    recountMissing_ = false;
+    waiting_.clear();
+    for (QueuedPacket& queued : queue_) countMissing(queued);
+  }
   const std::uint64_t head = queue_.empty() ? 0 : queue_.front().sequence;
   if (head == pinnedSequence_) return;
   for (std::uint32_t cell : pinnedCells_) cache_.unpin(cell);
   pinnedCells_.clear();
   pinnedSequence_ = head;
   if (queue_.empty()) return;
-  const v1::RenderPacket& packet = queue_.front().packet;
+  const QueuedPacket& first = queue_.front();
+  const v1::RenderPacket& packet = first.packet;
   Requests requests;
-  for (int i = 0; i < packet.top_level_cells_size(); ++i) {
-    const CellPrefix need{packet.top_level_cells(i), packet.top_level_splats(i)};
-    cache_.pin(need.cell);
-    pinnedCells_.push_back(need.cell);
-    askUnlessPending(need, packet.frame_id(), now, requests);
-  }
+  forEachNeedCell(packet, [&](std::uint32_t cell, int begin, int end) {
+    cache_.pin(cell);
+    pinnedCells_.push_back(cell);
+    // What it lacks (evicted while it waited, or never asked for) is asked for.
+    if (first.missing > 0 && !holdsNeeds(cell, packet, begin, end)) {
+      askUnlessPending(packet, begin, end, now, requests);
+    }
+  });
   sendRequests(requests, packet.frame_id(), effects);
 }
 
@@ -298,21 +358,18 @@ void RenderCore::sendRequests(Requests& requests, std::uint64_t frame, RenderEff
   if (!evicted_.empty()) sendReport(effects);
   // Owners in ascending order, so the same state always sends the same messages.
   std::vector<std::uint32_t> ownersAsked;
-  for (const auto& [owner, prefixes] : requests) ownersAsked.push_back(owner);
+  for (const auto& [owner, ranges] : requests) ownersAsked.push_back(owner);
   std::sort(ownersAsked.begin(), ownersAsked.end());
   for (std::uint32_t owner : ownersAsked) {
-    std::vector<CellPrefix>& prefixes = requests[owner];
-    std::sort(prefixes.begin(), prefixes.end(),
-              [](const CellPrefix& a, const CellPrefix& b) { return a.cell < b.cell; });
+    std::vector<CellRange>& ranges = requests[owner];
+    normalizeCellRanges(ranges);
     v1::SendOrder order;
     order.set_render_rank(selfRank_);
     order.set_requester_rank(selfRank_);
     order.set_order_id(++orderSequence_);
     order.set_frame_id(frame);
-    for (const CellPrefix& prefix : prefixes) {
-      order.add_top_level_cells(prefix.cell);
-      order.add_top_level_splats(prefix.splats);
-    }
+    addRangeFields(ranges, *order.mutable_range_top_level(), *order.mutable_range_first(),
+                   *order.mutable_range_count());
     effects.messages.send(peers_.datasends.at(owner), std::move(order));
   }
 }
@@ -323,7 +380,8 @@ void RenderCore::rerequestLateCells(TimePoint now, RenderEffects& effects) {
   for (auto& [cell, asked] : requestedAt_) {
     if (now - asked.at > kRerequestAfter) {
       asked.at = now;
-      requests[owners_[cell]].push_back({cell, asked.splats});
+      for (const SplatSpan& span : asked.spans.spans())
+        requests[owners_[cell]].push_back({cell, span.begin, span.end - span.begin});
       frame = std::max(frame, asked.frame);
     }
   }
@@ -331,7 +389,9 @@ void RenderCore::rerequestLateCells(TimePoint now, RenderEffects& effects) {
 }
 
 void RenderCore::evict(std::uint32_t cell, RenderEffects& effects) {
-  held_.erase(cell);
+  held_[cell].clear();
+  // The report lists the eviction; what is stored after it, as loaded.
+  std::erase_if(loaded_, [&](const CellRange& range) { return range.cell == cell; });
   recountMissing_ = true;
   effects.released.push_back(cell);
   evicted_.push_back(cell);
@@ -341,7 +401,7 @@ void RenderCore::evict(std::uint32_t cell, RenderEffects& effects) {
 v1::TileImageHeader RenderCore::packetDrawn(const ReadyPacket& ready, std::uint64_t splats,
                                             double seconds, TimePoint now, RenderEffects& effects) {
   const v1::RenderPacket& packet = ready.packet;
-  for (std::uint32_t cell : packet.top_level_cells()) cache_.touch(cell, now);
+  forEachNeedCell(packet, [&](std::uint32_t cell, int, int) { cache_.touch(cell, now); });
   if (splats >= kMinDrawSampleSplats && seconds > 0.0) {
     secondsPerSplat_ = movingAverage(secondsPerSplat_, seconds / static_cast<double>(splats));
   }
@@ -395,10 +455,9 @@ void RenderCore::sendReport(RenderEffects& effects) {
   report.set_render_rank(selfRank_);
   report.set_sequence(++reportSequence_);
   report.set_workload_splats(workload_);
-  for (const CellPrefix& prefix : loaded_) {
-    report.add_loaded_cells(prefix.cell);
-    report.add_loaded_splats(prefix.splats);
-  }
+  normalizeCellRanges(loaded_);
+  addRangeFields(loaded_, *report.mutable_loaded_top_level(), *report.mutable_loaded_first(),
+                 *report.mutable_loaded_count());
   for (std::uint32_t cell : evicted_) report.add_evicted_cells(cell);
   report.set_cache_bytes(cache_.bytes());
   report.set_seconds_per_splat(secondsPerSplat_);
@@ -409,7 +468,6 @@ void RenderCore::sendReport(RenderEffects& effects) {
   for (std::uint64_t id : lastPacketFrom_) report.add_last_packet_from_traverse(id);
   const bool evictions = !evicted_.empty();
   loaded_.clear();
-  loadedIndex_.clear();
   evicted_.clear();
   std::vector<int> recipients = peers_.traverses;
   if (evictions)

@@ -1,9 +1,10 @@
 #pragma once
 // Every decision of a render process (seed 003 §4.4-4.5), without MPI or GL:
 // the queue of render packets, the cache of top-level cells (LRU with time-out
-// and a memory cap) holding a prefix of each cell's layered packet, which
-// prefixes to ask data-send for and when to ask again, the measured rates T_s
-// and T_n, and the reports to traverse and data-send.
+// and a memory cap) holding ranges of each cell's packet
+// (common/cell_ranges.hpp), which ranges to ask data-send for and when to ask
+// again, the measured rates T_s and T_n, and the reports to traverse and
+// data-send.
 //
 // The core is told what arrived and `now`; it answers with what to send (an
 // Outbox) and which cells' data the caller must drop. The MPI render process
@@ -11,13 +12,14 @@
 #include <chrono>
 #include <cstdint>
 #include <deque>
+#include <map>
 #include <optional>
 #include <span>
 #include <string>
 #include <unordered_map>
 #include <vector>
 
-#include "common/cell_prefix.hpp"
+#include "common/cell_ranges.hpp"
 #include "common/clock.hpp"
 #include "common/messages.hpp"
 #include "common/octree_cell.hpp"
@@ -51,19 +53,11 @@ struct RenderEffects {
   std::vector<std::uint32_t> released;
 };
 
-enum class DataVerdict {
-  Store,      // keep the new part of the data (append it to the cell)
-  Duplicate,  // already cached: ignore it
-  Dropped,    // prefetched data with no room beside the packet waited for, or
-              // a later part of a cell evicted while the part was on its way
-};
-
 // What to do with a part of a cell's packet that arrived.
-struct DataIntake {
-  DataVerdict verdict = DataVerdict::Duplicate;
-  // Store: append the part's splats [skip, skip + count) to the cell.
-  std::uint32_t skip = 0;
-  std::uint32_t count = 0;
+enum class DataVerdict {
+  Store,      // write the part's splats into the cell (any held already are the same)
+  Duplicate,  // already held: ignore it
+  Dropped,    // prefetched data with no room beside the packet waited for
 };
 
 // A packet whose data is all cached, handed to the caller to draw.
@@ -86,18 +80,18 @@ class RenderCore {
              std::span<const TopLevelCell> topLevel, std::vector<std::uint32_t> owners,
              std::span<const StatisticalPacketEntry> statistical = {});
 
-  // A render packet from traverse `sourceRank`. Prefixes neither held nor asked
-  // for are asked for (the traverse ordered them already; asking too covers a
-  // cell evicted after the traverse last heard from us). Throws ProtocolError
-  // when a prefix lies beyond its packet or a range beyond its cell's prefix.
+  // A render packet from traverse `sourceRank`. Needed ranges neither held nor
+  // asked for are asked for (the traverse ordered them already; asking too
+  // covers a cell evicted after the traverse last heard from us). Throws
+  // ProtocolError when a need lies beyond its packet, needs are not sorted and
+  // disjoint, or a drawn range lies outside its cell's needs.
   void receivePacket(int sourceRank, v1::RenderPacket packet, TimePoint now,
                      RenderEffects& effects);
 
   // Splats [first, first + count) of `cell`'s packet arrived (checksum already
-  // checked). Throws ProtocolError when they lie outside the dataset's packet
-  // or leave a gap after the prefix held.
-  DataIntake receiveData(std::uint32_t cell, std::uint32_t first, std::uint32_t count,
-                         double transferSeconds, TimePoint now, RenderEffects& effects);
+  // checked). Throws ProtocolError when they lie outside the dataset's packet.
+  DataVerdict receiveData(std::uint32_t cell, std::uint32_t first, std::uint32_t count,
+                          double transferSeconds, TimePoint now, RenderEffects& effects);
 
   // Between messages: maintenance (expired cells, late data asked again),
   // pins the head packet's cells, and hands out the first packet whose data
@@ -130,8 +124,11 @@ class RenderCore {
   bool stalled() const;
   bool pinned(std::uint32_t cell) const { return cache_.pinned(cell); }
   bool requested(std::uint32_t cell) const { return requestedAt_.contains(cell); }
-  // The prefix of `cell` held, in splats (0 when not cached).
-  std::uint32_t heldSplats(std::uint32_t cell) const;
+  // The splats of `cell` held (0 when not cached).
+  std::uint64_t heldSplats(std::uint32_t cell) const;
+  // One past the last splat of `cell` held: the room its copy takes.
+  std::uint32_t heldExtent(std::uint32_t cell) const;
+  bool holds(std::uint32_t cell, std::uint32_t first, std::uint32_t count) const;
   // The length of `cell`'s whole packet in splats (0 for an unknown cell).
   std::uint32_t packetSplats(std::uint32_t cell) const {
     return cell < cellSplats_.size() ? cellSplats_[cell] : 0;
@@ -144,32 +141,38 @@ class RenderCore {
     TimePoint arrived;
     std::optional<TimePoint> dataComplete;
     std::uint64_t sequence = 0;
-    std::uint32_t missing = 0;  // its cells held shorter than it needs
+    std::uint32_t missing = 0;  // its cells not holding all it needs of them
   };
-  // A queued packet's need of a cell it lacks, so data that arrives updates
-  // only the packets waiting for that cell (a packet may name thousands).
+  // A queued packet's needs of a cell it lacks (need_* entries [first, end)
+  // of its packet), so data that arrives updates only the packets waiting for
+  // that cell (a packet may name thousands).
   struct Need {
     std::uint64_t sequence = 0;
-    std::uint32_t splats = 0;
+    int first = 0, end = 0;
   };
-  // Per data-send index: the prefixes to ask it for.
-  using Requests = std::unordered_map<std::uint32_t, std::vector<CellPrefix>>;
+  // Per data-send index: the ranges to ask it for.
+  using Requests = std::unordered_map<std::uint32_t, std::vector<CellRange>>;
   struct Request {
     TimePoint at;
     std::uint64_t frame = 0;
-    std::uint32_t splats = 0;
+    SpanSet spans;  // asked for and not yet held
   };
 
   void pinHeadPacket(TimePoint now, RenderEffects& effects);
   // Counts and lists what a queued packet lacks (it must not be listed yet).
   void countMissing(QueuedPacket& queued);
+  // Whether `cell`'s held splats cover need_* entries [first, end) of `packet`.
+  bool holdsNeeds(std::uint32_t cell, const v1::RenderPacket& packet, int first, int end) const;
   // More of `cell` is held: the packets waiting for no more than that lack one
   // cell less; one that now has all its data is complete.
-  void heldGrew(std::uint32_t cell, std::uint32_t splats, TimePoint now);
+  void heldGrew(std::uint32_t cell, TimePoint now);
   QueuedPacket& queuedPacket(std::uint64_t sequence);
-  // Asks for the prefix unless it is held or already asked for.
-  void askUnlessPending(CellPrefix need, std::uint64_t frame, TimePoint now, Requests& requests);
-  void ask(CellPrefix need, std::uint64_t frame, TimePoint now, Requests& requests);
+  // Asks for what of need_* entries [first, end) of `packet` (all of one
+  // cell) is neither held nor already asked for.
+  void askUnlessPending(const v1::RenderPacket& packet, int first, int end, TimePoint now,
+                        Requests& requests);
+  void ask(std::uint32_t cell, std::uint32_t begin, std::uint32_t end, std::uint64_t frame,
+           TimePoint now, Requests& requests);
   void sendRequests(Requests& requests, std::uint64_t frame, RenderEffects& effects);
   void rerequestLateCells(TimePoint now, RenderEffects& effects);
   void evict(std::uint32_t cell, RenderEffects& effects);
@@ -187,15 +190,14 @@ class RenderCore {
   std::uint64_t packetsQueued_ = 0;
   std::uint64_t pinnedSequence_ = 0;
   std::vector<std::uint32_t> pinnedCells_;
-  std::unordered_map<std::uint32_t, std::uint32_t> held_;  // cell -> prefix held
+  std::vector<SpanSet> held_;  // by cell (packet id)
   // cell -> the queued packets that lack it. Evictions are rare: one makes the
   // next nextPacket() count every queued packet again (recountMissing_).
   std::unordered_map<std::uint32_t, std::vector<Need>> waiting_;
   bool recountMissing_ = false;
-  // cell -> the prefix asked for, when and for which frame
+  // cell -> what was asked for, when and for which frame
   std::unordered_map<std::uint32_t, Request> requestedAt_;
-  std::vector<CellPrefix> loaded_;
-  std::unordered_map<std::uint32_t, std::size_t> loadedIndex_;  // cell -> its entry in loaded_
+  std::vector<CellRange> loaded_;  // stored since the last report
   std::vector<std::uint32_t> evicted_;
   std::vector<std::uint64_t> lastPacketFrom_;  // per traverse
   std::optional<TimePoint> lastMaintenance_;
@@ -209,7 +211,7 @@ class RenderCore {
   std::uint64_t misses_ = 0;
   std::uint64_t dataBytesReceived_ = 0;
   std::uint64_t droppedPrefetches_ = 0;
-  std::uint64_t extensions_ = 0;  // parts that extended a held prefix
+  std::uint64_t extensions_ = 0;  // parts stored beside others of their cell
   double busySeconds_ = 0.0;
   double secondsPerSplat_ = 0.0;
   double secondsPerByte_ = 0.0;

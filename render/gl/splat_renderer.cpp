@@ -216,6 +216,7 @@ void SplatRenderer::upload(Cell& cell, std::span<const Splat> splats) {
                splats.empty() ? nullptr : splats.data(), GL_STATIC_DRAW);
   glBindBuffer(GL_ARRAY_BUFFER, 0);
   cell.count = static_cast<std::uint32_t>(splats.size());
+  cell.capacity = cell.count;
   cell.sections.clear();
   cell.statistical.reset();
   throwOnGlError("uploadCell");
@@ -229,7 +230,7 @@ void SplatRenderer::destroy(Cell& cell) {
 void SplatRenderer::uploadCell(std::uint32_t id, std::span<const Splat> splats) {
   context_.makeCurrent();
   Cell& cell = cells_[id];
-  uploadedBytes_ -= std::uint64_t{cell.count} * sizeof(Splat);
+  uploadedBytes_ -= std::uint64_t{cell.capacity} * sizeof(Splat);
   cell.count = 0;
   try {
     upload(cell, splats);
@@ -241,42 +242,47 @@ void SplatRenderer::uploadCell(std::uint32_t id, std::span<const Splat> splats) 
   uploadedBytes_ += splats.size_bytes();
 }
 
-void SplatRenderer::appendToCell(std::uint32_t id, std::span<const Splat> splats) {
-  const auto found = cells_.find(id);
-  if (found == cells_.end() || found->second.count == 0) {
-    uploadCell(id, splats);
-    return;
-  }
+void SplatRenderer::writeToCell(std::uint32_t id, std::uint32_t first,
+                                std::span<const Splat> splats, std::size_t room) {
   if (splats.empty()) return;
-  Cell& cell = found->second;
-  const std::uint64_t total = std::uint64_t{cell.count} + splats.size();
-  if (total > static_cast<std::uint64_t>(INT_MAX)) {
-    throw UsageError("appendToCell: more than 2^31 splats in one cell");
+  const std::uint64_t end = std::uint64_t{first} + splats.size();
+  const std::uint64_t capacity = std::max<std::uint64_t>(end, room);
+  if (capacity > static_cast<std::uint64_t>(INT_MAX)) {
+    throw UsageError("writeToCell: more than 2^31 splats in one cell");
   }
   context_.makeCurrent();
-  const auto oldBytes = static_cast<GLsizeiptr>(std::uint64_t{cell.count} * sizeof(Splat));
-  GLuint grown = 0;
-  glGenBuffers(1, &grown);
-  glBindBuffer(GL_COPY_WRITE_BUFFER, grown);
-  glBufferData(GL_COPY_WRITE_BUFFER, static_cast<GLsizeiptr>(total * sizeof(Splat)), nullptr,
-               GL_STATIC_DRAW);
-  glBindBuffer(GL_COPY_READ_BUFFER, cell.buffer);
-  glCopyBufferSubData(GL_COPY_READ_BUFFER, GL_COPY_WRITE_BUFFER, 0, 0, oldBytes);
-  glBufferSubData(GL_COPY_WRITE_BUFFER, oldBytes, static_cast<GLsizeiptr>(splats.size_bytes()),
-                  splats.data());
-  glBindBuffer(GL_COPY_READ_BUFFER, 0);
-  glBindBuffer(GL_COPY_WRITE_BUFFER, 0);
-  try {
-    throwOnGlError("appendToCell");
-  } catch (...) {
-    glDeleteBuffers(1, &grown);
-    throw;
+  Cell& cell = cells_[id];
+  if (cell.buffer == 0 || cell.capacity < end) {
+    GLuint grown = 0;
+    glGenBuffers(1, &grown);
+    glBindBuffer(GL_COPY_WRITE_BUFFER, grown);
+    glBufferData(GL_COPY_WRITE_BUFFER, static_cast<GLsizeiptr>(capacity * sizeof(Splat)), nullptr,
+                 GL_STATIC_DRAW);
+    if (cell.count > 0) {
+      glBindBuffer(GL_COPY_READ_BUFFER, cell.buffer);
+      glCopyBufferSubData(GL_COPY_READ_BUFFER, GL_COPY_WRITE_BUFFER, 0, 0,
+                          static_cast<GLsizeiptr>(std::uint64_t{cell.count} * sizeof(Splat)));
+      glBindBuffer(GL_COPY_READ_BUFFER, 0);
+    }
+    glBindBuffer(GL_COPY_WRITE_BUFFER, 0);
+    try {
+      throwOnGlError("writeToCell");
+    } catch (...) {
+      glDeleteBuffers(1, &grown);
+      throw;
+    }
+    if (cell.buffer != 0) glDeleteBuffers(1, &cell.buffer);
+    cell.buffer = grown;
+    uploadedBytes_ += (capacity - cell.capacity) * sizeof(Splat);
+    cell.capacity = static_cast<std::uint32_t>(capacity);
   }
-  glDeleteBuffers(1, &cell.buffer);
-  cell.buffer = grown;
-  cell.count = static_cast<std::uint32_t>(total);
-  cell.statisticalStale = true;  // the longer prefix holds more nodes
-  uploadedBytes_ += splats.size_bytes();
+  glBindBuffer(GL_ARRAY_BUFFER, cell.buffer);
+  glBufferSubData(GL_ARRAY_BUFFER, static_cast<GLintptr>(std::uint64_t{first} * sizeof(Splat)),
+                  static_cast<GLsizeiptr>(splats.size_bytes()), splats.data());
+  glBindBuffer(GL_ARRAY_BUFFER, 0);
+  throwOnGlError("writeToCell");
+  cell.count = static_cast<std::uint32_t>(std::max<std::uint64_t>(cell.count, end));
+  cell.statisticalStale = true;  // more of the packet holds more nodes
 }
 
 void SplatRenderer::forEachCell(const CellVisitor& visit) const {
@@ -299,7 +305,7 @@ void SplatRenderer::releaseCell(std::uint32_t id) {
   const auto it = cells_.find(id);
   if (it == cells_.end()) return;
   context_.makeCurrent();
-  uploadedBytes_ -= std::uint64_t{it->second.count} * sizeof(Splat);
+  uploadedBytes_ -= std::uint64_t{it->second.capacity} * sizeof(Splat);
   destroy(it->second);
   cells_.erase(it);
 }

@@ -81,9 +81,11 @@ class SplatRenderer final : public TileRenderer {
   // Copies the splats into a GL buffer under `id` (replacing any previous one);
   // the span need not stay alive afterwards. Throws RenderError on GL failure.
   void uploadCell(std::uint32_t id, std::span<const Splat> splats) override;
-  // Grows the cell's buffer: a new buffer, the old splats copied on the GL
-  // side, the new ones after them. Throws RenderError on GL failure.
-  void appendToCell(std::uint32_t id, std::span<const Splat> splats) override;
+  // Writes the splats into the cell's buffer at `first`, first growing it to
+  // `room` when they do not fit (a new buffer, the held splats copied on the
+  // GL side). Throws RenderError on GL failure.
+  void writeToCell(std::uint32_t id, std::uint32_t first, std::span<const Splat> splats,
+                   std::size_t room) override;
   void releaseCell(std::uint32_t id) override;  // no-op for unknown ids
   void forEachCell(const CellVisitor& visit) const override;
   void releaseAll();
@@ -140,7 +142,8 @@ class SplatRenderer final : public TileRenderer {
   };
   struct Cell {
     unsigned buffer = 0;
-    std::uint32_t count = 0;
+    std::uint32_t count = 0;     // splats up to the last one written
+    std::uint32_t capacity = 0;  // splats the buffer has room for
     mutable std::unordered_map<std::uint32_t, Section> sections;  // by first record
     // Statistical mode: the packet's nodes, decoded on first use.
     // Decoded statistical nodes; `stale` when more of the packet arrived since

@@ -16,8 +16,9 @@ class GlTileRenderer final : public TileRenderer {
   void uploadCell(std::uint32_t id, std::span<const Splat> splats) override {
     renderer_.uploadCell(id, splats);
   }
-  void appendToCell(std::uint32_t id, std::span<const Splat> splats) override {
-    renderer_.appendToCell(id, splats);
+  void writeToCell(std::uint32_t id, std::uint32_t first, std::span<const Splat> splats,
+                   std::size_t room) override {
+    renderer_.writeToCell(id, first, splats, room);
   }
   void releaseCell(std::uint32_t id) override { renderer_.releaseCell(id); }
   void forEachCell(const CellVisitor& visit) const override { renderer_.forEachCell(visit); }

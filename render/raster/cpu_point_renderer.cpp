@@ -567,13 +567,18 @@ void PointCell::reserve(std::size_t splats) {
   capacity_ = padded;
 }
 
-void appendToPointCell(PointCell& cell, std::span<const Splat> splats) {
-  const std::size_t from = cell.count;
-  // Growth by layers is geometric (about 4x per level): room for exactly these.
-  cell.reserve(from + splats.size());
-  cell.count += splats.size();
-  const bool normals = writePointGroups(splats, from, reinterpret_cast<float*>(cell.block_.get()));
+void writeToPointCell(PointCell& cell, std::size_t first, std::span<const Splat> splats,
+                      std::size_t room) {
+  if (splats.empty()) return;
+  const std::size_t end = first + splats.size();
+  if (cell.isView() || end > cell.capacity_) cell.reserve(std::max(end, room));
+  cell.count = std::max(cell.count, end);
+  const bool normals = writePointGroups(splats, first, reinterpret_cast<float*>(cell.block_.get()));
   cell.hasNormals = cell.hasNormals || normals;
+}
+
+void appendToPointCell(PointCell& cell, std::span<const Splat> splats) {
+  writeToPointCell(cell, cell.count, splats);
 }
 
 void rasterizePoints(const PointRaster& raster, const PointCell& cell, std::size_t from,
@@ -613,8 +618,9 @@ void CpuPointRenderer::uploadCell(std::uint32_t id, std::span<const Splat> splat
   cells_[id] = makePointCell(splats);
 }
 
-void CpuPointRenderer::appendToCell(std::uint32_t id, std::span<const Splat> splats) {
-  appendToPointCell(cells_[id], splats);
+void CpuPointRenderer::writeToCell(std::uint32_t id, std::uint32_t first,
+                                   std::span<const Splat> splats, std::size_t room) {
+  writeToPointCell(cells_[id], first, splats, room);
 }
 
 bool CpuPointRenderer::viewCell(std::uint32_t id, const float* groups, std::size_t count,

@@ -131,7 +131,8 @@ class PointCell {
   void reserve(std::size_t splats);
 
  private:
-  friend void appendToPointCell(PointCell& cell, std::span<const Splat> splats);
+  friend void writeToPointCell(PointCell& cell, std::size_t first, std::span<const Splat> splats,
+                               std::size_t room);
   struct BlockDeleter {
     void operator()(std::byte* block) const {
       ::operator delete (block, std::align_val_t{PointGroups::kAlignment});
@@ -148,6 +149,12 @@ class PointCell {
 };
 
 PointCell makePointCell(std::span<const Splat> splats);
+// Writes splats as splats first, first + 1, ... of the cell, first making
+// room for `room` splats (at least first + splats.size()) when they do not
+// fit in its own block; a view is copied first. What lies between written
+// splats is zero. The cell's count grows to the end of the last written.
+void writeToPointCell(PointCell& cell, std::size_t first, std::span<const Splat> splats,
+                      std::size_t room = 0);
 // Adds splats after the cell's current ones, keeping the padding.
 void appendToPointCell(PointCell& cell, std::span<const Splat> splats);
 
@@ -188,8 +195,10 @@ class CpuPointRenderer final : public TileRenderer {
   explicit CpuPointRenderer(unsigned threads = 1);
 
   void uploadCell(std::uint32_t id, std::span<const Splat> splats) override;
-  void appendToCell(std::uint32_t id, std::span<const Splat> splats) override;
+  void writeToCell(std::uint32_t id, std::uint32_t first, std::span<const Splat> splats,
+                   std::size_t room) override;
   bool viewCell(std::uint32_t id, const float* groups, std::size_t count, bool hasNormals) override;
+  bool viewsInPlace() const override { return true; }
   void forEachCell(const CellVisitor& visit) const override;
   void releaseCell(std::uint32_t id) override;
   RenderStats render(const Camera& camera, const TileRect& rect, std::span<const DrawRange> ranges,

@@ -76,13 +76,15 @@ class EdlTileRenderer final : public TileRenderer {
   void uploadCell(std::uint32_t id, std::span<const Splat> splats) override {
     inner_->uploadCell(id, splats);
   }
-  void appendToCell(std::uint32_t id, std::span<const Splat> splats) override {
-    inner_->appendToCell(id, splats);
+  void writeToCell(std::uint32_t id, std::uint32_t first, std::span<const Splat> splats,
+                   std::size_t room) override {
+    inner_->writeToCell(id, first, splats, room);
   }
   bool viewCell(std::uint32_t id, const float* groups, std::size_t count,
                 bool hasNormals) override {
     return inner_->viewCell(id, groups, count, hasNormals);
   }
+  bool viewsInPlace() const override { return inner_->viewsInPlace(); }
   void releaseCell(std::uint32_t id) override { inner_->releaseCell(id); }
   void forEachCell(const CellVisitor& visit) const override { inner_->forEachCell(visit); }
   // Also throws UsageError for settings.edl out of range or in blended mode.

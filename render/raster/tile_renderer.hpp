@@ -102,17 +102,24 @@ class TileRenderer {
   // Keeps a cell's splats under `id` (replacing any previous ones); the span
   // need not stay alive afterwards.
   virtual void uploadCell(std::uint32_t id, std::span<const Splat> splats) = 0;
-  // Adds splats after the cell's current ones (a longer prefix of its layered
-  // packet arrived); an unknown id starts a new cell.
-  virtual void appendToCell(std::uint32_t id, std::span<const Splat> splats) = 0;
+  // Writes `splats` as splats [first, first + splats.size()) of cell `id`:
+  // ranges of a packet arrive in any order, and a renderer draws only those
+  // its process holds (what lies between them is never drawn). An unknown id
+  // starts a new cell. `room` (at least first + splats.size()) is the
+  // cell's extent once the data packet at hand is stored: its parts of one
+  // cell come one by one, and room for all of them saves copies.
+  virtual void writeToCell(std::uint32_t id, std::uint32_t first, std::span<const Splat> splats,
+                           std::size_t room) = 0;
   // Cell `id` drawn in place from `count` splats of a block in the CPU point
   // kernel's layout (common/point_groups.hpp) held elsewhere, which outlives
   // its use here (a data-send's shared memory). False: this renderer cannot,
-  // and takes the splats through uploadCell / appendToCell instead.
+  // and takes the splats through uploadCell / writeToCell instead.
   virtual bool viewCell(std::uint32_t id, const float* groups, std::size_t count, bool hasNormals) {
     (void)id, (void)groups, (void)count, (void)hasNormals;
     return false;
   }
+  // Whether viewCell takes cells (so the splats need not be written).
+  virtual bool viewsInPlace() const { return false; }
   virtual void releaseCell(std::uint32_t id) = 0;  // no-op for unknown ids
   // Calls `visit` with every cell kept and its splats as uploaded, so another
   // renderer can take them over (a served frame asks for a mode this one

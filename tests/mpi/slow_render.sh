@@ -4,10 +4,13 @@
 # Every frame must complete (no tile failed), and the scheduler must move work
 # away from the slow process and back: its share of the splats in frames
 # [A + 20, B) below 0.6 of its share in [20, A), and in [B + 20, end) back
-# above 0.75 of it -- or of its fair share (1 / render processes) when that is
+# above half of it -- or of its fair share (1 / render processes) when that is
 # smaller: on a loaded machine the start can hand it more than its share
-# (0.361 of four seen in CI), and coming back means back to its share. The
-# run's arguments carry --slow-index 0 and the window.
+# (0.361 of four seen in CI), and coming back means back to its share. Half,
+# not all: render processes hold the ranges they drew, so the others hold
+# what the view needs once the slow one recovers, and it wins tiles back as
+# the view moves on (docs/scheduling.md §19). The run's arguments carry
+# --slow-index 0 and the window.
 set -uo pipefail
 from="$1" to="$2"
 shift 2
@@ -45,6 +48,6 @@ print(f"render rank {slow} share of splats: before {before:.3f}, while slow {dur
 assert failed == 0, "tiles failed"
 assert len(frames) == last, "frames missing"
 assert during < 0.6 * before, "the work did not move away from the slow render process"
-assert after > 0.75 * min(before, 1.0 / len(ranks)), "the work did not come back to the render process"
+assert after > 0.5 * min(before, 1.0 / len(ranks)), "the work did not come back to the render process"
 print("PASS")
 PY

@@ -12,6 +12,7 @@ PacketLayers::PacketLayers(std::span<const OctreeCell> cells,
                            std::span<const TopLevelCell> topLevel,
                            const StatisticalTrees* statistical) {
   totals_.reserve(topLevel.size());
+  pointPackets_ = static_cast<std::uint32_t>(topLevel.size());
   for (const TopLevelCell& t : topLevel) {
     totals_.push_back(static_cast<std::uint32_t>(packetRecords(t)));
     sectionsBegin_.push_back(t.levelSplatCount);
@@ -55,23 +56,6 @@ PacketLayers::PacketLayers(std::span<const OctreeCell> cells,
 std::span<const PacketLayer> PacketLayers::layers(std::uint32_t cell) const {
   const std::uint32_t begin = first_.at(cell);
   return std::span<const PacketLayer>(layers_).subspan(begin, first_.at(cell + 1) - begin);
-}
-
-std::uint32_t PacketLayers::roundUp(std::uint32_t cell, std::uint32_t splats) const {
-  if (splats == 0) return 0;
-  // A need that ends in the instanced sections (an instanced frame): their end.
-  if (splats > sectionsBegin_.at(cell) && splats <= sectionsEnd_.at(cell))
-    return sectionsEnd_[cell];
-  for (const PacketLayer& layer : layers(cell)) {
-    if (layer.end >= splats) return layer.end;
-  }
-  return totalSplats(cell);
-}
-
-std::uint32_t PacketLayers::needPrefix(std::uint32_t cell, std::uint32_t splats) const {
-  if (splats > sectionsBegin_.at(cell) && splats <= sectionsEnd_.at(cell))
-    return sectionsEnd_[cell];
-  return std::min(splats, totalSplats(cell));
 }
 
 std::uint32_t PacketLayers::prefixAt(std::uint32_t cell, const Camera& camera, float distance,

@@ -1,9 +1,10 @@
 #pragma once
 // The layers of every top-level packet (dataset format 4, common/dataset.hpp):
 // where each level's level-splats end, coarse first, and how large their
-// splats are. Traverse processes ask for the exact prefix a tile draws
-// (needPrefix) and estimate, layer by layer, the prefix a view will need for
-// ordering ahead (prefixAt).
+// splats are. Traverse processes ask for the ranges a tile draws, and
+// estimate, layer by layer, the prefix a view will need for ordering ahead
+// (prefixAt). A statistical packet is needed as a prefix (a cut needs every
+// node above it).
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -33,16 +34,9 @@ class PacketLayers {
   std::uint32_t totalSplats(std::uint32_t cell) const { return totals_.at(cell); }
   // Coarse first; the last layer (the points) ends at totalSplats(cell).
   std::span<const PacketLayer> layers(std::uint32_t cell) const;
-  // The shortest layer-aligned prefix of `cell` holding its first `splats`
-  // (a need that ends in the instanced sections: through the sections).
-  std::uint32_t roundUp(std::uint32_t cell, std::uint32_t splats) const;
-  // The prefix a render process needs to draw the first `splats` of `cell`:
-  // exactly those, except that a need ending in the instanced sections goes
-  // through the sections (they are drawn whole). Not rounded to a layer end:
-  // the rest of a layer is mostly cells the tile culled (behind the surface,
-  // outside the frustum), and rounding moved 24 % more bytes on the bunny orbit
-  // (docs/scheduling.md §13).
-  std::uint32_t needPrefix(std::uint32_t cell, std::uint32_t splats) const;
+  // Statistical packets (ids from the point packets' count on) are needed
+  // from their start; point packets as the ranges drawn.
+  bool neededAsPrefix(std::uint32_t cell) const { return cell >= pointPackets_; }
   // The prefix a view probably needs from `cell` when its nearest point is
   // `distance` from the eye: through the first layer whose splats project to
   // at most `lodPixels` there (an estimate for ordering ahead: a tile's own
@@ -54,6 +48,7 @@ class PacketLayers {
 
  private:
   std::vector<std::uint32_t> totals_;
+  std::uint32_t pointPackets_ = 0;
   std::vector<std::uint32_t> sectionsBegin_;  // per cell: its levelSplatCount
   std::vector<std::uint32_t> sectionsEnd_;    // and where its points start
   std::vector<std::uint32_t> first_;          // per cell, index of its first layer; plus one entry

@@ -9,7 +9,29 @@
 
 namespace pointillist::traverse {
 TileWalk walkOf(const TraversalResult& result) {
-  return TileWalk{result.needs, result.splats, result.ranges, {}, result.needBoxes};
+  return TileWalk{result.needs, result.splats, result.ranges, result.needBoxes};
+}
+
+std::vector<CellRange> needRanges(const TileWalk& walk, std::size_t firstNeed, std::size_t endNeed,
+                                  std::size_t firstRange, std::size_t endRange,
+                                  const PacketLayers& layers, std::uint32_t gapSplats) {
+  std::vector<CellRange> needs;
+  needs.reserve(endRange - firstRange + (endNeed - firstNeed));
+  std::size_t range = firstRange;
+  for (std::size_t i = firstNeed; i < endNeed; ++i) {
+    const CellPrefix& need = walk.needs[i];
+    if (layers.neededAsPrefix(need.cell)) {
+      if (need.splats > 0) needs.push_back({need.cell, 0, need.splats});
+      while (range < endRange && walk.ranges[range].topLevel == need.cell) ++range;
+      continue;
+    }
+    for (; range < endRange && walk.ranges[range].topLevel == need.cell; ++range) {
+      const PacketRange& drawn = walk.ranges[range];
+      needs.push_back({drawn.topLevel, drawn.offset, drawn.count});
+    }
+  }
+  normalizeCellRanges(needs, gapSplats);
+  return needs;
 }
 
 TraversalSettings traversalSettings(const v1::RunSettings& settings) {
@@ -109,12 +131,8 @@ std::vector<WalkPart> splitWalk(const TileWalk& walk, std::size_t parts) {
       throw ProtocolError("tile walk has ranges of top-level cell " +
                           std::to_string(walk.ranges[range].topLevel) + " that it does not need");
     }
-  } else if (walk.drawn.size() == needs) {
-    std::copy(walk.drawn.begin(), walk.drawn.end(), drawn.begin());
-    std::fill(rangeStart.begin(), rangeStart.end(), 0);
   } else if (needs > 0) {
-    throw ProtocolError("tile walk has neither ranges nor drawn counts for its " +
-                        std::to_string(needs) + " cells");
+    throw ProtocolError("tile walk has no ranges for its " + std::to_string(needs) + " cells");
   }
   std::vector<std::uint64_t> before(needs + 1, 0);  // splats drawn from needs [0, i)
   for (std::size_t need = 0; need < needs; ++need) before[need + 1] = before[need] + drawn[need];
@@ -233,11 +251,8 @@ PacketPlan PacketPlanner::planPart(const v1::TileTask& task, const TileWalk& wal
   plan.splats = part.splats;
   plan.partIndex = partIndex;
   plan.partCount = partCount;
-  plan.needs.reserve(part.endNeed - part.firstNeed);
-  for (std::size_t i = part.firstNeed; i < part.endNeed; ++i) {
-    const CellPrefix& need = walk.needs[i];
-    plan.needs.push_back({need.cell, layers_->needPrefix(need.cell, need.splats)});
-  }
+  plan.needs = needRanges(walk, part.firstNeed, part.endNeed, part.firstRange, part.endRange,
+                          *layers_, needGapSplats(settings_));
   const v1::Scheduler scheduler = schedulerFor(task);
   if (scheduler == v1::SCHEDULER_COST || (scheduler == v1::SCHEDULER_REGIONS && partIndex > 0)) {
     // The parts after the first go where the cost function sends them: the
@@ -272,44 +287,48 @@ PacketPlan PacketPlanner::planPart(const v1::TileTask& task, const TileWalk& wal
   const RenderChoice& choice = plan.choice;
   plan.renderRank = peers_.renders.at(choice.render);
 
+  // What it lacks counts as on its way from now on (the prefetch below
+  // orders only what is not).
+  model_.recordPacket(choice.render, packetsSent_ + 1, part.splats, choice.missing, now);
+
   // Order what the chosen render lacks from the data-send processes owning it.
-  std::map<std::uint32_t, std::vector<CellPrefix>> orders;
-  for (const CellPrefix& prefix : choice.missing) orders[owners_.at(prefix.cell)].push_back(prefix);
+  std::map<std::uint32_t, std::vector<CellRange>> orders;
+  for (const CellRange& range : choice.missing) orders[owners_.at(range.cell)].push_back(range);
   // Prefetch along the camera path: what this rect will need a few frames on
   // goes to the render drawing it now, which the cost function then favours
-  // for that part of the screen.
+  // for that part of the screen. The lookahead walk gives each cell the
+  // prefix its distance probably needs.
   if (!ahead.empty()) {
-    for (const CellPrefix& prefix : model_.missing(choice.render, ahead)) {
+    std::vector<CellRange> wanted;
+    wanted.reserve(ahead.size());
+    for (const CellPrefix& prefix : ahead) {
       if (prefix.cell >= layers_->cellCount()) {
         throw ProtocolError("lookahead walk found top-level cell " + std::to_string(prefix.cell) +
                             " beyond the dataset's " + std::to_string(layers_->cellCount()));
       }
-      const auto ordered =
-          std::lower_bound(choice.missing.begin(), choice.missing.end(), prefix.cell,
-                           [](const CellPrefix& a, std::uint32_t cell) { return a.cell < cell; });
-      if (ordered != choice.missing.end() && ordered->cell == prefix.cell) continue;
-      const std::uint64_t bytes =
-          std::uint64_t{prefix.splats - model_.heldSplats(choice.render, prefix.cell)} *
-          sizeof(Splat);
+      if (prefix.splats > 0) wanted.push_back({prefix.cell, 0, prefix.splats});
+    }
+    normalizeCellRanges(wanted);
+    for (const CellRange& range : model_.missing(choice.render, wanted)) {
+      const std::uint64_t bytes = std::uint64_t{range.count} * sizeof(Splat);
       if (plan.prefetchBytes + bytes > kPrefetchBudgetBytes) break;
       plan.prefetchBytes += bytes;
-      plan.prefetch.push_back(prefix);
-      orders[owners_.at(prefix.cell)].push_back(prefix);
+      plan.prefetch.push_back(range);
+      orders[owners_.at(range.cell)].push_back(range);
     }
     model_.recordPrefetch(choice.render, plan.prefetch);
     cellsPrefetched_ += plan.prefetch.size();
     bytesPrefetched_ += plan.prefetchBytes;
   }
-  for (auto& [owner, prefixes] : orders) {
+  for (auto& [owner, ranges] : orders) {
+    normalizeCellRanges(ranges);
     v1::SendOrder order;
     order.set_render_rank(plan.renderRank);
     order.set_requester_rank(selfRank_);
     order.set_order_id(++ordersSent_);
     order.set_frame_id(task.frame_id());
-    for (const CellPrefix& prefix : prefixes) {
-      order.add_top_level_cells(prefix.cell);
-      order.add_top_level_splats(prefix.splats);
-    }
+    addRangeFields(ranges, *order.mutable_range_top_level(), *order.mutable_range_first(),
+                   *order.mutable_range_count());
     out.send(peers_.datasends.at(owner), std::move(order));
   }
 
@@ -320,10 +339,8 @@ PacketPlan PacketPlanner::planPart(const v1::TileTask& task, const TileWalk& wal
   *packet.mutable_rect() = task.rect();
   packet.set_timestamp_ns(task.timestamp_ns());
   packet.set_attempt(task.attempt());
-  for (const CellPrefix& need : plan.needs) {
-    packet.add_top_level_cells(need.cell);
-    packet.add_top_level_splats(need.splats);
-  }
+  addRangeFields(plan.needs, *packet.mutable_need_top_level(), *packet.mutable_need_first(),
+                 *packet.mutable_need_count());
   const std::span<const PacketRange> ranges =
       walk.ranges.subspan(part.firstRange, part.endRange - part.firstRange);
   const int rangeCount = static_cast<int>(ranges.size());
@@ -352,12 +369,8 @@ PacketPlan PacketPlanner::planPart(const v1::TileTask& task, const TileWalk& wal
   }
   if (task.has_frame_settings()) *packet.mutable_frame_settings() = task.frame_settings();
   out.send(plan.renderRank, std::move(packet));
-  model_.recordPacket(choice.render, packetsSent_, part.splats, choice.missing, now);
 
-  std::uint64_t packetBytes = 0;
-  for (const CellPrefix& need : plan.needs)
-    packetBytes += std::uint64_t{need.splats} * sizeof(Splat);
-  maxPacketBytes_ = std::max(maxPacketBytes_, packetBytes);
+  maxPacketBytes_ = std::max(maxPacketBytes_, rangeSplats(plan.needs) * sizeof(Splat));
   cellsOrdered_ += choice.missing.size();
   bytesOrdered_ += choice.missingBytes;
   return plan;
@@ -367,16 +380,9 @@ void PacketPlanner::applyReport(int sourceRank, const v1::RenderReport& report, 
   const std::size_t render = peers_.indexOf(v1::ROLE_RENDER, sourceRank);
   RenderReportView view;
   view.workloadSplats = report.workload_splats();
-  if (report.loaded_splats_size() != report.loaded_cells_size()) {
-    throw ProtocolError("render report from rank " + std::to_string(sourceRank) + " gives " +
-                        std::to_string(report.loaded_splats_size()) + " prefixes for " +
-                        std::to_string(report.loaded_cells_size()) + " loaded cells");
-  }
-  std::vector<CellPrefix> loaded;
-  loaded.reserve(static_cast<std::size_t>(report.loaded_cells_size()));
-  for (int i = 0; i < report.loaded_cells_size(); ++i) {
-    loaded.push_back({report.loaded_cells(i), report.loaded_splats(i)});
-  }
+  const std::vector<CellRange> loaded =
+      rangesFromFields(report.loaded_top_level(), report.loaded_first(), report.loaded_count(),
+                       "render report from rank " + std::to_string(sourceRank));
   view.loaded = loaded;
   view.evicted = {report.evicted_cells().data(),
                   static_cast<std::size_t>(report.evicted_cells_size())};

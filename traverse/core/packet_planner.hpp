@@ -27,23 +27,30 @@
 namespace pointillist::traverse {
 
 // What the walk of one tile found (traverseTile's result, or the simulator's
-// memo of it, which keeps no ranges).
+// memo of it).
 struct TileWalk {
-  std::span<const CellPrefix> needs;  // distinct cells, ascending; prefixes not yet rounded
+  // Distinct cells, ascending, each with the prefix holding its ranges.
+  std::span<const CellPrefix> needs;
   std::uint64_t splats = 0;
-  std::span<const PacketRange> ranges;
-  // Splats drawn from each need (parallel to needs), for a walk without
-  // ranges; with ranges they are counted from those.
-  std::span<const std::uint32_t> drawn;
+  std::span<const PacketRange> ranges;  // sorted by cell: a block per need
   // Parallel to needs where known (TraversalResult::needBoxes): a packet
   // carries the box of its needs' (RenderPacket.screen_box).
   std::span<const ScreenBox> needBoxes;
 };
 
+// What the render drawing `part` of `walk` waits for: the drawn ranges of
+// each point packet, joined where at most `gapSplats` apart (the gap costs
+// fewer bytes than the range it saves costs to name, hold and look up:
+// needGapSplats), and for a statistical packet its prefix
+// (PacketLayers::neededAsPrefix). Sorted by cell and first splat.
+std::vector<CellRange> needRanges(const TileWalk& walk, std::size_t firstNeed, std::size_t endNeed,
+                                  std::size_t firstRange, std::size_t endRange,
+                                  const PacketLayers& layers, std::uint32_t gapSplats);
+
 TileWalk walkOf(const TraversalResult& result);
 
 // One part of a split walk: needs [firstNeed, endNeed) and their ranges
-// [firstRange, endRange) (none for a walk without ranges).
+// [firstRange, endRange).
 struct WalkPart {
   std::size_t firstNeed = 0, endNeed = 0;
   std::size_t firstRange = 0, endRange = 0;
@@ -56,7 +63,7 @@ struct WalkPart {
 // from frame to frame, and stay cached where they went), each cut where the
 // running count of drawn splats is nearest an equal share. Never an empty
 // piece; one piece when the walk draws from one cell. ProtocolError when
-// ranges and needs disagree.
+// ranges and needs disagree, or a walk with needs has no ranges.
 std::vector<WalkPart> splitWalk(const TileWalk& walk, std::size_t parts);
 
 // The traversal settings of a run (level of detail, size scale, culling).
@@ -66,9 +73,9 @@ TraversalSettings traversalSettings(const v1::RunSettings& settings);
 struct PacketPlan {
   RenderChoice choice;
   int renderRank = -1;
-  std::vector<CellPrefix> needs;  // the walk's needs (PacketLayers::needPrefix)
+  std::vector<CellRange> needs;  // what its render waits for (needRanges)
   std::uint64_t prefetchBytes = 0;
-  std::vector<CellPrefix> prefetch;
+  std::vector<CellRange> prefetch;
   std::uint64_t splats = 0;
   std::uint32_t partIndex = 0;
   std::uint32_t partCount = 1;  // > 1: a part of a split tile
@@ -102,7 +109,7 @@ class PacketPlanner {
   // within the whole tile's time); else 1.
   std::size_t partsFor(const v1::TileTask& task, const TileWalk& walk, TimePoint now) const;
   // One walked tile: cut into parts (partsFor, splitWalk), each takes its
-  // needs (PacketLayers::needPrefix), chooses its render process (the cost function's;
+  // needs (needRanges), chooses its render process (the cost function's;
   // one already drawing another part of the tile only when every other that
   // could take a part costs more than the part's own drawing time more),
   // orders what that process lacks of

@@ -37,18 +37,65 @@ std::uint64_t RenderModel::workload(std::size_t render) const {
   return total;
 }
 
-std::uint32_t RenderModel::heldSplats(std::size_t render, std::uint32_t cell) const {
-  const RenderState& state = renders_.at(render);
-  std::uint32_t held = 0;
-  if (const auto found = state.cached.find(cell); found != state.cached.end()) held = found->second;
-  if (const auto found = state.ordered.find(cell); found != state.ordered.end()) {
-    held = std::max(held, found->second);
+const RenderModel::Holding* RenderModel::holding(std::uint32_t cell, std::size_t render) const {
+  if (cell >= holders_.size()) return nullptr;
+  for (const Holding& held : holders_[cell]) {
+    if (held.render == render) return &held;
   }
-  return held;
+  return nullptr;
+}
+
+RenderModel::Holding& RenderModel::holdingFor(std::uint32_t cell, std::size_t render) {
+  if (cell >= holders_.size()) holders_.resize(std::size_t{cell} + 1);
+  for (Holding& held : holders_[cell]) {
+    if (held.render == render) return held;
+  }
+  Holding& added = holders_[cell].emplace_back();
+  added.render = static_cast<std::uint32_t>(render);
+  return added;
+}
+
+void RenderModel::dropHolding(std::uint32_t cell, std::size_t render) {
+  if (cell >= holders_.size()) return;
+  std::erase_if(holders_[cell], [&](const Holding& held) {
+    if (held.render != render) return false;
+    if (held.confirmed) --renders_[render].confirmedCells;
+    return true;
+  });
+}
+
+std::uint64_t RenderModel::heldSplats(std::size_t render, std::uint32_t cell) const {
+  (void)renders_.at(render);
+  const Holding* held = holding(cell, render);
+  return held != nullptr ? held->spans.splats() : 0;
+}
+
+template <class Gap>
+void RenderModel::forEachMissing(std::size_t render, std::span<const CellRange> needs,
+                                 Gap&& gap) const {
+  static const SpanSet kNone;
+  forEachCellBlock(needs, [&](std::uint32_t cell, std::span<const CellRange> block) {
+    const Holding* held = holding(cell, render);
+    const SpanSet& spans = held != nullptr ? held->spans : kNone;
+    for (const CellRange& need : block) {
+      spans.forEachGap(need.first, static_cast<std::uint32_t>(need.end()),
+                       [&](std::uint32_t begin, std::uint32_t end) { gap(cell, begin, end); });
+    }
+  });
+}
+
+std::uint64_t RenderModel::missingSplats(std::size_t render,
+                                         std::span<const CellRange> needs) const {
+  (void)renders_.at(render);
+  std::uint64_t splats = 0;
+  forEachMissing(render, needs, [&](std::uint32_t, std::uint32_t begin, std::uint32_t end) {
+    splats += end - begin;
+  });
+  return splats;
 }
 
 std::size_t RenderModel::cachedCellCount(std::size_t render) const {
-  return renders_.at(render).cached.size();
+  return renders_.at(render).confirmedCells;
 }
 
 namespace {
@@ -92,14 +139,15 @@ double RenderModel::secondsPerByte(std::size_t render) const {
   return own > 0.0 && workload(render) > 0 ? own : secondsPerByte();
 }
 
-double RenderModel::cost(std::size_t render, std::span<const CellPrefix> needs,
-                         std::uint64_t splats, std::uint64_t* missingBytes) const {
-  std::uint64_t missing = 0;
-  for (const CellPrefix& need : needs) {
-    const std::uint32_t held = heldSplats(render, need.cell);
-    if (need.splats > held) missing += std::uint64_t{need.splats - held} * sizeof(Splat);
-  }
+double RenderModel::cost(std::size_t render, std::span<const CellRange> needs, std::uint64_t splats,
+                         std::uint64_t* missingBytes) const {
+  const std::uint64_t missing = missingSplats(render, needs) * sizeof(Splat);
   if (missingBytes != nullptr) *missingBytes = missing;
+  return costWith(render, missing, splats);
+}
+
+double RenderModel::costWith(std::size_t render, std::uint64_t missing,
+                             std::uint64_t splats) const {
   // The packet's own splats cost the same everywhere; they are included so the
   // figure reads as the expected completion time on that render.
   const double splatSeconds = secondsPerSplat(render);
@@ -153,7 +201,7 @@ std::size_t RenderModel::rendersForParts(double slack, Clock::time_point now) co
 }
 
 std::optional<RenderChoice> RenderModel::chooseAmong(
-    std::span<const CellPrefix> needs, std::uint64_t splats, Clock::time_point now,
+    std::span<const CellRange> needs, std::uint64_t splats, Clock::time_point now,
     const std::function<bool(std::size_t)>& candidate) const {
   const std::size_t count = renders_.size();
   if (liveCount() == 0) throw ProtocolError("no render process is left to draw a packet");
@@ -162,6 +210,22 @@ std::optional<RenderChoice> RenderModel::chooseAmong(
     if (renders_[render].retired) continue;
     allStalled = allStalled && suspectedStalled(render, now);
   }
+  // What each render holds of the needs, in one pass over the few renders
+  // holding each cell: the rest is missing there.
+  std::uint64_t needed = 0;
+  std::vector<std::uint64_t> covered(count, 0);
+  forEachCellBlock(needs, [&](std::uint32_t cell, std::span<const CellRange> block) {
+    std::uint64_t blockSplats = 0;
+    for (const CellRange& need : block) blockSplats += need.count;
+    needed += blockSplats;
+    if (cell >= holders_.size()) return;
+    for (const Holding& held : holders_[cell]) {
+      std::uint64_t lacking = 0;
+      for (const CellRange& need : block)
+        lacking += held.spans.uncovered(need.first, static_cast<std::uint32_t>(need.end()));
+      covered[held.render] += blockSplats - lacking;
+    }
+  });
   std::optional<RenderChoice> best;
   std::uint64_t bestWorkload = 0;
   for (std::size_t step = 0; step < count; ++step) {
@@ -169,8 +233,8 @@ std::optional<RenderChoice> RenderModel::chooseAmong(
     if (renders_[render].retired) continue;
     if (!allStalled && suspectedStalled(render, now)) continue;
     if (candidate && !candidate(render)) continue;
-    std::uint64_t missing = 0;
-    const double value = cost(render, needs, splats, &missing);
+    const std::uint64_t missing = (needed - covered[render]) * sizeof(Splat);
+    const double value = costWith(render, missing, splats);
     const std::uint64_t load = workload(render);
     const bool tie = best && value == best->cost;
     if (!best || value < best->cost || (tie && missing < best->missingBytes) ||
@@ -186,13 +250,13 @@ std::optional<RenderChoice> RenderModel::chooseAmong(
   return best;
 }
 
-RenderChoice RenderModel::choose(std::span<const CellPrefix> needs, std::uint64_t splats,
+RenderChoice RenderModel::choose(std::span<const CellRange> needs, std::uint64_t splats,
                                  Clock::time_point now) const {
   // Some live render is always a candidate (stalled ones too when all are).
   return *chooseAmong(needs, splats, now, {});
 }
 
-std::optional<RenderChoice> RenderModel::chooseApart(std::span<const CellPrefix> needs,
+std::optional<RenderChoice> RenderModel::chooseApart(std::span<const CellRange> needs,
                                                      std::uint64_t splats, Clock::time_point now,
                                                      std::span<const std::size_t> avoid,
                                                      double slack) const {
@@ -203,7 +267,7 @@ std::optional<RenderChoice> RenderModel::chooseApart(std::span<const CellPrefix>
   });
 }
 
-std::optional<RenderChoice> RenderModel::chooseExcept(std::span<const CellPrefix> needs,
+std::optional<RenderChoice> RenderModel::chooseExcept(std::span<const CellRange> needs,
                                                       std::uint64_t splats, Clock::time_point now,
                                                       std::span<const std::uint32_t> avoid) const {
   return chooseAmong(needs, splats, now, [&](std::size_t render) {
@@ -211,7 +275,7 @@ std::optional<RenderChoice> RenderModel::chooseExcept(std::span<const CellPrefix
   });
 }
 
-RenderChoice RenderModel::chooseNearHome(std::size_t home, std::span<const CellPrefix> needs,
+RenderChoice RenderModel::chooseNearHome(std::size_t home, std::span<const CellRange> needs,
                                          std::uint64_t splats, Clock::time_point now) const {
   if (liveCount() == 0) throw ProtocolError("no render process is left to draw a packet");
   home %= renders_.size();
@@ -234,7 +298,7 @@ double RenderModel::queuedSeconds(std::size_t render) const {
   return static_cast<double>(workload(render)) * secondsPerSplat(render);
 }
 
-RenderChoice RenderModel::assigned(std::size_t render, std::span<const CellPrefix> needs,
+RenderChoice RenderModel::assigned(std::size_t render, std::span<const CellRange> needs,
                                    std::uint64_t splats) const {
   RenderChoice choice;
   if (liveCount() == 0) throw ProtocolError("no render process is left to draw a packet");
@@ -247,6 +311,7 @@ RenderChoice RenderModel::assigned(std::size_t render, std::span<const CellPrefi
 
 void RenderModel::retire(std::size_t render) {
   RenderState& state = renders_.at(render);
+  for (std::uint32_t cell = 0; cell < holders_.size(); ++cell) dropHolding(cell, render);
   state = RenderState{};
   state.retired = true;
 }
@@ -257,27 +322,27 @@ std::size_t RenderModel::liveCount() const {
 }
 
 void RenderModel::recordPacket(std::size_t render, std::uint64_t packetId, std::uint64_t splats,
-                               std::span<const CellPrefix> ordered, Clock::time_point now) {
+                               std::span<const CellRange> ordered, Clock::time_point now) {
   RenderState& state = renders_.at(render);
   if (!state.waitingSince) state.waitingSince = now;
   state.unreported.emplace_back(packetId, splats);
   recordPrefetch(render, ordered);
 }
 
-void RenderModel::recordPrefetch(std::size_t render, std::span<const CellPrefix> ordered) {
-  RenderState& state = renders_.at(render);
-  for (const CellPrefix& prefix : ordered) {
-    std::uint32_t& onOrder = state.ordered[prefix.cell];
-    onOrder = std::max(onOrder, prefix.splats);
+void RenderModel::recordPrefetch(std::size_t render, std::span<const CellRange> ordered) {
+  (void)renders_.at(render);
+  for (const CellRange& range : ordered) {
+    holdingFor(range.cell, render).spans.add(range.first, static_cast<std::uint32_t>(range.end()));
   }
 }
 
-std::vector<CellPrefix> RenderModel::missing(std::size_t render,
-                                             std::span<const CellPrefix> needs) const {
-  std::vector<CellPrefix> lacking;
-  for (const CellPrefix& need : needs) {
-    if (need.splats > heldSplats(render, need.cell)) lacking.push_back(need);
-  }
+std::vector<CellRange> RenderModel::missing(std::size_t render,
+                                            std::span<const CellRange> needs) const {
+  (void)renders_.at(render);
+  std::vector<CellRange> lacking;
+  forEachMissing(render, needs, [&](std::uint32_t cell, std::uint32_t begin, std::uint32_t end) {
+    lacking.push_back({cell, begin, end - begin});
+  });
   return lacking;
 }
 
@@ -293,17 +358,16 @@ void RenderModel::applyReport(std::size_t render, const RenderReportView& report
   state.lastPacketSeen = std::max(state.lastPacketSeen, report.lastPacketFromUs);
   std::erase_if(state.unreported,
                 [&](const auto& packet) { return packet.first <= state.lastPacketSeen; });
-  for (const CellPrefix& loaded : report.loaded) {
-    state.cached[loaded.cell] = loaded.splats;
-    // An order for a longer prefix is still on its way.
-    const auto onOrder = state.ordered.find(loaded.cell);
-    if (onOrder != state.ordered.end() && onOrder->second <= loaded.splats) {
-      state.ordered.erase(onOrder);
+  // An eviction drops what was held and what was on order: data-send
+  // forgets the cell too, and the render asks again for what it waits for.
+  for (std::uint32_t cell : report.evicted) dropHolding(cell, render);
+  for (const CellRange& loaded : report.loaded) {
+    Holding& held = holdingFor(loaded.cell, render);
+    held.spans.add(loaded.first, static_cast<std::uint32_t>(loaded.end()));
+    if (!held.confirmed) {
+      held.confirmed = true;
+      ++state.confirmedCells;
     }
-  }
-  for (std::uint32_t cell : report.evicted) {
-    state.cached.erase(cell);
-    state.ordered.erase(cell);
   }
   if (!state.waitingSince && workload(render) > 0) state.waitingSince = now;
   // Already smoothed by the render process (common to its T_s and T_n).

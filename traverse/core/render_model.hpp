@@ -1,10 +1,10 @@
 #pragma once
 // A traverse process's model of every render process (seed 003 §4.3, §4.5):
-// pending work and the cached prefix of every top-level cell (packets are
-// layered coarse-first, common/cell_prefix.hpp), kept from the renders'
-// reports, and the cost function that picks where a render packet goes.
-// Missing bytes are the splats between what a render holds (or has on order)
-// and what the packet needs. As the paper writes it:
+// pending work and the ranges it holds of every top-level cell
+// (common/cell_ranges.hpp), kept from the renders' reports, and the cost
+// function that picks where a render packet goes. Missing bytes are the
+// splats of the ranges a packet needs that a render neither holds nor has on
+// order. As the paper writes it:
 //   Cost(i) = workload(i) * T_s + missing_bytes(i) * T_n
 // As an option the transfer is taken to overlap the work already queued there
 // (data-send streams the cells while the render draws), see docs/scheduling.md:
@@ -21,10 +21,9 @@
 #include <functional>
 #include <optional>
 #include <span>
-#include <unordered_map>
 #include <vector>
 
-#include "common/cell_prefix.hpp"
+#include "common/cell_ranges.hpp"
 #include "common/run_settings.hpp"
 #include "pointillist.pb.h"
 
@@ -32,8 +31,9 @@ namespace pointillist::traverse {
 
 struct RenderReportView {
   std::uint64_t workloadSplats = 0;
-  std::span<const CellPrefix> loaded{};  // the prefix now held
+  // Applied in this order: cells dropped whole, then ranges stored since.
   std::span<const std::uint32_t> evicted{};
+  std::span<const CellRange> loaded{};
   double secondsPerSplat = 0.0;  // 0: not measured yet
   double secondsPerByte = 0.0;   // 0: not measured yet
   // Highest packet id from this traverse the render had received when reporting.
@@ -57,7 +57,7 @@ struct RenderChoice {
   std::size_t render = 0;  // index among render processes
   double cost = 0.0;
   std::uint64_t missingBytes = 0;
-  std::vector<CellPrefix> missing;  // prefixes to order for it (what it lacks of them)
+  std::vector<CellRange> missing;  // ranges to order for it (what it lacks of the needs)
 };
 
 class RenderModel {
@@ -73,7 +73,7 @@ class RenderModel {
   CostModel costModel() const { return costModel_; }
 
   // Cost of sending a packet of `splats` splats that needs `needs` to render i.
-  double cost(std::size_t render, std::span<const CellPrefix> needs, std::uint64_t splats,
+  double cost(std::size_t render, std::span<const CellRange> needs, std::uint64_t splats,
               std::uint64_t* missingBytes = nullptr) const;
   // The render with the lowest cost; ties go to the fewest missing bytes, then
   // the lowest pending work, then rotate from the last choice so idle renders
@@ -81,18 +81,18 @@ class RenderModel {
   // A render that has had work for much longer than that work should take
   // without finishing a packet is suspected stalled and only chosen when every
   // render is.
-  RenderChoice choose(std::span<const CellPrefix> needs, std::uint64_t splats,
+  RenderChoice choose(std::span<const CellRange> needs, std::uint64_t splats,
                       Clock::time_point now) const;
   // The same choice among the renders not in `avoid` (those drawing the other
   // parts of a split tile) that may take a part (rendersForParts with
   // `slack`); nullopt when there is none.
-  std::optional<RenderChoice> chooseApart(std::span<const CellPrefix> needs, std::uint64_t splats,
+  std::optional<RenderChoice> chooseApart(std::span<const CellRange> needs, std::uint64_t splats,
                                           Clock::time_point now, std::span<const std::size_t> avoid,
                                           double slack) const;
   // The cost function's choice among the renders not in `avoid` (the display
   // suspects them: they hold a tile past its deadline); nullopt when none is
   // left.
-  std::optional<RenderChoice> chooseExcept(std::span<const CellPrefix> needs, std::uint64_t splats,
+  std::optional<RenderChoice> chooseExcept(std::span<const CellRange> needs, std::uint64_t splats,
                                            Clock::time_point now,
                                            std::span<const std::uint32_t> avoid) const;
   bool suspectedStalled(std::size_t render, Clock::time_point now) const;
@@ -106,27 +106,29 @@ class RenderModel {
   // least loaded live render's, or it is suspected stalled; then the cost
   // function chooses among all. So no render idles while another holds more
   // than two tiles' worth of work.
-  RenderChoice chooseNearHome(std::size_t home, std::span<const CellPrefix> needs,
+  RenderChoice chooseNearHome(std::size_t home, std::span<const CellRange> needs,
                               std::uint64_t splats, Clock::time_point now) const;
   static constexpr double kHomeSlackPackets = 2.0;
   // The same figures for a render chosen by someone else (other schedulers).
-  RenderChoice assigned(std::size_t render, std::span<const CellPrefix> needs,
+  RenderChoice assigned(std::size_t render, std::span<const CellRange> needs,
                         std::uint64_t splats) const;
 
   // Records that a packet went to `render` with the given id, and that its
-  // missing prefixes were ordered (they count as present from now on).
+  // missing ranges were ordered (they count as present from now on).
   void recordPacket(std::size_t render, std::uint64_t packetId, std::uint64_t splats,
-                    std::span<const CellPrefix> ordered, Clock::time_point now);
-  // Prefixes ordered for `render` ahead of any packet (prefetch along the camera path).
-  void recordPrefetch(std::size_t render, std::span<const CellPrefix> ordered);
-  // Of `needs`, those longer than what `render` holds or has on order.
-  std::vector<CellPrefix> missing(std::size_t render, std::span<const CellPrefix> needs) const;
+                    std::span<const CellRange> ordered, Clock::time_point now);
+  // Ranges ordered for `render` ahead of any packet (prefetch along the camera path).
+  void recordPrefetch(std::size_t render, std::span<const CellRange> ordered);
+  // Of `needs` (sorted by cell), what `render` neither holds nor has on order.
+  std::vector<CellRange> missing(std::size_t render, std::span<const CellRange> needs) const;
+  // The splats of those.
+  std::uint64_t missingSplats(std::size_t render, std::span<const CellRange> needs) const;
   void applyReport(std::size_t render, const RenderReportView& report, Clock::time_point now);
 
   std::uint64_t workload(std::size_t render) const;  // reported + sent since the report
   double queuedSeconds(std::size_t render) const;    // workload * its T_s
-  // The prefix of `cell` that `render` holds or has on order, in splats.
-  std::uint32_t heldSplats(std::size_t render, std::uint32_t cell) const;
+  // The splats of `cell` that `render` holds or has on order.
+  std::uint64_t heldSplats(std::size_t render, std::uint32_t cell) const;
   std::size_t cachedCellCount(std::size_t render) const;
   // T_s and T_n of one render process as the cost function uses them.
   double secondsPerSplat(std::size_t render) const;
@@ -142,9 +144,15 @@ class RenderModel {
   std::size_t liveCount() const;
 
  private:
+  // Calls gap(cell, begin, end) for each stretch of `needs` that `render`
+  // neither holds nor has on order.
+  template <class Gap>
+  void forEachMissing(std::size_t render, std::span<const CellRange> needs, Gap&& gap) const;
+  // The cost function's figure for `render` when `missingBytes` must move there.
+  double costWith(std::size_t render, std::uint64_t missingBytes, std::uint64_t splats) const;
   // The lowest-cost render for which `candidate` holds (every live one when
   // empty); nullopt when none does.
-  std::optional<RenderChoice> chooseAmong(std::span<const CellPrefix> needs, std::uint64_t splats,
+  std::optional<RenderChoice> chooseAmong(std::span<const CellRange> needs, std::uint64_t splats,
                                           Clock::time_point now,
                                           const std::function<bool(std::size_t)>& candidate) const;
   double leastQueuedSeconds(Clock::time_point now) const;
@@ -155,8 +163,7 @@ class RenderModel {
     std::uint64_t lastPacketSeen = 0;
     // Packets sent to this render after its last report: id -> splats.
     std::vector<std::pair<std::uint64_t, std::uint64_t>> unreported;
-    std::unordered_map<std::uint32_t, std::uint32_t> cached;   // prefix confirmed by reports
-    std::unordered_map<std::uint32_t, std::uint32_t> ordered;  // ordered by us, not yet confirmed
+    std::size_t confirmedCells = 0;  // cells a report said it holds some of
     std::uint64_t packetsDone = 0;
     // Since when the render has had work and finished nothing.
     std::optional<Clock::time_point> waitingSince;
@@ -168,6 +175,18 @@ class RenderModel {
   static constexpr double kDefaultSecondsPerSplat = 2e-7;  // until measured: 5 M splats/s
   static constexpr double kDefaultSecondsPerByte = 1e-8;   // until measured: 100 MB/s
   std::vector<RenderState> renders_;
+  // What a render holds of a cell or has on order: kept per cell, so that
+  // the cost of every render is found in one pass over a packet's needs and
+  // the few renders holding each (not a lookup per render and cell).
+  struct Holding {
+    std::uint32_t render = 0;
+    bool confirmed = false;  // a report said it holds some of the cell
+    SpanSet spans;           // held, or on order
+  };
+  std::vector<std::vector<Holding>> holders_;  // by cell
+  const Holding* holding(std::uint32_t cell, std::size_t render) const;
+  Holding& holdingFor(std::uint32_t cell, std::size_t render);
+  void dropHolding(std::uint32_t cell, std::size_t render);
   CostModel costModel_;
   mutable std::size_t rotation_ = 0;
 };

@@ -136,7 +136,7 @@ TEST_F(ChannelTest, SendQueuePostsAnOutboxInOrderAndReapsFinishedSends) {
     report.set_sequence(5);
     out.send(std::vector<int>{0, 0}, report);  // the same report twice, shared
     v1::SendOrder order;
-    order.add_top_level_cells(9);
+    order.add_range_top_level(9);
     out.send(0, order);
     sends.post(out);
     auto owner = std::make_shared<const std::vector<std::byte>>(patternBytes(4096, 3));

@@ -49,8 +49,9 @@ TEST(Messages, RenderPacketRoundTripsWithAllRanges) {
     packet.add_range_offset(i * 64);
     packet.add_range_count(i + 1);
   }
-  packet.add_top_level_cells(3);
-  packet.add_top_level_cells(36);
+  packet.add_need_top_level(3);
+  packet.add_need_first(0);
+  packet.add_need_count(100);
   packet.set_total_splats(500500);
   const auto parsed = roundTrip(packet);
   EXPECT_EQ(parsed.range_offset_size(), 1000);
@@ -75,13 +76,16 @@ TEST(Messages, ControlMessagesRoundTrip) {
   v1::RenderReport report;
   report.set_render_rank(6);
   report.set_workload_splats(1'000'000'000'000ull);
-  report.add_loaded_cells(4);
+  report.add_loaded_top_level(4);
+  report.add_loaded_first(128);
+  report.add_loaded_count(64);
   report.add_evicted_cells(9);
   report.set_seconds_per_splat(2.5e-8);
   const auto parsedReport = roundTrip(report);
   EXPECT_EQ(parsedReport.workload_splats(), 1'000'000'000'000ull);
   EXPECT_DOUBLE_EQ(parsedReport.seconds_per_splat(), 2.5e-8);
   EXPECT_EQ(parsedReport.evicted_cells(0), 9u);
+  EXPECT_EQ(parsedReport.loaded_first(0), 128u);
 
   v1::ErrorReport error;
   error.set_origin_rank(3);
@@ -91,8 +95,11 @@ TEST(Messages, ControlMessagesRoundTrip) {
 
   v1::SendOrder order;
   order.set_render_rank(7);
-  order.add_top_level_cells(11);
-  EXPECT_EQ(roundTrip(order).top_level_cells(0), 11u);
+  order.add_range_top_level(11);
+  order.add_range_first(40);
+  order.add_range_count(8);
+  EXPECT_EQ(roundTrip(order).range_top_level(0), 11u);
+  EXPECT_EQ(roundTrip(order).range_first(0), 40u);
 
   v1::HandshakeReply reply;
   reply.set_accepted(true);
@@ -129,7 +136,7 @@ TEST(Outbox, KeepsOrderSharesOneMessageAmongDestinationsAndChecksTypes) {
   report.set_sequence(3);
   out.send(std::vector<int>{1, 2, 5}, report);
   v1::SendOrder order;
-  order.add_top_level_cells(4);
+  order.add_range_top_level(4);
   out.send(7, order);
   out.send(std::vector<int>{}, order);  // nobody to tell: nothing queued
   ASSERT_EQ(out.entries().size(), 2u);

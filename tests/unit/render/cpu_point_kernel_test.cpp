@@ -292,6 +292,35 @@ TEST(CpuPointKernel, ACellGrownInPartsEqualsOneUpload) {
   EXPECT_TRUE(drawSimd(raster, grown, 0, grown.count) == drawScalar(raster, splats));
 }
 
+// A cell written in ranges out of order, with holes between them (a render
+// holds the ranges its tiles draw), draws each range as one upload of the
+// whole packet does.
+TEST(CpuPointKernel, ACellWrittenInRangesDrawsTheRangesAsTheWholePacket) {
+  const std::vector<Splat> splats = edgeScene(5000, 61);
+  const PointCell whole = makePointCell(splats);
+  const std::span<const Splat> all(splats);
+  PointCell ranged;
+  // The far ranges first, made room for once; then nearer ones, one that
+  // overlaps data held (the same splats), and one that starts mid-group.
+  writeToPointCell(ranged, 4000, all.subspan(4000, 1000), 5000);
+  writeToPointCell(ranged, 1000, all.subspan(1000, 500));
+  writeToPointCell(ranged, 1400, all.subspan(1400, 300));
+  writeToPointCell(ranged, 7, all.subspan(7, 9));
+  EXPECT_EQ(ranged.count, splats.size());
+  const Camera camera = kernelCamera();
+  const std::pair<std::size_t, std::size_t> held[] = {{7, 16}, {1000, 1700}, {4000, 5000}};
+  for (const RenderSettings& settings : settingsVariants()) {
+    const PointRaster raster = pointRaster(camera, fullFrameRect(camera), settings);
+    for (const auto& [from, to] : held) {
+      EXPECT_TRUE(drawSimd(raster, ranged, from, to) == drawSimd(raster, whole, from, to))
+          << from << "-" << to;
+    }
+  }
+  // A hole reads as zeros, never as another cell's data.
+  EXPECT_EQ(*ranged.x(2000), 0.0f);
+  EXPECT_EQ(*ranged.radius(3), 0.0f);
+}
+
 // Vectors of values that start on a cache line, as a laid-out block does.
 template <class T>
 struct CacheLineAllocator {

@@ -47,26 +47,35 @@ RenderCore makeCore(std::uint64_t capCells, std::optional<std::uint64_t> stallAf
   return RenderCore(config, kPeers, kSelf, table(4), kOwners);
 }
 
-// A packet drawing the whole of each cell (or the first `prefix` splats).
-v1::RenderPacket packet(std::uint64_t id, std::vector<std::uint32_t> cells,
-                        std::uint64_t splats = 5000, std::uint64_t frame = 7,
-                        std::uint32_t prefix = kCellSplats) {
+// A packet drawing and needing the given ranges.
+v1::RenderPacket packetOf(std::uint64_t id, const std::vector<CellRange>& ranges,
+                          std::uint64_t splats = 5000, std::uint64_t frame = 7) {
   v1::RenderPacket p;
   p.set_frame_id(frame);
   p.set_tile_id(static_cast<std::uint32_t>(id));
   p.set_packet_id(id);
   p.set_traverse_rank(kTraverse);
   p.set_total_splats(splats);
-  for (std::uint32_t cell : cells) {
-    p.add_top_level_cells(cell);
-    p.add_top_level_splats(prefix);
-    p.add_range_top_level(cell);
-    p.add_range_offset(0);
-    p.add_range_count(prefix);
+  for (const CellRange& range : ranges) {
+    p.add_need_top_level(range.cell);
+    p.add_need_first(range.first);
+    p.add_need_count(range.count);
+    p.add_range_top_level(range.cell);
+    p.add_range_offset(range.first);
+    p.add_range_count(range.count);
   }
   p.mutable_rect()->set_width(8);
   p.mutable_rect()->set_height(4);
   return p;
+}
+
+// A packet drawing the whole of each cell (or the first `prefix` splats).
+v1::RenderPacket packet(std::uint64_t id, std::vector<std::uint32_t> cells,
+                        std::uint64_t splats = 5000, std::uint64_t frame = 7,
+                        std::uint32_t prefix = kCellSplats) {
+  std::vector<CellRange> ranges;
+  for (std::uint32_t cell : cells) ranges.push_back({cell, 0, prefix});
+  return packetOf(id, ranges, splats, frame);
 }
 
 // The messages of an outbox, flattened to (kind, destination) in order.
@@ -87,13 +96,23 @@ std::vector<const v1::SendOrder*> orders(const Outbox& out) {
 }
 
 std::vector<std::uint32_t> cellsOf(const v1::SendOrder& order) {
-  return {order.top_level_cells().begin(), order.top_level_cells().end()};
+  return {order.range_top_level().begin(), order.range_top_level().end()};
+}
+
+std::vector<CellRange> rangesOf(const v1::SendOrder& order) {
+  return rangesFromFields(order.range_top_level(), order.range_first(), order.range_count(),
+                          "order");
+}
+
+std::vector<CellRange> loadedIn(const v1::RenderReport& report) {
+  return rangesFromFields(report.loaded_top_level(), report.loaded_first(), report.loaded_count(),
+                          "report");
 }
 
 // A whole cell's data arriving.
 DataVerdict whole(RenderCore& core, std::uint32_t cell, double seconds, TimePoint now,
                   RenderEffects& effects) {
-  return core.receiveData(cell, 0, kCellSplats, seconds, now, effects).verdict;
+  return core.receiveData(cell, 0, kCellSplats, seconds, now, effects);
 }
 
 TEST(RenderCore, AsksTheOwningDataSendForMissingCellsOnceAndNamesItselfAsRequester) {
@@ -315,9 +334,7 @@ TEST(RenderCore, ReportsGoToEveryTraverseWithEachOnesLastPacketAndToDataSendOnly
   EXPECT_EQ(message.last_packet_from_traverse(1), 4u);
   EXPECT_EQ(message.packets_done(), 1u);
   EXPECT_EQ(message.workload_splats(), 5000u);
-  EXPECT_EQ(message.loaded_cells_size(), 1);
-  ASSERT_EQ(message.loaded_splats_size(), 1);
-  EXPECT_EQ(message.loaded_splats(0), kCellSplats);
+  EXPECT_EQ(loadedIn(message), (std::vector<CellRange>{{0, 0, kCellSplats}}));
   // A packet from a process that is not a traverse is a protocol error.
   EXPECT_THROW(core.receivePacket(3, packet(1, {0}), kStart, drawn), ProtocolError);
   EXPECT_THROW(core.receivePacket(kTraverse, packet(1, {4}), kStart, drawn), ProtocolError);
@@ -337,90 +354,94 @@ TEST(RenderCore, AStalledProcessKeepsTakingMessagesButDrawsNothing) {
   EXPECT_EQ(core.queuedPackets(), 1u);
 }
 
-std::vector<std::uint32_t> prefixesOf(const v1::SendOrder& order) {
-  return {order.top_level_splats().begin(), order.top_level_splats().end()};
-}
-
-TEST(RenderCore, HoldsPrefixesOfLayeredPacketsAndAsksOnlyForTheSplatsBeyond) {
+// A render holds ranges of a cell's packet, wherever they lie: it asks for
+// what it lacks of a packet's needs, a copy takes the room up to the last
+// splat held, and a report lists the ranges stored since the last one.
+TEST(RenderCore, HoldsRangesOfPacketsAndAsksOnlyForWhatItLacks) {
   RenderCore core = makeCore(4);
   RenderEffects effects;
   // A distant view draws cell 0's first layer only: 40 splats are asked for.
   core.receivePacket(kTraverse, packet(1, {0}, 40, 7, 40), kStart, effects);
   auto asked = orders(effects.messages);
   ASSERT_EQ(asked.size(), 1u);
-  EXPECT_EQ(prefixesOf(*asked[0]), (std::vector<std::uint32_t>{40}));
-  DataIntake intake = core.receiveData(0, 0, 40, 0.0, kStart + 1ms, effects);
-  EXPECT_EQ(intake.verdict, DataVerdict::Store);
-  EXPECT_EQ(intake.skip, 0u);
-  EXPECT_EQ(intake.count, 40u);
+  EXPECT_EQ(rangesOf(*asked[0]), (std::vector<CellRange>{{0, 0, 40}}));
+  EXPECT_EQ(core.receiveData(0, 0, 40, 0.0, kStart + 1ms, effects), DataVerdict::Store);
   EXPECT_EQ(core.heldSplats(0), 40u);
   EXPECT_EQ(core.cache().bytes(), 40 * sizeof(Splat));
   auto ready = core.nextPacket(kStart + 1ms, effects);
   ASSERT_TRUE(ready);
   core.packetDrawn(*ready, 40, 0.001, kStart + 2ms, effects);
-  // Closer: the whole cell. The prefix held is a hit for nothing; the order
-  // names the whole prefix, and the extension holds only the splats beyond.
+  // A packet needing 20-60 and 150-200: it asks for 40-60 and 150-200 only.
   RenderEffects closer;
-  core.receivePacket(kTraverse, packet(2, {0}), kStart + 3ms, closer);
+  core.receivePacket(kTraverse, packetOf(2, {{0, 20, 40}, {0, 150, 50}}), kStart + 3ms, closer);
   EXPECT_EQ(core.misses(), 2u);
   asked = orders(closer.messages);
   ASSERT_EQ(asked.size(), 1u);
-  EXPECT_EQ(prefixesOf(*asked[0]), (std::vector<std::uint32_t>{kCellSplats}));
-  EXPECT_FALSE(core.nextPacket(kStart + 3ms, closer));
-  intake = core.receiveData(0, 40, kCellSplats - 40, 0.0, kStart + 4ms, closer);
-  EXPECT_EQ(intake.verdict, DataVerdict::Store);
-  EXPECT_EQ(intake.skip, 0u);
-  EXPECT_EQ(intake.count, kCellSplats - 40);
-  EXPECT_EQ(core.heldSplats(0), kCellSplats);
+  EXPECT_EQ(rangesOf(*asked[0]), (std::vector<CellRange>{{0, 40, 20}, {0, 150, 50}}));
+  // The far range first: a copy now takes room for 200 splats, and the
+  // packet still waits.
+  EXPECT_EQ(core.receiveData(0, 150, 50, 0.0, kStart + 4ms, closer), DataVerdict::Store);
+  EXPECT_EQ(core.heldSplats(0), 90u);
+  EXPECT_EQ(core.heldExtent(0), kCellSplats);
   EXPECT_EQ(core.cache().bytes(), kCellBytes);
+  EXPECT_TRUE(core.requested(0));
+  // Idle and waiting: the report of what came goes out.
+  RenderEffects waiting;
+  EXPECT_FALSE(core.nextPacket(kStart + 4ms, waiting));
+  ASSERT_EQ(waiting.messages.entries().size(), 1u);
+  EXPECT_EQ(loadedIn(waiting.messages.entries()[0].as<v1::RenderReport>()),
+            (std::vector<CellRange>{{0, 150, 50}}));
+  EXPECT_EQ(core.receiveData(0, 40, 20, 0.0, kStart + 5ms, closer), DataVerdict::Store);
   EXPECT_FALSE(core.requested(0));
-  ready = core.nextPacket(kStart + 4ms, closer);
+  EXPECT_TRUE(core.holds(0, 0, 60));
+  EXPECT_FALSE(core.holds(0, 0, 61));
+  ready = core.nextPacket(kStart + 5ms, closer);
   ASSERT_TRUE(ready);
   RenderEffects drawn;
-  core.packetDrawn(*ready, kCellSplats, 0.001, kStart + 5ms, drawn);
+  core.packetDrawn(*ready, 90, 0.001, kStart + 6ms, drawn);
   const auto& report = drawn.messages.entries()[0].as<v1::RenderReport>();
-  ASSERT_EQ(report.loaded_cells_size(), 1);
-  EXPECT_EQ(report.loaded_splats(0), kCellSplats);
-  // Overlapping data keeps only what is new; data held already is a duplicate.
-  EXPECT_EQ(core.receiveData(0, 0, kCellSplats, 0.0, kStart, drawn).verdict,
-            DataVerdict::Duplicate);
-  RenderCore other = makeCore(4);
-  other.receiveData(1, 0, 40, 0.0, kStart, drawn);
-  intake = other.receiveData(1, 0, 120, 0.0, kStart, drawn);
-  EXPECT_EQ(intake.verdict, DataVerdict::Store);
-  EXPECT_EQ(intake.skip, 40u);
-  EXPECT_EQ(intake.count, 80u);
-  EXPECT_EQ(other.heldSplats(1), 120u);
+  EXPECT_EQ(loadedIn(report), (std::vector<CellRange>{{0, 40, 20}}));
+  // Data held already is a duplicate; data partly new is stored whole.
+  EXPECT_EQ(core.receiveData(0, 10, 50, 0.0, kStart, drawn), DataVerdict::Duplicate);
+  EXPECT_EQ(core.receiveData(0, 55, 100, 0.0, kStart, drawn), DataVerdict::Store);
+  EXPECT_EQ(core.heldSplats(0), kCellSplats);
 }
 
-TEST(RenderCore, ALaterPartOfAnEvictedCellIsDroppedAndTheCellAskedForAgain) {
-  // Room for one cell: cell 0's first layer is evicted by cell 1 while its
-  // extension is on the way.
+// A part that arrives after its cell was evicted is stored as any other:
+// ranges need no gap-free start.
+TEST(RenderCore, APartOfAnEvictedCellIsStoredAndReportedAfterTheEviction) {
+  // Room for one cell: cell 0's first layer is evicted by cell 1 while more
+  // of it is on the way.
   RenderCore core = makeCore(1);
   RenderEffects effects;
   core.receiveData(0, 0, 40, 0.0, kStart, effects);
   core.receivePacket(kTraverse, packet(1, {1}), kStart, effects);
-  whole(core, 1, 0.0, kStart, effects);
+  RenderEffects evicting;
+  whole(core, 1, 0.0, kStart, evicting);
+  EXPECT_EQ(evicting.released, (std::vector<std::uint32_t>{0}));
   EXPECT_EQ(core.heldSplats(0), 0u);
   auto ready = core.nextPacket(kStart, effects);
   ASSERT_TRUE(ready);
-  core.packetDrawn(*ready, 100, 0.001, kStart, effects);
-  core.receivePacket(kTraverse, packet(2, {0}), kStart, effects);
-  RenderEffects gap;
-  EXPECT_EQ(core.receiveData(0, 40, 60, 0.0, kStart + 1ms, gap).verdict, DataVerdict::Dropped);
-  EXPECT_EQ(core.heldSplats(0), 0u);
-  // Asked for again at once: data-send restarts the cell after the eviction.
-  const auto asked = orders(gap.messages);
-  ASSERT_EQ(asked.size(), 1u);
-  EXPECT_EQ(cellsOf(*asked[0]), (std::vector<std::uint32_t>{0}));
-  EXPECT_EQ(prefixesOf(*asked[0]), (std::vector<std::uint32_t>{kCellSplats}));
-  // A gap after a prefix still held would mean a broken data-send.
-  RenderCore other = makeCore(4);
-  other.receiveData(2, 0, 40, 0.0, kStart, gap);
-  EXPECT_THROW(other.receiveData(2, 100, 10, 0.0, kStart, gap), ProtocolError);
+  RenderEffects drawn;
+  core.packetDrawn(*ready, 100, 0.001, kStart, drawn);
+  const auto& first = drawn.messages.entries()[0].as<v1::RenderReport>();
+  EXPECT_EQ(first.evicted_cells_size(), 1);
+  EXPECT_EQ(loadedIn(first), (std::vector<CellRange>{{1, 0, kCellSplats}}));
+  // Cell 1 is no longer pinned: the late part of cell 0 makes room.
+  RenderEffects late;
+  EXPECT_EQ(core.receiveData(0, 40, 60, 0.0, kStart + 1ms, late), DataVerdict::Store);
+  EXPECT_EQ(late.released, (std::vector<std::uint32_t>{1}));
+  EXPECT_EQ(core.heldSplats(0), 60u);
+  core.nextPacket(kStart + 2ms, late);  // idle: the report goes
+  ASSERT_FALSE(late.messages.entries().empty());
+  const auto& second = late.messages.entries().back().as<v1::RenderReport>();
+  EXPECT_EQ(
+      std::vector<std::uint32_t>(second.evicted_cells().begin(), second.evicted_cells().end()),
+      (std::vector<std::uint32_t>{1}));
+  EXPECT_EQ(loadedIn(second), (std::vector<CellRange>{{0, 40, 60}}));
 }
 
-TEST(RenderCore, RefusesPacketsWhoseRangesReachBeyondThePrefixTheyWaitFor) {
+TEST(RenderCore, RefusesPacketsWhoseRangesLieOutsideWhatTheyWaitFor) {
   RenderCore core = makeCore(4);
   RenderEffects effects;
   v1::RenderPacket beyond = packet(1, {0}, 100, 7, 40);
@@ -429,13 +450,30 @@ TEST(RenderCore, RefusesPacketsWhoseRangesReachBeyondThePrefixTheyWaitFor) {
   v1::RenderPacket tooLong = packet(2, {0}, 100, 7, kCellSplats + 1);
   tooLong.set_range_count(0, 1);
   EXPECT_THROW(core.receivePacket(kTraverse, tooLong, kStart, effects), ProtocolError);
-  v1::RenderPacket noPrefix = packet(3, {0});
-  noPrefix.clear_top_level_splats();
-  EXPECT_THROW(core.receivePacket(kTraverse, noPrefix, kStart, effects), ProtocolError);
+  v1::RenderPacket noCounts = packet(3, {0});
+  noCounts.clear_need_count();
+  EXPECT_THROW(core.receivePacket(kTraverse, noCounts, kStart, effects), ProtocolError);
   v1::RenderPacket unnamed = packet(4, {0});
   unnamed.set_range_top_level(0, 2);
   EXPECT_THROW(core.receivePacket(kTraverse, unnamed, kStart, effects), ProtocolError);
+  // Needs that touch, or that go backwards.
+  EXPECT_THROW(
+      core.receivePacket(kTraverse, packetOf(5, {{0, 0, 40}, {0, 40, 10}}), kStart, effects),
+      ProtocolError);
+  EXPECT_THROW(
+      core.receivePacket(kTraverse, packetOf(6, {{1, 0, 40}, {0, 50, 10}}), kStart, effects),
+      ProtocolError);
+  // A range between two needs, or across both.
+  for (const CellRange& drawn : {CellRange{0, 50, 10}, CellRange{0, 30, 80}}) {
+    v1::RenderPacket between = packetOf(7, {{0, 0, 40}, {0, 100, 40}});
+    between.set_range_offset(1, drawn.first);
+    between.set_range_count(1, drawn.count);
+    EXPECT_THROW(core.receivePacket(kTraverse, between, kStart, effects), ProtocolError);
+  }
   EXPECT_EQ(core.queuedPackets(), 0u);
+  // Two ranges in two needs of one cell are a packet.
+  core.receivePacket(kTraverse, packetOf(8, {{0, 0, 40}, {0, 100, 40}}), kStart, effects);
+  EXPECT_EQ(core.queuedPackets(), 1u);
 }
 
 // A data packet's header must describe its payload exactly: its parts' splats

@@ -37,8 +37,10 @@ TEST_P(RendererHandover, ForEachCellGivesBackEveryCellAsUploaded) {
   const auto other = mixedScene(77, 3);
   const auto dropped = mixedScene(10, 4);
   renderer->uploadCell(3, first);
-  renderer->appendToCell(3, more);   // a longer prefix of cell 3 arrived
-  renderer->appendToCell(7, other);  // an unknown id starts a cell
+  // More of cell 3 arrived: the range after what it holds.
+  renderer->writeToCell(3, static_cast<std::uint32_t>(first.size()), more,
+                        first.size() + more.size());
+  renderer->writeToCell(7, 0, other, other.size());  // an unknown id starts a cell
   renderer->uploadCell(9, dropped);
   renderer->releaseCell(9);
   renderer->releaseCell(42);  // unknown: nothing happens
@@ -58,7 +60,7 @@ TEST_P(RendererHandover, ARendererFedByAnotherDrawsAsOneFedDirectly) {
   const std::span<const Splat> all(scene);
   auto source = makeTileRenderer(from, GlProfile::Compatibility);
   source->uploadCell(0, all.first(1500));
-  source->appendToCell(0, all.subspan(1500, 1000));
+  source->writeToCell(0, 1500, all.subspan(1500, 1000), 2500);
   source->uploadCell(1, all.subspan(2500));
 
   auto handedOver = makeTileRenderer(to, GlProfile::Compatibility);

@@ -1,10 +1,12 @@
 // Layered packets (dataset format 4) end to end through the real cores, without
 // MPI: a camera comes closer to the built-in city; for every frame the
-// traversal's needs go through the traverse's planner, the data-send's ledger
+// traversal's ranges go through the traverse's planner, the data-send's ledger
 // and the render's core, and the bytes that travel are the dataset's own.
 // LOD-layered packets must deliver exactly the splats the traversal asked for:
 // the render can draw every range from what it received, each splat travels
-// once, and no cell sends more than the shortest prefix its ranges need.
+// once, and nothing travels but the drawn ranges (joined across gaps of at
+// most the run's gap, common/run_settings.hpp): not the culled cells a prefix
+// through them holds.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -13,6 +15,7 @@
 #include <memory>
 
 #include "common/camera.hpp"
+#include "common/cell_ranges.hpp"
 #include "common/ownership.hpp"
 #include "datasend/core/send_ledger.hpp"
 #include "preprocess/dataset_builder.hpp"
@@ -80,13 +83,15 @@ TEST(LayeredPackets, DeliverExactlyTheSplatsTheTraversalAskedFor) {
   config.cacheCapBytes = 1ull << 30;  // nothing is evicted: every byte counts
   render::RenderCore core(config, peers, 3, content.topLevel, owners);
 
-  // What the render holds per cell (the bytes that travelled), and the longest
-  // prefix any frame's traversal asked for.
+  // What the render holds per cell (the bytes that travelled, and where they
+  // lie), and what any frame's traversal asked for.
   std::map<std::uint32_t, std::vector<Splat>> held;
-  std::map<std::uint32_t, std::uint32_t> asked;
+  std::map<std::uint32_t, SpanSet> arrived;
+  std::map<std::uint32_t, SpanSet> asked;
   std::uint64_t bytesMoved = 0;
   std::vector<std::uint64_t> bytesPerFrame;
   std::uint64_t firstFramePacketBytes = 0;  // whole packets of the cells frame 0 draws from
+  std::uint64_t firstFramePrefixBytes = 0;  // the prefixes holding its ranges
   TimePoint now = timeAfterEpoch(10.0);
 
   const glm::vec3 low(content.manifest.boundsMin[0], content.manifest.boundsMin[1],
@@ -108,17 +113,24 @@ TEST(LayeredPackets, DeliverExactlyTheSplatsTheTraversalAskedFor) {
     const traverse::PacketPlan plan =
         planner.planPackets(task, traverse::walkOf(walk), {}, now, out).front();
 
-    // The prefix is the shortest one holding every range: it ends where the
-    // cell's last drawn range ends.
-    ASSERT_EQ(plan.needs.size(), walk.needs.size());
-    for (std::size_t i = 0; i < plan.needs.size(); ++i) {
-      const CellPrefix& need = plan.needs[i];
-      ASSERT_EQ(need.cell, walk.needs[i].cell);
-      std::uint32_t lastEnd = 0;
-      for (const traverse::PacketRange& range : walk.ranges)
-        if (range.topLevel == need.cell) lastEnd = std::max(lastEnd, range.offset + range.count);
-      ASSERT_EQ(need.splats, lastEnd) << "cell " << need.cell;
-      asked[need.cell] = std::max(asked[need.cell], need.splats);
+    // The needs are the drawn ranges, joined where a few splats apart: every
+    // needed splat is drawn, or lies in such a gap.
+    std::vector<CellRange> drawn;
+    for (const traverse::PacketRange& range : walk.ranges)
+      drawn.push_back({range.topLevel, range.offset, range.count});
+    std::vector<CellRange> expected = drawn;
+    normalizeCellRanges(expected, needGapSplats(settings));
+    ASSERT_EQ(plan.needs, expected) << "frame " << frame;
+    std::map<std::uint32_t, SpanSet> drawnSpans;
+    for (const CellRange& range : drawn)
+      drawnSpans[range.cell].add(range.first, static_cast<std::uint32_t>(range.end()));
+    for (const CellRange& need : plan.needs) {
+      drawnSpans[need.cell].forEachGap(need.first, static_cast<std::uint32_t>(need.end()),
+                                       [&](std::uint32_t b, std::uint32_t e) {
+                                         EXPECT_LE(e - b, needGapSplats(settings))
+                                             << "cell " << need.cell << " splat " << b;
+                                       });
+      asked[need.cell].add(need.first, static_cast<std::uint32_t>(need.end()));
     }
 
     // Orders to the data-send; its ranges carry the dataset's bytes to the render.
@@ -126,17 +138,17 @@ TEST(LayeredPackets, DeliverExactlyTheSplatsTheTraversalAskedFor) {
     render::RenderEffects effects;
     for (const Outgoing& outgoing : out.entries()) {
       if (outgoing.kind == MessageKind::SendOrder) {
-        for (const datasend::SplatRange& range :
-             ledger.rangesToSend(outgoing.as<v1::SendOrder>())) {
+        for (const CellRange& range : ledger.rangesToSend(outgoing.as<v1::SendOrder>())) {
           const std::span<const Splat> part =
               std::span<const Splat>(packets.at(range.cell)).subspan(range.first, range.count);
-          const render::DataIntake intake =
-              core.receiveData(range.cell, range.first, range.count, 1e-3, now, effects);
-          ASSERT_EQ(intake.verdict, render::DataVerdict::Store);
+          ASSERT_EQ(core.receiveData(range.cell, range.first, range.count, 1e-3, now, effects),
+                    render::DataVerdict::Store);
           std::vector<Splat>& cell = held[range.cell];
-          ASSERT_EQ(cell.size(), range.first) << "ranges of a cell arrive in order, once";
-          cell.insert(cell.end(), part.begin() + intake.skip,
-                      part.begin() + intake.skip + intake.count);
+          cell.resize(packets.at(range.cell).size());
+          std::copy(part.begin(), part.end(), cell.begin() + range.first);
+          const auto end = static_cast<std::uint32_t>(range.end());
+          ASSERT_EQ(arrived[range.cell].add(range.first, end), range.count)
+              << "a splat of cell " << range.cell << " travelled twice";
           moved += range.count * sizeof(Splat);
         }
       } else if (outgoing.kind == MessageKind::RenderPacket) {
@@ -146,8 +158,9 @@ TEST(LayeredPackets, DeliverExactlyTheSplatsTheTraversalAskedFor) {
     bytesMoved += moved;
     bytesPerFrame.push_back(moved);
     if (frame == 0) {
-      for (const CellPrefix& need : plan.needs) {
+      for (const CellPrefix& need : walk.needs) {
         firstFramePacketBytes += packets[need.cell].size() * sizeof(Splat);
+        firstFramePrefixBytes += std::uint64_t{need.splats} * sizeof(Splat);
       }
     }
     // The render's own requests find nothing left to send: the traverse ordered it all.
@@ -166,7 +179,7 @@ TEST(LayeredPackets, DeliverExactlyTheSplatsTheTraversalAskedFor) {
     for (int r = 0; r < packet.range_top_level_size(); ++r) {
       const std::uint32_t cell = packet.range_top_level(r);
       const std::uint32_t offset = packet.range_offset(r), count = packet.range_count(r);
-      ASSERT_LE(offset + count, held[cell].size()) << "range beyond what arrived";
+      ASSERT_TRUE(arrived[cell].covers(offset, offset + count)) << "range beyond what arrived";
       ASSERT_TRUE(sameSplats(std::span<const Splat>(held[cell]).subspan(offset, count),
                              std::span<const Splat>(packets[cell]).subspan(offset, count)));
     }
@@ -180,20 +193,23 @@ TEST(LayeredPackets, DeliverExactlyTheSplatsTheTraversalAskedFor) {
     ++frame;
   }
 
-  // Nothing beyond the asked prefixes travelled, and each splat once.
+  // Nothing but the asked ranges travelled, and each splat once.
   std::uint64_t askedBytes = 0;
-  for (const auto& [cell, splats] : asked) {
-    EXPECT_EQ(held[cell].size(), splats) << "cell " << cell;
-    EXPECT_EQ(core.heldSplats(cell), splats);
-    askedBytes += std::uint64_t{splats} * sizeof(Splat);
+  for (const auto& [cell, spans] : asked) {
+    EXPECT_EQ(arrived[cell], spans) << "cell " << cell;
+    EXPECT_EQ(core.heldSplats(cell), spans.splats());
+    askedBytes += spans.splats() * sizeof(Splat);
   }
-  EXPECT_EQ(held.size(), asked.size());
+  EXPECT_EQ(arrived.size(), asked.size());
   EXPECT_EQ(bytesMoved, askedBytes);
   EXPECT_EQ(core.dataBytesReceived(), askedBytes);
   // Not vacuous: distant frames move a small part of the packets they draw
-  // from, and coming closer extends prefixes already held.
+  // from, less than the prefixes through their ranges, and coming closer adds
+  // to cells already held.
   EXPECT_LT(bytesPerFrame.front() * 4, firstFramePacketBytes)
       << "the first frame moved whole packets";
+  EXPECT_LT(bytesPerFrame.front() * 5, firstFramePrefixBytes * 4)
+      << "the first frame moved as much as the prefixes through its ranges";
   EXPECT_GT(ledger.extensionsSent(), 0u);
 }
 

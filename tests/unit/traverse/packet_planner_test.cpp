@@ -8,6 +8,7 @@
 #include <memory>
 #include <random>
 
+#include "common/cell_ranges.hpp"
 #include "common/splat.hpp"
 
 #include "traverse/core/decision_log.hpp"
@@ -82,26 +83,40 @@ v1::TileTask task(std::uint64_t frame, std::uint32_t tile) {
   return t;
 }
 
-std::vector<CellPrefix> whole(std::vector<std::uint32_t> cells) {
+std::vector<CellRange> whole(std::vector<std::uint32_t> cells) {
+  std::vector<CellRange> ranges;
+  for (std::uint32_t cell : cells) ranges.push_back({cell, 0, wholeCell(cell)});
+  return ranges;
+}
+
+std::vector<CellPrefix> wholePrefixes(std::vector<std::uint32_t> cells) {
   std::vector<CellPrefix> prefixes;
   for (std::uint32_t cell : cells) prefixes.push_back({cell, wholeCell(cell)});
   return prefixes;
 }
 
-// A walk drawing the whole of each cell, or the given prefixes.
+// A walk drawing the whole of each cell, or the given ranges (sorted by cell
+// and splat), as traverseTile would give it: each cell drawn from with the
+// prefix that holds its ranges.
 struct Walk {
-  explicit Walk(std::vector<std::uint32_t> topLevel, std::uint64_t count = 10'000,
-                std::vector<PacketRange> drawn = {})
-      : needs(whole(std::move(topLevel))), splats(count), ranges(std::move(drawn)) {}
-  static Walk prefixes(std::vector<CellPrefix> needs, std::uint64_t count) {
+  explicit Walk(std::vector<std::uint32_t> topLevel, std::uint64_t count = 10'000)
+      : needs(wholePrefixes(topLevel)), splats(count) {
+    for (std::uint32_t cell : topLevel) ranges.push_back({cell, 0, wholeCell(cell)});
+  }
+  static Walk drawing(std::vector<PacketRange> drawn, std::uint64_t count = 10) {
     Walk walk({}, count);
-    walk.needs = std::move(needs);
+    walk.ranges = std::move(drawn);
+    for (const PacketRange& range : walk.ranges) {
+      if (walk.needs.empty() || walk.needs.back().cell != range.topLevel)
+        walk.needs.push_back({range.topLevel, 0});
+      walk.needs.back().splats = std::max(walk.needs.back().splats, range.offset + range.count);
+    }
     return walk;
   }
   std::vector<CellPrefix> needs;
   std::uint64_t splats;
   std::vector<PacketRange> ranges;
-  TileWalk view() const { return {needs, splats, ranges, {}, {}}; }
+  TileWalk view() const { return {needs, splats, ranges, {}}; }
 };
 
 v1::RenderReport report(std::uint64_t workload, std::vector<std::uint32_t> loaded = {},
@@ -109,8 +124,9 @@ v1::RenderReport report(std::uint64_t workload, std::vector<std::uint32_t> loade
   v1::RenderReport r;
   r.set_workload_splats(workload);
   for (std::uint32_t cell : loaded) {
-    r.add_loaded_cells(cell);
-    r.add_loaded_splats(wholeCell(cell));
+    r.add_loaded_top_level(cell);
+    r.add_loaded_first(0);
+    r.add_loaded_count(wholeCell(cell));
   }
   r.set_packets_done(packetsDone);
   r.add_last_packet_from_traverse(lastPacket);
@@ -136,7 +152,7 @@ std::vector<std::pair<int, std::vector<std::uint32_t>>> ordersIn(const Outbox& o
     const auto& order = outgoing.as<v1::SendOrder>();
     orders.emplace_back(
         outgoing.destinations.at(0),
-        std::vector<std::uint32_t>(order.top_level_cells().begin(), order.top_level_cells().end()));
+        std::vector<std::uint32_t>(order.range_top_level().begin(), order.range_top_level().end()));
   }
   return orders;
 }
@@ -145,7 +161,7 @@ TEST(PacketPlanner, SendsThePacketToTheRenderHoldingTheDataAndOrdersTheRestFromT
   PacketPlanner p = planner();
   p.applyReport(kRender1, report(0, {0, 4}), kStart);
   Outbox out;
-  const Walk walk({0, 1, 4, 5}, 10'000, {{0, 0, 10}, {5, 3, 7}});
+  const Walk walk({0, 1, 4, 5});
   const PacketPlan plan = p.planPackets(task(3, 2), walk.view(), {}, kStart, out).front();
   EXPECT_EQ(plan.renderRank, kRender1);
   EXPECT_EQ(plan.choice.missing, whole({1, 5}));
@@ -166,8 +182,10 @@ TEST(PacketPlanner, SendsThePacketToTheRenderHoldingTheDataAndOrdersTheRestFromT
   EXPECT_EQ(packet.packet_id(), 1u);
   EXPECT_EQ(packet.total_splats(), 10'000u);
   EXPECT_EQ(packet.ordered_bytes(), 2'000'000u + 6'000'000u);
-  EXPECT_EQ(packet.range_offset_size(), 2);
-  EXPECT_EQ(packet.range_top_level(1), 5u);
+  EXPECT_EQ(packet.range_offset_size(), 4);
+  EXPECT_EQ(packet.range_top_level(3), 5u);
+  EXPECT_EQ(packet.need_top_level_size(), 4);
+  EXPECT_EQ(packet.need_count(1), wholeCell(1));
   // The orders leave before the packet, and the display hears it may send more.
   EXPECT_EQ(out.entries().back().kind, MessageKind::WorkRequest);
   EXPECT_EQ(out.entries().back().destinations, (std::vector<int>{0}));
@@ -262,7 +280,7 @@ TEST(PacketPlanner, PrefetchesWhatTheRectNeedsLaterWithinTheBudgetWithoutDuplica
   Outbox out;
   // Cell 1 is needed now; 1 (again), 2 and 3 later. The 8 MiB budget takes
   // 2 (3 MB) and 3 (4 MB), not 5 (6 MB more).
-  const auto ahead = whole({1, 2, 3, 5});
+  const auto ahead = wholePrefixes({1, 2, 3, 5});
   const PacketPlan plan =
       p.planPackets(withLookahead, Walk({1}).view(), ahead, kStart, out).front();
   EXPECT_EQ(plan.prefetch, whole({2, 3}));
@@ -274,57 +292,70 @@ TEST(PacketPlanner, PrefetchesWhatTheRectNeedsLaterWithinTheBudgetWithoutDuplica
   EXPECT_FALSE(planner(v1::SCHEDULER_ROUND_ROBIN).lookaheadCamera(withLookahead));
 }
 
-std::vector<std::uint32_t> prefixesIn(const Outbox& out) {
-  std::vector<std::uint32_t> prefixes;
+std::vector<CellRange> rangesIn(const Outbox& out) {
+  std::vector<CellRange> ranges;
   for (const Outgoing& outgoing : out.entries()) {
     if (outgoing.kind != MessageKind::SendOrder) continue;
-    const auto& splats = outgoing.as<v1::SendOrder>().top_level_splats();
-    prefixes.insert(prefixes.end(), splats.begin(), splats.end());
+    const auto& order = outgoing.as<v1::SendOrder>();
+    for (int i = 0; i < order.range_top_level_size(); ++i)
+      ranges.push_back({order.range_top_level(i), order.range_first(i), order.range_count(i)});
   }
-  return prefixes;
+  return ranges;
 }
 
-// Packets are layered: a tile's need is rounded up to the end of a layer, the
-// packet waits for that prefix, and only the splats beyond what the render
-// holds are ordered and counted in the cost.
-TEST(PacketPlanner, NeedsExactPrefixesAndOrdersOnlyWhatLiesBeyondTheHeldPrefix) {
+std::vector<CellRange> needsOf(const v1::RenderPacket& packet) {
+  return rangesFromFields(packet.need_top_level(), packet.need_first(), packet.need_count(),
+                          "packet");
+}
+
+// A tile needs the ranges it draws wherever they lie in the packet's layers
+// (not a prefix through them), the packet waits for those, and only what the
+// render lacks of them is ordered and counted in the cost.
+TEST(PacketPlanner, NeedsTheDrawnRangesAndOrdersOnlyWhatTheRenderLacksOfThem) {
   PacketPlanner p = planner();
   v1::RenderReport coarse = report(0);
-  coarse.add_loaded_cells(0);
-  coarse.add_loaded_splats(1000);
+  coarse.add_loaded_top_level(0);
+  coarse.add_loaded_first(0);
+  coarse.add_loaded_count(1000);
   p.applyReport(kRender0, coarse, kStart);
   p.applyReport(kRender1, report(0), kStart);
   Outbox out;
-  // 700 splats of cell 0 lie in the first 1000, which render 0 holds: the
-  // packet needs those 700, not the rest of their layer.
+  // Splats 200-700 of cell 0 lie in the first 1000, which render 0 holds.
   PacketPlan plan =
-      p.planPackets(task(0, 0), Walk::prefixes({{0, 700}}, 10).view(), {}, kStart, out).front();
+      p.planPackets(task(0, 0), Walk::drawing({{0, 200, 500}}).view(), {}, kStart, out).front();
   EXPECT_EQ(plan.renderRank, kRender0);
-  EXPECT_EQ(plan.needs, (std::vector<CellPrefix>{{0, 700}}));
+  EXPECT_EQ(plan.needs, (std::vector<CellRange>{{0, 200, 500}}));
   EXPECT_TRUE(ordersIn(out).empty());
-  EXPECT_EQ(packetIn(out).top_level_splats(0), 700u);
-  // 1500 splats reach into the second layer: the order names the prefix of
-  // 1500 (not the layer's end at 5000), and the packet counts only the 500
-  // splats beyond the held 1000.
+  EXPECT_EQ(needsOf(packetIn(out)), plan.needs);
+  // Two ranges, one reaching past the held 1000 and one in the points: the
+  // order names what lies beyond 1000 of the first and all of the second,
+  // and nothing between them.
   Outbox closer;
-  plan =
-      p.planPackets(task(0, 1), Walk::prefixes({{0, 1500}}, 10).view(), {}, kStart, closer).front();
-  EXPECT_EQ(plan.renderRank, kRender0);
-  EXPECT_EQ(plan.needs, (std::vector<CellPrefix>{{0, 1500}}));
-  EXPECT_EQ(ordersIn(closer), (std::vector<std::pair<int, std::vector<std::uint32_t>>>{{2, {0}}}));
-  EXPECT_EQ(prefixesIn(closer), (std::vector<std::uint32_t>{1500}));
-  EXPECT_EQ(packetIn(closer).ordered_bytes(), 500u * sizeof(Splat));
-  EXPECT_EQ(packetIn(closer).top_level_splats(0), 1500u);
-  // Into the points: through the last point drawn, beyond the 1500 ordered.
-  Outbox nearest;
-  plan = p.planPackets(task(0, 2), Walk::prefixes({{0, 5001}}, 10).view(), {}, kStart, nearest)
+  plan = p.planPackets(task(0, 1), Walk::drawing({{0, 800, 400}, {0, 6000, 100}}).view(), {},
+                       kStart, closer)
              .front();
-  EXPECT_EQ(plan.needs, (std::vector<CellPrefix>{{0, 5001}}));
-  EXPECT_EQ(packetIn(nearest).ordered_bytes(), (5001u - 1500u) * sizeof(Splat));
+  EXPECT_EQ(plan.renderRank, kRender0);
+  EXPECT_EQ(plan.needs, (std::vector<CellRange>{{0, 800, 400}, {0, 6000, 100}}));
+  EXPECT_EQ(rangesIn(closer), (std::vector<CellRange>{{0, 1000, 200}, {0, 6000, 100}}));
+  EXPECT_EQ(packetIn(closer).ordered_bytes(), 300u * sizeof(Splat));
+  EXPECT_EQ(needsOf(packetIn(closer)), plan.needs);
+  // Ranges a few splats apart are needed as one; farther apart, apart.
+  Outbox gaps;
+  plan = p.planPackets(task(0, 2),
+                       Walk::drawing({{0, 2000, 10},
+                                      {0, 2010 + kNeedGapSplatsCopied, 10},
+                                      {0, 3000, 10},
+                                      {0, 3011 + kNeedGapSplatsCopied, 5}})
+                           .view(),
+                       {}, kStart, gaps)
+             .front();
+  EXPECT_EQ(plan.needs, (std::vector<CellRange>{{0, 2000, 20 + kNeedGapSplatsCopied},
+                                                {0, 3000, 10},
+                                                {0, 3011 + kNeedGapSplatsCopied, 5}}));
   // A need beyond the packet is refused.
-  EXPECT_THROW(p.planPackets(task(0, 3), Walk::prefixes({{0, wholeCell(0) + 1}}, 10).view(), {},
-                             kStart, out),
-               ProtocolError);
+  EXPECT_THROW(
+      p.planPackets(task(0, 3), Walk::drawing({{0, wholeCell(0), 1}}).view(), {}, kStart, out),
+      ProtocolError);
 }
 
 TEST(PacketPlanner, OtherSchedulersTakeTheDisplaysChoice) {
@@ -413,8 +444,7 @@ struct SplitCase {
       splats += drawn[cell];
     }
   }
-  TileWalk withRanges() const { return {needs, splats, ranges, {}, {}}; }
-  TileWalk withCounts() const { return {needs, splats, {}, drawn, {}}; }
+  TileWalk withRanges() const { return {needs, splats, ranges, {}}; }
   std::vector<std::uint32_t> drawn;
   std::vector<CellPrefix> needs;
   std::vector<PacketRange> ranges;
@@ -457,14 +487,6 @@ TEST(SplitWalk, PartsAreRunsOfWholeCellsCoveringTheWalkOnceNearEqualShares) {
     EXPECT_EQ(need, walk.needs.size());
     EXPECT_EQ(range, walk.ranges.size());
     EXPECT_EQ(splats, walk.splats);
-    // The simulator's walks carry counts, not ranges: the same cuts.
-    const std::vector<WalkPart> counted = splitWalk(walk.withCounts(), asked);
-    ASSERT_EQ(counted.size(), parts.size());
-    for (std::size_t i = 0; i < parts.size(); ++i) {
-      EXPECT_EQ(counted[i].firstNeed, parts[i].firstNeed);
-      EXPECT_EQ(counted[i].endNeed, parts[i].endNeed);
-      EXPECT_EQ(counted[i].splats, parts[i].splats);
-    }
   }
   // Equal cells cut exactly.
   const std::vector<WalkPart> even = splitWalk(SplitCase({10, 10, 10, 10, 10, 10}).withRanges(), 3);
@@ -476,6 +498,9 @@ TEST(SplitWalk, PartsAreRunsOfWholeCellsCoveringTheWalkOnceNearEqualShares) {
 TEST(SplitWalk, RangesOfACellTheWalkDoesNotNeedAreRefused) {
   SplitCase walk({10, 10});
   walk.ranges.push_back({7, 0, 3});
+  EXPECT_THROW(splitWalk(walk.withRanges(), 2), ProtocolError);
+  // Needs without any ranges: nothing to say what is drawn.
+  walk.ranges.clear();
   EXPECT_THROW(splitWalk(walk.withRanges(), 2), ProtocolError);
 }
 

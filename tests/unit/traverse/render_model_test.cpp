@@ -3,6 +3,7 @@
 
 #include <set>
 
+#include "common/cell_ranges.hpp"
 #include "common/errors.hpp"
 #include "common/splat.hpp"
 #include "traverse/core/render_model.hpp"
@@ -17,12 +18,12 @@ const RenderModel::Clock::time_point kNow{};
 using Table = std::vector<std::uint64_t>;
 
 // The whole packets of `ids`: what a render needs or holds of them.
-std::vector<CellPrefix> whole(const Table& table, std::initializer_list<std::uint32_t> ids) {
-  std::vector<CellPrefix> prefixes;
+std::vector<CellRange> whole(const Table& table, std::initializer_list<std::uint32_t> ids) {
+  std::vector<CellRange> ranges;
   for (std::uint32_t id : ids) {
-    prefixes.push_back({id, static_cast<std::uint32_t>(table.at(id) / sizeof(Splat))});
+    ranges.push_back({id, 0, static_cast<std::uint32_t>(table.at(id) / sizeof(Splat))});
   }
-  return prefixes;
+  return ranges;
 }
 
 TEST(RenderModel, PrefersTheRenderThatHasTheData) {
@@ -48,7 +49,7 @@ TEST(RenderModel, PrefersAnIdleRenderWhenWorkOutweighsTheTransfer) {
   EXPECT_EQ(choice.render, 1u);
   EXPECT_EQ(choice.missingBytes, 1024u);
   ASSERT_EQ(choice.missing.size(), 1u);
-  EXPECT_EQ(choice.missing[0], (CellPrefix{0, 32}));
+  EXPECT_EQ(choice.missing[0], (CellRange{0, 0, 32}));
 }
 
 TEST(RenderModel, PaperCostIsWorkloadTimesTsPlusMissingBytesTimesTn) {
@@ -80,8 +81,8 @@ TEST(RenderModel, ACoreShareWeighsTheQueueAndKeepsTilesWithTheirData) {
       for (std::size_t render : {0u, 1u}) {
         model.applyReport(render,
                           {.workloadSplats = render == 0 ? 3000u : 1u,
-                           .loaded = render == 0 ? std::span<const CellPrefix>(needed)
-                                                 : std::span<const CellPrefix>(),
+                           .loaded = render == 0 ? std::span<const CellRange>(needed)
+                                                 : std::span<const CellRange>(),
                            .secondsPerSplat = 1e-8,
                            .secondsPerByte = 1e-9},
                           kNow);
@@ -182,35 +183,39 @@ TEST(RenderModel, EqualCostsSpreadOverRenders) {
   EXPECT_EQ(chosen.size(), 4u);
 }
 
-// Packets are layered: a render holding a cell's first layers lacks only the
-// splats beyond them, and an order for a longer prefix stays on the books until
-// a report shows it held.
-TEST(RenderModel, MissingBytesArePrefixesBeyondWhatARenderHoldsOrHasOnOrder) {
+// A render lacks exactly the splats of the needed ranges it neither holds nor
+// has on order, wherever in the packet they lie; what is on order stays on
+// the books until a report shows it held or the cell evicted.
+TEST(RenderModel, MissingBytesAreTheNeededRangesARenderNeitherHoldsNorHasOnOrder) {
   RenderModel model(2);
-  const CellPrefix coarse[] = {{0, 100}};
-  model.applyReport(0, {.loaded = coarse}, kNow);
-  const CellPrefix fine[] = {{0, 400}, {1, 50}};
+  const CellRange held[] = {{0, 100, 100}, {0, 300, 50}};
+  model.applyReport(0, {.loaded = held}, kNow);
+  // Splats 0-400 of cell 0 and 20-70 of cell 1.
+  const CellRange needs[] = {{0, 0, 400}, {1, 20, 50}};
   std::uint64_t missing = 0;
-  model.cost(0, fine, 10, &missing);
-  EXPECT_EQ(missing, (300u + 50u) * sizeof(Splat));
-  model.cost(1, fine, 10, &missing);
+  model.cost(0, needs, 10, &missing);
+  EXPECT_EQ(missing, (250u + 50u) * sizeof(Splat));
+  model.cost(1, needs, 10, &missing);
   EXPECT_EQ(missing, (400u + 50u) * sizeof(Splat));
-  EXPECT_EQ(model.missing(0, fine), (std::vector<CellPrefix>{{0, 400}, {1, 50}}));
-  const CellPrefix covered[] = {{0, 80}};
+  EXPECT_EQ(model.missingSplats(0, needs), 300u);
+  EXPECT_EQ(model.missing(0, needs),
+            (std::vector<CellRange>{{0, 0, 100}, {0, 200, 100}, {0, 350, 50}, {1, 20, 50}}));
+  const CellRange covered[] = {{0, 120, 60}, {0, 310, 40}};
   EXPECT_TRUE(model.missing(0, covered).empty());
-  // The longer prefix is ordered; a report of the shorter one leaves it on order.
-  model.recordPacket(0, 1, 10, fine, kNow);
+  // What is missing is ordered; a report of part of it leaves the rest on order.
+  model.recordPacket(0, 1, 10, model.missing(0, needs), kNow);
   EXPECT_EQ(model.heldSplats(0, 0), 400u);
-  const CellPrefix partial[] = {{0, 200}};
-  model.applyReport(0, {.loaded = partial}, kNow);
+  EXPECT_TRUE(model.missing(0, needs).empty());
+  const CellRange part[] = {{0, 0, 100}};
+  model.applyReport(0, {.loaded = part}, kNow);
   EXPECT_EQ(model.heldSplats(0, 0), 400u);
-  EXPECT_TRUE(model.missing(0, fine).empty());
-  const CellPrefix all[] = {{0, 400}};
-  model.applyReport(0, {.loaded = all}, kNow);
-  EXPECT_EQ(model.heldSplats(0, 0), 400u);
+  EXPECT_TRUE(model.missing(0, needs).empty());
+  // Evicted whole, then stored again in the same report: only what came after.
   const std::uint32_t evicted[] = {0};
-  model.applyReport(0, {.evicted = evicted}, kNow);
-  EXPECT_EQ(model.heldSplats(0, 0), 0u);
+  const CellRange again[] = {{0, 380, 20}};
+  model.applyReport(0, {.evicted = evicted, .loaded = again}, kNow);
+  EXPECT_EQ(model.heldSplats(0, 0), 20u);
+  EXPECT_EQ(model.missing(0, needs), (std::vector<CellRange>{{0, 0, 380}}));
   EXPECT_EQ(model.heldSplats(0, 1), 50u);  // still on order
 }
 
