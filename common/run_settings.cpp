@@ -77,20 +77,18 @@ bool tileSplitAllowed(const v1::RunSettings& run, const v1::FrameSettings& frame
 }
 
 std::uint32_t needGapSplats(const v1::RunSettings& settings) {
-  return settings.need_gap_splats() > 0 ? settings.need_gap_splats() : kNeedGapSplatsCopied;
+  return settings.has_need_gap_splats() ? settings.need_gap_splats() : kNeedGapSplatsCopied;
 }
 
-std::uint32_t parseNeedGapSplats(const std::string& text) {
-  if (text == "auto") return 0;
+std::optional<std::uint32_t> parseNeedGapSplats(const std::string& text) {
+  if (text == "auto") return std::nullopt;
   std::uint32_t gap = 0;
   const char* end = text.data() + text.size();
   const auto [at, error] = std::from_chars(text.data(), end, gap);
   if (error != std::errc() || at != end || gap > 65536) {
     throw UsageError("--need-gap '" + text + "' is not auto or a count of splats from 0 to 65536");
   }
-  // 0 asks for the drawn ranges alone; 0 in the settings means auto, and a
-  // gap of 1 joins only ranges that touch, which the walk has joined already.
-  return gap == 0 ? 1 : gap;
+  return gap;
 }
 
 std::uint32_t tileTasksAhead(const v1::RunSettings& settings) {

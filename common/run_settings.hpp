@@ -3,6 +3,7 @@
 // (v1::RunSettings), so the runtime, the simulator and their command lines
 // share one default.
 #include <cstdint>
+#include <optional>
 #include <string>
 
 #include "pointillist.pb.h"
@@ -49,11 +50,11 @@ const char* schedulerName(v1::Scheduler scheduler);
 // 1 GbE); read in place on one machine they cost the pages mapped, far less.
 inline constexpr std::uint32_t kNeedGapSplatsCopied = 8;
 inline constexpr std::uint32_t kNeedGapSplatsInPlace = 256;
-// The run's (RunSettings.need_gap_splats; 0: kNeedGapSplatsCopied).
+// The run's (RunSettings.need_gap_splats; unset: kNeedGapSplatsCopied).
 std::uint32_t needGapSplats(const v1::RunSettings& settings);
-// "auto" (0: the handshake's choice) | a gap in splats from 0 (the drawn
-// ranges only) to 65536; a UsageError names the accepted ones.
-std::uint32_t parseNeedGapSplats(const std::string& text);
+// "auto" (nullopt: the handshake's choice) | a gap in splats from 0 (the
+// drawn ranges only) to 65536; a UsageError names the accepted ones.
+std::optional<std::uint32_t> parseNeedGapSplats(const std::string& text);
 
 // Heavy tiles split by their data (RunSettings.no_tile_split): a part holds
 // at least this many splats, so its fixed costs (a packet, a composed image)

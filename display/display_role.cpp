@@ -120,7 +120,7 @@ v1::RunSettings runSettings(const DisplayOptions& options, const DatasetManifest
   parseTileSplit(options.tileSplit, settings);
   settings.set_no_shared_packets(options.sharedPackets == "off");
   // A number here; auto is filled in at the handshake, from where processes run.
-  settings.set_need_gap_splats(parseNeedGapSplats(options.needGap));
+  if (const auto gap = parseNeedGapSplats(options.needGap)) settings.set_need_gap_splats(*gap);
   // A number here; auto is filled in at the handshake, from every process's host.
   if (const float share = parseRenderCoreShare(options.renderCoreShare); share > 0.0f) {
     for (std::uint32_t render = 0; render < layout.render; ++render) {

@@ -259,7 +259,7 @@ void Job::handshake(const HandshakeOptions& options) {
   if (settings.render_core_share().empty()) {  // auto: from where the processes run
     for (float share : renderCoreShares(placements)) settings.add_render_core_share(share);
   }
-  if (settings.need_gap_splats() == 0) {
+  if (!settings.has_need_gap_splats()) {
     // Where every render reads its data-sends' packets in place, a range
     // costs more than the bytes a gap adds (docs/scheduling.md §19).
     bool inPlace = !settings.no_shared_packets();

@@ -49,7 +49,7 @@ std::vector<CellRange> SendLedger::rangesToSend(const v1::SendOrder& order) {
                           ", which this data-send process does not own");
     }
     // Never the same splats to the same render twice while it holds them or
-    // they are on their way: only what of the range went there before.
+    // they are on their way: only what of the range did not go there before.
     SpanSet& done = sent[range.cell];
     const bool some = !done.empty();
     const auto end = static_cast<std::uint32_t>(range.end());

@@ -3,7 +3,7 @@
 // splats of the ordered top-level cells go out. Orders ask for ranges of
 // packets (common/cell_ranges.hpp); a render process gets each splat of a
 // cell once while it holds the cell: an order sends only what of its ranges
-// went to that render before. The render's reports of evictions (and of data
+// did not go to that render before. The render's reports of evictions (and of data
 // it dropped) make the whole cell sendable again.
 // The MPI data-send process and the simulator both drive this class.
 #include <cstdint>

@@ -121,5 +121,22 @@ TEST(RunSettings, RenderCoreShareIsAutoOrAShareAboveZeroUpToOne) {
   }
 }
 
+// --need-gap: auto leaves the choice to the handshake; a number, 0 included
+// (the drawn ranges alone), is the run's gap; unset counts as over links.
+TEST(RunSettings, NeedGapIsAutoOrACountAndUnsetMeansTheCopiedGap) {
+  EXPECT_EQ(parseNeedGapSplats("auto"), std::nullopt);
+  EXPECT_EQ(parseNeedGapSplats("0"), 0u);
+  EXPECT_EQ(parseNeedGapSplats("300"), 300u);
+  for (const char* bad : {"", "-1", "65537", "8x", "many"}) {
+    EXPECT_THROW(parseNeedGapSplats(bad), UsageError) << bad;
+  }
+  v1::RunSettings settings;
+  EXPECT_EQ(needGapSplats(settings), kNeedGapSplatsCopied);
+  settings.set_need_gap_splats(0);
+  EXPECT_EQ(needGapSplats(settings), 0u);
+  settings.set_need_gap_splats(kNeedGapSplatsInPlace);
+  EXPECT_EQ(needGapSplats(settings), kNeedGapSplatsInPlace);
+}
+
 }  // namespace
 }  // namespace pointillist
