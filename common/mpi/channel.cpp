@@ -11,7 +11,13 @@ namespace pointillist {
 namespace {
 
 constexpr std::uint32_t kFrameMagic = 0x504E5431;  // "PNT1"
-constexpr std::size_t kPrefixBytes = 16;           // magic, reserved, payload bytes
+// Magic, the header's bytes when it travels on its own (0: it follows the
+// prefix in the same message), the payload's bytes.
+constexpr std::size_t kPrefixBytes = 16;
+// A message's first part stays this small so that every MPI transport sends
+// it eagerly: once matched it is whole, and the receives of the rest are
+// posted at once, before any probe could match a part of it.
+constexpr std::size_t kInlineFrameBytes = 2048;
 constexpr int kPayloadTagOffset = 1000;
 
 void putU32(char* out, std::uint32_t value) {
@@ -164,21 +170,33 @@ SendHandle Channel::post(int dest, MessageKind kind, const google::protobuf::Mes
   SendHandle handle;
   handle.destination_ = dest;
   handle.header_ = std::make_unique<std::string>(kPrefixBytes, '\0');
-  putU32(handle.header_->data(), kFrameMagic);
-  putU32(handle.header_->data() + 4, 0);
-  putU64(handle.header_->data() + 8, payload.size());
-  if (!header.AppendToString(handle.header_.get())) {
+  std::string& frame = *handle.header_;
+  if (!header.AppendToString(&frame)) {
     throw ProtocolError(std::string("cannot serialize ") + messageKindName(kind) + " message");
   }
-  if (handle.header_->size() > static_cast<std::size_t>(INT_MAX)) {
+  if (frame.size() > static_cast<std::size_t>(INT_MAX)) {
     throw ProtocolError(std::string(messageKindName(kind)) + " header exceeds 2 GiB");
   }
-  handle.requests_.reserve(1 + payload.size() / maxChunkBytes_ + 1);
+  const bool inlineHeader = frame.size() <= kInlineFrameBytes;
+  putU32(frame.data(), kFrameMagic);
+  putU32(frame.data() + 4,
+         inlineHeader ? 0u : static_cast<std::uint32_t>(frame.size() - kPrefixBytes));
+  putU64(frame.data() + 8, payload.size());
+  handle.requests_.reserve(2 + payload.size() / maxChunkBytes_ + 1);
   MPI_Request request = MPI_REQUEST_NULL;
-  checkMpi(MPI_Isend(handle.header_->data(), static_cast<int>(handle.header_->size()), MPI_BYTE,
-                     dest, static_cast<int>(kind), comm_, &request),
-           "MPI_Isend(header)");
+  const int firstBytes = static_cast<int>(inlineHeader ? frame.size() : kPrefixBytes);
+  checkMpi(
+      MPI_Isend(frame.data(), firstBytes, MPI_BYTE, dest, static_cast<int>(kind), comm_, &request),
+      "MPI_Isend(header)");
   handle.requests_.push_back(request);
+  if (!inlineHeader) {
+    // Large headers (render and data packets of many ranges) follow on the
+    // payload tag, ahead of the payload's chunks.
+    checkMpi(MPI_Isend(frame.data() + kPrefixBytes, static_cast<int>(frame.size() - kPrefixBytes),
+                       MPI_BYTE, dest, payloadTag(kind), comm_, &request),
+             "MPI_Isend(header)");
+    handle.requests_.push_back(request);
+  }
   for (std::size_t offset = 0; offset < payload.size(); offset += maxChunkBytes_) {
     const std::size_t chunk = std::min(maxChunkBytes_, payload.size() - offset);
     checkMpi(MPI_Isend(payload.data() + offset, static_cast<int>(chunk), MPI_BYTE, dest,
@@ -213,56 +231,77 @@ Channel::Incoming Channel::startReceive(MPI_Message& message, MPI_Status& status
   int count = 0;
   checkMpi(MPI_Get_count(&status, MPI_BYTE, &count), "MPI_Get_count");
   Incoming incoming;
-  incoming.envelope.source = status.MPI_SOURCE;
-  incoming.envelope.kind = static_cast<MessageKind>(status.MPI_TAG);
-  incoming.frame = std::make_unique<std::string>(static_cast<std::size_t>(count), '\0');
-  // Not a blocking receive: a header past the eager limit (a render packet or
-  // a data packet of many ranges) moves only while its sender is alive, and
-  // one that died mid-message would hold this process, shutdown included.
-  checkMpi(MPI_Imrecv(incoming.frame->data(), count, MPI_BYTE, &message, &incoming.header),
-           "MPI_Imrecv");
+  Envelope& envelope = incoming.envelope;
+  envelope.source = status.MPI_SOURCE;
+  envelope.kind = static_cast<MessageKind>(status.MPI_TAG);
   incoming.started = std::chrono::steady_clock::now();
   incoming.allowed = payloadTimeout_;
-  return incoming;
-}
-
-void Channel::postPayload(Incoming& incoming) {
-  Envelope& envelope = incoming.envelope;
-  const std::string& frame = *incoming.frame;
-  if (frame.size() < kPrefixBytes || getLE(frame.data(), 4) != kFrameMagic) {
+  std::string first(static_cast<std::size_t>(count), '\0');
+  MPI_Request request = MPI_REQUEST_NULL;
+  checkMpi(MPI_Imrecv(first.data(), count, MPI_BYTE, &message, &request), "MPI_Imrecv");
+  // Our first parts are sent eagerly, so this is whole at once; a forged
+  // larger one from a sender that then dies must not hold this process.
+  Backoff backoff;
+  for (int done = 0;;) {
+    checkMpi(MPI_Test(&request, &done, MPI_STATUS_IGNORE), "MPI_Test(header)");
+    if (done != 0) break;
+    if (std::chrono::steady_clock::now() - incoming.started >= incoming.allowed) {
+      MPI_Cancel(&request);
+      MPI_Request_free(&request);
+      static std::vector<std::string> orphans;
+      orphans.push_back(std::move(first));
+      throw PeerSilentError(envelope.source, "rank " + std::to_string(envelope.source) +
+                                                 " began a " + std::to_string(count) + "-byte " +
+                                                 messageKindName(envelope.kind) +
+                                                 " header but did not finish it within " +
+                                                 std::to_string(incoming.allowed.count()) + " ms");
+    }
+    backoff.wait(kTransferPoll);
+  }
+  if (first.size() < kPrefixBytes || getLE(first.data(), 4) != kFrameMagic) {
     throw ProtocolError("rank " + std::to_string(envelope.source) + " sent a " +
-                        std::to_string(frame.size()) + "-byte message on tag " +
+                        std::to_string(first.size()) + "-byte message on tag " +
                         std::to_string(static_cast<int>(envelope.kind)) +
                         " without the Pointillist frame prefix");
   }
-  const std::uint64_t payloadBytes = getLE(frame.data() + 8, 8);
-  envelope.header = frame.substr(kPrefixBytes);
-  incoming.frame.reset();
-
-  incoming.started = std::chrono::steady_clock::now();
+  const std::uint64_t headerBytes = getLE(first.data() + 4, 4);
+  const std::uint64_t payloadBytes = getLE(first.data() + 8, 8);
+  if (headerBytes != 0 && first.size() != kPrefixBytes) {
+    throw ProtocolError("rank " + std::to_string(envelope.source) + " sent a " +
+                        messageKindName(envelope.kind) + " prefix of " +
+                        std::to_string(first.size()) + " bytes that also names a " +
+                        std::to_string(headerBytes) + "-byte header to follow");
+  }
+  // Everything of this message on the payload tag is received from here on:
+  // posted now, before any later probe, its parts can match nothing else.
+  const int tag = payloadTag(envelope.kind);
+  if (headerBytes == 0) {
+    envelope.header = first.substr(kPrefixBytes);
+  } else {
+    incoming.frame = std::make_unique<std::string>(headerBytes, '\0');
+    checkMpi(MPI_Irecv(incoming.frame->data(), static_cast<int>(headerBytes), MPI_BYTE,
+                       envelope.source, tag, comm_, &request),
+             "MPI_Irecv(header)");
+    incoming.requests.push_back(request);
+  }
   envelope.payload.resize(payloadBytes);
   for (std::size_t offset = 0; offset < payloadBytes; offset += maxChunkBytes_) {
     const std::size_t chunk = std::min<std::size_t>(maxChunkBytes_, payloadBytes - offset);
-    MPI_Request request = MPI_REQUEST_NULL;
     checkMpi(MPI_Irecv(envelope.payload.data() + offset, static_cast<int>(chunk), MPI_BYTE,
-                       envelope.source, payloadTag(envelope.kind), comm_, &request),
+                       envelope.source, tag, comm_, &request),
              "MPI_Irecv(payload)");
     incoming.requests.push_back(request);
   }
-  incoming.payloadPosted = true;
-  // The sender posted every chunk with the header, so these complete promptly
+  // The sender posted every part with the first, so these complete promptly
   // unless the sender died or its link is down mid-message.
   incoming.allowed =
-      payloadTimeout_ + std::chrono::milliseconds(static_cast<long long>(payloadBytes / 10'000));
+      payloadTimeout_ +
+      std::chrono::milliseconds(static_cast<long long>((headerBytes + payloadBytes) / 10'000));
+  return incoming;
 }
 
 void Channel::abandon(Incoming& incoming) {
   bool named = false;
-  if (incoming.header != MPI_REQUEST_NULL) {
-    MPI_Cancel(&incoming.header);
-    MPI_Request_free(&incoming.header);
-    named = true;
-  }
   for (MPI_Request& pending : incoming.requests) {
     if (pending == MPI_REQUEST_NULL) continue;
     MPI_Cancel(&pending);
@@ -278,45 +317,31 @@ void Channel::abandon(Incoming& incoming) {
   }
 }
 
-bool Channel::progress(Incoming& incoming, bool mayPostPayload) {
+bool Channel::progress(Incoming& incoming) {
   if (incoming.complete) return true;
-  const auto silent = [&](const std::string& message) {
-    abandon(incoming);
-    throw PeerSilentError(incoming.envelope.source, message);
-  };
-  const auto overdue = [&] {
-    return std::chrono::steady_clock::now() - incoming.started >= incoming.allowed;
-  };
-  if (incoming.header != MPI_REQUEST_NULL) {
-    int done = 0;
-    checkMpi(MPI_Test(&incoming.header, &done, MPI_STATUS_IGNORE), "MPI_Test(header)");
-    if (done == 0) {
-      if (!overdue()) return false;
-      silent("rank " + std::to_string(incoming.envelope.source) + " began the " +
-             std::to_string(incoming.frame->size()) + "-byte header of a " +
-             messageKindName(incoming.envelope.kind) + " message but did not finish it within " +
-             std::to_string(incoming.allowed.count()) + " ms");
-    }
-  }
-  if (!incoming.payloadPosted) {
-    // An earlier message of its sender and kind posts its payload first: the
-    // chunks match receives in the order they are posted.
-    if (!mayPostPayload) return false;
-    postPayload(incoming);
-  }
   if (!incoming.requests.empty()) {
     int done = 0;
     checkMpi(MPI_Testall(static_cast<int>(incoming.requests.size()), incoming.requests.data(),
                          &done, MPI_STATUSES_IGNORE),
              "MPI_Testall");
     if (done == 0) {
-      if (!overdue()) return false;
+      if (std::chrono::steady_clock::now() - incoming.started < incoming.allowed) return false;
       const Envelope& envelope = incoming.envelope;
-      silent("rank " + std::to_string(envelope.source) + " sent the header of a " +
-             messageKindName(envelope.kind) + " message but not its " +
-             std::to_string(envelope.payload.size()) + "-byte payload within " +
-             std::to_string(incoming.allowed.count()) + " ms");
+      const std::string what = incoming.frame
+                                   ? std::to_string(incoming.frame->size()) + "-byte header and " +
+                                         std::to_string(envelope.payload.size()) + "-byte payload"
+                                   : std::to_string(envelope.payload.size()) + "-byte payload";
+      abandon(incoming);
+      throw PeerSilentError(envelope.source, "rank " + std::to_string(envelope.source) +
+                                                 " began a " + messageKindName(envelope.kind) +
+                                                 " message but did not send its " + what +
+                                                 " within " +
+                                                 std::to_string(incoming.allowed.count()) + " ms");
     }
+  }
+  if (incoming.frame) {
+    incoming.envelope.header = std::move(*incoming.frame);
+    incoming.frame.reset();
   }
   incoming.complete = true;
   incoming.envelope.payloadSeconds =
@@ -332,20 +357,15 @@ std::optional<Envelope> Channel::takeArrived(int source, std::optional<MessageKi
     return true;
   });
   std::set<int> waiting;  // senders with an unfinished message the caller would take
-  // (sender, kind) of messages before this one whose payload is not posted yet.
-  std::set<std::pair<int, MessageKind>> unposted;
   for (auto it = incoming_.begin(); it != incoming_.end(); ++it) {
     const int from = it->envelope.source;
-    const std::pair<int, MessageKind> stream{from, it->envelope.kind};
     if ((source != MPI_ANY_SOURCE && from != source) || (kind && it->envelope.kind != *kind) ||
         waiting.contains(from)) {
-      if (!it->payloadPosted) unposted.insert(stream);
       continue;
     }
     bool arrived = false;
     try {
-      arrived = progress(*it, !unposted.contains(stream));
-      if (!it->payloadPosted) unposted.insert(stream);
+      arrived = progress(*it);
     } catch (...) {
       incoming_.erase(it);
       throw;

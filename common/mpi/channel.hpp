@@ -4,7 +4,10 @@
 // A message is a protobuf header on its kind's tag, optionally followed by a raw
 // byte payload (points, pixels) on the kind's payload tag, sent straight from the
 // caller's memory in chunks of at most maxChunkBytes (MPI counts are int).
-// MPI's non-overtaking rule per (source, tag) keeps header and chunks in order.
+// A header too large to go eagerly travels on the payload tag ahead of the
+// chunks, after a small prefix on the kind's tag: the receiver posts for all
+// of a message as soon as it matches the first part, so no probe ever meets
+// a stray part. MPI's non-overtaking rule per (source, tag) keeps them in order.
 //
 // Waiting never sits in a blocking MPI call: Open MPI busy-polls inside
 // MPI_Recv/MPI_Wait (a full core per idle rank, even with mpi_yield_when_idle),
@@ -170,27 +173,22 @@ class Channel {
   static void waitFor(MPI_Request& request, std::chrono::milliseconds timeout, const char* what);
 
  private:
-  // A message being received: its header, then its payload.
+  // A message being received: its first part is in, the rest is posted.
   struct Incoming {
-    Envelope envelope;  // source and kind from the probe; the rest once the header is in
-    std::unique_ptr<std::string> frame;  // the header's bytes while they arrive
-    MPI_Request header = MPI_REQUEST_NULL;
-    bool payloadPosted = false;
-    std::vector<MPI_Request> requests;
+    Envelope envelope;
+    std::unique_ptr<std::string> frame;  // a large header's bytes while they arrive
+    std::vector<MPI_Request> requests;   // that header, then the payload's chunks
     std::chrono::steady_clock::time_point started;
     std::chrono::milliseconds allowed{};
     bool complete = false;
   };
 
   static int payloadTag(MessageKind kind);
-  // Starts receiving the probed message's header.
+  // Receives the probed message's first part and posts the receives of the
+  // rest (a large header, the payload's chunks).
   Incoming startReceive(MPI_Message& message, MPI_Status& status);
-  // The header is in: reads its frame prefix and posts the payload's receives.
-  void postPayload(Incoming& incoming);
-  // Tests the header, then the payload (posted only `mayPostPayload`: no
-  // earlier message of its sender and kind is waiting to post its own); past
-  // its allowance the sender is taken as lost.
-  bool progress(Incoming& incoming, bool mayPostPayload);
+  // Tests the rest; past its allowance the sender is taken as lost.
+  bool progress(Incoming& incoming);
   // Cancels what is still posted for it (a lost or silent sender).
   static void abandon(Incoming& incoming);
   // The oldest whole message matching the filter that no unfinished earlier

@@ -273,6 +273,57 @@ TEST_F(ChannelTest, DelayedPayloadDoesNotBlockAndKeepsItsSendersOrder) {
   EXPECT_TRUE(second.payload.empty());
 }
 
+v1::RenderReport largeReport(std::uint64_t sequence, int ranges) {
+  v1::RenderReport report;
+  report.set_sequence(sequence);
+  for (int i = 0; i < ranges; ++i) {
+    report.add_loaded_top_level(static_cast<std::uint32_t>(i) * 977u);
+    report.add_loaded_first(static_cast<std::uint32_t>(i) * 7919u);
+    report.add_loaded_count(static_cast<std::uint32_t>(i) + 100'000u);
+  }
+  return report;
+}
+
+// A header past every eager limit moves only while its sender calls into MPI,
+// but the payload's small chunks arrive at once. Taking the message in parts
+// must never leave a chunk for a probe to meet (netns_link_cut failed on
+// "payload chunk ... arrived without its header" when the header was slow).
+TEST_F(ChannelTest, LargeHeadersFromAStalledSenderArriveWholeAndInOrder) {
+  Channel channel(MPI_COMM_WORLD);
+  const std::vector<std::byte> payload = patternBytes(100, 9);
+  constexpr int kRanges = 40'000;  // about 500 KB of header
+  if (channel.rank() == 1) {
+    std::vector<SendHandle> sends;
+    sends.push_back(channel.post(0, MessageKind::RenderReport, largeReport(1, kRanges), payload));
+    sends.push_back(channel.post(0, MessageKind::RenderReport, largeReport(2, kRanges), payload));
+    sends.push_back(channel.post(0, MessageKind::RenderReport, largeReport(3, 2), payload));
+    // No MPI calls for a while: the rendezvous headers stall, the rest is there.
+    std::this_thread::sleep_for(milliseconds(400));
+    for (auto& send : sends) send.wait();
+    return;
+  }
+  std::vector<Envelope> received;
+  const auto deadline = std::chrono::steady_clock::now() + milliseconds(30'000);
+  Backoff backoff;
+  while (received.size() < 3 && std::chrono::steady_clock::now() < deadline) {
+    if (auto envelope = channel.tryReceive()) {
+      received.push_back(std::move(*envelope));
+    } else {
+      backoff.wait(std::chrono::microseconds(200));
+    }
+  }
+  ASSERT_EQ(received.size(), 3u);
+  for (std::size_t i = 0; i < received.size(); ++i) {
+    const auto report = received[i].as<v1::RenderReport>();
+    EXPECT_EQ(report.sequence(), i + 1);
+    ASSERT_EQ(report.loaded_count_size(), i < 2 ? kRanges : 2);
+    EXPECT_EQ(report.loaded_count(report.loaded_count_size() - 1),
+              static_cast<std::uint32_t>(report.loaded_count_size() - 1) + 100'000u);
+    ASSERT_EQ(received[i].payload.size(), payload.size());
+    EXPECT_EQ(std::memcmp(received[i].payload.data(), payload.data(), payload.size()), 0);
+  }
+}
+
 TEST_F(ChannelTest, ReceiveTimesOutWithoutSpinningForever) {
   Channel channel(MPI_COMM_WORLD);
   if (channel.rank() == 1) return;
