@@ -287,6 +287,8 @@ PacketPlan PacketPlanner::planPart(const v1::TileTask& task, const TileWalk& wal
   const RenderChoice& choice = plan.choice;
   plan.renderRank = peers_.renders.at(choice.render);
 
+  bytesOrderedHeldElsewhere_ +=
+      model_.splatsHeldElsewhere(choice.render, choice.missing) * sizeof(Splat);
   // What it lacks counts as on its way from now on (the prefetch below
   // orders only what is not).
   model_.recordPacket(choice.render, packetsSent_ + 1, part.splats, choice.missing, now);
@@ -400,16 +402,18 @@ void PacketPlanner::renderLost(int renderRank) {
 }
 
 std::string PacketPlanner::summary() const {
-  char line[400];
+  char line[480];
   std::snprintf(
       line, sizeof line,
       "tasks=%llu splats=%llu ordered_cells=%llu ordered_bytes=%llu "
-      "prefetched_cells=%llu prefetched_bytes=%llu largest_tile_data=%.2fMiB "
+      "ordered_bytes_held_elsewhere=%llu prefetched_cells=%llu prefetched_bytes=%llu "
+      "largest_tile_data=%.2fMiB "
       "tiles_split=%llu parts=%llu empty_tiles=%llu avoided_suspects=%llu T_s=%.3gs/splat "
       "T_n=%.3gs/B",
       static_cast<unsigned long long>(tasksDone_), static_cast<unsigned long long>(splatsPacked_),
       static_cast<unsigned long long>(cellsOrdered_),
       static_cast<unsigned long long>(bytesOrdered_),
+      static_cast<unsigned long long>(bytesOrderedHeldElsewhere_),
       static_cast<unsigned long long>(cellsPrefetched_),
       static_cast<unsigned long long>(bytesPrefetched_),
       static_cast<double>(maxPacketBytes_) / 1048576.0,

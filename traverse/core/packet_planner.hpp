@@ -158,7 +158,8 @@ class PacketPlanner {
   std::uint64_t splatsPacked_ = 0;
   std::uint64_t cellsOrdered_ = 0;
   std::uint64_t bytesOrdered_ = 0;
-  std::uint64_t maxPacketBytes_ = 0;  // largest working set of one tile
+  std::uint64_t bytesOrderedHeldElsewhere_ = 0;  // another render held them
+  std::uint64_t maxPacketBytes_ = 0;             // largest working set of one tile
   std::uint64_t cellsPrefetched_ = 0;
   std::uint64_t bytesPrefetched_ = 0;
 };

@@ -94,6 +94,22 @@ std::uint64_t RenderModel::missingSplats(std::size_t render,
   return splats;
 }
 
+std::uint64_t RenderModel::splatsHeldElsewhere(std::size_t render,
+                                               std::span<const CellRange> ranges) const {
+  std::uint64_t splats = 0;
+  for (const CellRange& range : ranges) {
+    if (range.cell >= holders_.size()) continue;
+    SpanSet others;
+    for (const Holding& held : holders_[range.cell]) {
+      if (held.render != render) others.add(held.spans);
+    }
+    if (others.empty()) continue;
+    const std::uint32_t end = range.first + range.count;
+    splats += range.count - others.uncovered(range.first, end);
+  }
+  return splats;
+}
+
 std::size_t RenderModel::cachedCellCount(std::size_t render) const {
   return renders_.at(render).confirmedCells;
 }

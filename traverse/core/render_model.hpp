@@ -123,6 +123,9 @@ class RenderModel {
   std::vector<CellRange> missing(std::size_t render, std::span<const CellRange> needs) const;
   // The splats of those.
   std::uint64_t missingSplats(std::size_t render, std::span<const CellRange> needs) const;
+  // Of `ranges`, the splats some render other than `render` holds or has on
+  // order: bytes that move because work moved, not because the view did.
+  std::uint64_t splatsHeldElsewhere(std::size_t render, std::span<const CellRange> ranges) const;
   void applyReport(std::size_t render, const RenderReportView& report, Clock::time_point now);
 
   std::uint64_t workload(std::size_t render) const;  // reported + sent since the report

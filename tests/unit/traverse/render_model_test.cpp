@@ -225,6 +225,21 @@ TEST(RenderModel, MissingBytesAreTheNeededRangesARenderNeitherHoldsNorHasOnOrder
 namespace pointillist::traverse {
 namespace {
 
+TEST(RenderModel, SplatsHeldElsewhereCountWhatAnotherRenderHoldsOrHasOnOrderOnce) {
+  RenderModel model(3);
+  const CellRange heldByOne[] = {{0, 0, 100}, {1, 50, 50}};
+  model.applyReport(1, {.loaded = heldByOne}, kNow);
+  const CellRange orderedForTwo[] = {{0, 60, 80}};
+  model.recordPacket(2, 1, 10, orderedForTwo, kNow);
+  // Cell 0: 0-140 held elsewhere (overlap counted once), 140-200 nowhere;
+  // cell 1: 50-100 elsewhere of 0-100; cell 2 nowhere.
+  const CellRange ranges[] = {{0, 0, 200}, {1, 0, 100}, {2, 0, 30}};
+  EXPECT_EQ(model.splatsHeldElsewhere(0, ranges), 140u + 50u);
+  // A render's own holding is not elsewhere.
+  EXPECT_EQ(model.splatsHeldElsewhere(1, ranges), 80u);
+  EXPECT_EQ(model.splatsHeldElsewhere(2, ranges), 100u + 50u);
+}
+
 TEST(RenderModel, AStalledRenderIsAvoidedEvenWhenItHasTheData) {
   using namespace std::chrono_literals;
   const Table cells{10'000'000, 128};
