@@ -129,6 +129,7 @@ rows = [
     ("quality vs full detail", f"PSNR {qm.group(1)} dB, {qm.group(4)} % of covered pixels identical", "shown", None),
     ("bytes first frame", f"{first:.1f} MiB", "only the LOD drawn", None),
     ("bytes per frame steady", f"{steady:.2f} MiB ({100 * steady / first if first else 0:.1f} % of first)", "<= 2 %", first > 0 and steady <= 0.02 * first),
+    ("of it, another render held (work moved)", f"{k.get('bytes_held_elsewhere_per_frame_steady', 0) / 2**20:.2f} MiB", "", None),
     ("cache hit rate steady", f"{100 * k['cache_hit_rate_steady']:.1f} %", "", None),
     ("CPU per frame", f"{1e3 * k['cpu_per_frame_total']:.0f} core-ms (display {1e3 * k['cpu_per_frame_display']:.0f}, traverse {1e3 * k['cpu_per_frame_traverse']:.0f}, data-send {1e3 * k['cpu_per_frame_datasend']:.0f}, render {1e3 * k['cpu_per_frame_render']:.0f}, of which drawing {1e3 * k['draw_per_frame']:.0f})", "", None),
 ]

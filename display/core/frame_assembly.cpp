@@ -176,6 +176,7 @@ TileArrival FrameAssembly::tileArrived(const v1::TileImageHeader& header, TimePo
   record.splats += header.splats_rendered();
   record.bytesOrdered += header.ordered_bytes() + header.prefetch_bytes();
   record.bytesPrefetched += header.prefetch_bytes();
+  record.bytesOrderedHeldElsewhere += header.ordered_bytes_held_elsewhere();
   record.imageBytes += tileImageBytes(header);
   record.splatsPerRender[render] += header.splats_rendered();
   record.busySecondsPerRender[render] += tile.renderSeconds;

@@ -102,6 +102,7 @@ std::vector<std::pair<std::string, std::string>> keyFigureFields(const KeyFigure
       {"bytes_total", count(k.bytesTotal)},
       {"bytes_first_frame", count(k.bytesFirstFrame)},
       {"bytes_per_frame_steady", number(k.bytesPerFrameSteady)},
+      {"bytes_held_elsewhere_per_frame_steady", number(k.bytesHeldElsewherePerFrameSteady)},
       {"image_bytes_per_frame_steady", number(k.imageBytesPerFrameSteady)},
       {"cache_hits", count(k.cacheHits)},
       {"cache_misses", count(k.cacheMisses)},
@@ -131,6 +132,7 @@ void FrameSums::add(const FrameRecord& frame, const FrameBalance& balance) {
   ++frames;
   splats += frame.splats;
   bytesOrdered += frame.bytesOrdered;
+  bytesOrderedHeldElsewhere += frame.bytesOrderedHeldElsewhere;
   imageBytes += frame.imageBytes;
   reissuedTiles += frame.reissuedTiles;
   failedTiles += frame.failedTiles;
@@ -153,6 +155,7 @@ void FrameSums::add(const FrameSums& other) {
   frames += other.frames;
   splats += other.splats;
   bytesOrdered += other.bytesOrdered;
+  bytesOrderedHeldElsewhere += other.bytesOrderedHeldElsewhere;
   imageBytes += other.imageBytes;
   reissuedTiles += other.reissuedTiles;
   failedTiles += other.failedTiles;
@@ -319,6 +322,7 @@ KeyFigures RunStats::keyFigures() const {
   }
   if (!totals.first.empty()) k.bytesFirstFrame = totals.first.front().bytesOrdered;
   k.bytesPerFrameSteady = ratio(steady.bytesOrdered, steady.frames);
+  k.bytesHeldElsewherePerFrameSteady = ratio(steady.bytesOrderedHeldElsewhere, steady.frames);
   k.imageBytesPerFrameSteady = ratio(steady.imageBytes, steady.frames);
 
   double sumRate = 0.0;
@@ -549,11 +553,13 @@ std::string RunStats::summary() const {
     out << line;
   }
   std::snprintf(line, sizeof line,
-                "bytes sent: %.2f MiB total, first frame %.2f MiB, %.3f MiB per frame steady; "
-                "tile images %.3f MiB per frame steady\n",
+                "bytes sent: %.2f MiB total, first frame %.2f MiB, %.3f MiB per frame steady "
+                "(%.3f MiB another render held: work moved); tile images %.3f MiB per frame "
+                "steady\n",
                 static_cast<double>(k.bytesTotal) / 1048576.0,
                 static_cast<double>(k.bytesFirstFrame) / 1048576.0,
-                k.bytesPerFrameSteady / 1048576.0, k.imageBytesPerFrameSteady / 1048576.0);
+                k.bytesPerFrameSteady / 1048576.0, k.bytesHeldElsewherePerFrameSteady / 1048576.0,
+                k.imageBytesPerFrameSteady / 1048576.0);
   out << line;
   std::snprintf(line, sizeof line,
                 "cache: hit rate %.1f%% (%llu hits, %llu misses), %.1f%% steady, %llu evictions, "

@@ -25,7 +25,9 @@ struct FrameRecord {
   std::uint32_t failedTiles = 0;
   std::uint64_t bytesOrdered = 0;     // top-level cell data sent to render processes
   std::uint64_t bytesPrefetched = 0;  // of that, ordered ahead along the camera path
-  std::uint64_t imageBytes = 0;       // tile images into the display (pixels and depth)
+  // Of bytesOrdered, those another render held when ordered (work moved).
+  std::uint64_t bytesOrderedHeldElsewhere = 0;
+  std::uint64_t imageBytes = 0;  // tile images into the display (pixels and depth)
   // By render rank. Flat: a run keeps up to --stats-frames of these records,
   // and a map node per render process cost three times the memory.
   boost::container::flat_map<int, std::uint64_t> splatsPerRender;
@@ -129,7 +131,8 @@ struct KeyFigures {
   std::uint64_t bytesTotal = 0;
   std::uint64_t bytesFirstFrame = 0;
   double bytesPerFrameSteady = 0.0;
-  double imageBytesPerFrameSteady = 0.0;  // FrameRecord::imageBytes
+  double bytesHeldElsewherePerFrameSteady = 0.0;  // of it, held by another render
+  double imageBytesPerFrameSteady = 0.0;          // FrameRecord::imageBytes
   std::uint64_t cacheHits = 0;
   std::uint64_t cacheMisses = 0;
   std::uint64_t cacheHitsSteady = 0;
@@ -194,6 +197,7 @@ struct FrameSums {
   std::uint64_t frames = 0;
   std::uint64_t splats = 0;
   std::uint64_t bytesOrdered = 0;
+  std::uint64_t bytesOrderedHeldElsewhere = 0;
   std::uint64_t imageBytes = 0;
   std::uint64_t reissuedTiles = 0;
   std::uint64_t failedTiles = 0;

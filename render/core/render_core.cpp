@@ -435,6 +435,7 @@ v1::TileImageHeader RenderCore::packetDrawn(const ReadyPacket& ready, std::uint6
   header.set_cache_misses(misses_);
   header.set_cache_bytes(cache_.bytes());
   header.set_ordered_bytes(packet.ordered_bytes());
+  header.set_ordered_bytes_held_elsewhere(packet.ordered_bytes_held_elsewhere());
   header.set_prefetch_bytes(packet.prefetch_bytes());
   header.set_traverse_rank(packet.traverse_rank());
   header.set_evictions(cache_.evictions());

@@ -287,8 +287,9 @@ PacketPlan PacketPlanner::planPart(const v1::TileTask& task, const TileWalk& wal
   const RenderChoice& choice = plan.choice;
   plan.renderRank = peers_.renders.at(choice.render);
 
-  bytesOrderedHeldElsewhere_ +=
+  plan.orderedBytesHeldElsewhere =
       model_.splatsHeldElsewhere(choice.render, choice.missing) * sizeof(Splat);
+  bytesOrderedHeldElsewhere_ += plan.orderedBytesHeldElsewhere;
   // What it lacks counts as on its way from now on (the prefetch below
   // orders only what is not).
   model_.recordPacket(choice.render, packetsSent_ + 1, part.splats, choice.missing, now);
@@ -358,6 +359,7 @@ PacketPlan PacketPlanner::planPart(const v1::TileTask& task, const TileWalk& wal
   packet.set_traverse_rank(selfRank_);
   packet.set_packet_id(++packetsSent_);
   packet.set_ordered_bytes(choice.missingBytes);
+  packet.set_ordered_bytes_held_elsewhere(plan.orderedBytesHeldElsewhere);
   packet.set_chosen_cost(choice.cost);
   packet.set_prefetch_bytes(plan.prefetchBytes);
   if (partCount > 1) {

@@ -75,6 +75,7 @@ struct PacketPlan {
   int renderRank = -1;
   std::vector<CellRange> needs;  // what its render waits for (needRanges)
   std::uint64_t prefetchBytes = 0;
+  std::uint64_t orderedBytesHeldElsewhere = 0;  // of choice.missingBytes
   std::vector<CellRange> prefetch;
   std::uint64_t splats = 0;
   std::uint32_t partIndex = 0;

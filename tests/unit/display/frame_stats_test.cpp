@@ -138,12 +138,14 @@ TEST(FrameStats, ShortRunsBeginTheirSteadyStateEarlier) {
   for (std::uint64_t i = 0; i < 8; ++i) {
     FrameRecord record = frame(i, static_cast<double>(i + 1), {{4, 0.1}, {5, 0.1}});
     record.bytesOrdered = 100 * (i + 1);
+    record.bytesOrderedHeldElsewhere = 10 * (i + 1);
     stats.addFrame(record);
   }
   const KeyFigures k = stats.keyFigures();
   EXPECT_EQ(k.steadyFrom, 2u);
   EXPECT_DOUBLE_EQ(k.framesPerSecondSteady, 6.0 / 6.0);  // frames 2..7, ended 2 s .. 8 s
   EXPECT_DOUBLE_EQ(k.bytesPerFrameSteady, (300.0 + 400 + 500 + 600 + 700 + 800) / 6.0);
+  EXPECT_DOUBLE_EQ(k.bytesHeldElsewherePerFrameSteady, (30.0 + 40 + 50 + 60 + 70 + 80) / 6.0);
   EXPECT_EQ(k.imbalanceFrames, 6u);
 }
 

@@ -338,6 +338,7 @@ TEST(PacketPlanner, NeedsTheDrawnRangesAndOrdersOnlyWhatTheRenderLacksOfThem) {
   EXPECT_EQ(plan.needs, (std::vector<CellRange>{{0, 800, 400}, {0, 6000, 100}}));
   EXPECT_EQ(rangesIn(closer), (std::vector<CellRange>{{0, 1000, 200}, {0, 6000, 100}}));
   EXPECT_EQ(packetIn(closer).ordered_bytes(), 300u * sizeof(Splat));
+  EXPECT_EQ(packetIn(closer).ordered_bytes_held_elsewhere(), 0u);  // render 1 holds none
   EXPECT_EQ(needsOf(packetIn(closer)), plan.needs);
   // Ranges a few splats apart are needed as one; farther apart, apart.
   Outbox gaps;
