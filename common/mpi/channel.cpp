@@ -236,9 +236,11 @@ Channel::Incoming Channel::startReceive(MPI_Message& message, MPI_Status& status
   envelope.kind = static_cast<MessageKind>(status.MPI_TAG);
   incoming.started = std::chrono::steady_clock::now();
   incoming.allowed = payloadTimeout_;
-  std::string first(static_cast<std::size_t>(count), '\0');
+  // On the heap, so that a cancelled receive's buffer can be kept as it is
+  // (a short std::string would hold its bytes inside the object).
+  auto first = std::make_unique<std::string>(static_cast<std::size_t>(count), '\0');
   MPI_Request request = MPI_REQUEST_NULL;
-  checkMpi(MPI_Imrecv(first.data(), count, MPI_BYTE, &message, &request), "MPI_Imrecv");
+  checkMpi(MPI_Imrecv(first->data(), count, MPI_BYTE, &message, &request), "MPI_Imrecv");
   // Our first parts are sent eagerly, so this is whole at once; a forged
   // larger one from a sender that then dies must not hold this process.
   Backoff backoff;
@@ -248,7 +250,7 @@ Channel::Incoming Channel::startReceive(MPI_Message& message, MPI_Status& status
     if (std::chrono::steady_clock::now() - incoming.started >= incoming.allowed) {
       MPI_Cancel(&request);
       MPI_Request_free(&request);
-      static std::vector<std::string> orphans;
+      static std::vector<std::unique_ptr<std::string>> orphans;
       orphans.push_back(std::move(first));
       throw PeerSilentError(envelope.source, "rank " + std::to_string(envelope.source) +
                                                  " began a " + std::to_string(count) + "-byte " +
@@ -258,25 +260,25 @@ Channel::Incoming Channel::startReceive(MPI_Message& message, MPI_Status& status
     }
     backoff.wait(kTransferPoll);
   }
-  if (first.size() < kPrefixBytes || getLE(first.data(), 4) != kFrameMagic) {
+  if (first->size() < kPrefixBytes || getLE(first->data(), 4) != kFrameMagic) {
     throw ProtocolError("rank " + std::to_string(envelope.source) + " sent a " +
-                        std::to_string(first.size()) + "-byte message on tag " +
+                        std::to_string(first->size()) + "-byte message on tag " +
                         std::to_string(static_cast<int>(envelope.kind)) +
                         " without the Pointillist frame prefix");
   }
-  const std::uint64_t headerBytes = getLE(first.data() + 4, 4);
-  const std::uint64_t payloadBytes = getLE(first.data() + 8, 8);
-  if (headerBytes != 0 && first.size() != kPrefixBytes) {
+  const std::uint64_t headerBytes = getLE(first->data() + 4, 4);
+  const std::uint64_t payloadBytes = getLE(first->data() + 8, 8);
+  if (headerBytes != 0 && first->size() != kPrefixBytes) {
     throw ProtocolError("rank " + std::to_string(envelope.source) + " sent a " +
                         messageKindName(envelope.kind) + " prefix of " +
-                        std::to_string(first.size()) + " bytes that also names a " +
+                        std::to_string(first->size()) + " bytes that also names a " +
                         std::to_string(headerBytes) + "-byte header to follow");
   }
   // Everything of this message on the payload tag is received from here on:
   // posted now, before any later probe, its parts can match nothing else.
   const int tag = payloadTag(envelope.kind);
   if (headerBytes == 0) {
-    envelope.header = first.substr(kPrefixBytes);
+    envelope.header = first->substr(kPrefixBytes);
   } else {
     incoming.frame = std::make_unique<std::string>(headerBytes, '\0');
     checkMpi(MPI_Irecv(incoming.frame->data(), static_cast<int>(headerBytes), MPI_BYTE,
