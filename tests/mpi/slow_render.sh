@@ -6,11 +6,16 @@
 # [A + 20, B) below 0.6 of its share in [20, A), and in [B + 20, end) back
 # above half of it -- or of its fair share (1 / render processes) when that is
 # smaller: on a loaded machine the start can hand it more than its share
-# (0.361 of four seen in CI), and coming back means back to its share. Half,
-# not all: render processes hold the ranges they drew, so the others hold
-# what the view needs once the slow one recovers, and it wins tiles back as
-# the view moves on (docs/scheduling.md §19). The run's arguments carry
-# --slow-index 0 and the window.
+# (0.361 of four seen in CI), and coming back means back to its share.
+# The job runs with --render-core-share 1, as on a cluster where each render
+# process has a core: a render's queue then counts at its whole time, so its
+# speed estimate, not only the data it holds, decides where tiles go (shares
+# after the window 0.19-0.26, before 0.17-0.30, six runs). At the one-machine
+# default (0.25 for four renders on two cores) the queue counts little and
+# tiles stay with the ranges their renders hold: the others hold what the view
+# needs once the slow one recovers, and it won back only 0.03-0.06 of the
+# splats (CI failed on it; docs/scheduling.md §11 and §19). The run's
+# arguments carry --slow-index 0 and the window.
 set -uo pipefail
 from="$1" to="$2"
 shift 2
