@@ -108,7 +108,7 @@ requests = {
 for name, request in requests.items():
     open(f"{out}/{name}", "wb").write(request.SerializeToString())
 PY
-    log "no Python protobuf module: the service corpus starts empty"
+    log "the request seeds could not be written (error above): the service corpus starts empty"
 }
 
 # MPI messages as the roles send them (tests/fuzz/fuzz_messages.cpp: a kind
@@ -132,15 +132,31 @@ seed("tile-image", 0, pb.TileImageHeader(frame_id=0, tile_id=0, rect=rect,
 seed("tile-image-depth", 0, pb.TileImageHeader(frame_id=1, tile_id=2, rect=rect,
      format=pb.PIXEL_FORMAT_RGBA8, render_rank=5, depth=pb.DEPTH_FORMAT_EYE_FLOAT32),
      bytes(64 * 32 * 8))
-seed("render-packet", 1, pb.RenderPacket(frame_id=0, tile_id=1, rect=rect, top_level_cells=[0, 2],
+# Ranges as protocol 12 sends them; the target's cells hold 110 + 38 i splats.
+seed("render-packet", 1, pb.RenderPacket(frame_id=0, tile_id=1, rect=rect,
      range_top_level=[0, 2], range_offset=[0, 0], range_count=[100, 50], total_splats=150,
+     need_top_level=[0, 2], need_first=[0, 0], need_count=[100, 50],
      traverse_rank=1, packet_id=7))
-seed("data-packet", 2, pb.DataPacketHeader(top_level_cell=0, splat_count=10, byte_size=320,
-     record_size=32, datasend_rank=3, first_splat=0), bytes(320))
-seed("send-order", 3, pb.SendOrder(render_rank=4, top_level_cells=[0, 1, 5],
-     top_level_splats=[110, 50, 295], requester_rank=1, order_id=1))
+seed("render-packet-part", 1, pb.RenderPacket(frame_id=1, tile_id=0, rect=rect,
+     range_top_level=[1], range_offset=[10], range_count=[40], total_splats=40,
+     need_top_level=[1], need_first=[10], need_count=[40], traverse_rank=2, packet_id=8,
+     part_index=1, part_count=2, screen_box=pb.TileRect(x=8, y=4, width=16, height=8)))
+seed("data-packet", 2, pb.DataPacketHeader(byte_size=320, record_size=32, datasend_rank=3,
+     parts=[pb.DataPart(top_level_cell=0, first_splat=0, splat_count=10)]), bytes(320))
+seed("data-packet-parts", 2, pb.DataPacketHeader(byte_size=640, record_size=32, datasend_rank=3,
+     parts=[pb.DataPart(top_level_cell=1, first_splat=0, splat_count=12),
+            pb.DataPart(top_level_cell=2, first_splat=40, splat_count=8)]), bytes(640))
+seed("send-order", 3, pb.SendOrder(render_rank=4, requester_rank=1, order_id=1,
+     range_top_level=[0, 1, 5], range_first=[0, 0, 10], range_count=[110, 50, 285]))
 seed("render-report", 4, pb.RenderReport(render_rank=4, sequence=1, workload_splats=1000,
-     loaded_cells=[0, 1], evicted_cells=[2], loaded_splats=[110, 147], packets_done=3))
+     loaded_top_level=[0, 1], loaded_first=[0, 20], loaded_count=[110, 100],
+     evicted_cells=[2], packets_done=3))
+seed("tile-image-box", 0, pb.TileImageHeader(frame_id=0, tile_id=1, rect=rect,
+     format=pb.PIXEL_FORMAT_RGBA8, render_rank=4, drawn_rect=pb.TileRect(x=4, y=2, width=16, height=8)),
+     bytes(16 * 8 * 4))
+seed("tile-image-part", 0, pb.TileImageHeader(frame_id=0, tile_id=2, rect=rect,
+     format=pb.PIXEL_FORMAT_POINT_WORDS64, render_rank=5, part_index=0, part_count=2),
+     bytes(64 * 32 * 8))
 # The city of the target is about 0-100 on x and y, 0-30 on z.
 camera = pb.Camera(eye=pb.Vec3(x=-20, y=-20, z=40), target=pb.Vec3(x=50, y=50, z=0),
                    up=pb.Vec3(x=0, y=0, z=1), fov_y_degrees=60, near_plane=0.1, far_plane=500,
@@ -154,10 +170,10 @@ seed("tile-task-lod", 6, pb.TileTask(frame_id=4, tile_id=0, camera=camera,
      rect=pb.TileRect(x=0, y=0, width=640, height=360),
      frame_settings=pb.FrameSettings(lod_pixels=4)))
 seed("traverse-report", 7, pb.RenderReport(render_rank=4, sequence=2, workload_splats=500,
-     loaded_cells=[0, 3], loaded_splats=[40, 80], seconds_per_splat=1e-7,
+     loaded_top_level=[0, 3], loaded_first=[0, 0], loaded_count=[40, 80], seconds_per_splat=1e-7,
      last_packet_from_traverse=[3, 0]))
 PY
-    log "no Python protobuf module: the message corpus starts empty"
+    log "the message seeds could not be written (error above): the message corpus starts empty"
 }
 
 printf '%-22s %12s %10s %8s %s\n' target executions "exec/s" coverage result >"$out/summary.txt"
