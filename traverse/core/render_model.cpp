@@ -5,6 +5,7 @@
 #include <limits>
 
 #include "common/errors.hpp"
+#include "common/octree_cell.hpp"
 #include "common/splat.hpp"
 
 namespace pointillist::traverse {
@@ -96,16 +97,22 @@ std::uint64_t RenderModel::missingSplats(std::size_t render,
 
 std::uint64_t RenderModel::splatsHeldElsewhere(std::size_t render,
                                                std::span<const CellRange> ranges) const {
+  // The other renders' holdings of a cell joined once for all its ranges
+  // (ranges come sorted by cell).
   std::uint64_t splats = 0;
+  std::uint32_t joinedCell = kNoIndex;
+  SpanSet others;
   for (const CellRange& range : ranges) {
     if (range.cell >= holders_.size()) continue;
-    SpanSet others;
-    for (const Holding& held : holders_[range.cell]) {
-      if (held.render != render) others.add(held.spans);
+    if (range.cell != joinedCell) {
+      joinedCell = range.cell;
+      others = {};
+      for (const Holding& held : holders_[range.cell]) {
+        if (held.render != render) others.add(held.spans);
+      }
     }
     if (others.empty()) continue;
-    const std::uint32_t end = range.first + range.count;
-    splats += range.count - others.uncovered(range.first, end);
+    splats += range.count - others.uncovered(range.first, static_cast<std::uint32_t>(range.end()));
   }
   return splats;
 }
