@@ -8,6 +8,10 @@ void addViewOptions(CLI::App& app, ViewOptions& options) {
   app.add_option("--camera-path", options.cameraPath,
                  "Camera path file, or built-in: orbit, flythrough, closeup, turns");
   app.add_option("--frames", options.frames, "Frames for a built-in camera path");
+  app.add_option("--loops", options.loops,
+                 "Play the camera path this many times over (a turntable); with more than one, "
+                 "figures after warm-up are also given for the loops after the first")
+      ->check(CLI::Range(1u, 1000u));
   app.add_option("--size", options.size, "Frame size WxH");
   app.add_option("--mode", options.mode,
                  "Render mode: points (fast), splats (oriented disks from a geometry shader), "
@@ -83,9 +87,13 @@ std::vector<Camera> viewCameras(const ViewOptions& options, const SceneBounds& b
   const auto [width, height] = parseImageSize(options.size);
   const auto keys =
       loadCameraPath(options.cameraPath, bounds, options.frames, parseUpAxis(options.up, bounds));
+  if (options.loops == 0) throw UsageError("--loops must be at least 1");
   std::vector<Camera> cameras;
-  cameras.reserve(keys.size());
+  cameras.reserve(keys.size() * options.loops);
   for (const auto& key : keys) cameras.push_back(cameraFromKey(key, bounds, width, height));
+  for (std::size_t i = keys.size(); i < keys.size() * options.loops; ++i) {
+    cameras.push_back(cameras[i - keys.size()]);
+  }
   return cameras;
 }
 

@@ -17,6 +17,9 @@ namespace pointillist {
 struct ViewOptions {
   std::string cameraPath = "orbit";
   std::uint32_t frames = 24;
+  // The path played this many times over: a turntable. Later loops find
+  // every view's data already sent, so steady state is then the later loops.
+  std::uint32_t loops = 1;
   std::string size = "1280x720";
   std::string mode = "points";
   std::string up = "auto";

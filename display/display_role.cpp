@@ -278,6 +278,9 @@ class DisplayProcess {
     stats.height = height_;
     stats.mode = options_.view.mode;
     stats.frameLimit = options_.statsFrames;
+    if (source_ == nullptr && options_.view.loops > 1) {
+      stats.loopFrames = config_.cameras.size() / options_.view.loops;
+    }
     stats.reserveDetail(job_.ranksOf(v1::ROLE_RENDER));
     Backoff backoff;
     CpuActivities::Meter meter(job_.activities(), "poll");

@@ -104,6 +104,13 @@ std::vector<std::pair<std::string, std::string>> keyFigureFields(const KeyFigure
       {"bytes_per_frame_steady", number(k.bytesPerFrameSteady)},
       {"bytes_held_elsewhere_per_frame_steady", number(k.bytesHeldElsewherePerFrameSteady)},
       {"image_bytes_per_frame_steady", number(k.imageBytesPerFrameSteady)},
+      {"later_loops_from", count(k.laterLoopsFrom)},
+      {"frames_per_second_later_loops", number(k.framesPerSecondLaterLoops)},
+      {"bytes_per_frame_later_loops", number(k.bytesPerFrameLaterLoops)},
+      {"bytes_held_elsewhere_per_frame_later_loops",
+       number(k.bytesHeldElsewherePerFrameLaterLoops)},
+      {"image_bytes_per_frame_later_loops", number(k.imageBytesPerFrameLaterLoops)},
+      {"imbalance_busy_later_loops", number(k.imbalanceBusyLaterLoops)},
       {"cache_hits", count(k.cacheHits)},
       {"cache_misses", count(k.cacheMisses)},
       {"cache_hit_rate", number(k.cacheHitRate)},
@@ -173,13 +180,18 @@ void RunStats::addFrame(const FrameRecord& record) {
   totals.mostRendersInFrame =
       std::max(totals.mostRendersInFrame, record.busySecondsPerRender.size());
   totals.lastEndSeconds = record.endSeconds;
+  const std::uint64_t index = totals.all.frames;
+  const bool laterLoop = loopFrames > 0 && index >= loopFrames;
+  if (loopFrames > 0 && index + 1 == loopFrames) totals.laterLoopsBeginSeconds = record.endSeconds;
   if (totals.first.size() < FrameTotals::kSteadyFromAtMost) {
     totals.first.push_back(record);
     totals.all.add(record, {});
+    if (laterLoop) totals.laterLoops.add(record, balance(record));
   } else {
     const FrameBalance b = balance(record);
     totals.all.add(record, b);
     totals.afterFirst.add(record, b);
+    if (laterLoop) totals.laterLoops.add(record, b);
   }
   if (frameLimit == 0) {
     frames.push_back(record);
@@ -324,6 +336,15 @@ KeyFigures RunStats::keyFigures() const {
   k.bytesPerFrameSteady = ratio(steady.bytesOrdered, steady.frames);
   k.bytesHeldElsewherePerFrameSteady = ratio(steady.bytesOrderedHeldElsewhere, steady.frames);
   k.imageBytesPerFrameSteady = ratio(steady.imageBytes, steady.frames);
+  if (const FrameSums& later = totals.laterLoops; later.frames > 0) {
+    k.laterLoopsFrom = loopFrames;
+    const double span = totals.lastEndSeconds - totals.laterLoopsBeginSeconds;
+    k.framesPerSecondLaterLoops = ratio(static_cast<double>(later.frames), span);
+    k.bytesPerFrameLaterLoops = ratio(later.bytesOrdered, later.frames);
+    k.bytesHeldElsewherePerFrameLaterLoops = ratio(later.bytesOrderedHeldElsewhere, later.frames);
+    k.imageBytesPerFrameLaterLoops = ratio(later.imageBytes, later.frames);
+    k.imbalanceBusyLaterLoops = ratio(later.imbalanceBusy, static_cast<double>(later.busyFrames));
+  }
 
   double sumRate = 0.0;
   double minRate = std::numeric_limits<double>::infinity();
@@ -561,6 +582,17 @@ std::string RunStats::summary() const {
                 k.bytesPerFrameSteady / 1048576.0, k.bytesHeldElsewherePerFrameSteady / 1048576.0,
                 k.imageBytesPerFrameSteady / 1048576.0);
   out << line;
+  if (k.laterLoopsFrom > 0) {
+    std::snprintf(line, sizeof line,
+                  "later loops (from frame %zu, every view seen once): %.2f frames/s, %.3f MiB "
+                  "per frame (%.3f MiB another render held), tile images %.3f MiB per frame, "
+                  "imbalance %.2f\n",
+                  k.laterLoopsFrom, k.framesPerSecondLaterLoops,
+                  k.bytesPerFrameLaterLoops / 1048576.0,
+                  k.bytesHeldElsewherePerFrameLaterLoops / 1048576.0,
+                  k.imageBytesPerFrameLaterLoops / 1048576.0, k.imbalanceBusyLaterLoops);
+    out << line;
+  }
   std::snprintf(line, sizeof line,
                 "cache: hit rate %.1f%% (%llu hits, %llu misses), %.1f%% steady, %llu evictions, "
                 "peak %.2f MiB on one render\n",

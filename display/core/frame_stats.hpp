@@ -133,6 +133,14 @@ struct KeyFigures {
   double bytesPerFrameSteady = 0.0;
   double bytesHeldElsewherePerFrameSteady = 0.0;  // of it, held by another render
   double imageBytesPerFrameSteady = 0.0;          // FrameRecord::imageBytes
+  // A path played more than once (RunStats::loopFrames): the frames from the
+  // second loop on, where every view's data was sent in the first.
+  std::size_t laterLoopsFrom = 0;  // 0: one loop
+  double framesPerSecondLaterLoops = 0.0;
+  double bytesPerFrameLaterLoops = 0.0;
+  double bytesHeldElsewherePerFrameLaterLoops = 0.0;
+  double imageBytesPerFrameLaterLoops = 0.0;
+  double imbalanceBusyLaterLoops = 0.0;
   std::uint64_t cacheHits = 0;
   std::uint64_t cacheMisses = 0;
   std::uint64_t cacheHitsSteady = 0;
@@ -221,7 +229,9 @@ struct FrameTotals {
   static constexpr std::size_t kSteadyFromAtMost = 3;
   std::vector<FrameRecord> first;  // the first kSteadyFromAtMost frames, whole
   FrameSums all;
-  FrameSums afterFirst;  // frames from kSteadyFromAtMost on
+  FrameSums afterFirst;                 // frames from kSteadyFromAtMost on
+  FrameSums laterLoops;                 // frames from RunStats::loopFrames on, when set
+  double laterLoopsBeginSeconds = 0.0;  // the first loop's last frame's end
   double lastEndSeconds = 0.0;
   std::size_t mostRendersInFrame = 0;
 };
@@ -244,6 +254,9 @@ struct RunStats {
   std::size_t frameLimit = 0;
   std::size_t sampleLimit = 8192;
   std::size_t tileLimit = 32768;
+  // Frames of one loop of the camera path when it is played several times
+  // (--loops), else 0: the later loops get figures of their own.
+  std::size_t loopFrames = 0;
   DetailThinning frameThinning;
   std::map<int, DetailThinning> sampleThinning;
   DetailThinning tileThinning;

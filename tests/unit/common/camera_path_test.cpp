@@ -8,6 +8,7 @@
 #include <fstream>
 
 #include "common/errors.hpp"
+#include "common/view_options.hpp"
 
 namespace pointillist {
 namespace {
@@ -28,6 +29,25 @@ TEST(CameraPath, BuiltinPathsFrameTheData) {
   }
   EXPECT_EQ(defaultUpAxis(bounds), glm::vec3(0, 0, 1));
   EXPECT_THROW((void)builtinCameraPath("spiral", bounds, 3, {0, 0, 1}), UsageError);
+}
+
+// --loops plays the path over again: the same cameras, loop after loop.
+TEST(CameraPath, LoopsRepeatThePathsCameras) {
+  const SceneBounds bounds{{-10, -5, 0}, {10, 5, 3}};
+  ViewOptions view;
+  view.frames = 7;
+  view.size = "64x36";
+  const auto once = viewCameras(view, bounds);
+  view.loops = 3;
+  const auto thrice = viewCameras(view, bounds);
+  ASSERT_EQ(once.size(), 7u);
+  ASSERT_EQ(thrice.size(), 21u);
+  for (std::size_t i = 0; i < thrice.size(); ++i) {
+    EXPECT_EQ(thrice[i].SerializeAsString(), once[i % 7].SerializeAsString()) << i;
+  }
+  EXPECT_NE(once[0].SerializeAsString(), once[1].SerializeAsString());
+  view.loops = 0;
+  EXPECT_THROW((void)viewCameras(view, bounds), UsageError);
 }
 
 TEST(CameraPath, FileRoundTripsAndBadLinesNameTheLine) {

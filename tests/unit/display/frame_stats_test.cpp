@@ -149,5 +149,36 @@ TEST(FrameStats, ShortRunsBeginTheirSteadyStateEarlier) {
   EXPECT_EQ(k.imbalanceFrames, 6u);
 }
 
+// A path played twice: the second loop's figures are its own frames' and
+// stay exact when the detail thins; one loop gives none.
+TEST(FrameStats, LaterLoopsHaveFiguresOfTheirOwn) {
+  RunStats looped, once;
+  looped.layout = once.layout = "1,1,1,2";
+  looped.loopFrames = 10;
+  looped.frameLimit = 4;
+  for (std::uint64_t i = 0; i < 20; ++i) {
+    FrameRecord record = frame(i, 0.5 * static_cast<double>(i + 1), {{4, 0.2}, {5, 0.1}});
+    record.bytesOrdered = i < 10 ? 1000 : 10 * i;
+    record.bytesOrderedHeldElsewhere = i < 10 ? 500 : i;
+    record.imageBytes = 7;
+    looped.addFrame(record);
+    once.addFrame(record);
+  }
+  const KeyFigures k = looped.keyFigures();
+  EXPECT_EQ(k.laterLoopsFrom, 10u);
+  EXPECT_DOUBLE_EQ(k.framesPerSecondLaterLoops, 10.0 / (10.0 - 5.0));  // ended 5.5 s .. 10 s
+  EXPECT_DOUBLE_EQ(k.bytesPerFrameLaterLoops, 10.0 * (10 + 19) / 2.0);
+  EXPECT_DOUBLE_EQ(k.bytesHeldElsewherePerFrameLaterLoops, (10 + 19) / 2.0);
+  EXPECT_DOUBLE_EQ(k.imageBytesPerFrameLaterLoops, 7.0);
+  EXPECT_NEAR(k.imbalanceBusyLaterLoops, 0.2 / 0.15, 1e-12);
+  // The steady figures still start at frame 3, over both loops.
+  EXPECT_EQ(k.steadyFrom, 3u);
+  EXPECT_DOUBLE_EQ(k.bytesPerFrameSteady, once.keyFigures().bytesPerFrameSteady);
+  EXPECT_EQ(once.keyFigures().laterLoopsFrom, 0u);
+  EXPECT_DOUBLE_EQ(once.keyFigures().bytesPerFrameLaterLoops, 0.0);
+  EXPECT_NE(looped.summary().find("later loops (from frame 10"), std::string::npos);
+  EXPECT_EQ(once.summary().find("later loops"), std::string::npos);
+}
+
 }  // namespace
 }  // namespace pointillist::display
