@@ -1,7 +1,10 @@
 #!/usr/bin/env bash
 # Render-path benchmark: splats/second of each path (points / splats mode x
 # compatibility / core GL profile) at 1280x720 and 1920x1080, for random and
-# for spatially clustered splats, on Mesa llvmpipe through OSMesa.
+# for spatially clustered splats, on Mesa llvmpipe through OSMesa, and of the
+# CPU point kernel. Each case runs whole-frame (tiles 1x1) and as the job
+# draws (8x4 tiles, each from the splats that reach it, into a tile-sized
+# buffer; every tile checked against the whole frame); --tiles changes that.
 #
 #   deploy/bench-render.sh [-- extra pointillist-bench-render options]
 #   e.g. deploy/bench-render.sh -- --count 5000000 --paths points/compat
