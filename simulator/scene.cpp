@@ -11,7 +11,7 @@ namespace pointillist::simulator {
 
 Scene::Scene(std::string name, std::vector<OctreeCell> cells, std::vector<TopLevelCell> topLevel,
              SceneBounds bounds, std::vector<Camera> cameras,
-             const traverse::TraversalSettings& traversal)
+             const traverse::TraversalSettings& traversal, std::size_t loopFrames)
     : name_(std::move(name)),
       cells_(std::move(cells)),
       topLevel_(std::move(topLevel)),
@@ -19,6 +19,7 @@ Scene::Scene(std::string name, std::vector<OctreeCell> cells, std::vector<TopLev
       culling_(std::make_unique<const traverse::CullingTable>(cells_, traversal.sizeScale)),
       bounds_(bounds),
       cameras_(std::move(cameras)),
+      loopFrames_(loopFrames),
       traversal_(traversal) {
   if (cells_.empty() || topLevel_.empty()) {
     throw InputError(name_ + ": the dataset has no cells to simulate");
@@ -33,9 +34,11 @@ Scene Scene::load(const std::string& datasetPath, const ViewOptions& view) {
   const Dataset dataset = Dataset::open(datasetPath, DatasetParts::Cells);
   const SceneBounds bounds = datasetBounds(dataset.manifest());
   const traverse::TraversalSettings traversal = traverse::traversalSettings(view);
+  std::vector<Camera> cameras = viewCameras(view, bounds);
+  const std::size_t loopFrames = view.loops > 1 ? cameras.size() / view.loops : 0;
   return Scene(datasetPath, {dataset.cells().begin(), dataset.cells().end()},
                {dataset.topLevelCells().begin(), dataset.topLevelCells().end()}, bounds,
-               viewCameras(view, bounds), traversal);
+               std::move(cameras), traversal, loopFrames);
 }
 
 std::uint32_t Scene::width() const {
@@ -65,6 +68,7 @@ std::size_t Scene::KeyHash::operator()(const Key& key) const {
 }
 
 const TileWork& Scene::tileWork(std::uint64_t frame, const TileRect& rect) const {
+  if (loopFrames_ > 0) frame %= loopFrames_;  // the same camera: the same walk
   const Key key{frame, rect.x(), rect.y(), rect.width(), rect.height()};
   {
     const std::lock_guard lock(mutex_);
@@ -85,6 +89,7 @@ const TileWork& Scene::tileWork(std::uint64_t frame, const TileRect& rect) const
 }
 
 const std::vector<CellPrefix>& Scene::cellsInTile(std::uint64_t frame, const TileRect& rect) const {
+  if (loopFrames_ > 0) frame %= loopFrames_;
   const Key key{frame, rect.x(), rect.y(), rect.width(), rect.height()};
   {
     const std::lock_guard lock(mutex_);

@@ -33,7 +33,7 @@ class Scene {
   // `name` labels reports (the dataset directory, say).
   Scene(std::string name, std::vector<OctreeCell> cells, std::vector<TopLevelCell> topLevel,
         SceneBounds bounds, std::vector<Camera> cameras,
-        const traverse::TraversalSettings& traversal);
+        const traverse::TraversalSettings& traversal, std::size_t loopFrames = 0);
   Scene(const Scene&) = delete;
   Scene& operator=(const Scene&) = delete;
 
@@ -46,6 +46,9 @@ class Scene {
   std::span<const TopLevelCell> topLevel() const { return topLevel_; }
   const SceneBounds& bounds() const { return bounds_; }
   const std::vector<Camera>& cameras() const { return cameras_; }
+  // Frames of one loop of a path played several times (--loops), else 0:
+  // later loops walk the first's tiles again (the walks are kept once).
+  std::size_t loopFrames() const { return loopFrames_; }
   const traverse::TraversalSettings& traversal() const { return traversal_; }
   std::uint32_t width() const;
   std::uint32_t height() const;
@@ -86,6 +89,7 @@ class Scene {
   std::unique_ptr<const traverse::CullingTable> culling_;  // over cells_, which never move
   SceneBounds bounds_;
   std::vector<Camera> cameras_;
+  std::size_t loopFrames_ = 0;
   traverse::TraversalSettings traversal_;
   mutable std::mutex mutex_;
   // Node-based: references stay valid while other tiles are added.

@@ -237,6 +237,7 @@ class Simulation {
     stats.width = scene.width();
     stats.height = scene.height();
     stats.mode = "simulated";
+    stats.loopFrames = scene.loopFrames();
   }
 
   SimulationResult run() {

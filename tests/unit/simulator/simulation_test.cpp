@@ -45,8 +45,11 @@ std::unique_ptr<Scene> makeScene(const ViewOptions& view) {
   DatasetContent content = preprocess::buildDatasetContent(std::move(cloud.splats), options);
   finalizeDatasetContent(content);
   const SceneBounds bounds = datasetBounds(content.manifest);
+  std::vector<Camera> cameras = viewCameras(view, bounds);
+  const std::size_t loopFrames = view.loops > 1 ? cameras.size() / view.loops : 0;
   return std::make_unique<Scene>("test-city", std::move(content.cells), std::move(content.topLevel),
-                                 bounds, viewCameras(view, bounds), traverse::TraversalSettings{});
+                                 bounds, std::move(cameras), traverse::TraversalSettings{},
+                                 loopFrames);
 }
 
 const Scene& cityScene() {
@@ -134,6 +137,27 @@ TEST(Simulator, OneRenderProcessIsPerfectlyBalanced) {
     EXPECT_DOUBLE_EQ(result.figures.imbalanceBusy, 1.0) << configName(result.config);
     EXPECT_DOUBLE_EQ(result.figures.imbalanceSplats, 1.0) << configName(result.config);
   }
+}
+
+// A path played twice (--loops 2): the second loop finds its frames' data
+// already sent. (Its splats differ a little: tiles are sized by the last
+// frame's work, and a cell is drawn by every tile it reaches.)
+TEST(Simulator, ASecondLoopFindsItsDataSentAndMovesLittle) {
+  ViewOptions view = testView(10);
+  view.loops = 2;
+  const auto scene = makeScene(view);
+  ASSERT_EQ(scene->cameras().size(), 20u);
+  ASSERT_EQ(scene->loopFrames(), 10u);
+  const auto result = simulate(*scene, config(SchedulerKind::Cost, 4, 2), fixedParameters());
+  ASSERT_EQ(result.stats.frames.size(), 20u);
+  std::vector<std::uint64_t> bytes(20);
+  for (const display::FrameRecord& f : result.stats.frames) bytes.at(f.frame) = f.bytesOrdered;
+  const display::KeyFigures& k = result.figures;
+  EXPECT_EQ(k.laterLoopsFrom, 10u);
+  const double firstLoop = std::accumulate(bytes.begin() + 3, bytes.begin() + 10, 0.0) / 7.0;
+  EXPECT_GT(k.framesPerSecondLaterLoops, 0.0);
+  EXPECT_LT(k.bytesPerFrameLaterLoops, 0.02 * static_cast<double>(k.bytesFirstFrame));
+  EXPECT_LT(k.bytesPerFrameLaterLoops, firstLoop);
 }
 
 TEST(Simulator, ResultsAreDeterministic) {
