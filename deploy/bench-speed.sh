@@ -100,6 +100,11 @@ for scene in "${scene_list[@]}"; do
   "$POINTILLIST_BIN/pointillist-reference" --dataset "$dataset" --camera-path "$camera_path" \
     --frames "$frames" --size "$size" --quality "${extra[@]}" >"$dir/quality.log" 2>&1 ||
     { cat "$dir/quality.log" >&2; die "$scene: the quality run failed"; }
+  # What the view itself reveals each frame of the first loop, to one render
+  # holding every tile: the floor under the first loop's steady bytes.
+  "$POINTILLIST_BIN/pointillist-bench-walk" --dataset "$dataset" --camera-path "$camera_path" \
+    --frames "$frames" --size "$size" --tiles 8x4 --working-set --repeat 1 "${extra[@]}" \
+    >"$dir/working-set.log" 2>&1 || log "$scene: pointillist-bench-walk failed (see $dir/working-set.log)"
   python3 - "$scene" "$dir" "$repeat" "$dataset" >>"$report" <<'EOF'
 import json, re, statistics, sys
 scene, folder, repeat, dataset = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4]
@@ -136,7 +141,15 @@ later = k.get("bytes_per_frame_later_loops", 0) / 2**20
 first_loop = [f["bytes_sent"] for f in runs[median]["frames"]
               if k["steady_from"] <= f["frame"] < (later_from or k["frames"])]
 first_loop_steady = sum(first_loop) / len(first_loop) / 2**20 if first_loop else 0.0
-goal_bytes = later if later_from else steady
+# The floor: "tiles ranges first later share ..." of pointillist-bench-walk --working-set.
+floor = None
+try:
+    lines = open(f"{folder}/working-set.log").read().splitlines()
+    at = next(i for i, l in enumerate(lines) if l.startswith("one render process holding every tile"))
+    fields = lines[at + 2].split()
+    floor = (float(fields[3]), fields[4])
+except (OSError, StopIteration, IndexError, ValueError):
+    pass
 rows = [
     ("job frames/s (steady)", f"{k['frames_per_second_steady']:.2f}" + (f" (runs {min(fps):.2f}-{max(fps):.2f})" if repeat > 1 else ""), ">= 30", k["frames_per_second_steady"] >= 30),
     ("reference frames/s", f"{ref_fps:.2f}" + (f" (median; runs {min(ref_all):.2f}-{max(ref_all):.2f})" if repeat > 1 else ""), ">= 60", ref_fps >= 60),
@@ -148,6 +161,7 @@ rows = [
 if later_from:
     rows += [
         ("bytes per frame, first loop from frame %d (the warm-up)" % k["steady_from"], f"{first_loop_steady:.2f} MiB ({100 * first_loop_steady / first if first else 0:.1f} % of first)", "", None),
+        ("floor: what the view reveals a frame (one render holding every tile)", f"{floor[0]:.2f} MiB ({floor[1]} of its own first frame)" if floor else "n/a", "", None),
         ("bytes per frame after warm-up (loops 2-%d)" % (k["frames"] // later_from), f"{later:.3f} MiB ({100 * later / first if first else 0:.2f} % of first)", "<= 2 %", first > 0 and later <= 0.02 * first),
         ("of it, another render held (work moved)", f"{k.get('bytes_held_elsewhere_per_frame_later_loops', 0) / 2**20:.3f} MiB", "", None),
         ("job frames/s, loops 2-%d" % (k["frames"] // later_from), f"{k.get('frames_per_second_later_loops', 0):.2f}", "", None),
