@@ -16,9 +16,10 @@
 # pair) and OUT/goals.md with every table.
 # --loops N plays the path N times over (job and reference alike). The bytes
 # goal is judged on the loops after the first: in the first, a 48-frame orbit
-# reveals about 2.5 % of the first frame's bytes each frame to any scheduler
-# (docs/scheduling.md §19), so the first loop is the warm-up; its steady
-# bytes are printed beside them. --loops 1 gives the one-loop table.
+# of the bunny reveals about 2.5 % of the first frame's bytes each frame to
+# any scheduler (docs/scheduling.md §19), so the first loop is the warm-up;
+# its steady bytes, and that floor (pointillist-bench-walk --working-set),
+# are printed beside them. --loops 1 gives the one-loop table.
 # --repeat N runs the job and the reference in turn N times; it reports the job
 # run with the median steady frame rate, the median reference, and job over
 # reference as the median of the N back-to-back pairs (this machine's speed
