@@ -2,22 +2,19 @@
 // to the target, which is renamed into place at the end.
 #include "common/dataset_writer.hpp"
 
-#include <fcntl.h>     // open, O_DIRECT
 #include <stdlib.h>    // mkdtemp
 #include <sys/stat.h>  // umask
-#include <unistd.h>    // write, ftruncate, close
 
 #include <algorithm>
 #include <cerrno>
 #include <cstring>
 #include <fstream>
-#include <memory>
-#include <new>
 #include <system_error>
 
 #include "common/checksum.hpp"
 #include "common/dataset.hpp"
 #include "common/dataset_internal.hpp"
+#include "common/direct_file_writer.hpp"
 #include "common/errors.hpp"
 
 namespace pointillist {
@@ -93,103 +90,6 @@ class HashingWriter {
   std::uint64_t size_ = 0;
 };
 
-// points.bin, the packets, written through an aligned buffer with O_DIRECT
-// where the file system takes it. A buffered write copies every byte into
-// page-cache pages the kernel has to find first; on a virtual machine whose
-// freed memory goes back to the host, those are fresh pages, and copying the
-// bunny's 425 MiB took 0.6-1.3 s of CPU, against 0.01 s and 0.2 s of wall
-// time direct. Where O_DIRECT is refused (tmpfs, some network file systems)
-// the same writes go through the page cache.
-class PacketFileWriter {
- public:
-  explicit PacketFileWriter(const fs::path& p) : path_(p) {
-    fd_ = ::open(p.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC | O_DIRECT, 0666);
-    direct_ = fd_ >= 0;
-    if (fd_ < 0) fd_ = ::open(p.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0666);
-    if (fd_ < 0) throw Error("cannot create " + p.string() + ": " + std::strerror(errno));
-    buffer_.reset(static_cast<std::byte*>(::operator new (kBuffer, std::align_val_t{kAlign})));
-  }
-  ~PacketFileWriter() {
-    if (fd_ >= 0) ::close(fd_);
-  }
-  PacketFileWriter(const PacketFileWriter&) = delete;
-  PacketFileWriter& operator=(const PacketFileWriter&) = delete;
-
-  void write(const void* data, std::size_t size) {
-    const auto* from = static_cast<const std::byte*>(data);
-    size_ += size;
-    while (size > 0) {
-      const std::size_t n = std::min(size, kBuffer - fill_);
-      std::memcpy(buffer_.get() + fill_, from, n);
-      fill_ += n;
-      from += n;
-      size -= n;
-      if (fill_ == kBuffer) {
-        writeOut(fill_);
-        fill_ = 0;
-      }
-    }
-  }
-  DatasetFile finish(const char* key) {
-    if (fill_ > 0) {
-      // Direct writes go in whole blocks: the last one padded, then cut back.
-      const std::size_t padded = direct_ ? (fill_ + kAlign - 1) / kAlign * kAlign : fill_;
-      std::memset(buffer_.get() + fill_, 0, padded - fill_);
-      writeOut(padded);
-      fill_ = 0;
-    }
-    if (::ftruncate(fd_, static_cast<off_t>(size_)) != 0 || ::close(fd_) != 0) {
-      fd_ = -1;
-      throw Error("cannot write " + path_.string() + ": " + std::strerror(errno));
-    }
-    fd_ = -1;
-    return DatasetFile{key, path_.filename().string(), size_, std::nullopt};
-  }
-
- private:
-  static constexpr std::size_t kAlign = 4096;
-  static constexpr std::size_t kBuffer = std::size_t{8} << 20;
-  struct AlignedDelete {
-    void operator()(std::byte* p) const { ::operator delete (p, std::align_val_t{kAlign}); }
-  };
-
-  void writeOut(std::size_t bytes) {
-    const std::byte* from = buffer_.get();
-    while (bytes > 0) {
-      const ssize_t n = ::write(fd_, from, bytes);
-      if (n < 0 && errno == EINTR) continue;
-      if (n < 0 && errno == EINVAL && direct_) {
-        // Opened but not taken direct after all: go on through the page cache.
-        direct_ = false;
-        if (::fcntl(fd_, F_SETFL, ::fcntl(fd_, F_GETFL) & ~O_DIRECT) != 0) {
-          throw Error("cannot write " + path_.string() + ": " + std::strerror(errno));
-        }
-        continue;
-      }
-      if (n <= 0) {
-        throw Error("cannot write " + path_.string() + ": " +
-                    (n < 0 ? std::strerror(errno) : "no room"));
-      }
-      from += n;
-      bytes -= static_cast<std::size_t>(n);
-      // A short direct write leaves the rest unaligned: finish it buffered.
-      if (bytes > 0 && direct_) {
-        direct_ = false;
-        if (::fcntl(fd_, F_SETFL, ::fcntl(fd_, F_GETFL) & ~O_DIRECT) != 0) {
-          throw Error("cannot write " + path_.string() + ": " + std::strerror(errno));
-        }
-      }
-    }
-  }
-
-  fs::path path_;
-  int fd_ = -1;
-  bool direct_ = false;
-  std::unique_ptr<std::byte, AlignedDelete> buffer_;
-  std::size_t fill_ = 0;
-  std::uint64_t size_ = 0;
-};
-
 bool looksLikeDataset(const fs::path& dir) {
   std::error_code ec;
   if (fs::is_directory(dir, ec) && fs::is_empty(dir, ec)) return true;
@@ -261,8 +161,9 @@ struct DatasetWriter::State {
   fs::path dir;
   bool exists = false;
   TempDir tmp;
-  // No whole-file hash for points.bin: the packet checksums cover it.
-  PacketFileWriter points;
+  // No whole-file hash for points.bin: the packet checksums cover it. Written
+  // direct where it can be (common/direct_file_writer.hpp).
+  DirectFileWriter points;
   std::vector<std::uint64_t> packetSums;
   std::vector<std::uint64_t> packetSplats;  // level-splats + points per packet
   std::uint64_t bytes = 0;
@@ -336,7 +237,7 @@ std::uint64_t DatasetWriter::commit(DatasetContent& content) {
     w.write(content.cells.data(), content.cells.size() * sizeof(OctreeCell));
     files.push_back(w.finish(kCellsFile.key));
   }
-  files.push_back(s.points.finish(kPointsFile.key));
+  files.push_back(DatasetFile{kPointsFile.key, kPointsFile.name, s.points.finish(), std::nullopt});
   {
     HashingWriter w(s.tmp.path() / kTopLevelFile.name);
     w.write(content.topLevel.data(), content.topLevel.size() * sizeof(TopLevelCell));
