@@ -159,13 +159,14 @@ rows = [
     ("quality vs full detail", f"PSNR {qm.group(1)} dB, {qm.group(4)} % of covered pixels identical", "shown", None),
     ("bytes first frame", f"{first:.1f} MiB", "only the LOD drawn", None),
 ]
+later_loops = ("loop 2" if k["frames"] // later_from == 2 else f"loops 2-{k['frames'] // later_from}") if later_from else ""
 if later_from:
     rows += [
         ("bytes per frame, first loop from frame %d (the warm-up)" % k["steady_from"], f"{first_loop_steady:.2f} MiB ({100 * first_loop_steady / first if first else 0:.1f} % of first)", "", None),
         ("floor: what the view reveals a frame (one render holding every tile)", f"{floor[0]:.2f} MiB ({floor[1]} of its own first frame)" if floor else "n/a", "", None),
-        ("bytes per frame after warm-up (loops 2-%d)" % (k["frames"] // later_from), f"{later:.3f} MiB ({100 * later / first if first else 0:.2f} % of first)", "<= 2 %", first > 0 and later <= 0.02 * first),
+        (f"bytes per frame after warm-up ({later_loops})", f"{later:.3f} MiB ({100 * later / first if first else 0:.2f} % of first)", "<= 2 %", first > 0 and later <= 0.02 * first),
         ("of it, another render held (work moved)", f"{k.get('bytes_held_elsewhere_per_frame_later_loops', 0) / 2**20:.3f} MiB", "", None),
-        ("job frames/s, loops 2-%d" % (k["frames"] // later_from), f"{k.get('frames_per_second_later_loops', 0):.2f}", "", None),
+        (f"job frames/s, {later_loops}", f"{k.get('frames_per_second_later_loops', 0):.2f}", "", None),
     ]
 else:
     rows += [

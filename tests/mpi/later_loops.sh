@@ -8,13 +8,8 @@
 # what the check reads.
 set -uo pipefail
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
-out=""
-args=("$@")
-for ((i = 0; i < ${#args[@]}; ++i)); do
-  [[ "${args[i]}" == --out ]] && out="${args[i + 1]}"
-done
-[[ -n "$out" ]] || { echo "later_loops.sh: the job needs --out DIR" >&2; exit 2; }
-rm -rf "$out"
+source "$(dirname "${BASH_SOURCE[0]}")/job_out.sh"
+job_out later_loops.sh "$@"
 log=$(mktemp)
 trap 'rm -f "$log"' EXIT
 timeout --kill-after=10 120 "$@" >"$log" 2>&1

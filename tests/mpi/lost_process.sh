@@ -14,13 +14,8 @@ role="$1" expected="$2" message="$3"
 shift 3
 [[ "$1" == "--" ]] && shift
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
-out=""
-args=("$@")
-for ((i = 0; i < ${#args[@]}; ++i)); do
-  [[ "${args[i]}" == --out ]] && out="${args[i + 1]}"
-done
-[[ -n "$out" ]] || { echo "lost_process.sh: the job needs --out DIR" >&2; exit 2; }
-rm -rf "$out"
+source "$(dirname "${BASH_SOURCE[0]}")/job_out.sh"
+job_out lost_process.sh "$@"
 log=$(mktemp)
 trap 'rm -f "$log"' EXIT
 timeout --kill-after=10 60 "$@" >"$log" 2>&1

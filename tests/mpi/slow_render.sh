@@ -20,13 +20,8 @@ set -uo pipefail
 from="$1" to="$2"
 shift 2
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
-out=""
-args=("$@")
-for ((i = 0; i < ${#args[@]}; ++i)); do
-  [[ "${args[i]}" == --out ]] && out="${args[i + 1]}"
-done
-[[ -n "$out" ]] || { echo "slow_render.sh: the job needs --out DIR" >&2; exit 2; }
-rm -rf "$out"
+source "$(dirname "${BASH_SOURCE[0]}")/job_out.sh"
+job_out slow_render.sh "$@"
 timeout --kill-after=10 120 "$@" --slow-index 0 --slow-from-frame "$from" --slow-to-frame "$to"
 code=$?
 ((code == 0)) || { echo "FAIL: the job exited with code $code"; exit 1; }
