@@ -1556,6 +1556,35 @@ TEST(XyzReader, ShortDecimalsParseAsFromCharsDoes) {
     ASSERT_EQ(result.ec, std::errc()) << n;
     EXPECT_EQ(stop, result.ptr) << n;
     EXPECT_EQ(std::bit_cast<std::uint64_t>(value), std::bit_cast<std::uint64_t>(expected)) << n;
+    // Digits are read eight at a time where eight bytes remain: the same
+    // number with a line going on after it must end in the same place.
+    std::string followed = n;
+    followed += " 7 8\n-0.5";
+    double again = 0.0;
+    const char* stopAgain =
+        parseShortDecimal(followed.data(), followed.data() + followed.size(), again);
+    ASSERT_NE(stopAgain, nullptr) << n;
+    EXPECT_EQ(stopAgain - followed.data(), stop - n.data()) << n;
+    EXPECT_EQ(std::bit_cast<std::uint64_t>(again), std::bit_cast<std::uint64_t>(value)) << n;
+  }
+  // Every run of 1 to 25 digits, after and before a point, with text after.
+  for (int whole = 1; whole <= 25; ++whole) {
+    for (int fraction = 0; fraction <= 25; ++fraction) {
+      std::string n = digits(whole);
+      if (fraction > 0) {
+        n += '.';
+        n += digits(fraction);
+      }
+      std::string followed = n;
+      followed += "x1234567";
+      double value = 0.0, expected = 0.0;
+      const char* stop =
+          parseShortDecimal(followed.data(), followed.data() + followed.size(), value);
+      if (stop == nullptr) continue;
+      const auto result = std::from_chars(followed.data(), followed.data() + followed.size(), expected);
+      EXPECT_EQ(stop, result.ptr) << n;
+      EXPECT_EQ(std::bit_cast<std::uint64_t>(value), std::bit_cast<std::uint64_t>(expected)) << n;
+    }
   }
   // Most of them take the fast path (the rest have a wide exponent or too
   // many digits), as scanner exports do.
