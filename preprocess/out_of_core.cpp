@@ -39,7 +39,8 @@ constexpr unsigned kSpillDepth = 3;  // at most 512 files open while spilling
 // Units no deeper than the Morton sort's radix prefix (8 levels): points that
 // share it, sorted together or not at all, stay in one chunk.
 constexpr unsigned kMaxUnitDepth = 8;
-constexpr std::size_t kBucketBufferSplats = 256;               // 8 KiB per open file
+constexpr std::size_t kBucketBufferSplats = 256;  // 8 KiB per open file
+constexpr std::size_t kHandOutPieces = 16;        // a block's pieces handed out on all cores
 constexpr std::uint64_t kBaseBytes = std::uint64_t{24} << 20;  // the process, read buffers
 constexpr std::uint64_t kCellBytesPerPoint = 4;  // the whole cell array (a cell per ~40 points)
 
@@ -252,24 +253,67 @@ class BucketWriter {
 
   void add(std::span<const Splat> splats) {
     const unsigned shift = 3 * (maxDepth_ - depth_);
-    // The codes on all cores; the hand-out below stays in input order.
-    codes_.resize(splats.size());
+    const std::size_t n = splats.size();
+    const std::size_t cells = outs_.size();
+    // Pieces of the block on all cores: codes and each piece's count per
+    // cell, then each piece's indices placed after the pieces before it, so
+    // every cell's points keep their input order (the files are the same as
+    // from one thread). The cells are then filled and written on this thread.
+    const std::size_t pieces = std::clamp<std::size_t>(n >> 14, 1, kHandOutPieces);
+    const auto pieceBegin = [&](std::size_t p) { return n * p / pieces; };
+    codes_.resize(n);
+    pieceCounts_.assign(pieces * cells, 0);
     parallelFor(
-        splats.size(), 0, [&](std::size_t i) { codes_[i] = morton_(splats[i].position); },
-        std::size_t{1} << 14);
-    for (std::size_t i = 0; i < splats.size(); ++i) {
-      const Splat& s = splats[i];
-      const std::uint64_t code = codes_[i];
-      if (shape_ != nullptr) shape_->add(code);
-      const std::uint64_t prefix = code >> shift;
-      auto& slot = outs_[prefix - base_];
+        pieces, 0,
+        [&](std::size_t p) {
+          std::uint32_t* counts = pieceCounts_.data() + p * cells;
+          for (std::size_t i = pieceBegin(p); i < pieceBegin(p + 1); ++i) {
+            codes_[i] = morton_(splats[i].position);
+            ++counts[(codes_[i] >> shift) - base_];
+          }
+        },
+        1);
+    // The counts at the counting depth need the codes in input order only:
+    // they are taken beside the hand-out.
+    std::jthread counting;
+    if (shape_ != nullptr)
+      counting = std::jthread([this, n] {
+        for (std::size_t i = 0; i < n; ++i) shape_->add(codes_[i]);
+      });
+    cellFirst_.resize(cells + 1);
+    std::uint32_t at = 0;
+    for (std::size_t c = 0; c < cells; ++c) {
+      cellFirst_[c] = at;
+      for (std::size_t p = 0; p < pieces; ++p) {
+        std::uint32_t& count = pieceCounts_[p * cells + c];
+        const std::uint32_t next = at + count;
+        count = at;  // now where the piece's first point of the cell goes
+        at = next;
+      }
+    }
+    cellFirst_[cells] = at;
+    order_.resize(n);
+    parallelFor(
+        pieces, 0,
+        [&](std::size_t p) {
+          std::uint32_t* place = pieceCounts_.data() + p * cells;
+          for (std::size_t i = pieceBegin(p); i < pieceBegin(p + 1); ++i)
+            order_[place[(codes_[i] >> shift) - base_]++] = static_cast<std::uint32_t>(i);
+        },
+        1);
+    for (std::size_t c = 0; c < cells; ++c) {
+      const std::uint32_t first = cellFirst_[c], last = cellFirst_[c + 1];
+      if (first == last) continue;
+      auto& slot = outs_[c];
       if (!slot) {
         slot = std::make_unique<Out>();
-        slot->prefix = prefix;
+        slot->prefix = base_ + c;
       }
       Out& out = *slot;
-      out.buffer.push_back(s);
-      if (out.buffer.size() >= kBucketBufferSplats) flush(out);
+      for (std::uint32_t j = first; j < last; ++j) {
+        out.buffer.push_back(splats[order_[j]]);
+        if (out.buffer.size() >= kBucketBufferSplats) flush(out);
+      }
     }
   }
 
@@ -319,11 +363,37 @@ class BucketWriter {
   std::uint64_t base_;
   MortonCoder morton_;
   std::vector<std::uint64_t> codes_;
+  std::vector<std::uint32_t> pieceCounts_, cellFirst_, order_;
   unsigned maxDepth_;
   std::uint64_t& bytes_;
   ShapeCounter* shape_;
   std::vector<std::unique_ptr<Out>> outs_;
 };
+
+// Appends the block's points in each hash sample (inHashSample; every 0:
+// none) in block order, hashed on all cores: two hashes and divisions a
+// point on the reading thread held the other cores waiting.
+void appendHashSamples(std::span<const Splat> block, std::uint64_t everyA, std::vector<Splat>& a,
+                       std::uint64_t everyB, std::vector<Splat>& b) {
+  if (everyA == 0 && everyB == 0) return;
+  constexpr std::size_t kPiece = std::size_t{1} << 15;
+  const std::size_t pieces = (block.size() + kPiece - 1) / kPiece;
+  std::vector<std::pair<std::vector<Splat>, std::vector<Splat>>> picked(pieces);
+  parallelFor(
+      pieces, 0,
+      [&](std::size_t p) {
+        for (const Splat& s :
+             block.subspan(p * kPiece, std::min(kPiece, block.size() - p * kPiece))) {
+          if (everyA > 0 && inHashSample(s, everyA)) picked[p].first.push_back(s);
+          if (everyB > 0 && inHashSample(s, everyB)) picked[p].second.push_back(s);
+        }
+      },
+      1);
+  for (const auto& [inA, inB] : picked) {
+    a.insert(a.end(), inA.begin(), inA.end());
+    b.insert(b.end(), inB.begin(), inB.end());
+  }
+}
 
 // Calls fn(block) over a spill file's points in blocks of at most `block`.
 template <class Fn>
@@ -757,12 +827,7 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
         inputs, read,
         [&](std::span<const Splat> block) {
           writer0.add(block);
-          if (sampleEvery > 0)
-            for (const Splat& s : block)
-              if (inHashSample(s, sampleEvery)) sample.push_back(s);
-          if (latticeEvery > 0)
-            for (const Splat& s : block)
-              if (inHashSample(s, latticeEvery)) latticeSample.push_back(s);
+          appendHashSamples(block, sampleEvery, sample, latticeEvery, latticeSample);
         },
         again);
     if (again != count)
