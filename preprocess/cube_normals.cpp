@@ -76,12 +76,9 @@ CubeLattice chooseCubeLattice(std::span<const Splat> sample, std::uint64_t every
   return lattice;
 }
 
-CubeLattice chooseCubeLattice(std::span<const Splat> points, const double origin[3], double extent,
-                              double pointsPerCube) {
-  const std::uint64_t every = latticeSampleEvery(points.size());
-  // Hashed on all threads, blocks joined in order (the same sample): a hash
-  // and a 64-bit division a point on one thread held the other cores waiting.
-  constexpr std::size_t kBlock = std::size_t{1} << 18;
+void appendHashSample(std::span<const Splat> points, std::uint64_t every,
+                      std::vector<Splat>& sample) {
+  constexpr std::size_t kBlock = std::size_t{1} << 15;
   std::vector<std::vector<Splat>> picked((points.size() + kBlock - 1) / kBlock);
   parallelFor(
       picked.size(), 0,
@@ -91,8 +88,14 @@ CubeLattice chooseCubeLattice(std::span<const Splat> points, const double origin
           if (inHashSample(s, every)) picked[b].push_back(s);
       },
       1);
-  std::vector<Splat> sample;
   for (const auto& block : picked) sample.insert(sample.end(), block.begin(), block.end());
+}
+
+CubeLattice chooseCubeLattice(std::span<const Splat> points, const double origin[3], double extent,
+                              double pointsPerCube) {
+  const std::uint64_t every = latticeSampleEvery(points.size());
+  std::vector<Splat> sample;
+  appendHashSample(points, every, sample);
   return chooseCubeLattice(sample, every, origin, extent, pointsPerCube);
 }
 

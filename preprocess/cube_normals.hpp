@@ -73,6 +73,12 @@ inline double radiusFromSpread(double l1, double l2, double n) {
 // the cloud's whole count (about 65536 points).
 std::uint64_t latticeSampleEvery(std::uint64_t points);
 
+// Appends the points of `points` inHashSample(s, every) to `sample`, in
+// order, hashed on all cores (a hash and a 64-bit division a point on one
+// thread held the other cores waiting).
+void appendHashSample(std::span<const Splat> points, std::uint64_t every,
+                      std::vector<Splat>& sample);
+
 // The side for a cloud of which `sample` holds one point in about `every`,
 // inside the octree's cube (`origin`, `extent`): measured on the sample
 // where its cubes hold at least 8 points each, then carried down to the

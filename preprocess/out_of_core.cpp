@@ -370,31 +370,6 @@ class BucketWriter {
   std::vector<std::unique_ptr<Out>> outs_;
 };
 
-// Appends the block's points in each hash sample (inHashSample; every 0:
-// none) in block order, hashed on all cores: two hashes and divisions a
-// point on the reading thread held the other cores waiting.
-void appendHashSamples(std::span<const Splat> block, std::uint64_t everyA, std::vector<Splat>& a,
-                       std::uint64_t everyB, std::vector<Splat>& b) {
-  if (everyA == 0 && everyB == 0) return;
-  constexpr std::size_t kPiece = std::size_t{1} << 15;
-  const std::size_t pieces = (block.size() + kPiece - 1) / kPiece;
-  std::vector<std::pair<std::vector<Splat>, std::vector<Splat>>> picked(pieces);
-  parallelFor(
-      pieces, 0,
-      [&](std::size_t p) {
-        for (const Splat& s :
-             block.subspan(p * kPiece, std::min(kPiece, block.size() - p * kPiece))) {
-          if (everyA > 0 && inHashSample(s, everyA)) picked[p].first.push_back(s);
-          if (everyB > 0 && inHashSample(s, everyB)) picked[p].second.push_back(s);
-        }
-      },
-      1);
-  for (const auto& [inA, inB] : picked) {
-    a.insert(a.end(), inA.begin(), inA.end());
-    b.insert(b.end(), inB.begin(), inB.end());
-  }
-}
-
 // Calls fn(block) over a spill file's points in blocks of at most `block`.
 template <class Fn>
 void readBucket(const Bucket& b, std::size_t block, Fn fn) {
@@ -827,7 +802,8 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
         inputs, read,
         [&](std::span<const Splat> block) {
           writer0.add(block);
-          appendHashSamples(block, sampleEvery, sample, latticeEvery, latticeSample);
+          if (sampleEvery > 0) appendHashSample(block, sampleEvery, sample);
+          if (latticeEvery > 0) appendHashSample(block, latticeEvery, latticeSample);
         },
         again);
     if (again != count)

@@ -3,10 +3,10 @@
 #   slow_render.sh A B RUN.SH ARGS... --out DIR ...
 # Every frame must complete (no tile failed), and the scheduler must move work
 # away from the slow process and back: its share of the splats in frames
-# [A + 20, B) below 0.6 of its share in [20, A) -- or of its fair share
-# (1 / render processes) when that is larger: the start can leave it with
-# little (0.032 of four seen in CI, 0.025 while slow), and moving away then
-# means well under its share -- and in [B + 20, end) back above half of its
+# [A + 20, B) below 0.6 of its share in [20, A), or below a quarter of its
+# fair share (1 / render processes): the start can leave it nearly idle
+# (0.032 of four seen in CI, 0.025 while slow), and 0.6 of almost nothing
+# is no test of moving away -- and in [B + 20, end) back above half of its
 # share before, or of its fair share when that is smaller: on a loaded machine
 # the start can hand it more than its share (0.361 of four seen in CI), and
 # coming back means back to its share.
@@ -51,7 +51,7 @@ print(f"render rank {slow} share of splats: before {before:.3f}, while slow {dur
 assert failed == 0, "tiles failed"
 assert len(frames) == last, "frames missing"
 fair = 1.0 / len(ranks)
-assert during < 0.6 * max(before, fair), "the work did not move away from the slow render process"
+assert during < 0.6 * before or during < 0.25 * fair, "the work did not move away from the slow render process"
 assert after > 0.5 * min(before, fair), "the work did not come back to the render process"
 print("PASS")
 PY
