@@ -1,6 +1,7 @@
 #include "preprocess/reader_toolkit.hpp"
 
 #include <algorithm>
+#include <bit>
 #include <cerrno>
 #include <charconv>
 #include <cmath>
@@ -385,14 +386,98 @@ bool isBlank(char c) {
 }
 }  // namespace
 
+namespace {
+
+// Clinger's fast path: a significand below 2^53 and a power of ten up to
+// 10^22 are both exact doubles, so one multiplication or division rounds
+// the exact value once, as a correctly rounded parse does.
+constexpr double kPowersOfTen[] = {1e0,  1e1,  1e2,  1e3,  1e4,  1e5,  1e6,  1e7,
+                                   1e8,  1e9,  1e10, 1e11, 1e12, 1e13, 1e14, 1e15,
+                                   1e16, 1e17, 1e18, 1e19, 1e20, 1e21, 1e22};
+constexpr std::uint64_t kExactBelow = std::uint64_t{1} << 53;
+// Room a number of the SWAR path may read: a sign, two runs of at most 24
+// digits (three loads each, the third past 19 digits) and a point, and the
+// 8 bytes of the last load.
+constexpr std::ptrdiff_t kSwarRoom = 64;
+
+// The run of digits that starts at p, of at most 8 (8 bytes at p must be
+// readable): its length, and its value in `run`. Eight bytes are tested and
+// converted at once (the byte loop was a third of parsing an XYZ scan).
+[[gnu::always_inline]] inline unsigned digitRun(const char* p, std::uint64_t& run) {
+  std::uint64_t x;
+  std::memcpy(&x, p, 8);
+  // A byte is a digit where its high nibble is 3 and adding 6 keeps it 3.
+  // A carry out of a byte above 0xF9 lands in the next byte only, after the
+  // first byte that is not a digit, so the first such byte is found right.
+  constexpr std::uint64_t kHigh = 0xF0F0F0F0F0F0F0F0ull, kThrees = 0x3030303030303030ull;
+  const std::uint64_t notDigit =
+      ((x & kHigh) ^ kThrees) | (((x + 0x0606060606060606ull) & kHigh) ^ kThrees);
+  const unsigned n = notDigit == 0 ? 8u : static_cast<unsigned>(std::countr_zero(notDigit)) / 8;
+  if (n == 0) {
+    run = 0;
+    return 0;
+  }
+  // Digit values, the run moved to the top bytes (leading zeros below it);
+  // a borrow from the bytes after the run only reaches bytes shifted out.
+  x = (x - kThrees) << (8 * (8 - n));
+  x = x * 10 + (x >> 8);  // pairs
+  x = (((x & 0x000000FF000000FFull) * 0x000F424000000064ull) +
+       (((x >> 16) & 0x000000FF000000FFull) * 0x0000271000000001ull)) >>
+      32;
+  run = x & 0xFFFFFFFFu;
+  return n;
+}
+
+// Digits at p, 8 at a time, onto `significand`; stops after the run or past
+// 19 digits in all (refused then).
+[[gnu::always_inline]] inline const char* appendDigits(const char* p, std::uint64_t& significand,
+                                                       int& digits) {
+  static constexpr std::uint64_t kScale[] = {1,      10,      100,      1000,     10000,
+                                             100000, 1000000, 10000000, 100000000};
+  for (;;) {
+    std::uint64_t run = 0;
+    const unsigned n = digitRun(p, run);
+    significand = significand * kScale[n] + run;  // wraps only past 19 digits
+    digits += static_cast<int>(n);
+    p += n;
+    if (n < 8 || digits > 19) return p;
+  }
+}
+
+// parseShortDecimal where kSwarRoom bytes from `at` can be read.
+[[gnu::always_inline]] inline const char* parseShortDecimalSwar(const char* at, const char* end,
+                                                                double& value) {
+  const char* p = at;
+  const bool negative = *p == '-';
+  p += negative ? 1 : 0;
+  std::uint64_t significand = 0;
+  int digits = 0;
+  p = appendDigits(p, significand, digits);
+  if (digits == 0 || digits > 19) return nullptr;
+  int scale = 0;
+  if (*p == '.') {
+    const int whole = digits;
+    p = appendDigits(p + 1, significand, digits);
+    if (digits == whole) return nullptr;  // "5.": from_chars decides
+    scale = whole - digits;
+  }
+  // An exponent the byte loop reads; past 19 digits or 10^22 from_chars does.
+  if (*p == 'e' || *p == 'E') return parseShortDecimalBytes(at, end, value);
+  if (digits > 19 || significand >= kExactBelow || scale < -22) return nullptr;
+  const auto exact = static_cast<double>(significand);
+  const double magnitude = scale < 0 ? exact / kPowersOfTen[-scale] : exact;
+  value = negative ? -magnitude : magnitude;
+  return p;
+}
+
+}  // namespace
+
 const char* parseShortDecimal(const char* at, const char* end, double& value) {
-  // Clinger's fast path: a significand below 2^53 and a power of ten up to
-  // 10^22 are both exact doubles, so one multiplication or division rounds
-  // the exact value once, as a correctly rounded parse does.
-  static constexpr double kPowersOfTen[] = {1e0,  1e1,  1e2,  1e3,  1e4,  1e5,  1e6,  1e7,
-                                            1e8,  1e9,  1e10, 1e11, 1e12, 1e13, 1e14, 1e15,
-                                            1e16, 1e17, 1e18, 1e19, 1e20, 1e21, 1e22};
-  constexpr std::uint64_t kExactBelow = std::uint64_t{1} << 53;
+  return end - at >= kSwarRoom ? parseShortDecimalSwar(at, end, value)
+                               : parseShortDecimalBytes(at, end, value);
+}
+
+const char* parseShortDecimalBytes(const char* at, const char* end, double& value) {
   const char* p = at;
   const bool negative = p < end && *p == '-';
   p += negative ? 1 : 0;
@@ -448,6 +533,19 @@ bool parseNumbers(std::string_view line, double* values, std::size_t count) {
   return at == end;
 }
 
+const char* parsePlainLine(const char* at, const char* end, double* values, std::size_t count) {
+  for (std::size_t i = 0; i < count; ++i) {
+    while (at < end && isBlank(*at)) ++at;
+    if (end - at < kSwarRoom) return nullptr;
+    at = parseShortDecimalSwar(at, end, values[i]);
+    // A number ends in a blank or the line's end (end - at is above 0 here).
+    if (at == nullptr || !(isBlank(*at) || *at == '\n')) return nullptr;
+  }
+  while (at < end && isBlank(*at)) ++at;
+  if (at == end) return end;
+  return *at == '\n' ? at + 1 : nullptr;
+}
+
 void splitFields(std::string_view line, std::vector<std::string_view>& fields) {
   fields.clear();
   std::size_t i = 0;
@@ -476,18 +574,6 @@ bool parseUnsigned(std::string_view field, std::uint64_t& value) {
   const char* end = field.data() + field.size();
   const auto result = std::from_chars(field.data(), end, value);
   return result.ec == std::errc() && result.ptr == end;
-}
-
-std::uint8_t colorFromUnit(double value) {
-  if (!(value > 0.0)) return 0;
-  if (value >= 1.0) return 255;
-  return static_cast<std::uint8_t>(value * 255.0 + 0.5);
-}
-
-std::uint8_t colorFromByte(double value) {
-  if (!(value > 0.0)) return 0;
-  if (value >= 255.0) return 255;
-  return static_cast<std::uint8_t>(value + 0.5);
 }
 
 }  // namespace detail

@@ -205,10 +205,29 @@ bool parseNumbers(std::string_view line, double* values, std::size_t count);
 // it) with at most 19 digits and an exact fast conversion: its value, the
 // bits std::from_chars gives, and the end of the number. nullptr for
 // anything else, which std::from_chars then reads.
+// Where 64 bytes from `at` can be read, runs of 8 digits are read at once.
 const char* parseShortDecimal(const char* at, const char* end, double& value);
+// The same a byte at a time (what parseShortDecimal does near `end`).
+const char* parseShortDecimalBytes(const char* at, const char* end, double& value);
+// A plain line at `at`: exactly `count` short decimals (parseShortDecimal's,
+// without a '+'), blanks between and around them, then "\n" or `end`, with
+// 64 bytes readable from each number: the position after the line, the
+// values parseNumbers gives. nullptr for any other line (a comment, a blank
+// line, another count, an exponent past the fast path, the file's last
+// bytes), which the caller then reads as before.
+const char* parsePlainLine(const char* at, const char* end, double* values, std::size_t count);
 bool parseUnsigned(std::string_view field, std::uint64_t& value);
-std::uint8_t colorFromUnit(double value);  // 0..1 -> 0..255, clamped
-std::uint8_t colorFromByte(double value);  // 0..255, rounded and clamped (NaN -> 0)
+// Inline: three a point in the readers' loops.
+inline std::uint8_t colorFromUnit(double value) {  // 0..1 -> 0..255, clamped
+  if (!(value > 0.0)) return 0;
+  if (value >= 1.0) return 255;
+  return static_cast<std::uint8_t>(value * 255.0 + 0.5);
+}
+inline std::uint8_t colorFromByte(double value) {  // 0..255, rounded and clamped (NaN -> 0)
+  if (!(value > 0.0)) return 0;
+  if (value >= 255.0) return 255;
+  return static_cast<std::uint8_t>(value + 0.5);
+}
 
 }  // namespace detail
 }  // namespace pointillist::preprocess

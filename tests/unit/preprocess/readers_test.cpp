@@ -1591,9 +1591,86 @@ TEST(XyzReader, ShortDecimalsParseAsFromCharsDoes) {
   }
   // Those of up to 15 digits in all (120 of the 650) always fit the fast path.
   EXPECT_GE(shortTaken, 120u);
+  // With 64 bytes after it a number is read 8 digits at a time: the same
+  // answer (refused, or the same end and bits) as a byte at a time, for
+  // each random number and each digit run, whatever follows (a blank, a
+  // point, a digit-like byte, bytes above 0xF9 whose carry a SWAR test must
+  // not let through).
+  const std::string tails[] = {" 7 8\n", "x", ".", ":", "/", "\xFA\xFF", "\n", "e5 ", "E-3"};
+  std::size_t swarTaken = 0;
+  for (std::size_t i = 0; i < numbers.size(); ++i) {
+    std::string padded = numbers[i];
+    padded += tails[i % std::size(tails)];
+    padded.append(80, '9');
+    const char* end = padded.data() + padded.size();
+    double bytes = 0.0, swar = 0.0;
+    const char* stopBytes =
+        pointillist::preprocess::detail::parseShortDecimalBytes(padded.data(), end, bytes);
+    const char* stopSwar = parseShortDecimal(padded.data(), end, swar);
+    ASSERT_EQ(stopSwar, stopBytes) << padded;
+    if (stopSwar == nullptr) continue;
+    ++swarTaken;
+    EXPECT_EQ(std::bit_cast<std::uint64_t>(swar), std::bit_cast<std::uint64_t>(bytes)) << padded;
+  }
+  EXPECT_GT(swarTaken, numbers.size() / 2);
   // Most of them take the fast path (the rest have a wide exponent or too
   // many digits), as scanner exports do.
   EXPECT_GT(fast, numbers.size() / 2);
+}
+
+// A plain line is read in one pass to its end (parsePlainLine): wherever it
+// takes a line, parseNumbers takes the same line with the same bits, and the
+// next line starts where it says.
+TEST(XyzReader, PlainLinesParseAsParseNumbersDoes) {
+  using namespace pointillist::preprocess::detail;
+  const std::vector<std::string> lines = {"0.25065574 -0.43347988 -0.07969354",
+                                          "1 2 3",
+                                          "+1 2 3",
+                                          "1,2,3",
+                                          "1 2 3 ",
+                                          "\t1\t2\t3\r",
+                                          "  -0.5e3 7 8",
+                                          "1 2",
+                                          "1 2 3 4",
+                                          "1e5x 2 3",
+                                          "nan 1 2",
+                                          "",
+                                          "   ",
+                                          "1 2 3#",
+                                          "1 2 3 # a comment",
+                                          "1. .5 5.",
+                                          "1 2 3,",
+                                          "1 2 +",
+                                          "1 - 2",
+                                          "1.5.5 2 3",
+                                          "3 4 5\v",
+                                          "12345678901234567890 1 2",
+                                          "1234567890123456789 1 2",
+                                          "0.123456789012345678 1 2",
+                                          "-0.081036836 128 128"};
+  std::size_t taken = 0;
+  for (const std::string& line : lines) {
+    for (const std::string& after : {std::string("\n"), std::string("\r\n"), std::string()}) {
+      std::string block = line + after;
+      const std::size_t lineEnd = block.size();
+      if (!after.empty()) block.append(100, '7');  // the next line
+      double plain[3] = {0, 0, 0}, numbers[3] = {0, 0, 0};
+      const char* next = parsePlainLine(block.data(), block.data() + block.size(), plain, 3);
+      if (next == nullptr) continue;
+      ++taken;
+      EXPECT_EQ(next - block.data(), static_cast<std::ptrdiff_t>(lineEnd)) << "'" << line << "'";
+      std::string_view text(block.data(), lineEnd);
+      if (!text.empty() && text.back() == '\n') text.remove_suffix(1);
+      if (!text.empty() && text.back() == '\r') text.remove_suffix(1);
+      ASSERT_TRUE(parseNumbers(text, numbers, 3)) << "'" << line << "'";
+      for (int i = 0; i < 3; ++i)
+        EXPECT_EQ(std::bit_cast<std::uint64_t>(plain[i]), std::bit_cast<std::uint64_t>(numbers[i]))
+            << "'" << line << "' value " << i;
+    }
+  }
+  // The plain ones with a line after them (the last line of a block has too
+  // few bytes after it to be read 8 at a time, and goes the other way).
+  EXPECT_GE(taken, 16u);
 }
 
 TEST(PlyReader, LongBinaryBodiesReadInBlocksAsRecordByRecord) {
