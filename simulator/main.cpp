@@ -149,6 +149,13 @@ int run(int argc, char** argv) {
                  "auto: " +
                      autoTileTasksAheadRule() + ")")
       ->capture_default_str();
+  std::string litPixels = "on";
+  app.add_option("--lit-pixels", litPixels,
+                 "Size tile images by the pixels each frame lights (each frame drawn once by the "
+                 "CPU point kernel from the dataset's points): on, or off (a pixel a splat, "
+                 "capped by the box)")
+      ->check(CLI::IsMember({"on", "off"}))
+      ->capture_default_str();
   std::string tileSplit = "auto";
   app.add_option("--tile-split", tileSplit,
                  "Heavy tiles split by their cells into parts drawn by several render processes "
@@ -273,7 +280,7 @@ int run(int argc, char** argv) {
     throw UsageError("--stats needs exactly one configuration; this sweep has " +
                      std::to_string(configs.size()));
   }
-  const Scene scene = Scene::load(datasetPath, view);
+  const Scene scene = Scene::load(datasetPath, view, litPixels == "on", jobs);
   if (traverseSecondsPerCell > 0.0) {
     p.traverseSecondsPerCell = traverseSecondsPerCell;
     sources.emplace_back("traverse time from", "--traverse-seconds-per-cell");

@@ -11,7 +11,8 @@ namespace pointillist::simulator {
 
 Scene::Scene(std::string name, std::vector<OctreeCell> cells, std::vector<TopLevelCell> topLevel,
              SceneBounds bounds, std::vector<Camera> cameras,
-             const traverse::TraversalSettings& traversal, std::size_t loopFrames)
+             const traverse::TraversalSettings& traversal, std::size_t loopFrames,
+             std::unique_ptr<const LitPixels> litPixels)
     : name_(std::move(name)),
       cells_(std::move(cells)),
       topLevel_(std::move(topLevel)),
@@ -20,7 +21,8 @@ Scene::Scene(std::string name, std::vector<OctreeCell> cells, std::vector<TopLev
       bounds_(bounds),
       cameras_(std::move(cameras)),
       loopFrames_(loopFrames),
-      traversal_(traversal) {
+      traversal_(traversal),
+      litPixels_(std::move(litPixels)) {
   if (cells_.empty() || topLevel_.empty()) {
     throw InputError(name_ + ": the dataset has no cells to simulate");
   }
@@ -29,16 +31,31 @@ Scene::Scene(std::string name, std::vector<OctreeCell> cells, std::vector<TopLev
   if (cameras_.empty()) throw UsageError("the camera path has no frames to simulate");
 }
 
-Scene Scene::load(const std::string& datasetPath, const ViewOptions& view) {
+Scene Scene::load(const std::string& datasetPath, const ViewOptions& view, bool litPixels,
+                  unsigned threads) {
   if (datasetPath.empty()) throw UsageError("--dataset is required");
-  const Dataset dataset = Dataset::open(datasetPath, DatasetParts::Cells);
+  const Dataset dataset =
+      Dataset::open(datasetPath, litPixels ? DatasetParts::All : DatasetParts::Cells);
   const SceneBounds bounds = datasetBounds(dataset.manifest());
   const traverse::TraversalSettings traversal = traverse::traversalSettings(view);
   std::vector<Camera> cameras = viewCameras(view, bounds);
   const std::size_t loopFrames = view.loops > 1 ? cameras.size() / view.loops : 0;
+  std::unique_ptr<const LitPixels> lit;
+  if (litPixels) {
+    // One loop's frames: later loops see the same cameras.
+    const std::size_t frames = loopFrames > 0 ? loopFrames : cameras.size();
+    lit = std::make_unique<const LitPixels>(
+        dataset, std::span<const Camera>(cameras.data(), frames), traversal, threads);
+  }
   return Scene(datasetPath, {dataset.cells().begin(), dataset.cells().end()},
                {dataset.topLevelCells().begin(), dataset.topLevelCells().end()}, bounds,
-               std::move(cameras), traversal, loopFrames);
+               std::move(cameras), traversal, loopFrames, std::move(lit));
+}
+
+LitRuns Scene::litRuns(std::uint64_t frame, const TileRect& box) const {
+  if (!litPixels_) throw Error("internal error: the scene draws no lit pixels");
+  if (loopFrames_ > 0) frame %= loopFrames_;
+  return litPixels_->frame(frame, *culling_).count(box);
 }
 
 std::uint32_t Scene::width() const {

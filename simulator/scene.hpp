@@ -15,6 +15,7 @@
 #include "common/camera_path.hpp"
 #include "common/octree_cell.hpp"
 #include "common/view_options.hpp"
+#include "simulator/lit_pixels.hpp"
 #include "traverse/core/octree_traversal.hpp"
 
 namespace pointillist::simulator {
@@ -33,13 +34,24 @@ class Scene {
   // `name` labels reports (the dataset directory, say).
   Scene(std::string name, std::vector<OctreeCell> cells, std::vector<TopLevelCell> topLevel,
         SceneBounds bounds, std::vector<Camera> cameras,
-        const traverse::TraversalSettings& traversal, std::size_t loopFrames = 0);
+        const traverse::TraversalSettings& traversal, std::size_t loopFrames = 0,
+        std::unique_ptr<const LitPixels> litPixels = nullptr);
   Scene(const Scene&) = delete;
   Scene& operator=(const Scene&) = delete;
 
   // Opens a dataset (cells only, as a traverse process does) and builds the
-  // cameras of `view` from its bounds. Throws InputError / UsageError.
-  static Scene load(const std::string& datasetPath, const ViewOptions& view);
+  // cameras of `view` from its bounds; with `litPixels` its points too, to
+  // draw each frame once and size tile images by the pixels they light
+  // (LitPixels, `threads` drawing). Throws InputError / UsageError.
+  static Scene load(const std::string& datasetPath, const ViewOptions& view, bool litPixels = false,
+                    unsigned threads = 1);
+
+  // Tile images sized by the pixels each frame lights (load's litPixels).
+  bool hasLitPixels() const { return litPixels_ != nullptr; }
+  // The lit pixels and runs of `box` in frame `frame`; hasLitPixels() only.
+  LitRuns litRuns(std::uint64_t frame, const TileRect& box) const;
+  // Seconds spent drawing frames for litRuns so far.
+  double litDrawSeconds() const { return litPixels_ ? litPixels_->drawSeconds() : 0.0; }
 
   const std::string& name() const { return name_; }
   std::span<const OctreeCell> cells() const { return cells_; }
@@ -91,6 +103,7 @@ class Scene {
   std::vector<Camera> cameras_;
   std::size_t loopFrames_ = 0;
   traverse::TraversalSettings traversal_;
+  std::unique_ptr<const LitPixels> litPixels_;
   mutable std::mutex mutex_;
   // Node-based: references stay valid while other tiles are added.
   mutable std::unordered_map<Key, TileWork, KeyHash> memo_;

@@ -652,12 +652,21 @@ class Simulation {
     const std::uint64_t pixelBytes = part ? 8 : 4;
     std::uint64_t imageBytes = std::uint64_t{sent.width()} * sent.height() * pixelBytes;
     if (drawn.has_drawn_rect()) {
-      // As runs where fewer bytes (common/pixel_runs.hpp): a point lights
-      // about one pixel (the city at 4K: 1.01 lit pixels a splat), and a run
-      // of 8 bytes of counts comes every 200 lit pixels there; 64 here.
-      const std::uint64_t lit = std::min<std::uint64_t>(std::uint64_t{sent.width()} * sent.height(),
-                                                        packet.total_splats());
-      const std::uint64_t runs = lit * pixelBytes + 8 * ((lit + 63) / 64);
+      // As runs where fewer bytes (common/pixel_runs.hpp). Where the scene
+      // draws its frames, a whole tile's runs are those of its box in the
+      // frame; a part's are at most the box's lit pixels and one a splat.
+      // Otherwise a point lights about one pixel (the city at 4K: 1.01 lit
+      // pixels a splat), and a run of 8 bytes of counts comes every 200 lit
+      // pixels there; 64 here.
+      const std::uint64_t area = std::uint64_t{sent.width()} * sent.height();
+      std::uint64_t lit = std::min<std::uint64_t>(area, packet.total_splats());
+      std::uint64_t runCount = (lit + 63) / 64;
+      if (scene_.hasLitPixels()) {
+        const LitRuns inBox = scene_.litRuns(packet.frame_id(), sent);
+        lit = part ? std::min(lit, inBox.lit) : inBox.lit;
+        runCount = part ? std::min(inBox.runs, lit + 1) : inBox.runs;
+      }
+      const std::uint64_t runs = lit * pixelBytes + 8 * runCount;
       if (runs < imageBytes) {
         drawn.set_runs_bytes(runs);
         imageBytes = runs;

@@ -288,7 +288,12 @@ Assumptions describeAssumptions(const Scene& scene, const ViewOptions& view,
                        " per tile; the real traversal of every tile"},
       {"display", significant(p.composeSecondsPerPixel * 1e9, 3) + " ns" +
                       " per composed pixel; tile images (4 bytes/pixel, 8 for a part of a split "
-                      "tile) on the display's link (" +
+                      "tile; as runs of " +
+                      (scene.hasLitPixels()
+                           ? std::string("the lit pixels of their box, each frame drawn once by "
+                                         "the CPU point kernel")
+                           : std::string("min(box, splats) pixels")) +
+                      " where fewer bytes) on the display's link (" +
                       (p.displayBandwidthBytesPerSecond > 0.0
                            ? fixed(p.displayBandwidthBytesPerSecond / 1e6, 0) + " MB/s"
                            : std::string("as the others")) +

@@ -1,0 +1,150 @@
+// The simulator's lit pixels: a box's count and runs are the pixel-runs
+// encoder's, and with them a frame's tile images carry its lit pixels
+// however it is cut (docs/scheduling.md §21).
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cstring>
+#include <filesystem>
+#include <random>
+
+#include "common/dataset_writer.hpp"
+#include "common/errors.hpp"
+#include "common/pixel_runs.hpp"
+#include "preprocess/dataset_builder.hpp"
+#include "preprocess/generator.hpp"
+#include "render/raster/cpu_point_renderer.hpp"
+#include "simulator/lit_pixels.hpp"
+#include "simulator/scene.hpp"
+#include "simulator/simulation.hpp"
+
+namespace {
+
+using namespace pointillist;
+using namespace pointillist::simulator;
+
+TEST(FrameCoverage, CountsLitPixelsAndRunsAsThePixelRunsEncoderDoes) {
+  constexpr std::uint32_t kWidth = 150, kHeight = 40;  // rows of three words, the last part-used
+  std::mt19937 rng(3);
+  std::vector<std::uint64_t> words(std::size_t{kWidth} * kHeight, render::kEmptyPixel);
+  // Stretches of lit pixels of any length, as splats leave them.
+  for (std::uint32_t y = 0; y < kHeight; ++y)
+    for (std::uint32_t x = 0; x < kWidth;) {
+      const std::uint32_t length = 1 + static_cast<std::uint32_t>(rng() % 90);
+      const bool lit = rng() % 2 == 0;
+      for (std::uint32_t k = x; k < std::min(kWidth, x + length); ++k)
+        if (lit) words[std::size_t{y} * kWidth + k] = rng() % 1000;
+      x += length;
+    }
+  const FrameCoverage coverage(words, kWidth, kHeight, render::kEmptyPixel);
+  std::uint64_t all = 0;
+  for (const std::uint64_t w : words) all += w != render::kEmptyPixel ? 1u : 0u;
+  EXPECT_EQ(coverage.litPixels(), all);
+
+  const std::span<const std::byte> bytes(reinterpret_cast<const std::byte*>(words.data()),
+                                         words.size() * sizeof(std::uint64_t));
+  std::array<std::byte, 8> empty;
+  std::memcpy(empty.data(), &render::kEmptyPixel, 8);
+  for (int trial = 0; trial < 2000; ++trial) {
+    const auto x = static_cast<std::uint32_t>(rng() % kWidth);
+    const auto y = static_cast<std::uint32_t>(rng() % kHeight);
+    const auto w = 1 + static_cast<std::uint32_t>(rng() % (kWidth - x));
+    const auto h = 1 + static_cast<std::uint32_t>(rng() % (kHeight - y));
+    std::uint64_t lit = 0;
+    for (std::uint32_t r = y; r < y + h; ++r)
+      for (std::uint32_t c = x; c < x + w; ++c)
+        lit += words[std::size_t{r} * kWidth + c] != render::kEmptyPixel ? 1u : 0u;
+    const std::size_t encoded = encodePixelRuns(bytes, 8, kWidth, {x, y, w, h}, empty).size();
+    const LitRuns counted = coverage.count(makeTileRect(x, y, w, h));
+    ASSERT_EQ(counted.lit, lit) << x << "," << y << " " << w << "x" << h;
+    // Each run is 8 bytes of counts before its pixels.
+    ASSERT_EQ(counted.runs * 8 + counted.lit * 8, encoded) << x << "," << y << " " << w << "x" << h;
+  }
+  // A box reaching past the frame counts its part inside.
+  EXPECT_EQ(coverage.count(makeTileRect(100, 20, 500, 500)),
+            coverage.count(makeTileRect(100, 20, 50, 20)));
+  EXPECT_EQ(coverage.count(makeTileRect(kWidth, 0, 10, 10)), LitRuns{});
+}
+
+class TempDir {
+ public:
+  TempDir() {
+    path_ = std::filesystem::temp_directory_path() /
+            ("pointillist-lit-pixels-test-" + std::to_string(::getpid()));
+    std::filesystem::remove_all(path_);
+  }
+  ~TempDir() { std::filesystem::remove_all(path_); }
+  const std::filesystem::path& path() const { return path_; }
+
+ private:
+  std::filesystem::path path_;
+};
+
+// The city written to disk, so a scene can read its points.
+const std::filesystem::path& cityDataset() {
+  static const TempDir dir;
+  static const bool written = [] {
+    auto cloud = preprocess::generateScene("city", 60'000, 11);
+    preprocess::PreprocessOptions options;
+    options.octree.leafPoints = 64;
+    options.topLevelDepth = 3;
+    options.threads = 1;
+    DatasetContent content = preprocess::buildDatasetContent(std::move(cloud.splats), options);
+    writeDataset(dir.path(), content);
+    return true;
+  }();
+  (void)written;
+  return dir.path();
+}
+
+ViewOptions view() {
+  ViewOptions v;
+  v.cameraPath = "orbit";
+  v.frames = 8;
+  v.size = "640x360";
+  return v;
+}
+
+SimulationConfig unsplitCost(double tilesPerRender) {
+  SimulationConfig c;
+  c.scheduler = display::SchedulerKind::Cost;
+  c.renders = 8;
+  c.traverses = 2;
+  c.datasends = 2;
+  c.tileSplit = false;
+  c.tilesPerRender = tilesPerRender;
+  return c;
+}
+
+// Every lit pixel belongs to one tile: the images of a frame cut into 16 or
+// into 256 tiles carry the same lit pixels (only the runs' counts, a run
+// per stretch, grow as tiles cut stretches), where a pixel a splat grew with
+// the tiles, since a tile counts every splat of the cells it touches.
+TEST(LitPixels, TileImagesCarryTheFrameLitPixelsHoweverItIsCut) {
+  const Scene lit = Scene::load(cityDataset().string(), view(), true, 2);
+  const Scene splats = Scene::load(cityDataset().string(), view(), false);
+  ASSERT_TRUE(lit.hasLitPixels());
+  ASSERT_FALSE(splats.hasLitPixels());
+  ModelParameters p;
+  p.traverseSecondsPerCell = 1e-7;
+  const auto images = [&](const Scene& scene, double tilesPerRender) {
+    return simulate(scene, unsplitCost(tilesPerRender), p).figures.imageBytesPerFrameSteady;
+  };
+  const double litFew = images(lit, 2), litMany = images(lit, 32);
+  const double splatFew = images(splats, 2), splatMany = images(splats, 32);
+  EXPECT_GT(litFew, 0.0);
+  EXPECT_LT(litMany, litFew * 1.10) << litFew << " -> " << litMany;
+  EXPECT_GT(litMany, litFew * 0.95) << litFew << " -> " << litMany;
+  EXPECT_GT(splatMany, splatFew * 1.10) << splatFew << " -> " << splatMany;
+
+  // The frame's lit pixels bound every box's; the runs of a frame-sized box
+  // are those of the whole frame.
+  const TileRect frame = fullFrameRect(lit.cameras().front());
+  const LitRuns whole = lit.litRuns(0, frame);
+  EXPECT_GT(whole.lit, 0u);
+  EXPECT_LT(whole.lit, std::uint64_t{frame.width()} * frame.height());
+  const LitRuns half = lit.litRuns(0, makeTileRect(0, 0, frame.width() / 2, frame.height()));
+  EXPECT_LE(half.lit, whole.lit);
+}
+
+}  // namespace
