@@ -25,7 +25,10 @@
 # -- --display-bandwidth-mbs 1170 (the display on 10 GbE, the rest on 1 GbE)
 # --tile-tasks-ahead 1 (each traverse asks for one tile at a time, as before;
 # the default, auto, keeps one request per 16 tiles a traverse walks per frame,
-# 2 to 8). A run whose tiles wait at the display for requests while the
+# 2 to 8). Tile images are sized by the pixels each frame lights: the
+# dataset's points are read and every frame drawn once by the CPU point
+# kernel (-- --lit-pixels off: a pixel a splat, capped by the box, as before
+# 2026-12-02). A run whose tiles wait at the display for requests while the
 # traverses idle is reported request-bound ("requests") in the table and advice.
 # OUT (default out/simulate) gets simulate.csv (every figure, raw units),
 # report.md (assumptions, table, plots), table.txt (what is printed) and:

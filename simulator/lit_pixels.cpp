@@ -61,8 +61,7 @@ LitPixels::LitPixels(const Dataset& dataset, std::span<const Camera> cameras,
       renderer_(std::make_unique<render::CpuPointRenderer>(std::max(threads, 1u))),
       frames_(cameras.size()) {
   if (dataset.hasStatistical())
-    throw UsageError(
-        "the lit pixels of a dataset with statistical packets are not drawn (--lit-pixels off)");
+    throw UsageError("the CPU point kernel draws no statistical packets (--lit-pixels off)");
   for (std::uint32_t cell = 0; cell < dataset.topLevelCells().size(); ++cell)
     renderer_->uploadCell(cell, dataset.packet(cell));
 }
@@ -80,8 +79,10 @@ const FrameCoverage& LitPixels::frame(std::uint64_t frame,
   const traverse::TraversalResult walk = traverse::traverseTile(culling, camera, rect, traversal_);
   std::vector<render::DrawRange> ranges;
   ranges.reserve(walk.ranges.size());
+  // Points mode, as the CPU kernel draws: an instanced section's records are
+  // not splats.
   for (const auto& range : walk.ranges)
-    ranges.push_back({range.topLevel, range.offset, range.count, range.section});
+    if (!range.section) ranges.push_back({range.topLevel, range.offset, range.count, false});
   render::RenderSettings settings;
   settings.sizeScale = traversal_.sizeScale;
   renderer_->render(camera, rect, ranges, settings);

@@ -41,7 +41,9 @@ Scene Scene::load(const std::string& datasetPath, const ViewOptions& view, bool 
   std::vector<Camera> cameras = viewCameras(view, bounds);
   const std::size_t loopFrames = view.loops > 1 ? cameras.size() / view.loops : 0;
   std::unique_ptr<const LitPixels> lit;
-  if (litPixels) {
+  // Statistical packets are drawn on GL only: their images keep the
+  // splat-count model (the assumptions say which).
+  if (litPixels && !dataset.hasStatistical()) {
     // One loop's frames: later loops see the same cameras.
     const std::size_t frames = loopFrames > 0 ? loopFrames : cameras.size();
     lit = std::make_unique<const LitPixels>(

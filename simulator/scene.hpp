@@ -42,7 +42,8 @@ class Scene {
   // Opens a dataset (cells only, as a traverse process does) and builds the
   // cameras of `view` from its bounds; with `litPixels` its points too, to
   // draw each frame once and size tile images by the pixels they light
-  // (LitPixels, `threads` drawing). Throws InputError / UsageError.
+  // (LitPixels, `threads` drawing; not for statistical packets, which the
+  // CPU kernel does not draw). Throws InputError / UsageError.
   static Scene load(const std::string& datasetPath, const ViewOptions& view, bool litPixels = false,
                     unsigned threads = 1);
 
