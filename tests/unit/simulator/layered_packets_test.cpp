@@ -18,9 +18,8 @@
 #include "common/cell_ranges.hpp"
 #include "common/ownership.hpp"
 #include "datasend/core/send_ledger.hpp"
-#include "preprocess/dataset_builder.hpp"
-#include "preprocess/generator.hpp"
 #include "render/core/render_core.hpp"
+#include "test_city.hpp"
 #include "traverse/core/octree_traversal.hpp"
 #include "traverse/core/packet_layers.hpp"
 #include "traverse/core/packet_planner.hpp"
@@ -31,16 +30,7 @@ namespace {
 using namespace std::chrono_literals;
 
 const DatasetContent& city() {
-  static const DatasetContent content = [] {
-    auto cloud = preprocess::generateScene("city", 60'000, 9);
-    preprocess::PreprocessOptions options;
-    options.octree.leafPoints = 32;
-    options.topLevelDepth = 2;
-    options.threads = 1;
-    DatasetContent built = preprocess::buildDatasetContent(std::move(cloud.splats), options);
-    finalizeDatasetContent(built);
-    return built;
-  }();
+  static const DatasetContent content = simulator::fixtures::smallCityContent(60'000, 9, 32, 2);
   return content;
 }
 

@@ -2,8 +2,6 @@
 // encoder's, and with them a frame's tile images carry its lit pixels
 // however it is cut (docs/scheduling.md §21).
 #include <gtest/gtest.h>
-#include <unistd.h>
-
 #include <cstring>
 #include <filesystem>
 #include <random>
@@ -11,12 +9,11 @@
 #include "common/dataset_writer.hpp"
 #include "common/errors.hpp"
 #include "common/pixel_runs.hpp"
-#include "preprocess/dataset_builder.hpp"
-#include "preprocess/generator.hpp"
 #include "render/raster/cpu_point_renderer.hpp"
 #include "simulator/lit_pixels.hpp"
 #include "simulator/scene.hpp"
 #include "simulator/simulation.hpp"
+#include "test_city.hpp"
 
 namespace {
 
@@ -66,35 +63,17 @@ TEST(FrameCoverage, CountsLitPixelsAndRunsAsThePixelRunsEncoderDoes) {
   EXPECT_EQ(coverage.count(makeTileRect(kWidth, 0, 10, 10)), LitRuns{});
 }
 
-class TempDir {
- public:
-  TempDir() {
-    path_ = std::filesystem::temp_directory_path() /
-            ("pointillist-lit-pixels-test-" + std::to_string(::getpid()));
-    std::filesystem::remove_all(path_);
-  }
-  ~TempDir() { std::filesystem::remove_all(path_); }
-  const std::filesystem::path& path() const { return path_; }
-
- private:
-  std::filesystem::path path_;
-};
-
 // The city written to disk, so a scene can read its points.
 const std::filesystem::path& cityDataset() {
-  static const TempDir dir;
+  static const fixtures::TempDir dir("lit-pixels-test");
   static const bool written = [] {
-    auto cloud = preprocess::generateScene("city", 60'000, 11);
-    preprocess::PreprocessOptions options;
-    options.octree.leafPoints = 64;
-    options.topLevelDepth = 3;
-    options.threads = 1;
-    DatasetContent content = preprocess::buildDatasetContent(std::move(cloud.splats), options);
-    writeDataset(dir.path(), content);
+    DatasetContent content = fixtures::smallCityContent(60'000, 11);
+    writeDataset(dir.path() / "city", content);
     return true;
   }();
   (void)written;
-  return dir.path();
+  static const std::filesystem::path city = dir.path() / "city";
+  return city;
 }
 
 ViewOptions view() {

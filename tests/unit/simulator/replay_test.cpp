@@ -13,8 +13,7 @@
 #include "common/errors.hpp"
 #include "common/ownership.hpp"
 #include "common/view_options.hpp"
-#include "preprocess/dataset_builder.hpp"
-#include "preprocess/generator.hpp"
+#include "test_city.hpp"
 #include "traverse/core/packet_planner.hpp"
 
 namespace pointillist::simulator {
@@ -31,13 +30,7 @@ struct SmallCity {
 const SmallCity& smallCity() {
   static const SmallCity city = [] {
     SmallCity made;
-    auto cloud = preprocess::generateScene("city", 20'000, 5);
-    preprocess::PreprocessOptions options;
-    options.octree.leafPoints = 64;
-    options.topLevelDepth = 3;
-    options.threads = 1;
-    made.content = preprocess::buildDatasetContent(std::move(cloud.splats), options);
-    finalizeDatasetContent(made.content);
+    made.content = simulator::fixtures::smallCityContent(20'000, 5);
     ViewOptions view;
     view.frames = 3;
     view.size = "160x90";

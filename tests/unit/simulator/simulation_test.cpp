@@ -12,11 +12,10 @@
 #include <sstream>
 
 #include "common/errors.hpp"
-#include "preprocess/dataset_builder.hpp"
-#include "preprocess/generator.hpp"
 #include "simulator/calibration.hpp"
 #include "simulator/simulation.hpp"
 #include "simulator/sweep.hpp"
+#include "test_city.hpp"
 #include "traverse/core/packet_planner.hpp"
 
 namespace pointillist::simulator {
@@ -37,13 +36,7 @@ ViewOptions testView(std::uint32_t frames = 10) {
 }
 
 std::unique_ptr<Scene> makeScene(const ViewOptions& view) {
-  auto cloud = preprocess::generateScene("city", 40'000, 11);
-  preprocess::PreprocessOptions options;
-  options.octree.leafPoints = 64;
-  options.topLevelDepth = 3;
-  options.threads = 1;
-  DatasetContent content = preprocess::buildDatasetContent(std::move(cloud.splats), options);
-  finalizeDatasetContent(content);
+  DatasetContent content = fixtures::smallCityContent(40'000, 11);
   const SceneBounds bounds = datasetBounds(content.manifest);
   std::vector<Camera> cameras = viewCameras(view, bounds);
   const std::size_t loopFrames = view.loops > 1 ? cameras.size() / view.loops : 0;
@@ -497,20 +490,7 @@ TEST(SimulatorSweep, RowsComeBackInOrderWithTableCsvAndReport) {
   EXPECT_NE(formatAssumptions(assumptions).find("network:"), std::string::npos);
 }
 
-class TempDir {
- public:
-  TempDir() {
-    path_ = std::filesystem::temp_directory_path() /
-            ("pointillist-simulator-test-" + std::to_string(::getpid()));
-    std::filesystem::remove_all(path_);
-    std::filesystem::create_directories(path_);
-  }
-  ~TempDir() { std::filesystem::remove_all(path_); }
-  const std::filesystem::path& path() const { return path_; }
-
- private:
-  std::filesystem::path path_;
-};
+using fixtures::TempDir;
 
 void writeFile(const std::filesystem::path& file, const std::string& text) {
   std::filesystem::create_directories(file.parent_path());
