@@ -9,6 +9,7 @@
 #include <cstring>
 #include <fstream>
 #include <iterator>
+#include <sstream>
 #include <utility>
 
 #include "common/checksum.hpp"
@@ -150,13 +151,23 @@ void SharedSegmentView::populate(std::span<const std::byte> bytes) {
 
 bool processRuns(std::uint32_t pid) {
   // A killed process stays a zombie (state Z) until its parent reaps it, and
-  // kill(pid, 0) still finds it; its descriptors are gone by then.
+  // kill(pid, 0) still finds it; its descriptors are gone by then. Before
+  // that, while it exits, its descriptors close with its state unchanged:
+  // the kernel's PF_EXITING flag (stat's ninth field) says so (CI once saw
+  // a render read a killed data-send's segment in that window and abort).
   std::ifstream stat("/proc/" + std::to_string(pid) + "/stat");
   const std::string line((std::istreambuf_iterator<char>(stat)), std::istreambuf_iterator<char>());
   const auto name = line.rfind(')');
   if (name == std::string::npos || name + 2 >= line.size()) return false;
-  const char state = line[name + 2];
-  return state != 'Z' && state != 'X' && state != 'x';
+  std::istringstream fields(line.substr(name + 2));
+  std::string state;
+  std::uint64_t skipped = 0, flags = 0;
+  fields >> state;
+  for (int field = 4; field <= 8; ++field) fields >> skipped;  // ppid .. tpgid
+  fields >> flags;
+  constexpr std::uint64_t kExiting = 0x4;  // PF_EXITING
+  if (state.empty() || state == "Z" || state == "X" || state == "x") return false;
+  return !fields.fail() ? (flags & kExiting) == 0 : true;
 }
 
 std::uint64_t thisMachineIdentity() {
