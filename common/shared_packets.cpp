@@ -161,9 +161,10 @@ bool processRuns(std::uint32_t pid) {
   if (name == std::string::npos || name + 2 >= line.size()) return false;
   std::istringstream fields(line.substr(name + 2));
   std::string state;
-  std::uint64_t skipped = 0, flags = 0;
+  std::int64_t skipped = 0;  // ppid .. tpgid; tpgid is -1 without a terminal
+  std::uint64_t flags = 0;
   fields >> state;
-  for (int field = 4; field <= 8; ++field) fields >> skipped;  // ppid .. tpgid
+  for (int field = 4; field <= 8; ++field) fields >> skipped;
   fields >> flags;
   constexpr std::uint64_t kExiting = 0x4;  // PF_EXITING
   if (state.empty() || state == "Z" || state == "X" || state == "x") return false;

@@ -1,7 +1,6 @@
 #include "simulator/lit_pixels.hpp"
 
 #include <bit>
-#include <chrono>
 
 #include "common/errors.hpp"
 #include "render/raster/cpu_point_renderer.hpp"
@@ -73,7 +72,6 @@ const FrameCoverage& LitPixels::frame(std::uint64_t frame,
   const std::lock_guard lock(mutex_);
   std::unique_ptr<FrameCoverage>& slot = frames_.at(frame);
   if (slot) return *slot;
-  const auto start = std::chrono::steady_clock::now();
   const Camera& camera = cameras_[frame];
   const TileRect rect = fullFrameRect(camera);
   const traverse::TraversalResult walk = traverse::traverseTile(culling, camera, rect, traversal_);
@@ -88,13 +86,7 @@ const FrameCoverage& LitPixels::frame(std::uint64_t frame,
   renderer_->render(camera, rect, ranges, settings);
   slot = std::make_unique<FrameCoverage>(renderer_->pointWords(), rect.width(), rect.height(),
                                          render::kEmptyPixel);
-  drawSeconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return *slot;
-}
-
-double LitPixels::drawSeconds() const {
-  const std::lock_guard lock(mutex_);
-  return drawSeconds_;
 }
 
 }  // namespace pointillist::simulator

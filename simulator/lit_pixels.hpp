@@ -41,8 +41,6 @@ class FrameCoverage {
   FrameCoverage(std::span<const std::uint64_t> words, std::uint32_t width, std::uint32_t height,
                 std::uint64_t empty);
 
-  std::uint32_t width() const { return width_; }
-  std::uint32_t height() const { return height_; }
   std::uint64_t litPixels() const { return lit_; }
   // The part of `box` inside the frame.
   LitRuns count(const TileRect& box) const;
@@ -72,8 +70,6 @@ class LitPixels {
 
   // Frame `frame`'s coverage (a whole-frame traversal of `culling`, drawn).
   const FrameCoverage& frame(std::uint64_t frame, const traverse::CullingTable& culling) const;
-  // Seconds spent drawing frames so far.
-  double drawSeconds() const;
 
  private:
   std::vector<Camera> cameras_;
@@ -81,7 +77,6 @@ class LitPixels {
   std::unique_ptr<render::CpuPointRenderer> renderer_;  // drawn under mutex_
   mutable std::mutex mutex_;
   mutable std::vector<std::unique_ptr<FrameCoverage>> frames_;
-  mutable double drawSeconds_ = 0.0;
 };
 
 }  // namespace pointillist::simulator

@@ -51,8 +51,6 @@ class Scene {
   bool hasLitPixels() const { return litPixels_ != nullptr; }
   // The lit pixels and runs of `box` in frame `frame`; hasLitPixels() only.
   LitRuns litRuns(std::uint64_t frame, const TileRect& box) const;
-  // Seconds spent drawing frames for litRuns so far.
-  double litDrawSeconds() const { return litPixels_ ? litPixels_->drawSeconds() : 0.0; }
 
   const std::string& name() const { return name_; }
   std::span<const OctreeCell> cells() const { return cells_; }
