@@ -12,7 +12,7 @@ POINTILLIST_PACKAGES=(
   libzmq3-dev cppzmq-dev libprotobuf-dev protobuf-compiler libturbojpeg0-dev
   python3-zmq python3-protobuf python3-numpy
   libboost-dev chromium python3-websocket
-  libgtest-dev libpng-dev libnanoflann-dev libcli11-dev libhwy-dev libxxhash-dev
+  libgtest-dev libpng-dev libnanoflann-dev libcli11-dev libhwy-dev libxxhash-dev libzstd-dev
   gnuplot-nox iproute2 procps
 )
 

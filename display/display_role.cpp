@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <exception>
 #include <filesystem>
 #include <limits>
 #include <map>
@@ -22,6 +23,7 @@
 #include "common/peer_watch.hpp"
 #include "common/run_settings.hpp"
 #include "common/statistical_node.hpp"
+#include "common/task_pool.hpp"
 #include "common/view_options.hpp"
 #include "display/core/frame_assembly.hpp"
 #include "display/core/frame_stats.hpp"
@@ -46,6 +48,7 @@ struct DisplayOptions {
   std::string statsFile;
   std::size_t statsFrames = 4096;
   std::uint32_t framesInFlight = 3;
+  unsigned imageThreads = 0;  // expanding compressed tile images (0: the cores, at most 8)
   double tilesPerRender = 2.0;
   std::uint32_t minTileSize = 32;
   double tileTimeoutSeconds = 10.0;
@@ -389,6 +392,7 @@ class DisplayProcess {
         }
         if (!envelope) {
           meter.relabel("poll");
+          handleBatch(assembly, meter);
           break;
         }
         worked = true;
@@ -402,6 +406,16 @@ class DisplayProcess {
           watch.allowSilence(envelope->source,
                              std::chrono::milliseconds(std::max<std::int64_t>(0, drawn / 500)));
         }
+        // Compressed tile images wait for the messages right behind them,
+        // then expand on several threads together; everything is handled in
+        // the order it came.
+        if (envelope->kind == MessageKind::TileImage &&
+            envelope->as<v1::TileImageHeader>().compressed_bytes() != 0) {
+          batch_.push_back({std::move(*envelope), {}, {}});
+          if (batch_.size() >= kImageBatch) handleBatch(assembly, meter);
+          continue;
+        }
+        handleBatch(assembly, meter);
         meter.switchTo(std::string("handle ") + messageKindName(envelope->kind));
         handle(assembly, *envelope);
       }
@@ -488,7 +502,45 @@ class DisplayProcess {
   }
 
  private:
-  void handle(FrameAssembly& assembly, Envelope& envelope) {
+  // The compressed tile images received, expanded on the pool's threads
+  // (a bad one keeps its error for its turn), then handled in order.
+  void handleBatch(FrameAssembly& assembly, CpuActivities::Meter& meter) {
+    if (batch_.empty()) return;
+    meter.switchTo("expand images");
+    if (batch_.size() > 1 && !imagePool_) {
+      unsigned threads = options_.imageThreads;
+      if (threads == 0) threads = std::clamp(std::thread::hardware_concurrency(), 1u, 8u);
+      imagePool_ = std::make_unique<TaskPool>(threads);
+    }
+    const auto expand = [&](std::size_t i) {
+      PendingImage& image = batch_[i];
+      try {
+        const auto header = image.envelope.as<v1::TileImageHeader>();
+        (void)tileImagePayload(header, image.envelope.payload, image.expanded,
+                               image.envelope.source);
+      } catch (...) {
+        image.error = std::current_exception();
+      }
+    };
+    if (imagePool_ && batch_.size() > 1) {
+      imagePool_->run(batch_.size(), expand);
+    } else {
+      for (std::size_t i = 0; i < batch_.size(); ++i) expand(i);
+    }
+    meter.switchTo("handle TileImage");
+    // Taken out first: handling may end the run, or throw.
+    std::vector<PendingImage> batch = std::move(batch_);
+    batch_.clear();
+    for (PendingImage& image : batch) {
+      if (job_.lost(image.envelope.source)) continue;  // taken for lost since it came
+      if (image.error) std::rethrow_exception(image.error);
+      handle(assembly, image.envelope, &image.expanded);
+    }
+  }
+
+  // `inflated`: the payload of a compressed tile image, expanded and checked already.
+  void handle(FrameAssembly& assembly, Envelope& envelope,
+              std::vector<std::byte>* inflated = nullptr) {
     switch (envelope.kind) {
       case MessageKind::WorkRequest:
         assembly.workRequested(envelope.source, envelope.as<v1::WorkRequest>());
@@ -496,15 +548,20 @@ class DisplayProcess {
       case MessageKind::TileImage: {
         const auto header = envelope.as<v1::TileImageHeader>();
         const v1::TileRect& rect = header.rect();
+        std::vector<std::byte> decompressed;
+        const std::span<const std::byte> payload =
+            inflated != nullptr && header.compressed_bytes() != 0
+                ? std::span<const std::byte>(*inflated)
+                : tileImagePayload(header, envelope.payload, decompressed, envelope.source);
         const std::uint64_t pixelBytes =
-            tileImagePixelBytes(header, envelope.payload.size(), envelope.source);
+            tileImagePixelBytes(header, payload.size(), envelope.source);
         const bool withDepth = header.depth() == v1::DEPTH_FORMAT_EYE_FLOAT32;
         const TileArrival arrival = assembly.tileArrived(header, Clock::now());
         if (arrival == TileArrival::Late) return;
-        const auto* bytes = reinterpret_cast<const std::uint8_t*>(envelope.payload.data());
+        const auto* bytes = reinterpret_cast<const std::uint8_t*>(payload.data());
         std::vector<std::byte> expanded;
         const std::span<const std::byte> pixels =
-            tileImagePixels(header, envelope.payload, pixelBytes, expanded);
+            tileImagePixels(header, payload, pixelBytes, expanded);
         std::vector<std::uint8_t> composed;
         if (header.format() == v1::PIXEL_FORMAT_POINT_WORDS64) {
           parts_.merge(header.frame_id(), header.tile_id(), header.attempt(), rect,
@@ -652,8 +709,19 @@ class DisplayProcess {
     return image;
   }
 
+  struct PendingImage {
+    Envelope envelope;
+    std::vector<std::byte> expanded;
+    std::exception_ptr error;
+  };
+  // Compressed tile images expanded together at most this many at a time:
+  // enough for every thread, few enough not to hold the first one long.
+  static constexpr std::size_t kImageBatch = 64;
+
   Job& job_;
   DisplayOptions options_;
+  std::vector<PendingImage> batch_;
+  std::unique_ptr<TaskPool> imagePool_;
   Dataset dataset_;
   FrameAssemblyConfig config_;
   TimePoint runStart_{};
@@ -699,6 +767,10 @@ int runDisplayMain(int argc, char** argv) {
                  "Per-frame records kept in the statistics; past it they thin evenly "
                  "(the run's figures stay exact; 0 keeps every frame)");
   app.add_option("--frames-in-flight", options.framesInFlight, "Frames handed out at once");
+  app.add_option("--image-threads", options.imageThreads,
+                 "Threads expanding compressed tile images (the renders' --image-compression) "
+                 "that arrive together; 0: this machine's cores, at most 8")
+      ->check(CLI::Range(0, 64));
   app.add_option("--tiles-per-render", options.tilesPerRender,
                  "Mini frusta per frame per render process");
   app.add_option("--min-tile", options.minTileSize, "Smallest tile side in pixels");

@@ -11,6 +11,7 @@
 #include "common/cpu_activity.hpp"
 #include "common/dataset.hpp"
 #include "common/image.hpp"
+#include "common/image_compression.hpp"
 #include "common/mpi/worker.hpp"
 #include "common/ownership.hpp"
 #include "common/pixel_runs.hpp"
@@ -40,6 +41,8 @@ struct RenderOptions {
   double cacheTimeoutSeconds = 30.0;
   std::string profile = "compat";
   unsigned drawThreads = 1;
+  std::string imageCompression = "auto";
+  int imageCompressionLevel = 3;
   // Test hooks: a slow or stalled render process.
   double slowMillisecondsPerPacket = 0.0;
   int slowIndex = -1;               // this render process (index among renders) draws
@@ -87,6 +90,8 @@ class RenderProcess final : public WorkerProcess {
     settings_.lighting = !settings.unlit();
     settings_.edl = {settings.edl(), settings.edl_strength(), settings.edl_radius()};
     run_ = settings;
+    compressImages_ = compressesImages(parseImageCompression(options_.imageCompression),
+                                       job_.onThisMachine(job_.displayRank()));
     const v1::Renderer kind = resolveRenderer(settings.renderer(), settings.mode());
     renderers_.push_back(
         makeTileRenderer(kind, parseProfile(options_.profile), options_.drawThreads));
@@ -359,6 +364,14 @@ class RenderProcess final : public WorkerProcess {
       payload->insert(payload->end(), reinterpret_cast<const std::byte*>(depths.data()),
                       reinterpret_cast<const std::byte*>(depths.data()) + depths.size_bytes());
     }
+    if (compressImages_ && !payload->empty()) {
+      std::vector<std::byte> frame = compressImageBytes(*payload, options_.imageCompressionLevel);
+      if (!frame.empty()) {
+        header.set_uncompressed_bytes(payload->size());
+        header.set_compressed_bytes(frame.size());
+        *payload = std::move(frame);
+      }
+    }
     const std::span<const std::byte> bytes(*payload);
     job_.sends().post(job_.displayRank(), MessageKind::TileImage, header, bytes,
                       std::move(payload));
@@ -412,6 +425,7 @@ class RenderProcess final : public WorkerProcess {
   TileRenderer* renderer_ = nullptr;
   RenderSettings settings_;
   v1::RunSettings run_;
+  bool compressImages_ = false;  // tile images go as zstd frames (--image-compression)
   std::shared_ptr<const ClassTables> classes_;  // a dataset built with --statistical
 };
 
@@ -432,6 +446,15 @@ int runRenderMain(int argc, char** argv) {
         app.add_option("--draw-threads", options.drawThreads,
                        "Threads drawing each tile with the cpu renderer")
             ->check(CLI::Range(1, 64));
+        app.add_option("--image-compression", options.imageCompression,
+                       "Tile images to the display as zstd frames: auto (where the display is on "
+                       "another machine: its link is what many render processes fill), zstd "
+                       "(always) or off")
+            ->check(CLI::IsMember({"auto", "zstd", "off"}));
+        app.add_option(
+               "--image-compression-level", options.imageCompressionLevel,
+               "zstd level of compressed tile images (negative: faster, fewer times smaller)")
+            ->check(CLI::Range(-7, 19));
         app.add_option("--slow-ms", options.slowMillisecondsPerPacket)->group("");
         app.add_option("--slow-index", options.slowIndex)->group("");
         app.add_option("--slow-factor", options.slowFactor)->group("");

@@ -3,6 +3,9 @@
 #include <bit>
 
 #include "common/errors.hpp"
+#include "common/image.hpp"
+#include "common/image_compression.hpp"
+#include "common/pixel_runs.hpp"
 #include "render/raster/cpu_point_renderer.hpp"
 
 namespace pointillist::simulator {
@@ -53,10 +56,31 @@ LitRuns FrameCoverage::count(const TileRect& box) const {
   return out;
 }
 
+double measureCompression(std::span<const std::byte> frame, std::size_t pixelBytes,
+                          std::uint32_t width, std::uint32_t height,
+                          std::span<const std::byte> empty, int level) {
+  std::uint64_t plain = 0, compressed = 0;
+  for (std::uint32_t y = 0; y < height; y += kCompressionBlock) {
+    for (std::uint32_t x = 0; x < width; x += kCompressionBlock) {
+      const PixelBox box{x, y, std::min(kCompressionBlock, width - x),
+                         std::min(kCompressionBlock, height - y)};
+      const std::vector<std::byte> runs = encodePixelRuns(frame, pixelBytes, width, box, empty);
+      // Runs of an empty box are one run of none: no image travels.
+      if (runs.size() <= 8) continue;
+      const std::vector<std::byte> packed = compressImageBytes(runs, level);
+      plain += runs.size();
+      compressed += packed.empty() ? runs.size() : packed.size();
+    }
+  }
+  return compressed > 0 ? static_cast<double>(plain) / static_cast<double>(compressed) : 1.0;
+}
+
 LitPixels::LitPixels(const Dataset& dataset, std::span<const Camera> cameras,
-                     const traverse::TraversalSettings& traversal, unsigned threads)
+                     const traverse::TraversalSettings& traversal, unsigned threads,
+                     int compressionLevel)
     : cameras_(cameras.begin(), cameras.end()),
       traversal_(traversal),
+      compressionLevel_(compressionLevel),
       renderer_(std::make_unique<render::CpuPointRenderer>(std::max(threads, 1u))),
       frames_(cameras.size()) {
   if (dataset.hasStatistical())
@@ -86,6 +110,14 @@ const FrameCoverage& LitPixels::frame(std::uint64_t frame,
   renderer_->render(camera, rect, ranges, settings);
   slot = std::make_unique<FrameCoverage>(renderer_->pointWords(), rect.width(), rect.height(),
                                          render::kEmptyPixel);
+  if (compressionLevel_ != 0) {
+    constexpr std::uint64_t kEmpty = render::kEmptyPixel;
+    slot->setCompression(
+        measureCompression(std::as_bytes(renderer_->pixels()), 4, rect.width(), rect.height(),
+                           std::as_bytes(std::span(kFrameBackground)), compressionLevel_),
+        measureCompression(std::as_bytes(renderer_->pointWords()), 8, rect.width(), rect.height(),
+                           std::as_bytes(std::span(&kEmpty, 1)), compressionLevel_));
+  }
   return *slot;
 }
 

@@ -149,6 +149,30 @@ int run(int argc, char** argv) {
                  "auto: " +
                      autoTileTasksAheadRule() + ")")
       ->capture_default_str();
+  std::string imageCompression = "auto";
+  int imageCompressionLevel = 3;
+  double compressNsPerByte = p.compressSecondsPerByte * 1e9;
+  double decompressNsPerByte = p.decompressSecondsPerByte * 1e9;
+  app.add_option("--image-compression", imageCompression,
+                 "Tile images as zstd frames, as the job's render processes send them to a "
+                 "display on another machine: auto or zstd (on; the ratio measured on each "
+                 "frame the scene draws, so with --lit-pixels on), or off")
+      ->check(CLI::IsMember({"auto", "zstd", "off"}))
+      ->capture_default_str();
+  app.add_option("--image-compression-level", imageCompressionLevel,
+                 "zstd level the ratio is measured at (the job's --image-compression-level)")
+      ->check(CLI::Range(-7, 19))
+      ->capture_default_str();
+  app.add_option("--compress-ns-per-byte", compressNsPerByte,
+                 "A render's time to compress a byte of tile image")
+      ->capture_default_str();
+  app.add_option("--decompress-ns-per-byte", decompressNsPerByte,
+                 "The display's time to expand a byte of tile image")
+      ->capture_default_str();
+  app.add_option("--display-image-threads", p.displayImageThreads,
+                 "Threads expanding compressed tile images at the display (its --image-threads)")
+      ->check(CLI::Range(1, 256))
+      ->capture_default_str();
   std::string litPixels = "on";
   app.add_option("--lit-pixels", litPixels,
                  "Size tile images by the pixels each frame lights (each frame drawn once by the "
@@ -228,6 +252,12 @@ int run(int argc, char** argv) {
   p.latencySeconds = latencyUs * 1e-6;
   p.traverseTileSeconds = traverseTileUs * 1e-6;
   p.composeSecondsPerPixel = composeNsPerPixel * 1e-9;
+  p.compressSecondsPerByte = compressNsPerByte * 1e-9;
+  p.decompressSecondsPerByte = decompressNsPerByte * 1e-9;
+  p.compressImages = imageCompression != "off" && litPixels == "on";
+  if (imageCompression != "off" && litPixels != "on" && app.count("--image-compression") > 0)
+    throw UsageError("--image-compression " + imageCompression +
+                     " measures each frame's ratio on the frames --lit-pixels on draws");
   if (secondsPerSplat < 0.0 || traverseSecondsPerCell < 0.0) {
     throw UsageError("--seconds-per-splat and --traverse-seconds-per-cell must be positive");
   }
@@ -280,7 +310,8 @@ int run(int argc, char** argv) {
     throw UsageError("--stats needs exactly one configuration; this sweep has " +
                      std::to_string(configs.size()));
   }
-  const Scene scene = Scene::load(datasetPath, view, litPixels == "on", jobs);
+  const Scene scene = Scene::load(datasetPath, view, litPixels == "on", jobs,
+                                  p.compressImages ? imageCompressionLevel : 0);
   if (traverseSecondsPerCell > 0.0) {
     p.traverseSecondsPerCell = traverseSecondsPerCell;
     sources.emplace_back("traverse time from", "--traverse-seconds-per-cell");

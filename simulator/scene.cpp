@@ -12,7 +12,7 @@ namespace pointillist::simulator {
 Scene::Scene(std::string name, std::vector<OctreeCell> cells, std::vector<TopLevelCell> topLevel,
              SceneBounds bounds, std::vector<Camera> cameras,
              const traverse::TraversalSettings& traversal, std::size_t loopFrames,
-             std::unique_ptr<const LitPixels> litPixels)
+             std::unique_ptr<const LitPixels> litPixels, int compressionLevel)
     : name_(std::move(name)),
       cells_(std::move(cells)),
       topLevel_(std::move(topLevel)),
@@ -22,7 +22,8 @@ Scene::Scene(std::string name, std::vector<OctreeCell> cells, std::vector<TopLev
       cameras_(std::move(cameras)),
       loopFrames_(loopFrames),
       traversal_(traversal),
-      litPixels_(std::move(litPixels)) {
+      litPixels_(std::move(litPixels)),
+      compressionLevel_(litPixels_ != nullptr ? compressionLevel : 0) {
   if (cells_.empty() || topLevel_.empty()) {
     throw InputError(name_ + ": the dataset has no cells to simulate");
   }
@@ -32,7 +33,7 @@ Scene::Scene(std::string name, std::vector<OctreeCell> cells, std::vector<TopLev
 }
 
 Scene Scene::load(const std::string& datasetPath, const ViewOptions& view, bool litPixels,
-                  unsigned threads) {
+                  unsigned threads, int compressionLevel) {
   if (datasetPath.empty()) throw UsageError("--dataset is required");
   const Dataset dataset =
       Dataset::open(datasetPath, litPixels ? DatasetParts::All : DatasetParts::Cells);
@@ -46,12 +47,21 @@ Scene Scene::load(const std::string& datasetPath, const ViewOptions& view, bool 
   if (litPixels && !dataset.hasStatistical()) {
     // One loop's frames: later loops see the same cameras.
     const std::size_t frames = loopFrames > 0 ? loopFrames : cameras.size();
-    lit = std::make_unique<const LitPixels>(
-        dataset, std::span<const Camera>(cameras.data(), frames), traversal, threads);
+    lit =
+        std::make_unique<const LitPixels>(dataset, std::span<const Camera>(cameras.data(), frames),
+                                          traversal, threads, compressionLevel);
   }
+  const int measured = lit != nullptr ? compressionLevel : 0;
   return Scene(datasetPath, {dataset.cells().begin(), dataset.cells().end()},
                {dataset.topLevelCells().begin(), dataset.topLevelCells().end()}, bounds,
-               std::move(cameras), traversal, loopFrames, std::move(lit));
+               std::move(cameras), traversal, loopFrames, std::move(lit), measured);
+}
+
+double Scene::imageCompression(std::uint64_t frame, bool part) const {
+  if (!litPixels_ || compressionLevel_ == 0) return 1.0;
+  if (loopFrames_ > 0) frame %= loopFrames_;
+  const FrameCoverage& coverage = litPixels_->frame(frame, *culling_);
+  return part ? coverage.partCompression() : coverage.wholeCompression();
 }
 
 LitRuns Scene::litRuns(std::uint64_t frame, const TileRect& box) const {

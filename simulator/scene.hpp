@@ -35,7 +35,7 @@ class Scene {
   Scene(std::string name, std::vector<OctreeCell> cells, std::vector<TopLevelCell> topLevel,
         SceneBounds bounds, std::vector<Camera> cameras,
         const traverse::TraversalSettings& traversal, std::size_t loopFrames = 0,
-        std::unique_ptr<const LitPixels> litPixels = nullptr);
+        std::unique_ptr<const LitPixels> litPixels = nullptr, int compressionLevel = 0);
   Scene(const Scene&) = delete;
   Scene& operator=(const Scene&) = delete;
 
@@ -43,14 +43,21 @@ class Scene {
   // cameras of `view` from its bounds; with `litPixels` its points too, to
   // draw each frame once and size tile images by the pixels they light
   // (LitPixels, `threads` drawing; not for statistical packets, which the
-  // CPU kernel does not draw). Throws InputError / UsageError.
+  // CPU kernel does not draw). With those, a `compressionLevel` (zstd's, not
+  // 0) measures how much each frame's tile images compress at it. Throws
+  // InputError / UsageError.
   static Scene load(const std::string& datasetPath, const ViewOptions& view, bool litPixels = false,
-                    unsigned threads = 1);
+                    unsigned threads = 1, int compressionLevel = 0);
 
   // Tile images sized by the pixels each frame lights (load's litPixels).
   bool hasLitPixels() const { return litPixels_ != nullptr; }
   // The lit pixels and runs of `box` in frame `frame`; hasLitPixels() only.
   LitRuns litRuns(std::uint64_t frame, const TileRect& box) const;
+  // How many times smaller frame `frame`'s tile images (a part's words, or a
+  // whole tile's RGBA) go compressed; 1 where load measured none.
+  double imageCompression(std::uint64_t frame, bool part) const;
+  // The level load measured compression at (0: none).
+  int compressionLevel() const { return compressionLevel_; }
 
   const std::string& name() const { return name_; }
   std::span<const OctreeCell> cells() const { return cells_; }
@@ -103,6 +110,7 @@ class Scene {
   std::size_t loopFrames_ = 0;
   traverse::TraversalSettings traversal_;
   std::unique_ptr<const LitPixels> litPixels_;
+  int compressionLevel_ = 0;
   mutable std::mutex mutex_;
   // Node-based: references stay valid while other tiles are added.
   mutable std::unordered_map<Key, TileWork, KeyHash> memo_;

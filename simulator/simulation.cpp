@@ -11,6 +11,7 @@
 
 #include "common/clock.hpp"
 #include "common/errors.hpp"
+#include "common/image_compression.hpp"
 #include "common/messages.hpp"
 #include "common/ownership.hpp"
 #include "common/peer_ranks.hpp"
@@ -41,11 +42,14 @@ void validateParameters(const ModelParameters& p) {
   nonNegative(p.traverseSecondsPerCell, "--traverse-seconds-per-cell");
   nonNegative(p.traverseTileSeconds, "--traverse-tile-us");
   nonNegative(p.composeSecondsPerPixel, "--compose-ns-per-pixel");
+  nonNegative(p.compressSecondsPerByte, "--compress-ns-per-byte");
+  nonNegative(p.decompressSecondsPerByte, "--decompress-ns-per-byte");
   positive(p.cacheMegabytes, "the cache size (--cache-mb)");
   positive(p.cacheTimeoutSeconds, "the cache time-out");
   positive(p.tileTimeoutSeconds, "the tile time-out (--tile-timeout)");
   if (p.framesInFlight == 0) throw UsageError("--frames-in-flight must be at least 1");
   if (p.maxAttempts == 0) throw UsageError("--max-attempts must be at least 1");
+  if (p.displayImageThreads == 0) throw UsageError("--display-image-threads must be at least 1");
 }
 
 double packetSeconds(const ModelParameters& p, const v1::RenderPacket& packet) {
@@ -158,7 +162,7 @@ struct RenderProcess {
   std::optional<double> wakeAt;  // a maintenance wake-up already scheduled
   std::deque<Delivery> inbox;    // messages that came while drawing
   std::optional<render::ReadyPacket> current;
-  double currentSeconds = 0.0;
+  double currentSeconds = 0.0;  // drawing it (what the render reports)
   std::vector<Interval> busyIntervals;
 };
 
@@ -214,6 +218,7 @@ class Simulation {
         assembly_(assemblyConfig(scene, config, p), peers_, timeAfterEpoch(0.0)),
         outLinks_(peers_.layout().total()),
         inLinks_(peers_.layout().total()) {
+    imageThreadsFree_.assign(std::max<std::uint32_t>(p.displayImageThreads, 1), 0.0);
     const v1::RunSettings settings = runSettings(scene, config);
     traverses_.reserve(config.traverses);
     for (int rank : peers_.traverses) {
@@ -384,7 +389,7 @@ class Simulation {
         finishFrames(now);
         break;
       case Step::TileComposed:
-        finishFrames(now);
+        tileComposed(now, event.delivery);
         break;
     }
   }
@@ -398,21 +403,31 @@ class Simulation {
         dispatch(now);
         break;
       case MessageKind::TileImage: {
+        // The display handles a tile on its one CPU, tiles in arrival order:
+        // it expands a compressed image, then takes the tile and blits it (a
+        // part is merged by the minimum at about the same cost per pixel; a
+        // background tile leaves the blank image as it is). The tile counts
+        // as arrived, and its frame may finish, once that is done: a CPU
+        // that falls behind holds the frames.
         const auto& header = delivery.as<v1::TileImageHeader>();
-        const display::TileArrival arrival = assembly_.tileArrived(header, timeAfterEpoch(now));
-        if (arrival == display::TileArrival::Late) return;
-        if (arrival == display::TileArrival::Complete) ++trace(header.frame_id()).tilesComposed;
-        // The display blits on its one CPU, tiles in arrival order; a part
-        // is merged by the minimum at about the same cost per pixel.
-        // A background tile leaves the blank image as it is.
         const v1::TileRect& sent = header.has_drawn_rect() ? header.drawn_rect() : header.rect();
         const double pixels = header.format() == v1::PIXEL_FORMAT_BACKGROUND
                                   ? 0.0
                                   : static_cast<double>(sent.width()) * sent.height();
-        const double start = std::max(now, displayCpuFree_);
+        double ready = now;
+        if (header.uncompressed_bytes() != 0) {
+          // Expanded on the first free of the image threads.
+          const auto lane = std::min_element(imageThreadsFree_.begin(), imageThreadsFree_.end());
+          const double begin = std::max(now, *lane);
+          *lane = begin +
+                  static_cast<double>(header.uncompressed_bytes()) * p_.decompressSecondsPerByte;
+          imageThreadsBusy_.push_back({begin, *lane});
+          ready = *lane;
+        }
+        const double start = std::max(ready, displayCpuFree_);
         displayCpuFree_ = start + pixels * p_.composeSecondsPerPixel;
         displayCpu_.push_back({start, displayCpuFree_});
-        schedule(displayCpuFree_, Step::TileComposed, peers_.display);
+        schedule(displayCpuFree_, Step::TileComposed, peers_.display, delivery);
         break;
       }
       default:
@@ -439,6 +454,13 @@ class Simulation {
       schedule(std::max(now, secondsSinceEpoch(*deadline)) + kWakeSlack, Step::DisplayCheck,
                peers_.display);
     }
+  }
+
+  void tileComposed(double now, const Delivery& delivery) {
+    const auto& header = delivery.as<v1::TileImageHeader>();
+    const display::TileArrival arrival = assembly_.tileArrived(header, timeAfterEpoch(now));
+    if (arrival == display::TileArrival::Complete) ++trace(header.frame_id()).tilesComposed;
+    if (arrival != display::TileArrival::Late) finishFrames(now);
   }
 
   void finishFrames(double now) {
@@ -619,9 +641,13 @@ class Simulation {
     if (ready) {
       process.busy = true;
       process.currentSeconds = packetSeconds(p_, ready->packet);
+      // Then compressing its image, before it goes.
+      const double busy =
+          process.currentSeconds +
+          static_cast<double>(imageOf(ready->packet).compressedFrom) * p_.compressSecondsPerByte;
       process.current = std::move(ready);
-      process.busyIntervals.push_back({now, now + process.currentSeconds});
-      schedule(now + process.currentSeconds, Step::RenderDone, peers_.renders[r]);
+      process.busyIntervals.push_back({now, now + busy});
+      schedule(now + busy, Step::RenderDone, peers_.renders[r]);
       return;
     }
     if (const auto due = process.core.nextMaintenance()) {
@@ -633,25 +659,27 @@ class Simulation {
     }
   }
 
-  void renderDone(double now, std::uint32_t r) {
-    RenderProcess& process = renders_[r];
-    const render::ReadyPacket ready = std::move(*process.current);
-    process.current.reset();
-    const v1::RenderPacket& packet = ready.packet;
-    render::RenderEffects effects;
-    v1::TileImageHeader drawn = process.core.packetDrawn(
-        ready, packet.total_splats(), process.currentSeconds, timeAfterEpoch(now), effects);
+  // What a render sends for `packet`: its box, runs and zstd frame.
+  struct TileImage {
+    std::optional<v1::TileRect> drawnRect;
+    std::uint64_t runsBytes = 0;       // as runs (0: the box itself)
+    std::uint64_t compressedFrom = 0;  // compressed from these bytes (0: not)
+    std::uint64_t bytes = 0;           // the payload
+  };
+
+  TileImage imageOf(const v1::RenderPacket& packet) const {
+    TileImage image;
     // A part of a split tile goes as 8-byte words (depth and colour). A tile
     // goes as the box it drew in, taken to be the box of its cells the
     // traverse gave, unless it carries depth.
     const bool part = packet.part_count() > 1;
     if (packet.has_screen_box() &&
         !(packet.has_frame_settings() && packet.frame_settings().tile_depth()))
-      *drawn.mutable_drawn_rect() = packet.screen_box();
-    const v1::TileRect& sent = drawn.has_drawn_rect() ? drawn.drawn_rect() : packet.rect();
+      image.drawnRect = packet.screen_box();
+    const v1::TileRect& sent = image.drawnRect ? *image.drawnRect : packet.rect();
     const std::uint64_t pixelBytes = part ? 8 : 4;
-    std::uint64_t imageBytes = std::uint64_t{sent.width()} * sent.height() * pixelBytes;
-    if (drawn.has_drawn_rect()) {
+    image.bytes = std::uint64_t{sent.width()} * sent.height() * pixelBytes;
+    if (image.drawnRect) {
       // As runs where fewer bytes (common/pixel_runs.hpp). Where the scene
       // draws its frames, a whole tile's runs are those of its box in the
       // frame; a part's are at most the box's lit pixels and one a splat.
@@ -667,11 +695,41 @@ class Simulation {
         runCount = part ? std::min(inBox.runs, lit + 1) : inBox.runs;
       }
       const std::uint64_t runs = lit * pixelBytes + 8 * runCount;
-      if (runs < imageBytes) {
-        drawn.set_runs_bytes(runs);
-        imageBytes = runs;
+      if (runs < image.bytes) {
+        image.runsBytes = runs;
+        image.bytes = runs;
       }
     }
+    // As the render does (compressImageBytes): worth it from a small size,
+    // kept where smaller.
+    if (p_.compressImages && image.bytes >= kMinCompressedPayload) {
+      const double ratio = scene_.imageCompression(packet.frame_id(), part);
+      const auto packed = static_cast<std::uint64_t>(
+          std::ceil(static_cast<double>(image.bytes) / std::max(ratio, 1.0)));
+      if (packed < image.bytes) {
+        image.compressedFrom = image.bytes;
+        image.bytes = packed;
+      }
+    }
+    return image;
+  }
+
+  void renderDone(double now, std::uint32_t r) {
+    RenderProcess& process = renders_[r];
+    const render::ReadyPacket ready = std::move(*process.current);
+    process.current.reset();
+    const v1::RenderPacket& packet = ready.packet;
+    render::RenderEffects effects;
+    v1::TileImageHeader drawn = process.core.packetDrawn(
+        ready, packet.total_splats(), process.currentSeconds, timeAfterEpoch(now), effects);
+    const TileImage image = imageOf(packet);
+    if (image.drawnRect) *drawn.mutable_drawn_rect() = *image.drawnRect;
+    if (image.runsBytes != 0) drawn.set_runs_bytes(image.runsBytes);
+    if (image.compressedFrom != 0) {
+      drawn.set_uncompressed_bytes(image.compressedFrom);
+      drawn.set_compressed_bytes(image.bytes);
+    }
+    std::uint64_t imageBytes = image.bytes;
     imageBytes += 128;
     auto header = std::make_shared<const v1::TileImageHeader>(std::move(drawn));
     ++trace(packet.frame_id()).packetsRendered;
@@ -739,7 +797,9 @@ class Simulation {
                                busyShare(inLinks_[rank].busy, from, to)});
     }
     u.displayLink = busyShare(inLinks_[0].busy, from, to);
-    u.displayCpu = busyShare(displayCpu_, from, to);
+    u.displayCpu = std::max(
+        busyShare(displayCpu_, from, to),
+        busyShare(imageThreadsBusy_, from, to) / static_cast<double>(imageThreadsFree_.size()));
     if (requestWaitSince_) requestWait_.push_back({*requestWaitSince_, to});
     u.requestWait = busyShare(requestWait_, from, to);
     const std::pair<const char*, double> candidates[] = {
@@ -782,6 +842,8 @@ class Simulation {
   bool checkPending_ = false;
   double displayCpuFree_ = 0.0;
   std::vector<Interval> displayCpu_;
+  std::vector<double> imageThreadsFree_;    // when each image thread is free
+  std::vector<Interval> imageThreadsBusy_;  // all of them
   std::optional<double> requestWaitSince_;
   std::vector<Interval> requestWait_;  // tiles waiting for a traverse's request
   std::vector<std::uint64_t> completionOrder_;

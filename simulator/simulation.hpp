@@ -42,7 +42,17 @@ struct ModelParameters {
   double traverseSecondsPerCell = 1e-7;  // Scene::measureTraverseSecondsPerCell() measures it
   double traverseTileSeconds = 20e-6;    // per tile task (messages, packet building)
   double composeSecondsPerPixel = 1e-9;  // display blit of a tile image
-  double cacheMegabytes = 1024.0;        // render cache cap (--cache-mb)
+  // Tile images as zstd frames (the job's --image-compression: on where the
+  // display is on another machine, as in the model), smaller by the ratio the
+  // scene measured for each frame (Scene::imageCompression); a render
+  // compresses every image before sending, the display expands it.
+  bool compressImages = true;
+  double compressSecondsPerByte = 3.0e-9;    // a render, zstd level 3
+  double decompressSecondsPerByte = 1.0e-9;  // the display
+  // Threads expanding them at the display (its --image-threads: the cores,
+  // at most 8), beside the one that composes.
+  std::uint32_t displayImageThreads = 8;
+  double cacheMegabytes = 1024.0;  // render cache cap (--cache-mb)
   double cacheTimeoutSeconds = 30.0;
   std::uint32_t framesInFlight = 3;
   double tileTimeoutSeconds = 10.0;

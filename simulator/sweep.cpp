@@ -286,20 +286,32 @@ Assumptions describeAssumptions(const Scene& scene, const ViewOptions& view,
       {"traverse", significant(p.traverseSecondsPerCell, 3) + " s per visited cell + " +
                        significant(p.traverseTileSeconds * 1e3, 3) + " ms" +
                        " per tile; the real traversal of every tile"},
-      {"display", significant(p.composeSecondsPerPixel * 1e9, 3) + " ns" +
-                      " per composed pixel; tile images (4 bytes/pixel, 8 for a part of a split "
-                      "tile; as runs of " +
-                      (scene.hasLitPixels()
-                           ? std::string("the lit pixels of their box, each frame drawn once by "
-                                         "the CPU point kernel")
-                           : std::string("min(box, splats) pixels")) +
-                      " where fewer bytes) on the display's link (" +
-                      (p.displayBandwidthBytesPerSecond > 0.0
-                           ? fixed(p.displayBandwidthBytesPerSecond / 1e6, 0) + " MB/s"
-                           : std::string("as the others")) +
-                      "); " + std::to_string(p.framesInFlight) +
-                      " frames in flight, tile time-out " + significant(p.tileTimeoutSeconds) +
-                      " s"},
+      {"display",
+       significant(p.composeSecondsPerPixel * 1e9, 3) + " ns" +
+           " per composed pixel; tile images (4 bytes/pixel, 8 for a part of a split "
+           "tile; as runs of " +
+           (scene.hasLitPixels()
+                ? std::string("the lit pixels of their box, each frame drawn once by "
+                              "the CPU point kernel")
+                : std::string("min(box, splats) pixels")) +
+           " where fewer bytes" +
+           (p.compressImages && scene.compressionLevel() != 0
+                ? std::string("; then as zstd level ") + std::to_string(scene.compressionLevel()) +
+                      " frames, smaller by each frame's ratio measured on its pixels "
+                      "in " +
+                      std::to_string(kCompressionBlock) + "-pixel blocks, " +
+                      significant(p.compressSecondsPerByte * 1e9, 3) +
+                      " ns a byte to compress on the render, " +
+                      significant(p.decompressSecondsPerByte * 1e9, 3) +
+                      " ns to expand on one of the display's " +
+                      std::to_string(p.displayImageThreads) + " image threads"
+                : std::string("; not compressed")) +
+           ") on the display's link (" +
+           (p.displayBandwidthBytesPerSecond > 0.0
+                ? fixed(p.displayBandwidthBytesPerSecond / 1e6, 0) + " MB/s"
+                : std::string("as the others")) +
+           "); " + std::to_string(p.framesInFlight) + " frames in flight, tile time-out " +
+           significant(p.tileTimeoutSeconds) + " s"},
       {"render cache", significant(p.cacheMegabytes) + " MiB, cells unused for " +
                            significant(p.cacheTimeoutSeconds) + " s expire"},
       {"tiling", significant(options.tilesPerRender) + " tiles per render process, sides >= " +

@@ -5,6 +5,7 @@
 #include <numeric>
 
 #include "common/image.hpp"
+#include "common/image_compression.hpp"
 #include "common/pixel_runs.hpp"
 #include "common/run_settings.hpp"
 #include "display/core/tiling.hpp"
@@ -178,6 +179,8 @@ TileArrival FrameAssembly::tileArrived(const v1::TileImageHeader& header, TimePo
   record.bytesPrefetched += header.prefetch_bytes();
   record.bytesOrderedHeldElsewhere += header.ordered_bytes_held_elsewhere();
   record.imageBytes += tileImageBytes(header);
+  record.imageBytesUncompressed +=
+      header.compressed_bytes() != 0 ? header.uncompressed_bytes() : tileImageBytes(header);
   record.splatsPerRender[render] += header.splats_rendered();
   record.busySecondsPerRender[render] += tile.renderSeconds;
   if (part && parts_.at({header.frame_id(), header.tile_id(), header.attempt()}).missing > 0) {
@@ -329,11 +332,41 @@ std::uint32_t FrameAssembly::renderLost(int renderRank, TimePoint now, const std
 
 std::uint64_t tileImageBytes(const v1::TileImageHeader& header) {
   if (header.format() == v1::PIXEL_FORMAT_BACKGROUND) return 0;
+  if (header.compressed_bytes() != 0) return header.compressed_bytes();
   if (header.runs_bytes() != 0) return header.runs_bytes();
   const bool words = header.format() == v1::PIXEL_FORMAT_POINT_WORDS64;
   const v1::TileRect& sent = header.has_drawn_rect() ? header.drawn_rect() : header.rect();
   const std::uint64_t pixels = std::uint64_t{sent.width()} * sent.height();
   return pixels * (words ? 8 : 4) * (header.depth() == v1::DEPTH_FORMAT_EYE_FLOAT32 ? 2 : 1);
+}
+
+std::span<const std::byte> tileImagePayload(const v1::TileImageHeader& header,
+                                            std::span<const std::byte> payload,
+                                            std::vector<std::byte>& storage, int sourceRank) {
+  if (header.compressed_bytes() == 0) {
+    if (header.uncompressed_bytes() != 0)
+      throw ProtocolError("tile image from rank " + std::to_string(sourceRank) +
+                          " says it expands to " + std::to_string(header.uncompressed_bytes()) +
+                          " bytes but is not compressed");
+    return payload;
+  }
+  const std::string what = "tile image from rank " + std::to_string(sourceRank);
+  if (payload.size() != header.compressed_bytes())
+    throw ProtocolError(what + " has " + std::to_string(payload.size()) + " bytes, its header " +
+                        std::to_string(header.compressed_bytes()) + " compressed");
+  // The most any image of the rect carries: 8 bytes a pixel (words, or RGBA
+  // and depth), and runs only where fewer than the box's bytes. Checked before
+  // anything is allocated.
+  const v1::TileRect& rect = header.rect();
+  const std::uint64_t most = std::uint64_t{rect.width()} * rect.height() * 8;
+  if (header.uncompressed_bytes() == 0 || header.uncompressed_bytes() > most)
+    throw ProtocolError(what + " would expand to " + std::to_string(header.uncompressed_bytes()) +
+                        " bytes; its " + std::to_string(rect.width()) + "x" +
+                        std::to_string(rect.height()) + " tile holds at most " +
+                        std::to_string(most));
+  storage =
+      decompressImageBytes(payload, static_cast<std::size_t>(header.uncompressed_bytes()), what);
+  return storage;
 }
 
 std::uint64_t tileImagePixelBytes(const v1::TileImageHeader& header, std::size_t payloadBytes,

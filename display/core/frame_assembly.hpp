@@ -63,9 +63,18 @@ struct FinishedFrame {
   std::vector<int> failedTileRenders;
 };
 
-// The bytes a tile image's header says its payload holds (pixels and depth),
-// as checked by tileImagePixelBytes: what it moved into the display.
+// The bytes a tile image's header says its payload holds (pixels and depth,
+// or the zstd frame of them), as checked by tileImagePixelBytes and
+// tileImagePayload: what it moved into the display.
 std::uint64_t tileImageBytes(const v1::TileImageHeader& header);
+// A tile image's payload as its other fields describe it: one that came
+// compressed (compressed_bytes) expanded into `storage`, after checking that
+// it is those bytes and expands to uncompressed_bytes, no more than its rect
+// could carry; any other payload as it is. Throws ProtocolError naming
+// `sourceRank`.
+std::span<const std::byte> tileImagePayload(const v1::TileImageHeader& header,
+                                            std::span<const std::byte> payload,
+                                            std::vector<std::byte>& storage, int sourceRank);
 // The bytes of a TileImage's pixels (RGBA8 rows of its rect, or the point
 // kernel's words for a part of a split tile: of its drawn_rect where given),
 // checked against its payload (`payloadBytes`: the pixels, then as many again

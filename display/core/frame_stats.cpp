@@ -104,6 +104,7 @@ std::vector<std::pair<std::string, std::string>> keyFigureFields(const KeyFigure
       {"bytes_per_frame_steady", number(k.bytesPerFrameSteady)},
       {"bytes_held_elsewhere_per_frame_steady", number(k.bytesHeldElsewherePerFrameSteady)},
       {"image_bytes_per_frame_steady", number(k.imageBytesPerFrameSteady)},
+      {"image_bytes_uncompressed_per_frame_steady", number(k.imageBytesUncompressedPerFrameSteady)},
       {"later_loops_from", count(k.laterLoopsFrom)},
       {"frames_per_second_later_loops", number(k.framesPerSecondLaterLoops)},
       {"bytes_per_frame_later_loops", number(k.bytesPerFrameLaterLoops)},
@@ -141,6 +142,7 @@ void FrameSums::add(const FrameRecord& frame, const FrameBalance& balance) {
   bytesOrdered += frame.bytesOrdered;
   bytesOrderedHeldElsewhere += frame.bytesOrderedHeldElsewhere;
   imageBytes += frame.imageBytes;
+  imageBytesUncompressed += frame.imageBytesUncompressed;
   reissuedTiles += frame.reissuedTiles;
   failedTiles += frame.failedTiles;
   for (const auto& [rank, s] : frame.splatsPerRender) splatsPerRender[rank] += s;
@@ -164,6 +166,7 @@ void FrameSums::add(const FrameSums& other) {
   bytesOrdered += other.bytesOrdered;
   bytesOrderedHeldElsewhere += other.bytesOrderedHeldElsewhere;
   imageBytes += other.imageBytes;
+  imageBytesUncompressed += other.imageBytesUncompressed;
   reissuedTiles += other.reissuedTiles;
   failedTiles += other.failedTiles;
   busySeconds += other.busySeconds;
@@ -336,6 +339,7 @@ KeyFigures RunStats::keyFigures() const {
   k.bytesPerFrameSteady = ratio(steady.bytesOrdered, steady.frames);
   k.bytesHeldElsewherePerFrameSteady = ratio(steady.bytesOrderedHeldElsewhere, steady.frames);
   k.imageBytesPerFrameSteady = ratio(steady.imageBytes, steady.frames);
+  k.imageBytesUncompressedPerFrameSteady = ratio(steady.imageBytesUncompressed, steady.frames);
   if (const FrameSums& later = totals.laterLoops; later.frames > 0) {
     k.laterLoopsFrom = loopFrames;
     const double span = totals.lastEndSeconds - totals.laterLoopsBeginSeconds;
@@ -576,12 +580,19 @@ std::string RunStats::summary() const {
   std::snprintf(line, sizeof line,
                 "bytes sent: %.2f MiB total, first frame %.2f MiB, %.3f MiB per frame steady "
                 "(%.3f MiB another render held: work moved); tile images %.3f MiB per frame "
-                "steady\n",
+                "steady",
                 static_cast<double>(k.bytesTotal) / 1048576.0,
                 static_cast<double>(k.bytesFirstFrame) / 1048576.0,
                 k.bytesPerFrameSteady / 1048576.0, k.bytesHeldElsewherePerFrameSteady / 1048576.0,
                 k.imageBytesPerFrameSteady / 1048576.0);
   out << line;
+  if (k.imageBytesUncompressedPerFrameSteady > k.imageBytesPerFrameSteady) {
+    std::snprintf(line, sizeof line, " (compressed from %.3f MiB, %.2f times)",
+                  k.imageBytesUncompressedPerFrameSteady / 1048576.0,
+                  k.imageBytesUncompressedPerFrameSteady / k.imageBytesPerFrameSteady);
+    out << line;
+  }
+  out << '\n';
   if (k.laterLoopsFrom > 0) {
     std::snprintf(line, sizeof line,
                   "later loops (from frame %zu, every view seen once): %.2f frames/s, %.3f MiB "

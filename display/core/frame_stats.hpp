@@ -28,6 +28,8 @@ struct FrameRecord {
   // Of bytesOrdered, those another render held when ordered (work moved).
   std::uint64_t bytesOrderedHeldElsewhere = 0;
   std::uint64_t imageBytes = 0;  // tile images into the display (pixels and depth)
+  // What those tile images expand to where they came compressed (all of them otherwise).
+  std::uint64_t imageBytesUncompressed = 0;
   // By render rank. Flat: a run keeps up to --stats-frames of these records,
   // and a map node per render process cost three times the memory.
   boost::container::flat_map<int, std::uint64_t> splatsPerRender;
@@ -133,6 +135,7 @@ struct KeyFigures {
   double bytesPerFrameSteady = 0.0;
   double bytesHeldElsewherePerFrameSteady = 0.0;  // of it, held by another render
   double imageBytesPerFrameSteady = 0.0;          // FrameRecord::imageBytes
+  double imageBytesUncompressedPerFrameSteady = 0.0;
   // A path played more than once (RunStats::loopFrames): the frames from the
   // second loop on, where every view's data was sent in the first.
   std::size_t laterLoopsFrom = 0;  // 0: one loop
@@ -207,6 +210,7 @@ struct FrameSums {
   std::uint64_t bytesOrdered = 0;
   std::uint64_t bytesOrderedHeldElsewhere = 0;
   std::uint64_t imageBytes = 0;
+  std::uint64_t imageBytesUncompressed = 0;
   std::uint64_t reissuedTiles = 0;
   std::uint64_t failedTiles = 0;
   double busySeconds = 0.0;  // all render processes

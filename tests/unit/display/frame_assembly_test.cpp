@@ -11,6 +11,7 @@
 #include <gtest/gtest.h>
 
 #include "common/image.hpp"
+#include "common/image_compression.hpp"
 #include "common/pixel_runs.hpp"
 
 namespace pointillist::display {
@@ -373,6 +374,43 @@ TEST(FrameAssembly, ATileImagePayloadMustMatchItsRectAndDepth) {
   header.mutable_rect()->set_width(0xFFFFFFFFu);  // 32-bit sides do not wrap in 64 bits
   header.mutable_rect()->set_height(0xFFFFFFFFu);
   EXPECT_THROW(tileImagePixelBytes(header, 0, 4), ProtocolError);
+}
+
+// A compressed tile image (compressed_bytes) is one zstd frame of what the
+// other fields describe; the display expands it before anything else reads it.
+TEST(FrameAssembly, ACompressedTileImageExpandsToWhatItsHeaderDescribes) {
+  v1::TileImageHeader header;
+  *header.mutable_rect() = makeTileRect(100, 40, 32, 16);
+  header.set_format(v1::PIXEL_FORMAT_RGBA8);
+  std::vector<std::uint8_t> pixels(32 * 16 * 4);
+  for (std::size_t i = 0; i < pixels.size(); ++i) pixels[i] = static_cast<std::uint8_t>(i / 64);
+  const std::vector<std::byte> frame = compressImageBytes(std::as_bytes(std::span(pixels)), 1);
+  ASSERT_FALSE(frame.empty());
+  std::vector<std::byte> storage;
+  const std::vector<std::byte> plain(std::as_bytes(std::span(pixels)).begin(),
+                                     std::as_bytes(std::span(pixels)).end());
+  EXPECT_EQ(tileImagePayload(header, plain, storage, 4).size(), plain.size())
+      << "not compressed: as it is";
+  header.set_compressed_bytes(frame.size());
+  header.set_uncompressed_bytes(pixels.size());
+  EXPECT_EQ(tileImageBytes(header), frame.size()) << "what crossed the link";
+  const std::span<const std::byte> payload = tileImagePayload(header, frame, storage, 4);
+  ASSERT_EQ(payload.size(), pixels.size());
+  EXPECT_EQ(std::memcmp(payload.data(), pixels.data(), pixels.size()), 0);
+  EXPECT_EQ(tileImagePixelBytes(header, payload.size(), 4), pixels.size());
+  std::vector<std::byte> longer = frame;
+  longer.push_back(std::byte{0});
+  EXPECT_THROW(tileImagePayload(header, longer, storage, 4), ProtocolError)
+      << "more bytes than the header says";
+  header.set_uncompressed_bytes(32 * 16 * 8 + 1);
+  EXPECT_THROW(tileImagePayload(header, frame, storage, 4), ProtocolError)
+      << "more than the rect could carry: refused before allocating";
+  header.set_uncompressed_bytes(pixels.size() - 4);
+  EXPECT_THROW(tileImagePayload(header, frame, storage, 4), ProtocolError)
+      << "another size than the frame's";
+  header.set_compressed_bytes(0);
+  EXPECT_THROW(tileImagePayload(header, frame, storage, 4), ProtocolError)
+      << "an expanded size without compression";
 }
 
 // A part of a split tile sends the point words of the box it drew in: the

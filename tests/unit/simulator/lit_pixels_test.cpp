@@ -8,6 +8,8 @@
 
 #include "common/dataset_writer.hpp"
 #include "common/errors.hpp"
+#include "common/image.hpp"
+#include "common/image_compression.hpp"
 #include "common/pixel_runs.hpp"
 #include "render/raster/cpu_point_renderer.hpp"
 #include "simulator/lit_pixels.hpp"
@@ -124,6 +126,69 @@ TEST(LitPixels, TileImagesCarryTheFrameLitPixelsHoweverItIsCut) {
   EXPECT_LT(whole.lit, std::uint64_t{frame.width()} * frame.height());
   const LitRuns half = lit.litRuns(0, makeTileRect(0, 0, frame.width() / 2, frame.height()));
   EXPECT_LE(half.lit, whole.lit);
+}
+
+// The ratio a frame's tile images compress by is that of its blocks' runs,
+// each compressed apart as a render compresses a tile image.
+TEST(LitPixels, CompressionIsMeasuredOnTheRunsOfEachBlock) {
+  constexpr std::uint32_t kWidth = 150, kHeight = 90;
+  std::vector<std::uint32_t> pixels(std::size_t{kWidth} * kHeight, 0xff000000u);  // background
+  for (std::uint32_t y = 10; y < 80; ++y)
+    for (std::uint32_t x = 20; x < 140; ++x)
+      pixels[std::size_t{y} * kWidth + x] = 0xff204080u + (x / 16);
+  const auto bytes = std::as_bytes(std::span(pixels));
+  const auto empty = std::as_bytes(std::span(kFrameBackground));
+  std::uint64_t plain = 0, packed = 0;
+  for (std::uint32_t y = 0; y < kHeight; y += kCompressionBlock)
+    for (std::uint32_t x = 0; x < kWidth; x += kCompressionBlock) {
+      const PixelBox box{x, y, std::min(kCompressionBlock, kWidth - x),
+                         std::min(kCompressionBlock, kHeight - y)};
+      const auto runs = encodePixelRuns(bytes, 4, kWidth, box, empty);
+      const auto frame = compressImageBytes(runs, 3);
+      plain += runs.size();
+      packed += frame.empty() ? runs.size() : frame.size();
+    }
+  const double ratio = measureCompression(bytes, 4, kWidth, kHeight, empty, 3);
+  EXPECT_DOUBLE_EQ(ratio, static_cast<double>(plain) / static_cast<double>(packed));
+  EXPECT_GT(ratio, 4.0) << "flat colours compress";
+  const std::vector<std::uint32_t> blank(pixels.size(), 0xff000000u);
+  EXPECT_EQ(measureCompression(std::as_bytes(std::span(blank)), 4, kWidth, kHeight, empty, 3), 1.0)
+      << "nothing lit: no image travels";
+}
+
+// Compressed, a frame's images cross the display's link smaller by the
+// ratio measured on its pixels, and still expand to the same bytes; and a
+// display that expands them too slowly holds the frame rate, since a tile
+// counts as arrived only once its image is handled.
+TEST(LitPixels, CompressedImagesAreSmallerAndTheirExpansionCanHoldTheDisplay) {
+  const Scene scene = Scene::load(cityDataset().string(), view(), true, 2, 3);
+  ASSERT_EQ(scene.compressionLevel(), 3);
+  const double whole = scene.imageCompression(2, false);
+  const double part = scene.imageCompression(2, true);
+  EXPECT_GT(whole, 1.2);
+  EXPECT_GT(part, 1.2);
+  ModelParameters p;
+  p.traverseSecondsPerCell = 1e-7;
+  p.compressImages = false;
+  const display::KeyFigures plain = simulate(scene, unsplitCost(2), p).figures;
+  p.compressImages = true;
+  const display::KeyFigures packed = simulate(scene, unsplitCost(2), p).figures;
+  EXPECT_LT(packed.imageBytesPerFrameSteady, plain.imageBytesPerFrameSteady / 1.2);
+  EXPECT_GT(packed.imageBytesUncompressedPerFrameSteady, plain.imageBytesPerFrameSteady * 0.9);
+  EXPECT_LT(packed.imageBytesUncompressedPerFrameSteady, plain.imageBytesPerFrameSteady * 1.1);
+
+  // One image thread at 1 us a byte: a frame takes about its bytes' time (the
+  // steady window of 8 frames begins with some expanded already).
+  p.decompressSecondsPerByte = 1e-6;
+  p.displayImageThreads = 1;
+  const display::KeyFigures slow = simulate(scene, unsplitCost(2), p).figures;
+  const double bound = 1.0 / (slow.imageBytesUncompressedPerFrameSteady * 1e-6);
+  EXPECT_LT(slow.framesPerSecondSteady, bound * 1.15);
+  EXPECT_LT(slow.framesPerSecondSteady * 2.0, packed.framesPerSecondSteady);
+  // Eight threads expand eight images at once.
+  p.displayImageThreads = 8;
+  EXPECT_GT(simulate(scene, unsplitCost(2), p).figures.framesPerSecondSteady,
+            slow.framesPerSecondSteady * 2.0);
 }
 
 }  // namespace
