@@ -187,6 +187,7 @@ SweepRow summarize(const SimulationResult& result, double wallSeconds) {
   row.bytesFirstFrame = static_cast<double>(k.bytesFirstFrame);
   row.bytesPerFrameSteady = k.bytesPerFrameSteady;
   row.imageBytesPerFrameSteady = k.imageBytesPerFrameSteady;
+  row.imageBytesUncompressedPerFrameSteady = k.imageBytesUncompressedPerFrameSteady;
   row.splatsPerFrame = k.splatsPerFrame;
   row.tilesPerFrame = result.tilesPerFrame;
   row.cacheHitRate = k.cacheHitRate;
@@ -451,7 +452,7 @@ std::string formatCsv(const std::vector<SweepRow>& rows) {
          "traverse_utilisation_mean,traverse_utilisation_max,network_utilisation_max,"
          "display_link_utilisation,display_cpu_utilisation,request_wait,bottleneck,"
          "bottleneck_utilisation,reissued_tiles,failed_tiles,packets_rendered,events,wall_"
-         "seconds,image_bytes_per_frame_steady\n";
+         "seconds,image_bytes_per_frame_steady,image_bytes_uncompressed_per_frame_steady\n";
   for (const SweepRow& row : rows) {
     const Utilisation& u = row.utilisation;
     out << configName(row.config) << ',' << row.config.renders << ',' << row.config.traverses << ','
@@ -468,7 +469,8 @@ std::string formatCsv(const std::vector<SweepRow>& rows) {
         << ',' << row.bottleneck << ',' << number(row.bottleneckUtilisation) << ','
         << row.reissuedTiles << ',' << row.failedTiles << ',' << row.packetsRendered << ','
         << row.events << ',' << number(row.wallSeconds) << ','
-        << number(row.imageBytesPerFrameSteady) << '\n';
+        << number(row.imageBytesPerFrameSteady) << ','
+        << number(row.imageBytesUncompressedPerFrameSteady) << '\n';
   }
   return out.str();
 }

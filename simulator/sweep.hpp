@@ -55,6 +55,7 @@ struct SweepRow {
   double bytesFirstFrame = 0.0;
   double bytesPerFrameSteady = 0.0;
   double imageBytesPerFrameSteady = 0.0;  // tile images into the display
+  double imageBytesUncompressedPerFrameSteady = 0.0;  // what they expand to
   double splatsPerFrame = 0.0;
   double tilesPerFrame = 0.0;
   double cacheHitRate = 0.0;
