@@ -27,6 +27,9 @@ bool compressesImages(ImageCompression compression, bool displayOnThisMachine);
 // and the work on both sides cost more than the bytes saved.
 inline constexpr std::size_t kMinCompressedPayload = 512;
 
+// zstd's own default: about level 1's speed on tile images, 5-8 % smaller.
+inline constexpr int kDefaultImageCompressionLevel = 3;
+
 // `bytes` as one zstd frame at `level` (zstd's scale: 1 fast, negative
 // faster, up to 19), the frame carrying its content size. Empty when the
 // frame would not be smaller than `bytes` (send them as they are).

@@ -42,7 +42,7 @@ struct RenderOptions {
   std::string profile = "compat";
   unsigned drawThreads = 1;
   std::string imageCompression = "auto";
-  int imageCompressionLevel = 3;
+  int imageCompressionLevel = kDefaultImageCompressionLevel;
   // Test hooks: a slow or stalled render process.
   double slowMillisecondsPerPacket = 0.0;
   int slowIndex = -1;               // this render process (index among renders) draws

@@ -13,6 +13,7 @@
 
 #include "common/dataset.hpp"
 #include "common/errors.hpp"
+#include "common/image_compression.hpp"
 #include "common/run_settings.hpp"
 #include "simulator/calibration.hpp"
 #include "simulator/replay.hpp"
@@ -150,7 +151,7 @@ int run(int argc, char** argv) {
                      autoTileTasksAheadRule() + ")")
       ->capture_default_str();
   std::string imageCompression = "auto";
-  int imageCompressionLevel = 3;
+  int imageCompressionLevel = kDefaultImageCompressionLevel;
   double compressNsPerByte = p.compressSecondsPerByte * 1e9;
   double decompressNsPerByte = p.decompressSecondsPerByte * 1e9;
   app.add_option("--image-compression", imageCompression,

@@ -54,7 +54,7 @@ struct SweepRow {
   double imbalanceBusyRun = 0.0;  // max/mean of busy time summed over the steady frames
   double bytesFirstFrame = 0.0;
   double bytesPerFrameSteady = 0.0;
-  double imageBytesPerFrameSteady = 0.0;  // tile images into the display
+  double imageBytesPerFrameSteady = 0.0;              // tile images into the display
   double imageBytesUncompressedPerFrameSteady = 0.0;  // what they expand to
   double splatsPerFrame = 0.0;
   double tilesPerFrame = 0.0;
