@@ -48,24 +48,27 @@ v1::Scheduler parseScheduler(const std::string& name) {
 }
 
 void parseTileSplit(const std::string& text, v1::RunSettings& settings) {
-  if (text == "auto" || text == "off") {
+  if (text == "auto" || text == "off" || text == "share") {
     settings.set_no_tile_split(text == "off");
     settings.set_tile_part_splats(0);
+    settings.set_tile_part_untuned(text == "share");
     return;
   }
   std::uint64_t splats = 0;
   const auto [end, error] = std::from_chars(text.data(), text.data() + text.size(), splats);
   if (error != std::errc() || end != text.data() + text.size() || splats == 0) {
-    throw UsageError("--tile-split takes auto, off or a part size in splats (>= 1), not '" + text +
-                     "'");
+    throw UsageError("--tile-split takes auto, share, off or a part size in splats (>= 1), not '" +
+                     text + "'");
   }
   settings.set_no_tile_split(false);
   settings.set_tile_part_splats(splats);
+  settings.set_tile_part_untuned(false);
 }
 
 std::string tileSplitName(const v1::RunSettings& settings) {
   if (settings.no_tile_split()) return "off";
-  return settings.tile_part_splats() > 0 ? std::to_string(settings.tile_part_splats()) : "auto";
+  if (settings.tile_part_splats() > 0) return std::to_string(settings.tile_part_splats());
+  return settings.tile_part_untuned() ? "share" : "auto";
 }
 
 bool tileSplitAllowed(const v1::RunSettings& run, const v1::FrameSettings& frame) {

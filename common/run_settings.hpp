@@ -60,8 +60,10 @@ std::optional<std::uint32_t> parseNeedGapSplats(const std::string& text);
 // at least this many splats, so its fixed costs (a packet, a composed image)
 // stay small beside its drawing.
 inline constexpr std::uint64_t kDefaultMinTilePartSplats = 4096;
-// "auto" | "off" | a part size in splats (>= 1), into no_tile_split and
-// tile_part_splats; a UsageError names the accepted ones.
+// "auto" (the display's part size, tuned on the frame rate) | "share" (one
+// render's share of last frame's splats, untuned) | "off" | a part size in
+// splats (>= 1), into no_tile_split, tile_part_splats and tile_part_untuned;
+// a UsageError names the accepted ones.
 void parseTileSplit(const std::string& text, v1::RunSettings& settings);
 std::string tileSplitName(const v1::RunSettings& settings);
 // Whether a frame drawn with these settings may have split tiles: only where

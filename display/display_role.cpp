@@ -50,6 +50,7 @@ struct DisplayOptions {
   std::uint32_t framesInFlight = 3;
   unsigned imageThreads = 0;  // expanding compressed tile images (0: the cores, at most 8)
   double tilesPerRender = 2.0;
+  bool tilesPerRenderGiven = false;  // else the cost scheduler's tile count is tuned
   std::uint32_t minTileSize = 32;
   double tileTimeoutSeconds = 10.0;
   std::uint32_t maxAttempts = 3;
@@ -181,6 +182,9 @@ class DisplayProcess {
     config_.plan = tilePlanOptions(options, job.layout().render);
     config_.prefetchFrames = options.prefetchFrames;
     config_.run = runSettings(options, &dataset_.manifest(), job.layout());
+    // Served frames come at the clients' pace: their rate says nothing of the part size.
+    config_.tunePartSize = !options.serve;
+    config_.tuneTileCount = !options.serve && !options.tilesPerRenderGiven;
   }
 
   const DatasetManifest& manifest() const { return dataset_.manifest(); }
@@ -772,7 +776,9 @@ int runDisplayMain(int argc, char** argv) {
                  "that arrive together; 0: this machine's cores, at most 8")
       ->check(CLI::Range(0, 64));
   app.add_option("--tiles-per-render", options.tilesPerRender,
-                 "Mini frusta per frame per render process");
+                 "Mini frusta per frame per render process (default 2; with the cost scheduler "
+                 "divided by 1, 2, 4, ... as the frame rate says: fewer tiles are tried while "
+                 "they make frames faster; given: as given)");
   app.add_option("--min-tile", options.minTileSize, "Smallest tile side in pixels");
   app.add_option("--tile-timeout", options.tileTimeoutSeconds,
                  "Seconds before a missing tile is handed out again");
@@ -819,7 +825,9 @@ int runDisplayMain(int argc, char** argv) {
                  "only tiles too small to cut further, parts of one render's share of last "
                  "frame's splats, at least " +
                      std::to_string(kDefaultMinTilePartSplats) +
-                     "; off; or a part size in splats for every tile")
+                     ", times a factor tuned on the frame rate (1, 2, 4, ...: larger parts are "
+                     "tried while they make frames faster); share: that share, not tuned; off; "
+                     "or a part size in splats for every tile")
       ->capture_default_str();
   app.add_option("--cost-model", options.costModel,
                  "Cost scheduler: paper (seed 003: transfer time adds to the queue, default) or "
@@ -895,6 +903,7 @@ int runDisplayMain(int argc, char** argv) {
       ->check(CLI::IsMember({"cache", "none"}));
   return runRoleMain(argc, argv, v1::ROLE_DISPLAY, app, [&](Job& job) {
     const auto start = Clock::now();
+    options.tilesPerRenderGiven = app.count("--tiles-per-render") > 0;
     std::unique_ptr<DisplayProcess> process;
     if (options.serve && options.datasetPath.empty()) {
       throw UsageError("--serve needs --dataset: clients render the dataset the job starts with");

@@ -122,7 +122,10 @@ int run(int argc, char** argv) {
       ->capture_default_str();
   app.add_flag("--equal-tiles", equalTiles,
                "Cost scheduler: equal tiles instead of tiles sized by last frame's work");
-  app.add_option("--tiles-per-render", sweep.tilesPerRender, "Tiles per frame per render process")
+  app.add_option("--tiles-per-render", sweep.tilesPerRender,
+                 "Tiles per frame per render process (not given: the cost scheduler's display "
+                 "divides it by a factor it tunes on the frame rate, as the job does; given: "
+                 "as given)")
       ->capture_default_str();
   app.add_option("--min-tile", sweep.minTileSize, "Smallest tile side in pixels")
       ->capture_default_str();
@@ -184,8 +187,9 @@ int run(int argc, char** argv) {
   std::string tileSplit = "auto";
   app.add_option("--tile-split", tileSplit,
                  "Heavy tiles split by their cells into parts drawn by several render processes "
-                 "and composed by depth at the display (the display's --tile-split): auto, off, "
-                 "or a part size in splats")
+                 "and composed by depth at the display (the display's --tile-split): auto (one "
+                 "render's share of a frame times a factor the display tunes on the frame rate), "
+                 "share (not tuned), off, or a part size in splats")
       ->capture_default_str();
   app.add_option("--latency-us", latencyUs, "Message latency in microseconds")
       ->capture_default_str();
@@ -243,6 +247,8 @@ int run(int argc, char** argv) {
     parseTileSplit(tileSplit, split);
     sweep.tileSplit = !split.no_tile_split();
     sweep.tilePartSplats = split.tile_part_splats();
+    sweep.tilePartTuned = !split.tile_part_untuned();
+    sweep.tileCountTuned = app.count("--tiles-per-render") == 0;
   }
   if (jobs == 0) throw UsageError("--jobs must be at least 1");
   sweep.jobs = jobs;

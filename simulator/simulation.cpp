@@ -68,6 +68,10 @@ std::string configName(const SimulationConfig& config) {
   if (!config.tileSplit && (config.scheduler == display::SchedulerKind::Cost ||
                             config.scheduler == display::SchedulerKind::Regions)) {
     name += "/unsplit";
+  } else if (config.tileSplit && config.tilePartSplats == 0 && !config.tilePartTuned &&
+             (config.scheduler == display::SchedulerKind::Cost ||
+              config.scheduler == display::SchedulerKind::Regions)) {
+    name += "/share";
   }
   return name;
 }
@@ -183,6 +187,7 @@ v1::RunSettings runSettings(const Scene& scene, const SimulationConfig& config) 
           : autoTileTasksAhead(config.tilesPerRender * config.renders, config.traverses));
   settings.set_no_tile_split(!config.tileSplit);
   settings.set_tile_part_splats(config.tilePartSplats);
+  settings.set_tile_part_untuned(!config.tilePartTuned);
   return settings;
 }
 
@@ -203,6 +208,7 @@ display::FrameAssemblyConfig assemblyConfig(const Scene& scene, const Simulation
                                            .balancedTiles = config.balancedTiles};
   assembly.prefetchFrames = config.prefetchFrames;
   assembly.run = runSettings(scene, config);
+  assembly.tuneTileCount = config.tileCountTuned;
   return assembly;
 }
 

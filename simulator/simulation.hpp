@@ -86,6 +86,12 @@ struct SimulationConfig {
   // the part size in splats (0: the display's choice per frame).
   bool tileSplit = true;
   std::uint64_t tilePartSplats = 0;
+  // The display's part size tuned on the frame rate (--tile-split auto); off:
+  // one render's share of last frame's splats as it is (share).
+  bool tilePartTuned = true;
+  // The cost scheduler's tile count tuned on the frame rate (the display
+  // divides tilesPerRender by 1, 2, 4, ...) where --tiles-per-render is not given.
+  bool tileCountTuned = true;
   // A render process that stops drawing after some packets (the render's
   // --stall-index / --stall-after): its tiles must be re-issued elsewhere.
   std::optional<std::uint32_t> stalledRender;

@@ -62,6 +62,7 @@ const Column kColumns[] = {
     {"S", false},
     {"tiles/frame", false},
     {"frames/s steady", false},
+    {"later loops", false},
     {"latency ms", false},
     {"imb busy", false},
     {"imb splats", false},
@@ -72,6 +73,8 @@ const Column kColumns[] = {
     {"hits steady", false},
     {"render util", false},
     {"traverse util", false},
+    {"tiles/R", false},
+    {"parts", false},
     {"bottleneck", true},
 };
 
@@ -82,6 +85,7 @@ std::vector<std::string> tableCells(const SweepRow& row) {
           std::to_string(row.config.datasends),
           fixed(row.tilesPerFrame, 0),
           fixed(row.framesPerSecondSteady, 2),
+          row.framesPerSecondLaterLoops > 0.0 ? fixed(row.framesPerSecondLaterLoops, 2) : "-",
           fixed(row.meanFrameLatency * 1e3, 1),
           fixed(row.imbalanceBusy, 2),
           fixed(row.imbalanceSplats, 2),
@@ -92,6 +96,8 @@ std::vector<std::string> tableCells(const SweepRow& row) {
           fixed(100.0 * row.cacheHitRateSteady, 1) + "%",
           percent(row.utilisation.renderMean) + "/" + percent(row.utilisation.renderMax),
           percent(row.utilisation.traverseMean),
+          row.tilesPerRenderTuned > 0.0 ? significant(row.tilesPerRenderTuned) : "-",
+          row.partSizeFactor > 0 ? "x" + std::to_string(row.partSizeFactor) : "-",
           row.bottleneck + " " + percent(row.bottleneckUtilisation)};
 }
 
@@ -158,6 +164,8 @@ std::vector<SimulationConfig> sweepConfigs(const SweepOptions& options) {
           config.tileTasksAhead = options.tileTasksAhead;
           config.tileSplit = options.tileSplit;
           config.tilePartSplats = options.tilePartSplats;
+          config.tilePartTuned = options.tilePartTuned;
+          config.tileCountTuned = options.tileCountTuned;
           validateConfig(config);
           if (scheduler != display::SchedulerKind::Cost) {
             configs.push_back(config);
@@ -188,6 +196,10 @@ SweepRow summarize(const SimulationResult& result, double wallSeconds) {
   row.bytesPerFrameSteady = k.bytesPerFrameSteady;
   row.imageBytesPerFrameSteady = k.imageBytesPerFrameSteady;
   row.imageBytesUncompressedPerFrameSteady = k.imageBytesUncompressedPerFrameSteady;
+  row.partSizeFactor = k.partSizeFactor;
+  row.tilesPerRenderTuned = k.tilesPerRenderTuned;
+  row.framesPerSecondLaterLoops = k.framesPerSecondLaterLoops;
+  row.imbalanceBusyLaterLoops = k.imbalanceBusyLaterLoops;
   row.splatsPerFrame = k.splatsPerFrame;
   row.tilesPerFrame = result.tilesPerFrame;
   row.cacheHitRate = k.cacheHitRate;
@@ -315,8 +327,13 @@ Assumptions describeAssumptions(const Scene& scene, const ViewOptions& view,
            significant(p.tileTimeoutSeconds) + " s"},
       {"render cache", significant(p.cacheMegabytes) + " MiB, cells unused for " +
                            significant(p.cacheTimeoutSeconds) + " s expire"},
-      {"tiling", significant(options.tilesPerRender) + " tiles per render process, sides >= " +
-                     std::to_string(options.minTileSize) + " px; each traverse keeps " +
+      {"tiling", significant(options.tilesPerRender) + " tiles per render process" +
+                     (options.tileCountTuned
+                          ? std::string(" divided by a factor the display tunes on the frame "
+                                        "rate (tiles/R column: its last choice)")
+                          : std::string()) +
+                     ", sides >= " + std::to_string(options.minTileSize) +
+                     " px; each traverse keeps " +
                      (options.tileTasksAhead > 0 ? std::to_string(options.tileTasksAhead)
                                                  : "auto (" + autoTileTasksAheadRule() + ")") +
                      " tile requests at the display; heavy tiles split by their cells: " +
@@ -325,7 +342,11 @@ Assumptions describeAssumptions(const Scene& scene, const ViewOptions& view,
                           ? "parts of " + std::to_string(options.tilePartSplats) + " splats"
                           : "tiles too small to cut further, parts of one render's share "
                             "of last frame's splats, at least " +
-                                std::to_string(kDefaultMinTilePartSplats))},
+                                std::to_string(kDefaultMinTilePartSplats) +
+                                (options.tilePartTuned
+                                     ? ", times a factor the display tunes on the frame rate "
+                                       "(parts column: its last choice)"
+                                     : std::string(", not tuned")))},
       {"sweep", "renders " + joinCounts(options.renders) + "; traverses " +
                     joinCounts(options.traverses) + "; data-sends " +
                     joinCounts(options.datasends) + " (auto: renders/4, at least 1); schedulers " +
@@ -452,7 +473,8 @@ std::string formatCsv(const std::vector<SweepRow>& rows) {
          "traverse_utilisation_mean,traverse_utilisation_max,network_utilisation_max,"
          "display_link_utilisation,display_cpu_utilisation,request_wait,bottleneck,"
          "bottleneck_utilisation,reissued_tiles,failed_tiles,packets_rendered,events,wall_"
-         "seconds,image_bytes_per_frame_steady,image_bytes_uncompressed_per_frame_steady\n";
+         "seconds,image_bytes_per_frame_steady,image_bytes_uncompressed_per_frame_steady,part_size_"
+         "factor,tiles_per_render_tuned,frames_per_second_later_loops,imbalance_busy_later_loops\n";
   for (const SweepRow& row : rows) {
     const Utilisation& u = row.utilisation;
     out << configName(row.config) << ',' << row.config.renders << ',' << row.config.traverses << ','
@@ -470,7 +492,9 @@ std::string formatCsv(const std::vector<SweepRow>& rows) {
         << row.reissuedTiles << ',' << row.failedTiles << ',' << row.packetsRendered << ','
         << row.events << ',' << number(row.wallSeconds) << ','
         << number(row.imageBytesPerFrameSteady) << ','
-        << number(row.imageBytesUncompressedPerFrameSteady) << '\n';
+        << number(row.imageBytesUncompressedPerFrameSteady) << ',' << row.partSizeFactor << ','
+        << number(row.tilesPerRenderTuned) << ',' << number(row.framesPerSecondLaterLoops) << ','
+        << number(row.imbalanceBusyLaterLoops) << '\n';
   }
   return out.str();
 }

@@ -31,6 +31,8 @@ struct SweepOptions {
   // in splats (0: the display's choice per frame).
   bool tileSplit = true;
   std::uint64_t tilePartSplats = 0;
+  bool tilePartTuned = true;   // the display's part size tuned (--tile-split auto, not share)
+  bool tileCountTuned = true;  // the display's tile count tuned (no --tiles-per-render)
   ModelParameters parameters;
   unsigned jobs = 1;  // configurations simulated at once
 };
@@ -56,6 +58,12 @@ struct SweepRow {
   double bytesPerFrameSteady = 0.0;
   double imageBytesPerFrameSteady = 0.0;              // tile images into the display
   double imageBytesUncompressedPerFrameSteady = 0.0;  // what they expand to
+  std::uint64_t partSizeFactor = 0;                   // the display's last; 0: not tuned
+  double tilesPerRenderTuned = 0.0;                   // the display's last; 0: not tuned
+  // With --loops above 1: the loops after the first (the tuners settled,
+  // the caches warm); 0 with one loop.
+  double framesPerSecondLaterLoops = 0.0;
+  double imbalanceBusyLaterLoops = 0.0;
   double splatsPerFrame = 0.0;
   double tilesPerFrame = 0.0;
   double cacheHitRate = 0.0;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cstdio>
 #include <numeric>
 
 #include "common/image.hpp"
@@ -20,8 +21,40 @@ FrameAssembly::FrameAssembly(FrameAssemblyConfig config, PeerRanks peers, TimePo
       planner_(config_.plan),
       runScheduler_(config_.plan.scheduler) {
   stats_.layout = peers_.layout().toString();
+  const bool splitting = config_.plan.scheduler == SchedulerKind::Cost ||
+                         config_.plan.scheduler == SchedulerKind::Regions;
+  tunePartSize_ = config_.tunePartSize && splitting && config_.run.tile_part_splats() == 0 &&
+                  !config_.run.tile_part_untuned() &&
+                  tileSplitAllowed(config_.run, v1::FrameSettings());
+  partTuner_ = FrameRateTuner(config_.partTuning);
+  tuneTileCount_ = config_.tuneTileCount && config_.plan.scheduler == SchedulerKind::Cost &&
+                   config_.plan.balancedTiles;
+  tileTuner_ = FrameRateTuner(config_.tileTuning);
   admitFrames();
 }
+
+namespace {
+
+// "0.5 per render process by the frame rate (2: 371.1, 1: 405.2, 0.5: 401.3
+// frames/s; 3 trials)".
+std::string tileCountSummary(double perRender, const FrameRateTuner& tuner) {
+  char item[96];
+  std::snprintf(item, sizeof item, "%g per render process by the frame rate (",
+                perRender / static_cast<double>(tuner.factor()));
+  std::string text = item;
+  const char* separator = "";
+  for (const auto& [level, rate] : tuner.ratesByLevel()) {
+    std::snprintf(item, sizeof item, "%s%g: %.1f", separator,
+                  perRender / static_cast<double>(std::uint64_t{1} << level), rate);
+    text += item;
+    separator = ", ";
+  }
+  std::snprintf(item, sizeof item, " frames/s; %u trial%s)", tuner.trials(),
+                tuner.trials() == 1 ? "" : "s");
+  return text + item;
+}
+
+}  // namespace
 
 // Frames are laid out when they enter the window, so a re-split from the last
 // completed frame applies to the next one.
@@ -34,10 +67,13 @@ void FrameAssembly::admitFrames() {
         settings != frameSettings_.end() && settings->second.has_scheduler()) {
       planner_.setScheduler(schedulerKindOf(settings->second.scheduler()));
     }
+    // The tuners take turns: a trial starts only while the other measures nothing.
+    if (tuneTileCount_) tileTuner_.frameAdmitted(index, !partTuner_.measuring());
+    if (tunePartSize_) partTuner_.frameAdmitted(index, !tileTuner_.measuring());
     std::vector<TileRect> tiles;
     if (const auto area =
             boxOfInterest(camera, config_.bounds.min, config_.bounds.max, config_.marginWorld)) {
-      tiles = planner_.plan(*area);
+      tiles = planner_.plan(*area, tuneTileCount_ ? tileTuner_.factorFor(index) : 1);
     }
     std::vector<std::uint32_t> order;
     if (const auto priority = tilePriority_.find(index); priority != tilePriority_.end()) {
@@ -188,6 +224,7 @@ TileArrival FrameAssembly::tileArrived(const v1::TileImageHeader& header, TimePo
   }
   if (part) {
     ++stats_.splitTiles;
+    ++record.splitTiles;
     dropParts(header.frame_id(), header.tile_id());
     dispatchedAt_.erase({header.frame_id(), header.tile_id()});
   }
@@ -266,8 +303,10 @@ std::uint64_t FrameAssembly::partSplatsFor(std::uint64_t frame, const TileRect& 
                         ? settings->second.lod_pixels()
                         : (config_.run.lod_pixels() > 0.0f ? config_.run.lod_pixels() : 1.0f);
   const double pixels = static_cast<double>(camera.image_width()) * camera.image_height();
-  return planner_.partSplats(kDefaultMinTilePartSplats,
-                             static_cast<std::uint64_t>(pixels / static_cast<double>(lod * lod)));
+  const std::uint64_t share =
+      planner_.partSplats(kDefaultMinTilePartSplats,
+                          static_cast<std::uint64_t>(pixels / static_cast<double>(lod * lod)));
+  return tunePartSize_ ? share * partTuner_.factorFor(frame) : share;
 }
 
 std::pair<std::uint32_t, std::uint32_t> FrameAssembly::tileProgress(std::uint64_t frame) {
@@ -312,6 +351,17 @@ std::vector<FinishedFrame> FrameAssembly::finishFrames(TimePoint now) {
     frame.failedTileRenders.erase(
         std::unique(frame.failedTileRenders.begin(), frame.failedTileRenders.end()),
         frame.failedTileRenders.end());
+    if (tunePartSize_) {
+      partTuner_.frameFinished(record.frame, record.endSeconds, record.splitTiles > 0);
+      stats_.partSizeFactor = partTuner_.factor();
+      if (partTuner_.trials() > 0) stats_.partSizeTuning = partTuner_.summary();
+    }
+    if (tuneTileCount_) {
+      tileTuner_.frameFinished(record.frame, record.endSeconds);
+      const double perRender = config_.plan.tilesPerRender;
+      stats_.tilesPerRenderTuned = perRender / static_cast<double>(tileTuner_.factor());
+      if (tileTuner_.trials() > 0) stats_.tileCountTuning = tileCountSummary(perRender, tileTuner_);
+    }
     stats_.addFrame(record);
     finished.push_back(std::move(frame));
   }

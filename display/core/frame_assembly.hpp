@@ -23,6 +23,7 @@
 #include "common/clock.hpp"
 #include "common/messages.hpp"
 #include "common/peer_ranks.hpp"
+#include "display/core/frame_rate_tuner.hpp"
 #include "display/core/frame_scheduler.hpp"
 #include "display/core/frame_stats.hpp"
 #include "display/core/tile_planner.hpp"
@@ -43,6 +44,16 @@ struct FrameAssemblyConfig {
   // The run's settings, for splitting heavy tiles by their data
   // (no_tile_split, tile_part_splats, and what tileSplitAllowed reads).
   v1::RunSettings run;
+  // The display's part size tuned on the frame rate it sees
+  // (frame_rate_tuner.hpp) where the run leaves the size to the display
+  // (--tile-split auto); not in serve mode, where clients set the pace.
+  bool tunePartSize = true;
+  FrameRateTunerOptions partTuning;
+  // The cost scheduler's tile count tuned the same way, divided by 1, 2,
+  // 4, ... (fewer walks for the traverse processes) where the run leaves
+  // --tiles-per-render at its default; tile count and part size take turns.
+  bool tuneTileCount = true;
+  FrameRateTunerOptions tileTuning;
 };
 
 // What became of a tile image that arrived.
@@ -126,7 +137,8 @@ class FrameAssembly {
   // The part size the traverse processes split this tile `rect` of a frame
   // into when it is heavy (TileTask.part_splats); 0: not split. A size the
   // run fixed holds for every tile; the display's own choice
-  // (TilePlanner::partSplats) only for tiles too small to halve.
+  // (TilePlanner::partSplats, times the tuner's factor for the frame) only
+  // for tiles too small to halve.
   std::uint64_t partSplatsFor(std::uint64_t frame, const TileRect& rect) const;
   // Tiles of an admitted frame done (arrived or given up) and in all; {0, 0}
   // for a frame not in the window.
@@ -151,6 +163,11 @@ class FrameAssembly {
   const RunStats& stats() const { return stats_; }
   RunStats& stats() { return stats_; }
   const TilePlanner& planner() const { return planner_; }
+  // Whether the part size is tuned in this run, and how that went.
+  bool tunesPartSize() const { return tunePartSize_; }
+  const FrameRateTuner& partSizeTuner() const { return partTuner_; }
+  bool tunesTileCount() const { return tuneTileCount_; }
+  const FrameRateTuner& tileCountTuner() const { return tileTuner_; }
 
  private:
   void admitFrames();
@@ -189,6 +206,10 @@ class FrameAssembly {
   std::map<std::tuple<std::uint64_t, std::uint32_t, std::uint32_t>, PartsInFlight> parts_;
   std::map<std::uint64_t, FrameRecord> pending_;
   RunStats stats_;
+  bool tunePartSize_ = false;
+  FrameRateTuner partTuner_;
+  bool tuneTileCount_ = false;
+  FrameRateTuner tileTuner_;
 };
 
 }  // namespace pointillist::display

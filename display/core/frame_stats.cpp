@@ -123,6 +123,8 @@ std::vector<std::pair<std::string, std::string>> keyFigureFields(const KeyFigure
       {"late_tiles", count(k.lateTiles)},
       {"split_tiles", count(k.splitTiles)},
       {"tile_parts", count(k.tileParts)},
+      {"part_size_factor", count(k.partSizeFactor)},
+      {"tiles_per_render_tuned", number(k.tilesPerRenderTuned)},
       {"background_tiles", count(k.backgroundTiles)},
       {"tasks_avoiding_silent_renders", count(k.avoidingTasks)},
       {"cpu_per_frame_display", number(cpuOf(k, "display"))},
@@ -285,6 +287,8 @@ KeyFigures RunStats::keyFigures() const {
   k.framesPerSecondSteady = framesPerSecond(k.steadyFrom);
   k.lateTiles = lateTiles;
   k.splitTiles = splitTiles;
+  k.partSizeFactor = partSizeFactor;
+  k.tilesPerRenderTuned = tilesPerRenderTuned;
   k.tileParts = tileParts;
   k.backgroundTiles = backgroundTiles;
   k.avoidingTasks = avoidingTasks;
@@ -402,7 +406,9 @@ void RunStats::writeJsonTo(std::ostream& out) const {
       << "\",\n  \"camera_path\": \"" << cameraPath << "\",\n  \"width\": " << width
       << ",\n  \"height\": " << height << ",\n  \"mode\": \"" << mode
       << "\",\n  \"total_seconds\": " << number(totalSeconds)
-      << ",\n  \"late_tiles\": " << lateTiles
+      << ",\n  \"late_tiles\": " << lateTiles << ",\n  \"part_size_tuning\": \""
+      << jsonEscaped(partSizeTuning) << "\",\n  \"tile_count_tuning\": \""
+      << jsonEscaped(tileCountTuning) << '"'
       << ",\n  \"frames_kept_every\": " << frameThinning.stride << ",\n  \"key_figures\": {";
   bool firstField = true;
   for (const auto& [name, value] : keyFigureFields(keyFigures())) {
@@ -622,6 +628,8 @@ std::string RunStats::summary() const {
       static_cast<unsigned long long>(k.backgroundTiles),
       static_cast<unsigned long long>(k.avoidingTasks));
   out << line;
+  if (!tileCountTuning.empty()) out << "tiles: " << tileCountTuning << "\n";
+  if (!partSizeTuning.empty()) out << "parts: " << partSizeTuning << "\n";
   for (const LostProcess& p : lost) {
     std::snprintf(line, sizeof line, "lost: %s rank %d at %.2f s (%s)%s\n", p.role.c_str(), p.rank,
                   p.seconds, p.reason.c_str(),

@@ -30,6 +30,7 @@ struct FrameRecord {
   std::uint64_t imageBytes = 0;  // tile images into the display (pixels and depth)
   // What those tile images expand to where they came compressed (all of them otherwise).
   std::uint64_t imageBytesUncompressed = 0;
+  std::uint32_t splitTiles = 0;  // tiles that came in parts
   // By render rank. Flat: a run keeps up to --stats-frames of these records,
   // and a map node per render process cost three times the memory.
   boost::container::flat_map<int, std::uint64_t> splatsPerRender;
@@ -156,6 +157,8 @@ struct KeyFigures {
   std::uint64_t failedTiles = 0;
   std::uint64_t lateTiles = 0;
   std::uint64_t splitTiles = 0;       // tiles drawn as parts by several renders
+  std::uint64_t partSizeFactor = 0;   // RunStats::partSizeFactor
+  double tilesPerRenderTuned = 0.0;   // RunStats::tilesPerRenderTuned
   std::uint64_t tileParts = 0;        // their parts
   std::uint64_t backgroundTiles = 0;  // found empty by a traverse, drawn by no render
   std::uint64_t avoidingTasks = 0;    // tiles handed out naming renders to avoid
@@ -283,6 +286,14 @@ struct RunStats {
   std::uint64_t splitTiles = 0;       // tiles drawn as parts by several renders, composed
   std::uint64_t tileParts = 0;        // parts accepted
   std::uint64_t backgroundTiles = 0;  // answered by a traverse: nothing to draw
+  // The part size's factor the display chose on the frame rate and what it
+  // measured (FrameRateTuner::summary); 0 and empty where it was not tuned.
+  std::uint64_t partSizeFactor = 0;
+  std::string partSizeTuning;
+  // The cost scheduler's tiles per render process as the display tuned them
+  // and what it measured; 0 and empty where it was not tuned.
+  double tilesPerRenderTuned = 0.0;
+  std::string tileCountTuning;
   // Tiles handed out while a render held a tile past its deadline (the task
   // named it to avoid: FrameScheduler::suspectRenders).
   std::uint64_t avoidingTasks = 0;

@@ -81,7 +81,13 @@ void TilePlanner::retireRender(std::uint32_t render) {
   equalizerStrips_ = false;
 }
 
-std::vector<TileRect> TilePlanner::plan(const TileRect& area) {
+std::uint32_t TilePlanner::tileTarget(std::uint64_t tileDivisor) const {
+  return static_cast<std::uint32_t>(
+      std::max(1.0, std::round(options_.tilesPerRender * static_cast<double>(live_.size()) /
+                               static_cast<double>(std::max<std::uint64_t>(1, tileDivisor)))));
+}
+
+std::vector<TileRect> TilePlanner::plan(const TileRect& area, std::uint64_t tileDivisor) {
   equalizerStrips_ = false;
   homes_.clear();
   if (area.width() == 0 || area.height() == 0) return {};
@@ -96,12 +102,10 @@ std::vector<TileRect> TilePlanner::plan(const TileRect& area) {
       return strips;
     }
   }
-  const auto target = static_cast<std::uint32_t>(
-      std::max(1.0, std::round(options_.tilesPerRender * static_cast<double>(live_.size()))));
   if (options_.scheduler == SchedulerKind::Cost && options_.balancedTiles) {
-    return balancedSplit(area, target);
+    return balancedSplit(area, tileTarget(tileDivisor));
   }
-  return splitIntoTiles(area, target, options_.minTileSize);
+  return splitIntoTiles(area, tileTarget(1), options_.minTileSize);
 }
 
 std::optional<std::uint32_t> TilePlanner::assign(std::uint32_t tileIndex) {

@@ -45,8 +45,10 @@ class TilePlanner {
  public:
   explicit TilePlanner(const TilePlanOptions& options);
 
-  // Tiles covering `area` exactly once.
-  std::vector<TileRect> plan(const TileRect& area);
+  // Tiles covering `area` exactly once. The cost scheduler's sized tiles
+  // number tilesPerRender * renders / `tileDivisor` (the display's tuned
+  // tile count, FrameRateTuner), at least one.
+  std::vector<TileRect> plan(const TileRect& area, std::uint64_t tileDivisor = 1);
   // For the last plan() of the regions scheduler, the render process (index
   // among renders) whose region each tile is; empty for the others.
   const std::vector<std::uint32_t>& homes() const { return homes_; }
@@ -77,6 +79,7 @@ class TilePlanner {
   std::vector<TileRect> balancedSplit(const TileRect& area, std::uint32_t target) const;
   std::vector<TileRect> regionSplit(const TileRect& area);
   WorkDensity densityFor(const TileRect& area) const;
+  std::uint32_t tileTarget(std::uint64_t tileDivisor) const;
 
   TilePlanOptions options_;
   LoadEqualizer equalizer_;

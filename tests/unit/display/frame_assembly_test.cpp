@@ -3,6 +3,7 @@
 // the tile planner only from frames that fully came back.
 #include "display/core/frame_assembly.hpp"
 #include "display/core/tile_parts.hpp"
+#include "display/core/tiling.hpp"
 
 #include <algorithm>
 #include <cstring>
@@ -13,6 +14,7 @@
 #include "common/image.hpp"
 #include "common/image_compression.hpp"
 #include "common/pixel_runs.hpp"
+#include "tile_cover.hpp"
 
 namespace pointillist::display {
 namespace {
@@ -749,6 +751,104 @@ TEST(FrameAssembly, TasksAskForSplitsFromLastFramesWorkAndOnlyWhereComposingIsEx
   EXPECT_EQ(partSplats(gl), (std::vector<std::uint64_t>{0, 0}));
   EXPECT_EQ(partSplats(unsplittable(config(2, 3, SchedulerKind::RoundRobin))),
             (std::vector<std::uint64_t>{0, 0}));
+}
+
+// The display tunes the part size on the frame rate it sees: frames whose
+// parts are twice as large come in twice as fast here, so after the warm-up
+// and a trial of each, the tasks ask for parts of twice the share (x4 is no
+// faster: x8 is tried once more before it settles).
+TEST(FrameAssembly, TasksAskForTheTunedPartSizeWhereLargerPartsMakeFramesFaster) {
+  const auto run = [](FrameAssemblyConfig c) {
+    c.plan.minTileSize = 64;  // two 64 x 64 tiles a frame, too small to halve
+    c.partTuning.warmupFrames = 1;
+    c.partTuning.trialFrames = 3;
+    c.partTuning.settleFrames = 0;
+    FrameAssembly assembly(c, kPeers, kStart);
+    std::vector<std::uint64_t> perFrame;
+    TimePoint now = kStart;
+    for (std::size_t frame = 0; frame < c.cameras.size(); ++frame) {
+      const auto tasks = takeAll(assembly, now);
+      const std::uint64_t size = tasks.empty() ? 0 : tasks[0].part_splats();
+      perFrame.push_back(size);
+      now += size >= 40'000 ? 5ms : 10ms;
+      for (const auto& task : tasks) {
+        assembly.tileArrived(part(task, 0, 2, 10'000, 4), now);
+        assembly.tileArrived(part(task, 1, 2, 10'000, 5), now);
+      }
+      assembly.finishFrames(now);
+    }
+    return std::make_pair(perFrame, assembly.stats().partSizeTuning);
+  };
+  const auto [sizes, tuning] = run(config(12));
+  // Frame 0 unmeasured (4096); the share is then 40k splats over two renders.
+  EXPECT_EQ(sizes, (std::vector<std::uint64_t>{4096, 20'000, 20'000, 20'000, 40'000, 40'000, 40'000,
+                                               80'000, 80'000, 80'000, 160'000, 160'000}));
+  EXPECT_NE(
+      tuning.find("sized x2 by the frame rate (x1 100.0, x2 200.0, x4 200.0 frames/s; 3 trials)"),
+      std::string::npos)
+      << tuning;
+  // Not tuned: share, a fixed size, or where the caller says (serve mode).
+  FrameAssemblyConfig share = config(12);
+  share.run.set_tile_part_untuned(true);
+  EXPECT_EQ(run(share).first.back(), 20'000u);
+  FrameAssemblyConfig served = config(12);
+  served.tunePartSize = false;
+  EXPECT_EQ(run(served).first.back(), 20'000u);
+  EXPECT_TRUE(run(served).second.empty());
+  EXPECT_FALSE(FrameAssembly(served, kPeers, kStart).tunesPartSize());
+  EXPECT_TRUE(FrameAssembly(config(1), kPeers, kStart).tunesPartSize());
+  FrameAssemblyConfig fixed = config(1);
+  fixed.run.set_tile_part_splats(3000);
+  EXPECT_FALSE(FrameAssembly(fixed, kPeers, kStart).tunesPartSize());
+  EXPECT_FALSE(
+      FrameAssembly(config(1, 3, SchedulerKind::RoundRobin), kPeers, kStart).tunesPartSize());
+}
+
+// The cost scheduler's tile count is tuned the same way: frames of fewer
+// tiles come faster here (as where the traverse processes walk every tile),
+// so after a trial of each the frames are planned with a quarter of the
+// tiles (x8 is no faster), still covering the box of interest once.
+TEST(FrameAssembly, FramesArePlannedWithFewerTilesWhereThatMakesThemFaster) {
+  const auto run = [](FrameAssemblyConfig c) {
+    c.plan.tilesPerRender = 8.0;  // 16 tiles a frame over the two renders
+    c.tileTuning.warmupFrames = 1;
+    c.tileTuning.trialFrames = 3;
+    c.tileTuning.settleFrames = 0;
+    c.tunePartSize = false;
+    FrameAssembly assembly(c, kPeers, kStart);
+    std::vector<std::size_t> perFrame;
+    TimePoint now = kStart;
+    for (std::size_t frame = 0; frame < c.cameras.size(); ++frame) {
+      const auto tasks = takeAll(assembly, now);
+      perFrame.push_back(tasks.size());
+      std::vector<TileRect> rects;
+      for (const auto& task : tasks) rects.push_back(task.rect());
+      if (const auto area =
+              boxOfInterest(c.cameras[frame], c.bounds.min, c.bounds.max, c.marginWorld)) {
+        expectExactCover(*area, rects);
+      }
+      now += tasks.size() > 4 ? 10ms : 5ms;
+      for (const auto& task : tasks) assembly.tileArrived(tile(task, 1000), now);
+      assembly.finishFrames(now);
+    }
+    return std::make_pair(perFrame, assembly.stats());
+  };
+  const auto [tiles, stats] = run(config(16));
+  EXPECT_EQ(tiles, (std::vector<std::size_t>{16, 16, 16, 16, 8, 8, 8, 4, 4, 4, 2, 2, 2, 4, 4, 4}));
+  EXPECT_EQ(stats.tilesPerRenderTuned, 2.0);
+  EXPECT_NE(stats.tileCountTuning.find("2 per render process by the frame rate (8: 100.0, 4: "
+                                       "100.0, 2: 200.0, 1: 200.0 frames/s; 4 trials)"),
+            std::string::npos)
+      << stats.tileCountTuning;
+  EXPECT_NE(stats.summary().find("tiles: 2 per render process"), std::string::npos);
+  // Not tuned where the run gives the tile count, nor for other schedulers.
+  FrameAssemblyConfig given = config(16);
+  given.tuneTileCount = false;
+  EXPECT_EQ(run(given).first.back(), 16u);
+  EXPECT_FALSE(FrameAssembly(given, kPeers, kStart).tunesTileCount());
+  EXPECT_TRUE(FrameAssembly(config(1), kPeers, kStart).tunesTileCount());
+  EXPECT_FALSE(
+      FrameAssembly(config(1, 3, SchedulerKind::Regions), kPeers, kStart).tunesTileCount());
 }
 
 }  // namespace

@@ -63,6 +63,36 @@ TEST(TilePlanner, EverySchedulerCoversTheAreaExactlyOnce) {
   }
 }
 
+// The display's tuned tile count: the cost scheduler's tiles number
+// tilesPerRender * renders over the divisor, still covering the area once,
+// and the heavy region keeps the smaller tiles.
+TEST(TilePlanner, ATileDivisorPlansFewerTilesThatStillCoverTheArea) {
+  const TileRect area = makeTileRect(0, 0, 1280, 720);
+  TilePlanner planner({.scheduler = SchedulerKind::Cost, .renders = 64, .tilesPerRender = 2.0});
+  // Work in the left quarter only.
+  std::vector<TileFeedback> measured;
+  for (std::uint32_t x = 0; x < 1280; x += 80) {
+    for (std::uint32_t y = 0; y < 720; y += 80) {
+      measured.push_back({.rect = makeTileRect(x, y, 80, 80),
+                          .seconds = x < 320 ? 1e-3 : 1e-6,
+                          .splats = x < 320 ? 100'000u : 100u});
+    }
+  }
+  planner.frameDone(measured);
+  for (const std::uint64_t divisor : {1u, 2u, 4u, 8u, 128u, 100000u}) {
+    const auto tiles = planner.plan(area, divisor);
+    expectExactCover(area, tiles);
+    EXPECT_EQ(tiles.size(), std::max<std::uint64_t>(1, 128 / divisor)) << "divisor " << divisor;
+    if (divisor > 4) continue;
+    std::size_t inHeavyPart = 0;
+    for (const TileRect& tile : tiles) inHeavyPart += tile.x() + tile.width() <= 320;
+    EXPECT_GT(inHeavyPart, tiles.size() / 2) << "divisor " << divisor;
+  }
+  // Other schedulers ignore it.
+  TilePlanner grid({.scheduler = SchedulerKind::RoundRobin, .renders = 64, .tilesPerRender = 2.0});
+  EXPECT_EQ(grid.plan(area, 4).size(), grid.plan(area, 1).size());
+}
+
 TEST(TilePlanner, CostTilesFollowTheMeasuredWork) {
   const TileRect area = makeTileRect(0, 0, 1280, 720);
   TilePlanner balanced({.scheduler = SchedulerKind::Cost, .renders = 4, .tilesPerRender = 2.0});
