@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cmath>
 #include <cstdio>
 #include <numeric>
 
@@ -309,6 +310,27 @@ std::uint64_t FrameAssembly::partSplatsFor(std::uint64_t frame, const TileRect& 
   return tunePartSize_ ? share * partTuner_.factorFor(frame) : share;
 }
 
+std::uint32_t FrameAssembly::tileLevelCap(const FrameRecord& record) {
+  // Dividing the tiles by 2^k leaves the renders that get one about 2^k times
+  // as busy: where they would pass half of the frame, the renders are the
+  // limit and fewer tiles cannot make frames faster (it would only move
+  // data), so the level stays at most log2(0.5 / mean busy share).
+  double busy = 0.0;
+  for (const auto& [rank, seconds] : record.busySecondsPerRender) busy += seconds;
+  if (lastFrameEnd_ >= 0.0 && record.endSeconds > lastFrameEnd_) {
+    constexpr double kWeight = 0.1;
+    busySecondsSmoothed_ += kWeight * (busy - busySecondsSmoothed_);
+    frameSecondsSmoothed_ += kWeight * (record.endSeconds - lastFrameEnd_ - frameSecondsSmoothed_);
+  }
+  lastFrameEnd_ = record.endSeconds;
+  const double renders = std::max<double>(1.0, planner_.liveRenders());
+  const double share =
+      frameSecondsSmoothed_ > 0.0 ? busySecondsSmoothed_ / (renders * frameSecondsSmoothed_) : 0.0;
+  if (!(share > 0.0)) return ~std::uint32_t{0};
+  const double room = std::log2(0.5 / share);
+  return room < 0.0 ? 0u : static_cast<std::uint32_t>(std::min(room, 31.0));
+}
+
 std::pair<std::uint32_t, std::uint32_t> FrameAssembly::tileProgress(std::uint64_t frame) {
   const FrameState* state = frames_.frame(frame);
   if (state == nullptr) return {0, 0};
@@ -357,6 +379,7 @@ std::vector<FinishedFrame> FrameAssembly::finishFrames(TimePoint now) {
       if (partTuner_.trials() > 0) stats_.partSizeTuning = partTuner_.summary();
     }
     if (tuneTileCount_) {
+      tileTuner_.setLevelCap(tileLevelCap(record));
       tileTuner_.frameFinished(record.frame, record.endSeconds);
       const double perRender = config_.plan.tilesPerRender;
       stats_.tilesPerRenderTuned = perRender / static_cast<double>(tileTuner_.factor());

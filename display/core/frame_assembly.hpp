@@ -171,6 +171,7 @@ class FrameAssembly {
 
  private:
   void admitFrames();
+  std::uint32_t tileLevelCap(const FrameRecord& record);
   TileArrival backgroundArrived(const v1::TileImageHeader& header, TimePoint now);
   // The tiles.csv record of an arrival, whatever becomes of it; the tile's
   // dispatch time stays while more parts of it may come (`keepDispatch`).
@@ -210,6 +211,12 @@ class FrameAssembly {
   FrameRateTuner partTuner_;
   bool tuneTileCount_ = false;
   FrameRateTuner tileTuner_;
+  // The renders' mean busy share of a frame, smoothed over the last frames:
+  // fewer tiles are only tried where the renders that keep one stay under
+  // half busy (tileLevelCap).
+  double busySecondsSmoothed_ = 0.0;
+  double frameSecondsSmoothed_ = 0.0;
+  double lastFrameEnd_ = -1.0;
 };
 
 }  // namespace pointillist::display

@@ -65,6 +65,22 @@ void FrameRateTuner::trialMeasured(double framesPerSecond, bool actedOn) {
   ++trials_;
   if (actedOn) ++splitTrials_;
   lastRate_[trialLevel_] = framesPerSecond;
+  if (measuredBaseline_ && !rechecking_) {
+    // A candidate: measure the best level again, and compare the candidate
+    // with the mean of the trials before and after it, so a view that grew
+    // lighter or heavier along the camera path does not decide.
+    candidateLevel_ = trialLevel_;
+    candidateRate_ = framesPerSecond;
+    rechecking_ = true;
+    startTrial(bestLevel_, nextAdmit_);
+    return;
+  }
+  if (rechecking_) {
+    rechecking_ = false;
+    bestRate_ = 0.5 * (bestRate_ + framesPerSecond);
+    trialLevel_ = candidateLevel_;
+    framesPerSecond = candidateRate_;
+  }
   if (!measuredBaseline_) {
     if (!actedOn) {
       settle();  // the knob acted on nothing at the chosen level
@@ -82,7 +98,7 @@ void FrameRateTuner::trialMeasured(double framesPerSecond, bool actedOn) {
     bestRate_ = framesPerSecond;
     chosen_ = bestLevel_;  // frames between trials get it at once
     moved_ = true;
-  } else if (goingUp_ && !probedFlat_ && trialLevel_ < options_.maxLevel &&
+  } else if (goingUp_ && !probedFlat_ && trialLevel_ < topLevel() &&
              framesPerSecond >= bestRate_ * (1.0 - options_.gain)) {
     // A flat step (another limit held the rate): one more before turning back.
     probedFlat_ = true;
@@ -95,7 +111,7 @@ void FrameRateTuner::trialMeasured(double framesPerSecond, bool actedOn) {
     settle();
     return;
   }
-  if (goingUp_ && bestLevel_ < options_.maxLevel) {
+  if (goingUp_ && bestLevel_ < topLevel()) {
     startTrial(bestLevel_ + 1, nextAdmit_);
   } else if (!goingUp_ && bestLevel_ > 0) {
     startTrial(bestLevel_ - 1, nextAdmit_);

@@ -13,15 +13,18 @@
 //   heavy tile over several renders.
 // Which level pays depends on the scene, the frame size, the links and the
 // layout, so the display measures it: it plans a few frames at the next
-// level, keeps it while the frame rate rises by more than `gain` (past one
-// level that is no faster and no slower, once a round: another limit may
-// hold the rate until the knob moves further), tries lower ones back when
-// it did not, and tries again every `settledFrames`
-// frames, since the view changes. Two tuners take turns (`mayStart`), so
-// neither measures while the other's trial moves the rate.
+// level, then a few at the best one again, and compares the candidate with
+// the mean of the trials around it (the view moves along the camera path);
+// it keeps the next level while the frame rate rises by more than `gain`
+// (past one level that is no faster and no slower, once a round: another
+// limit may hold the rate until the knob moves further), tries lower ones
+// back when it did not, and tries again every `settledFrames` frames, since
+// the view changes. Two tuners take turns (`mayStart`), so neither
+// measures while the other's trial moves the rate.
 //
 // The level a frame gets is fixed when the frame is admitted; frames
 // finish in order. Deterministic for the same completion times. MPI-free.
+#include <algorithm>
 #include <cstdint>
 #include <map>
 #include <string>
@@ -34,14 +37,18 @@ struct FrameRateTunerOptions {
   // ones of them, after `settleFrames` for the pipeline and the caches:
   // frames in flight were planned with the size before, and parts of a new
   // size go to other renders, whose data moves over the first frames.
-  std::uint32_t trialFrames = 16;
+  std::uint32_t trialFrames = 24;
   std::uint32_t settleFrames = 8;
-  // Frames before the first trial: cold caches and the first measured plan.
-  std::uint32_t warmupFrames = 3;
+  // Frames before the first trial: cold caches and the first measured plan
+  // (a baseline measured while the caches fill looks slow beside anything
+  // measured after it).
+  std::uint32_t warmupFrames = 16;
   // Largest factor tried is 2^maxLevel.
   std::uint32_t maxLevel = 4;
-  // A larger or smaller size is kept only when it is this much faster.
-  double gain = 0.03;
+  // A larger or smaller size is kept only when it is this much faster: frames
+  // finish in bursts (several in flight), and 16 of them measure a rate to
+  // a few percent at best.
+  double gain = 0.10;
   // Frames planned with the chosen level before the levels are tried again;
   // twice as many after each round that kept its level, up to 8 times.
   std::uint32_t settledFrames = 64;
@@ -66,6 +73,10 @@ class FrameRateTuner {
   bool measuring() const { return phase_ == Phase::Trial || phase_ == Phase::Waiting; }
 
   std::uint64_t factor() const { return std::uint64_t{1} << chosen_; }  // the chosen one
+  // No trial above `level` from now on (the caller knows a higher one cannot
+  // pay); the chosen level stays until a round finds a better one.
+  void setLevelCap(std::uint32_t level) { levelCap_ = level; }
+  std::uint32_t topLevel() const { return std::min(options_.maxLevel, levelCap_); }
   // Each level tried and the last frame rate measured with it.
   const std::map<std::uint32_t, double>& ratesByLevel() const { return lastRate_; }
   // The factor, each one tried and the last frame rate measured with it,
@@ -85,6 +96,7 @@ class FrameRateTuner {
   FrameRateTunerOptions options_;
   Phase phase_ = Phase::Warmup;
   std::uint32_t chosen_ = 0;  // level of the size frames get outside trials
+  std::uint32_t levelCap_ = ~std::uint32_t{0};
   // The trial planned or being measured.
   std::uint32_t trialLevel_ = 0;
   std::uint64_t trialFirst_ = 0;
@@ -99,6 +111,10 @@ class FrameRateTuner {
   bool triedDown_ = false;
   bool moved_ = false;       // this round kept a level other than its first
   bool probedFlat_ = false;  // this round went on past a level no faster and no slower
+  // A candidate measured, the best level being measured again.
+  bool rechecking_ = false;
+  std::uint32_t candidateLevel_ = 0;
+  double candidateRate_ = 0.0;
   std::uint64_t nextAdmit_ = 0;
   std::uint64_t settledUntil_ = 0;  // Settled: the next trial starts with this frame
   std::uint64_t settledPeriod_ = 0;

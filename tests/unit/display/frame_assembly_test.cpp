@@ -779,19 +779,22 @@ TEST(FrameAssembly, TasksAskForTheTunedPartSizeWhereLargerPartsMakeFramesFaster)
     }
     return std::make_pair(perFrame, assembly.stats().partSizeTuning);
   };
-  const auto [sizes, tuning] = run(config(12));
-  // Frame 0 unmeasured (4096); the share is then 40k splats over two renders.
-  EXPECT_EQ(sizes, (std::vector<std::uint64_t>{4096, 20'000, 20'000, 20'000, 40'000, 40'000, 40'000,
-                                               80'000, 80'000, 80'000, 160'000, 160'000}));
-  EXPECT_NE(
-      tuning.find("sized x2 by the frame rate (x1 100.0, x2 200.0, x4 200.0 frames/s; 3 trials)"),
-      std::string::npos)
+  const auto [sizes, tuning] = run(config(24));
+  // Frame 0 unmeasured (4096); the share is then 40k splats over two renders:
+  // x1, x2, x1 again (x2 kept), x4, x2 again (no faster: x8 once more), x2.
+  EXPECT_EQ(sizes, (std::vector<std::uint64_t>{4096,    20'000, 20'000, 20'000, 40'000,  40'000,
+                                               40'000,  20'000, 20'000, 20'000, 80'000,  80'000,
+                                               80'000,  40'000, 40'000, 40'000, 160'000, 160'000,
+                                               160'000, 40'000, 40'000, 40'000, 40'000,  40'000}));
+  EXPECT_NE(tuning.find("sized x2 by the frame rate (x1 100.0, x2 200.0, x4 200.0, x8 200.0 "
+                        "frames/s; 7 trials)"),
+            std::string::npos)
       << tuning;
   // Not tuned: share, a fixed size, or where the caller says (serve mode).
-  FrameAssemblyConfig share = config(12);
+  FrameAssemblyConfig share = config(24);
   share.run.set_tile_part_untuned(true);
   EXPECT_EQ(run(share).first.back(), 20'000u);
-  FrameAssemblyConfig served = config(12);
+  FrameAssemblyConfig served = config(24);
   served.tunePartSize = false;
   EXPECT_EQ(run(served).first.back(), 20'000u);
   EXPECT_TRUE(run(served).second.empty());
@@ -809,7 +812,8 @@ TEST(FrameAssembly, TasksAskForTheTunedPartSizeWhereLargerPartsMakeFramesFaster)
 // so after a trial of each the frames are planned with a quarter of the
 // tiles (x8 is no faster), still covering the box of interest once.
 TEST(FrameAssembly, FramesArePlannedWithFewerTilesWhereThatMakesThemFaster) {
-  const auto run = [](FrameAssemblyConfig c) {
+  // Each tile takes its render `splats` / 10 us (the tile helper).
+  const auto run = [](FrameAssemblyConfig c, std::uint64_t splats = 100) {
     c.plan.tilesPerRender = 8.0;  // 16 tiles a frame over the two renders
     c.tileTuning.warmupFrames = 1;
     c.tileTuning.trialFrames = 3;
@@ -828,21 +832,31 @@ TEST(FrameAssembly, FramesArePlannedWithFewerTilesWhereThatMakesThemFaster) {
         expectExactCover(*area, rects);
       }
       now += tasks.size() > 4 ? 10ms : 5ms;
-      for (const auto& task : tasks) assembly.tileArrived(tile(task, 1000), now);
+      for (const auto& task : tasks) assembly.tileArrived(tile(task, splats), now);
       assembly.finishFrames(now);
     }
     return std::make_pair(perFrame, assembly.stats());
   };
-  const auto [tiles, stats] = run(config(16));
-  EXPECT_EQ(tiles, (std::vector<std::size_t>{16, 16, 16, 16, 8, 8, 8, 4, 4, 4, 2, 2, 2, 4, 4, 4}));
+  const auto [tiles, stats] = run(config(24));
+  // x1, x2 (no faster: x4 once more), x1 again, x4, x1 again (x4 kept), x8,
+  // x4 again (x8 no faster), x4.
+  EXPECT_EQ(tiles, (std::vector<std::size_t>{16, 16, 16, 16, 8, 8, 8, 16, 16, 16, 4, 4,
+                                             4,  16, 16, 16, 2, 2, 2, 4,  4,  4,  4, 4}));
   EXPECT_EQ(stats.tilesPerRenderTuned, 2.0);
   EXPECT_NE(stats.tileCountTuning.find("2 per render process by the frame rate (8: 100.0, 4: "
-                                       "100.0, 2: 200.0, 1: 200.0 frames/s; 4 trials)"),
+                                       "100.0, 2: 200.0, 1: 200.0 frames/s; 7 trials)"),
             std::string::npos)
       << stats.tileCountTuning;
   EXPECT_NE(stats.summary().find("tiles: 2 per render process"), std::string::npos);
+  // Renders busy for most of a frame: fewer tiles would leave those that
+  // keep one over half busy, so no trial goes below the tile count given.
+  const auto busy = run(config(24), 4000).first;  // 16 tiles of 0.4 ms: 3.2 ms of 10 per render
+  EXPECT_EQ(std::count(busy.begin(), busy.end(), 16u), 24) << ::testing::PrintToString(busy);
+  // 1.6 ms of 10 per render: one level (half the tiles) may be tried, no further.
+  const auto third = run(config(24), 2000).first;
+  EXPECT_EQ(*std::min_element(third.begin(), third.end()), 8u) << ::testing::PrintToString(third);
   // Not tuned where the run gives the tile count, nor for other schedulers.
-  FrameAssemblyConfig given = config(16);
+  FrameAssemblyConfig given = config(24);
   given.tuneTileCount = false;
   EXPECT_EQ(run(given).first.back(), 16u);
   EXPECT_FALSE(FrameAssembly(given, kPeers, kStart).tunesTileCount());
