@@ -317,7 +317,10 @@ std::uint32_t FrameAssembly::tileLevelCap(const FrameRecord& record) {
   // data), so the level stays at most log2(0.5 / mean busy share).
   double busy = 0.0;
   for (const auto& [rank, seconds] : record.busySecondsPerRender) busy += seconds;
-  if (lastFrameEnd_ >= 0.0 && record.endSeconds > lastFrameEnd_) {
+  // Not the warm-up's frames: the first ones wait for cells (the first one
+  // here took 60 times a later one), and would make the renders look idle.
+  if (record.frame >= config_.tileTuning.warmupFrames && lastFrameEnd_ >= 0.0 &&
+      record.endSeconds > lastFrameEnd_) {
     constexpr double kWeight = 0.1;
     busySecondsSmoothed_ += kWeight * (busy - busySecondsSmoothed_);
     frameSecondsSmoothed_ += kWeight * (record.endSeconds - lastFrameEnd_ - frameSecondsSmoothed_);
