@@ -39,20 +39,13 @@ namespace {
 // "0.5 per render process by the frame rate (2: 371.1, 1: 405.2, 0.5: 401.3
 // frames/s; 3 trials)".
 std::string tileCountSummary(double perRender, const FrameRateTuner& tuner) {
-  char item[96];
-  std::snprintf(item, sizeof item, "%g per render process by the frame rate (",
-                perRender / static_cast<double>(tuner.factor()));
-  std::string text = item;
-  const char* separator = "";
-  for (const auto& [level, rate] : tuner.ratesByLevel()) {
-    std::snprintf(item, sizeof item, "%s%g: %.1f", separator,
-                  perRender / static_cast<double>(std::uint64_t{1} << level), rate);
-    text += item;
-    separator = ", ";
-  }
-  std::snprintf(item, sizeof item, " frames/s; %u trial%s)", tuner.trials(),
-                tuner.trials() == 1 ? "" : "s");
-  return text + item;
+  const auto perRenderAt = [perRender](std::uint64_t divisor) {
+    char text[32];
+    std::snprintf(text, sizeof text, "%g", perRender / static_cast<double>(divisor));
+    return std::string(text);
+  };
+  return perRenderAt(tuner.factor()) + " per render process by the frame rate (" +
+         tuner.ratesText([&](std::uint64_t divisor) { return perRenderAt(divisor) + ": "; }) + ")";
 }
 
 }  // namespace

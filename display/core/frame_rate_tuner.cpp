@@ -143,18 +143,29 @@ std::string FrameRateTuner::summary() const {
                   static_cast<unsigned long long>(factor()), trials_, trials_ == 1 ? "" : "s");
     return item;
   }
-  std::snprintf(item, sizeof item, "sized x%llu by the frame rate (",
-                static_cast<unsigned long long>(factor()));
-  std::string text = item;
-  bool first = true;
-  for (const auto& [level, rate] : lastRate_) {
-    std::snprintf(item, sizeof item, "%sx%llu %.1f", first ? "" : ", ",
-                  static_cast<unsigned long long>(std::uint64_t{1} << level), rate);
-    text += item;
-    first = false;
+  const auto times = [](std::uint64_t f) {
+    char text[32];
+    std::snprintf(text, sizeof text, "x%llu ", static_cast<unsigned long long>(f));
+    return std::string(text);
+  };
+  std::string text = "sized " + times(factor());
+  text += "by the frame rate (";
+  text += ratesText(times);
+  text += ')';
+  return text;
+}
+
+std::string FrameRateTuner::ratesText(const std::function<std::string(std::uint64_t)>& name) const {
+  std::string text;
+  char rate[32];
+  for (const auto& [level, framesPerSecond] : lastRate_) {
+    std::snprintf(rate, sizeof rate, "%.1f", framesPerSecond);
+    if (!text.empty()) text += ", ";
+    text += name(std::uint64_t{1} << level);
+    text += rate;
   }
-  std::snprintf(item, sizeof item, " frames/s; %u trial%s)", trials_, trials_ == 1 ? "" : "s");
-  return text + item;
+  std::snprintf(rate, sizeof rate, " frames/s; %u trial%s", trials_, trials_ == 1 ? "" : "s");
+  return text + rate;
 }
 
 }  // namespace pointillist::display

@@ -26,6 +26,7 @@
 // finish in order. Deterministic for the same completion times. MPI-free.
 #include <algorithm>
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <string>
 #include <vector>
@@ -77,13 +78,14 @@ class FrameRateTuner {
   // pay); the chosen level stays until a round finds a better one.
   void setLevelCap(std::uint32_t level) { levelCap_ = level; }
   std::uint32_t topLevel() const { return std::min(options_.maxLevel, levelCap_); }
-  // Each level tried and the last frame rate measured with it.
-  const std::map<std::uint32_t, double>& ratesByLevel() const { return lastRate_; }
   // The factor, each one tried and the last frame rate measured with it,
   // e.g. "sized x2 by the frame rate (x1 412.3, x2 466.1, x4 450.0 frames/s;
   // 3 trials)", or "x1, not tuned: no tile was split (1 trial)" where the
   // trials had nothing to act on; empty before any trial. For the part size.
   std::string summary() const;
+  // The rates of summary(), each level named by `name(factor)`:
+  // "x1 412.3, x2 466.1 frames/s; 3 trials".
+  std::string ratesText(const std::function<std::string(std::uint64_t)>& name) const;
   std::uint32_t trials() const { return trials_; }
   std::uint32_t trialsActedOn() const { return splitTrials_; }
 
