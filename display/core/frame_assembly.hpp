@@ -211,12 +211,21 @@ class FrameAssembly {
   FrameRateTuner partTuner_;
   bool tuneTileCount_ = false;
   FrameRateTuner tileTuner_;
-  // The renders' mean busy share of a frame, smoothed over the last frames:
-  // fewer tiles are only tried where the renders that keep one stay under
-  // half busy (tileLevelCap).
+  // The renders' mean and busiest busy share of a frame and the time tiles
+  // waited for a traverse to ask, smoothed over the last frames: fewer tiles
+  // are only tried where the renders that keep one stay under half busy and,
+  // unless the traverses hold the frames, the busiest would not be the limit
+  // (tileLevelCap).
   double busySecondsSmoothed_ = 0.0;
+  double busiestSecondsSmoothed_ = 0.0;
+  double requestWaitSmoothed_ = 0.0;
   double frameSecondsSmoothed_ = 0.0;
   double lastFrameEnd_ = -1.0;
+  // Seconds (since the run began) tiles waited for requests, and when the
+  // open span began (negative: none open).
+  double requestWaitSeconds_ = 0.0;
+  double requestWaitSince_ = -1.0;
+  double requestWaitAtLastFrame_ = 0.0;
 };
 
 }  // namespace pointillist::display

@@ -125,6 +125,7 @@ std::vector<std::pair<std::string, std::string>> keyFigureFields(const KeyFigure
       {"tile_parts", count(k.tileParts)},
       {"part_size_factor", count(k.partSizeFactor)},
       {"tiles_per_render_tuned", number(k.tilesPerRenderTuned)},
+      {"request_wait_share", number(k.requestWaitShare)},
       {"background_tiles", count(k.backgroundTiles)},
       {"tasks_avoiding_silent_renders", count(k.avoidingTasks)},
       {"cpu_per_frame_display", number(cpuOf(k, "display"))},
@@ -289,6 +290,7 @@ KeyFigures RunStats::keyFigures() const {
   k.splitTiles = splitTiles;
   k.partSizeFactor = partSizeFactor;
   k.tilesPerRenderTuned = tilesPerRenderTuned;
+  k.requestWaitShare = totalSeconds > 0.0 ? requestWaitSeconds / totalSeconds : 0.0;
   k.tileParts = tileParts;
   k.backgroundTiles = backgroundTiles;
   k.avoidingTasks = avoidingTasks;
@@ -628,6 +630,12 @@ std::string RunStats::summary() const {
       static_cast<unsigned long long>(k.backgroundTiles),
       static_cast<unsigned long long>(k.avoidingTasks));
   out << line;
+  if (k.requestWaitShare > 0.0) {
+    std::snprintf(line, sizeof line,
+                  "tiles: waited for a traverse process to ask %.1f%% of the run\n",
+                  100.0 * k.requestWaitShare);
+    out << line;
+  }
   if (!tileCountTuning.empty()) out << "tiles: " << tileCountTuning << "\n";
   if (!partSizeTuning.empty()) out << "parts: " << partSizeTuning << "\n";
   for (const LostProcess& p : lost) {

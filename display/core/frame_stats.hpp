@@ -159,6 +159,7 @@ struct KeyFigures {
   std::uint64_t splitTiles = 0;       // tiles drawn as parts by several renders
   std::uint64_t partSizeFactor = 0;   // RunStats::partSizeFactor
   double tilesPerRenderTuned = 0.0;   // RunStats::tilesPerRenderTuned
+  double requestWaitShare = 0.0;      // RunStats::requestWaitSeconds of totalSeconds
   std::uint64_t tileParts = 0;        // their parts
   std::uint64_t backgroundTiles = 0;  // found empty by a traverse, drawn by no render
   std::uint64_t avoidingTasks = 0;    // tiles handed out naming renders to avoid
@@ -294,6 +295,9 @@ struct RunStats {
   // and what it measured; 0 and empty where it was not tuned.
   double tilesPerRenderTuned = 0.0;
   std::string tileCountTuning;
+  // Time tiles waited to be handed out with no traverse's request in: the
+  // traverse processes (their walks or request round trips) held the frames.
+  double requestWaitSeconds = 0.0;
   // Tiles handed out while a render held a tile past its deadline (the task
   // named it to avoid: FrameScheduler::suspectRenders).
   std::uint64_t avoidingTasks = 0;

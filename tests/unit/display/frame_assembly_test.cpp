@@ -813,17 +813,28 @@ TEST(FrameAssembly, TasksAskForTheTunedPartSizeWhereLargerPartsMakeFramesFaster)
 // tiles (x8 is no faster), still covering the box of interest once.
 TEST(FrameAssembly, FramesArePlannedWithFewerTilesWhereThatMakesThemFaster) {
   // Each tile takes its render `splats` / 10 us (the tile helper).
-  const auto run = [](FrameAssemblyConfig c, std::uint64_t splats = 100) {
-    c.plan.tilesPerRender = 8.0;  // 16 tiles a frame over the two renders
+  // `traversesLate`: tiles wait that long for a traverse to ask each frame.
+  const auto run = [](FrameAssemblyConfig c, std::uint64_t splats = 100,
+                      const PeerRanks& peers = kPeers,
+                      std::chrono::milliseconds traversesLate = 0ms) {
+    c.plan.tilesPerRender = 8.0;  // 16 tiles a frame
     c.tileTuning.warmupFrames = 1;
     c.tileTuning.trialFrames = 3;
     c.tileTuning.settleFrames = 0;
     c.tunePartSize = false;
-    FrameAssembly assembly(c, kPeers, kStart);
+    FrameAssembly assembly(c, peers, kStart);
     std::vector<std::size_t> perFrame;
     TimePoint now = kStart;
     for (std::size_t frame = 0; frame < c.cameras.size(); ++frame) {
-      const auto tasks = takeAll(assembly, now);
+      std::vector<v1::TileTask> tasks;
+      if (traversesLate > 0ms) {
+        Outbox out;
+        assembly.dispatch(now, out);  // the request left over from the last frame
+        tasks = tasksIn(out);
+        now += traversesLate;
+      }
+      const auto more = takeAll(assembly, now);
+      tasks.insert(tasks.end(), more.begin(), more.end());
       perFrame.push_back(tasks.size());
       std::vector<TileRect> rects;
       for (const auto& task : tasks) rects.push_back(task.rect());
@@ -855,6 +866,31 @@ TEST(FrameAssembly, FramesArePlannedWithFewerTilesWhereThatMakesThemFaster) {
   // 1.6 ms of 10 per render: one level (half the tiles) may be tried, no further.
   const auto third = run(config(24), 2000).first;
   EXPECT_EQ(*std::min_element(third.begin(), third.end()), 8u) << ::testing::PrintToString(third);
+  // Uneven work: of four renders, one draws every tile, 5.6 ms of 10. The
+  // mean share (0.14) would let one level through, but twice the busiest
+  // render's work would fill the frame: no trial.
+  const PeerRanks fourRenders = PeerRanks::contiguous(JobLayout{1, 2, 1, 4});
+  const auto uneven = run(config(24), 3500, fourRenders).first;
+  EXPECT_EQ(std::count(uneven.begin(), uneven.end(), 16u), 24) << ::testing::PrintToString(uneven);
+  // At 3 ms of 10 the busiest allows one level, not the two the mean would.
+  const auto lighter = run(config(24), 1875, fourRenders).first;
+  EXPECT_EQ(*std::min_element(lighter.begin(), lighter.end()), 8u)
+      << ::testing::PrintToString(lighter);
+  // The same uneven work where tiles wait for the traverses most of the
+  // time (12 ms of 22): fewer tiles are fewer walks, so the mean decides
+  // (0.06: two levels).
+  const auto [traverseHeld, heldStats] = run(config(24), 3500, fourRenders, 12ms);
+  EXPECT_EQ(*std::min_element(traverseHeld.begin(), traverseHeld.end()), 4u)
+      << ::testing::PrintToString(traverseHeld);
+  // The run's statistics count the wait: 12 ms in every frame that had tiles.
+  EXPECT_GE(heldStats.requestWaitSeconds, 23 * 0.012 - 1e-9);
+  EXPECT_LE(heldStats.requestWaitSeconds, 24 * 0.012 + 1e-9);
+  EXPECT_EQ(stats.requestWaitSeconds, 0.0);
+  // Waiting a little (3 ms of 13) leaves the busiest render's cap in force:
+  // at 7.2 ms of 13 no trial, where the mean (0.14) would allow one level.
+  const auto shortWait = run(config(24), 4500, fourRenders, 3ms).first;
+  EXPECT_EQ(std::count(shortWait.begin(), shortWait.end(), 16u), 24)
+      << ::testing::PrintToString(shortWait);
   // Not tuned where the run gives the tile count, nor for other schedulers.
   FrameAssemblyConfig given = config(24);
   given.tuneTileCount = false;
