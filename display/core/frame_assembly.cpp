@@ -352,10 +352,10 @@ std::uint32_t FrameAssembly::tileLevelCap(const FrameRecord& record) {
       frameSecondsSmoothed_ > 0.0 ? busySecondsSmoothed_ / (renders * frameSecondsSmoothed_) : 0.0;
   if (!(share > 0.0)) return ~std::uint32_t{0};
   double room = std::log2(0.5 / share);
-  // Simulated, tiles wait 17 to 41 % of the time where the renders hold the
-  // frames (the bunny at 4K, R = 64 and 128) and 95 to 100 % where the
-  // traverses or their requests do (the city at 720p, R = 128; at 4K,
-  // R = 1024).
+  // Simulated, tiles wait 15 to 41 % of the time where the renders hold the
+  // frames (the bunny at 4K, R = 64 and 128; the city at 720p, R = 16 and
+  // 32) and 62 to 100 % where the traverses or their requests do (the city
+  // at 720p, R >= 64; at 4K, R >= 128).
   constexpr double kTraversesHoldShare = 0.5;
   if (requestWaitSmoothed_ / frameSecondsSmoothed_ < kTraversesHoldShare) {
     room = std::min(room, std::log2(frameSecondsSmoothed_ / busiestSecondsSmoothed_));
