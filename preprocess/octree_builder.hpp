@@ -6,6 +6,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <span>
 #include <thread>
 #include <vector>
@@ -145,19 +146,61 @@ struct OctreeFrame {
   std::vector<std::vector<std::uint64_t>> splitCells;
 };
 
-// Stable LSD radix sort on bits [lowBit, highBit) of key(item), kDigitBits
-// bits a pass: equal keys keep their order. Each of `threads` threads (0: all cores)
-// counts and scatters its own contiguous share, in share order, so the sort
-// stays stable. Reports progress as a share of the items.
-template <unsigned kDigitBits = 8, class Item, class Allocator, class KeyFn>
-void radixSort(std::vector<Item, Allocator>& items, unsigned lowBit, unsigned highBit, KeyFn key,
-               const ProgressFn& progress = {}, unsigned threads = 1) {
-  if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
-  const std::size_t n = items.size();
+namespace detail {
+
+// Stable LSD passes, kDigitBits bits each, over bits [lowBit, highBit) of
+// key(item) for the n items at `from`, between `from` and `other` (n items
+// each) on one thread. Returns where the sorted items lie: `from` or `other`.
+template <unsigned kDigitBits, class Item, class KeyFn>
+Item* radixPasses(Item* from, Item* other, std::size_t n, unsigned lowBit, unsigned highBit,
+                  KeyFn& key) {
+  // A few dozen items: a stable insertion sort beats the digit counts.
+  constexpr std::size_t kInsertionItems = 48;
+  const std::uint64_t lowMask =
+      highBit - lowBit >= 64 ? ~std::uint64_t{0} : (std::uint64_t{1} << (highBit - lowBit)) - 1;
+  if (n <= kInsertionItems) {
+    const auto bits = [&](const Item& item) { return (key(item) >> lowBit) & lowMask; };
+    for (std::size_t i = 1; i < n; ++i) {
+      const Item item = from[i];
+      const std::uint64_t k = bits(item);
+      std::size_t j = i;
+      for (; j > 0 && bits(from[j - 1]) > k; --j) from[j] = from[j - 1];
+      from[j] = item;
+    }
+    return from;
+  }
+  constexpr std::size_t kDigits = std::size_t{1} << kDigitBits;
+  std::array<std::uint32_t, kDigits> count;
+  for (unsigned shift = lowBit; shift < highBit; shift += kDigitBits) {
+    const std::uint64_t mask =
+        shift + kDigitBits <= highBit ? kDigits - 1 : (std::uint64_t{1} << (highBit - shift)) - 1;
+    count.fill(0);
+    for (std::size_t i = 0; i < n; ++i) ++count[(key(from[i]) >> shift) & mask];
+    std::uint32_t at = 0;
+    bool oneDigit = false;
+    for (std::size_t d = 0; d <= mask; ++d) {
+      const std::uint32_t c = count[d];
+      oneDigit = oneDigit || c == n;
+      count[d] = at;
+      at += c;
+    }
+    if (oneDigit) continue;  // every key shares this digit
+    for (std::size_t i = 0; i < n; ++i) other[count[(key(from[i]) >> shift) & mask]++] = from[i];
+    std::swap(from, other);
+  }
+  return from;
+}
+
+// Stable LSD radix sort of the n items at `items` on `threads` threads, with
+// `scratch` (n items) beside them: each thread counts and scatters its own
+// contiguous share, in share order, so the sort stays stable. Returns where
+// the sorted items lie: `items` or `scratch`.
+template <unsigned kDigitBits, class Item, class KeyFn>
+Item* parallelRadixPasses(Item* items, Item* scratch, std::size_t n, unsigned lowBit,
+                          unsigned highBit, KeyFn& key, unsigned threads,
+                          const std::function<void(unsigned, unsigned)>& passDone = {}) {
   // Below a few blocks a thread costs more than it saves.
   const std::size_t shares = std::clamp<std::size_t>(n >> 18, 1, threads);
-  std::vector<Item, Allocator> tmp;
-  resizePopulated(tmp, n, threads);  // its writes are scattered
   constexpr std::size_t kDigits = std::size_t{1} << kDigitBits;
   std::vector<std::array<std::size_t, kDigits>> count(shares);
   const auto shareBegin = [&](std::size_t s) { return n * s / shares; };
@@ -190,18 +233,105 @@ void radixSort(std::vector<Item, Allocator>& items, unsigned lowBit, unsigned hi
       }
       oneDigit = oneDigit || total == n;
     }
-    if (oneDigit) continue;  // every key shares this digit
-    parallelFor(
-        shares, threads,
-        [&](std::size_t s) {
-          auto& next = count[s];
-          for (std::size_t i = shareBegin(s); i < shareBegin(s + 1); ++i)
-            tmp[next[digit(items[i])]++] = items[i];
-        },
-        1);
-    items.swap(tmp);
-    if (progress) progress(n * (pass + 1) / (passes + 1), n);
+    if (!oneDigit) {  // else every key shares this digit
+      parallelFor(
+          shares, threads,
+          [&](std::size_t s) {
+            auto& next = count[s];
+            for (std::size_t i = shareBegin(s); i < shareBegin(s + 1); ++i)
+              scratch[next[digit(items[i])]++] = items[i];
+          },
+          1);
+      std::swap(items, scratch);
+    }
+    if (passDone) passDone(pass + 1, passes);
   }
+  return items;
+}
+
+}  // namespace detail
+
+// Stable radix sort on bits [lowBit, highBit) of key(item), kDigitBits bits
+// a digit: equal keys keep their order, on any number of `threads` (0: all
+// cores). Where one digit does not cover the bits, the highest digit's pass
+// deals the items into buckets on all threads and each bucket is then sorted
+// on the lower bits on one thread, from cache: each pass over the whole
+// array scattered to thousands of places (the cube moments' sort of 10 M
+// keys, three passes: 0.14-0.19 -> 0.10-0.13 s). A bucket of more than an
+// eighth of the items is sorted on all threads instead. Reports progress as
+// a share of the items.
+template <unsigned kDigitBits = 8, class Item, class Allocator, class KeyFn>
+void radixSort(std::vector<Item, Allocator>& items, unsigned lowBit, unsigned highBit, KeyFn key,
+               const ProgressFn& progress = {}, unsigned threads = 1) {
+  if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
+  const std::size_t n = items.size();
+  if (n < 2 || highBit <= lowBit) return;
+  std::vector<Item, Allocator> tmp;
+  resizePopulated(tmp, n, threads);  // its writes are scattered
+  const unsigned passes = (highBit - lowBit + kDigitBits - 1) / kDigitBits;
+  const auto report = [&](unsigned done, unsigned of) {
+    if (progress) progress(n * done / (of + 1), n);
+  };
+  // Small arrays and one digit: passes over the whole array.
+  if (passes < 2 || n < (std::size_t{1} << 16)) {
+    if (detail::parallelRadixPasses<kDigitBits>(items.data(), tmp.data(), n, lowBit, highBit, key,
+                                                threads, report) != items.data())
+      items.swap(tmp);
+    return;
+  }
+  // The top digit: items into tmp by bucket.
+  const unsigned topShift = highBit - kDigitBits;
+  if (detail::parallelRadixPasses<kDigitBits>(items.data(), tmp.data(), n, topShift, highBit, key,
+                                              threads) == items.data())
+    items.swap(tmp);  // one bucket: the items stayed where they were
+  report(1, passes);
+  // Now tmp's items lie in bucket order; each bucket is sorted back into items.
+  constexpr std::size_t kDigits = std::size_t{1} << kDigitBits;
+  std::vector<std::size_t> bucketStart;
+  bucketStart.reserve(kDigits + 1);
+  {
+    std::size_t begin = 0;
+    bucketStart.push_back(0);
+    while (begin < n) {
+      const std::uint64_t digit = (key(tmp[begin]) >> topShift) & (kDigits - 1);
+      std::size_t end = begin + 1;
+      // Buckets are runs of one digit: found by galloping, then halving.
+      std::size_t step = 1;
+      while (end + step < n && ((key(tmp[end + step - 1]) >> topShift) & (kDigits - 1)) == digit)
+        step *= 2;
+      std::size_t lo = end, hi = std::min(n, end + step);
+      while (lo < hi) {
+        const std::size_t mid = lo + (hi - lo) / 2;
+        if (((key(tmp[mid]) >> topShift) & (kDigits - 1)) == digit)
+          lo = mid + 1;
+        else
+          hi = mid;
+      }
+      begin = lo;
+      bucketStart.push_back(begin);
+    }
+  }
+  const std::size_t buckets = bucketStart.size() - 1;
+  const std::size_t large = std::max<std::size_t>(n / 8, std::size_t{1} << 16);
+  const auto sortBucket = [&](std::size_t b, unsigned bucketThreads) {
+    const std::size_t first = bucketStart[b], m = bucketStart[b + 1] - first;
+    Item* sorted =
+        bucketThreads > 1
+            ? detail::parallelRadixPasses<kDigitBits>(tmp.data() + first, items.data() + first, m,
+                                                      lowBit, topShift, key, bucketThreads)
+            : detail::radixPasses<kDigitBits>(tmp.data() + first, items.data() + first, m, lowBit,
+                                              topShift, key);
+    if (sorted != items.data() + first) std::copy(sorted, sorted + m, items.data() + first);
+  };
+  for (std::size_t b = 0; b < buckets; ++b)
+    if (bucketStart[b + 1] - bucketStart[b] > large) sortBucket(b, threads);
+  parallelFor(
+      buckets, threads,
+      [&](std::size_t b) {
+        if (bucketStart[b + 1] - bucketStart[b] <= large) sortBucket(b, 1);
+      },
+      4);
+  report(passes, passes);
 }
 
 // Sorts `points` along a Morton curve at maxDepth resolution and builds the

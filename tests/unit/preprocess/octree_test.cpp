@@ -507,5 +507,50 @@ TEST(RadixSort, OrdersByTheChosenBitsAndIsStable) {
   }
 }
 
+// The top digit deals the items into buckets, each then sorted on the lower
+// bits alone: one bucket holding most items (sorted on all threads), buckets
+// of a few items (insertion-sorted), empty buckets, a top digit all items
+// share, and keys up to the 64th bit all give the stable order.
+TEST(RadixSort, BucketsOfEverySizeGiveTheStableOrder) {
+  std::mt19937_64 random(11);
+  const auto check = [](std::vector<std::uint64_t> items, unsigned low, unsigned high,
+                        unsigned threads, const char* what) {
+    const std::uint64_t mask =
+        high - low >= 64 ? ~std::uint64_t{0} : (std::uint64_t{1} << (high - low)) - 1;
+    const auto bits = [&](std::uint64_t v) { return (v >> low) & mask; };
+    std::vector<std::uint64_t> expected = items;
+    std::stable_sort(expected.begin(), expected.end(),
+                     [&](std::uint64_t a, std::uint64_t b) { return bits(a) < bits(b); });
+    std::vector<std::uint64_t> eight = items;
+    radixSort(
+        eight, low, high, [](std::uint64_t v) { return v; }, {}, threads);
+    EXPECT_EQ(eight, expected) << what << ", 8-bit digits, " << threads << " threads";
+    radixSort<11>(
+        items, low, high, [](std::uint64_t v) { return v; }, {}, threads);
+    EXPECT_EQ(items, expected) << what << ", 11-bit digits, " << threads << " threads";
+  };
+  for (const unsigned threads : {1u, 2u, 3u}) {
+    std::vector<std::uint64_t> skewed(300000);
+    for (std::uint64_t& v : skewed) {
+      // Nine in ten keys in one top-digit bucket; the index bits below 8 tie.
+      const std::uint64_t top = random() % 10 == 0 ? random() % 256 : 17;
+      v = top << 32 | (random() & 0xffffff00ull) | (random() & 0xff);
+    }
+    check(skewed, 8, 40, threads, "one bucket holds most");
+    // About 34 items a bucket of the 11-bit top digit, their keys below it
+    // one of 16 (many ties, told apart by the bits below `low`).
+    std::vector<std::uint64_t> small(70000);
+    for (std::size_t i = 0; i < small.size(); ++i)
+      small[i] = (random() & 0x7ffull) << 40 | (random() % 16) << 20 | i;
+    check(small, 20, 51, threads, "buckets of a few dozen items");
+    std::vector<std::uint64_t> wide(100000);
+    for (std::uint64_t& v : wide) v = random();
+    check(wide, 20, 64, threads, "keys to the 64th bit");
+    std::vector<std::uint64_t> shared(100000);
+    for (std::uint64_t& v : shared) v = std::uint64_t{5} << 30 | (random() & 0x3fffffffull);
+    check(shared, 0, 36, threads, "every item in one bucket");
+  }
+}
+
 }  // namespace
 }  // namespace pointillist::preprocess
