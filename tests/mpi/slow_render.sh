@@ -18,7 +18,13 @@
 # tiles stay with the ranges their renders hold: the others hold what the view
 # needs once the slow one recovers, and it won back only 0.03-0.06 of the
 # splats (CI failed on it; docs/scheduling.md §11 and §19). The run's
-# arguments carry --slow-index 0 and the window.
+# arguments carry --slow-index 0 and the window. The window is 60 frames of
+# 300 (frames 100-159), so coming back is measured over 120 frames: with
+# 100-199 it was 80, and a clean CI run once saw only 0.057 of the splats
+# there (before 0.194), its speed estimate still falling (T_s is a moving
+# average of the packets it draws, and it drew few); with 60-frame windows,
+# 14 runs here (3 beside a busy core) gave 0.117-0.264 after, 0.011-0.066
+# while slow.
 set -uo pipefail
 from="$1" to="$2"
 shift 2
