@@ -346,10 +346,10 @@ int run(int argc, char** argv) {
       if (quiet) return;
       std::fprintf(stderr,
                    "pointillist-simulate: [%zu/%zu] %-11s R=%-4u T=%-2u S=%-3u %7.2f frames/s "
-                   "steady, imbalance %.2f, %s (%.1f s)\n",
+                   "steady, imbalance %.2f, %s (%.1f s; tile layout %.2f ms a frame here)\n",
                    done, total, configName(row.config).c_str(), row.config.renders,
                    row.config.traverses, row.config.datasends, row.framesPerSecondSteady,
-                   row.imbalanceBusy, row.bottleneck.c_str(), row.wallSeconds);
+                   row.imbalanceBusy, row.bottleneck.c_str(), row.wallSeconds, row.planMsPerFrame);
       std::fflush(stderr);
     });
   }

@@ -144,6 +144,9 @@ struct SimulationResult {
   double bottleneckUtilisation = 0.0;
   double meanFrameLatency = 0.0;  // steady frames: first tile handed out to composed
   double tilesPerFrame = 0.0;
+  // Wall time of the display's tile layout (TilePlanner::plan) on this
+  // machine, per frame: display CPU the model does not charge.
+  double planMsPerFrame = 0.0;
   std::uint64_t packetsRendered = 0;
   std::uint64_t bytesMoved = 0;       // all cell data sent
   std::uint64_t duplicateOrders = 0;  // cells data-send skipped (already sent)

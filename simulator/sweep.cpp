@@ -198,6 +198,7 @@ SweepRow summarize(const SimulationResult& result, double wallSeconds) {
   row.imageBytesUncompressedPerFrameSteady = k.imageBytesUncompressedPerFrameSteady;
   row.partSizeFactor = k.partSizeFactor;
   row.tilesPerRenderTuned = k.tilesPerRenderTuned;
+  row.planMsPerFrame = result.planMsPerFrame;
   row.framesPerSecondLaterLoops = k.framesPerSecondLaterLoops;
   row.imbalanceBusyLaterLoops = k.imbalanceBusyLaterLoops;
   row.splatsPerFrame = k.splatsPerFrame;
@@ -474,7 +475,8 @@ std::string formatCsv(const std::vector<SweepRow>& rows) {
          "display_link_utilisation,display_cpu_utilisation,request_wait,bottleneck,"
          "bottleneck_utilisation,reissued_tiles,failed_tiles,packets_rendered,events,wall_"
          "seconds,image_bytes_per_frame_steady,image_bytes_uncompressed_per_frame_steady,part_size_"
-         "factor,tiles_per_render_tuned,frames_per_second_later_loops,imbalance_busy_later_loops\n";
+         "factor,tiles_per_render_tuned,frames_per_second_later_loops,imbalance_busy_later_loops,"
+         "plan_ms_per_frame\n";
   for (const SweepRow& row : rows) {
     const Utilisation& u = row.utilisation;
     out << configName(row.config) << ',' << row.config.renders << ',' << row.config.traverses << ','
@@ -494,7 +496,7 @@ std::string formatCsv(const std::vector<SweepRow>& rows) {
         << number(row.imageBytesPerFrameSteady) << ','
         << number(row.imageBytesUncompressedPerFrameSteady) << ',' << row.partSizeFactor << ','
         << number(row.tilesPerRenderTuned) << ',' << number(row.framesPerSecondLaterLoops) << ','
-        << number(row.imbalanceBusyLaterLoops) << '\n';
+        << number(row.imbalanceBusyLaterLoops) << ',' << number(row.planMsPerFrame) << '\n';
   }
   return out.str();
 }

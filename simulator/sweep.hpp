@@ -60,6 +60,7 @@ struct SweepRow {
   double imageBytesUncompressedPerFrameSteady = 0.0;  // what they expand to
   std::uint64_t partSizeFactor = 0;                   // the display's last; 0: not tuned
   double tilesPerRenderTuned = 0.0;                   // the display's last; 0: not tuned
+  double planMsPerFrame = 0.0;  // the display's tile layout, wall time here (not simulated)
   // With --loops above 1: the loops after the first (the tuners settled,
   // the caches warm); 0 with one loop.
   double framesPerSecondLaterLoops = 0.0;

@@ -67,7 +67,9 @@ void FrameAssembly::admitFrames() {
     std::vector<TileRect> tiles;
     if (const auto area =
             boxOfInterest(camera, config_.bounds.min, config_.bounds.max, config_.marginWorld)) {
+      const auto planning = Clock::now();
       tiles = planner_.plan(*area, tuneTileCount_ ? tileTuner_.factorFor(index) : 1);
+      stats_.planSeconds += secondsBetween(planning, Clock::now());
     }
     std::vector<std::uint32_t> order;
     if (const auto priority = tilePriority_.find(index); priority != tilePriority_.end()) {

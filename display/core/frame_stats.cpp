@@ -126,6 +126,7 @@ std::vector<std::pair<std::string, std::string>> keyFigureFields(const KeyFigure
       {"part_size_factor", count(k.partSizeFactor)},
       {"tiles_per_render_tuned", number(k.tilesPerRenderTuned)},
       {"request_wait_share", number(k.requestWaitShare)},
+      {"plan_ms_per_frame", number(k.planMsPerFrame)},
       {"background_tiles", count(k.backgroundTiles)},
       {"tasks_avoiding_silent_renders", count(k.avoidingTasks)},
       {"cpu_per_frame_display", number(cpuOf(k, "display"))},
@@ -291,6 +292,7 @@ KeyFigures RunStats::keyFigures() const {
   k.partSizeFactor = partSizeFactor;
   k.tilesPerRenderTuned = tilesPerRenderTuned;
   k.requestWaitShare = totalSeconds > 0.0 ? requestWaitSeconds / totalSeconds : 0.0;
+  k.planMsPerFrame = frameCount() > 0 ? 1e3 * planSeconds / static_cast<double>(frameCount()) : 0.0;
   k.tileParts = tileParts;
   k.backgroundTiles = backgroundTiles;
   k.avoidingTasks = avoidingTasks;
@@ -634,6 +636,11 @@ std::string RunStats::summary() const {
     std::snprintf(line, sizeof line,
                   "tiles: waited for a traverse process to ask %.1f%% of the run\n",
                   100.0 * k.requestWaitShare);
+    out << line;
+  }
+  if (k.planMsPerFrame > 0.0) {
+    std::snprintf(line, sizeof line, "tiles: laid out in %.3f ms a frame on the display\n",
+                  k.planMsPerFrame);
     out << line;
   }
   if (!tileCountTuning.empty()) out << "tiles: " << tileCountTuning << "\n";

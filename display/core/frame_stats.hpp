@@ -160,6 +160,7 @@ struct KeyFigures {
   std::uint64_t partSizeFactor = 0;   // RunStats::partSizeFactor
   double tilesPerRenderTuned = 0.0;   // RunStats::tilesPerRenderTuned
   double requestWaitShare = 0.0;      // RunStats::requestWaitSeconds of totalSeconds
+  double planMsPerFrame = 0.0;        // RunStats::planSeconds per frame, milliseconds
   std::uint64_t tileParts = 0;        // their parts
   std::uint64_t backgroundTiles = 0;  // found empty by a traverse, drawn by no render
   std::uint64_t avoidingTasks = 0;    // tiles handed out naming renders to avoid
@@ -298,6 +299,9 @@ struct RunStats {
   // Time tiles waited to be handed out with no traverse's request in: the
   // traverse processes (their walks or request round trips) held the frames.
   double requestWaitSeconds = 0.0;
+  // Wall time the display spent laying out frames' tiles (TilePlanner::plan):
+  // its own CPU, on the frames' path, which the simulator does not charge.
+  double planSeconds = 0.0;
   // Tiles handed out while a render held a tile past its deadline (the task
   // named it to avoid: FrameScheduler::suspectRenders).
   std::uint64_t avoidingTasks = 0;

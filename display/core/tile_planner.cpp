@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <numeric>
+#include <queue>
 
 #include "common/errors.hpp"
 #include "common/run_settings.hpp"
@@ -143,7 +144,7 @@ std::uint64_t TilePlanner::partSplats(std::uint64_t minimum, std::uint64_t unmea
   return std::max(minimum, static_cast<std::uint64_t>(static_cast<double>(splats) / renders));
 }
 
-std::vector<TileRect> TilePlanner::balancedSplit(const TileRect& area, std::uint32_t target) const {
+std::vector<TileRect> TilePlanner::balancedSplit(const TileRect& area, std::uint32_t target) {
   // Repeatedly halve the heaviest tile at the cut that splits its estimated
   // work evenly (a k-d split of the measured work), so no tile holds much more
   // than total/target. Tiles too small to cut are left whole.
@@ -151,27 +152,30 @@ std::vector<TileRect> TilePlanner::balancedSplit(const TileRect& area, std::uint
   struct Piece {
     TileRect rect;
     double work = 0.0;
-    bool splittable = true;
   };
-  const WorkDensity density = densityFor(area);
-  std::vector<Piece> pieces{{area, density.work(area), true}};
-  while (pieces.size() < target) {
-    auto heaviest = pieces.end();
-    for (auto it = pieces.begin(); it != pieces.end(); ++it) {
-      if (it->splittable && (heaviest == pieces.end() || it->work > heaviest->work)) heaviest = it;
-    }
-    if (heaviest == pieces.end()) break;
-    const TileRect rect = heaviest->rect;
+  const WorkDensity& density = densityFor(area);
+  std::vector<Piece> pieces{{area, density.work(area)}};
+  // Pieces that may still be cut, heaviest on top and, among equals, the
+  // first in `pieces`: a plan with fewer tiles is a prefix of one with more.
+  const auto lighter = [&pieces](std::uint32_t a, std::uint32_t b) {
+    if (pieces[a].work != pieces[b].work) return pieces[a].work < pieces[b].work;
+    return a > b;
+  };
+  std::priority_queue<std::uint32_t, std::vector<std::uint32_t>, decltype(lighter)> open(lighter);
+  open.push(0);
+  while (pieces.size() < target && !open.empty()) {
+    const std::uint32_t heaviest = open.top();
+    open.pop();
+    const TileRect rect = pieces[heaviest].rect;
     const std::uint32_t length = std::max(rect.width(), rect.height());
-    if (length < 2 * minSide) {
-      heaviest->splittable = false;
-      continue;
-    }
+    if (length < 2 * minSide) continue;  // stays whole
     const std::uint32_t offset =
         density.cutAt(rect, rect.width() >= rect.height(), 0.5, minSide, length - minSide);
     const auto [first, second] = cut(rect, offset);
-    *heaviest = {first, density.work(first), true};
-    pieces.push_back({second, density.work(second), true});
+    pieces[heaviest] = {first, density.work(first)};
+    pieces.push_back({second, density.work(second)});
+    open.push(heaviest);
+    open.push(static_cast<std::uint32_t>(pieces.size() - 1));
   }
   // Heaviest first, so the longest packets start early and the light ones fill
   // the gaps at the end of the frame.
@@ -184,7 +188,7 @@ std::vector<TileRect> TilePlanner::balancedSplit(const TileRect& area, std::uint
 }
 
 std::vector<TileRect> TilePlanner::regionSplit(const TileRect& area) {
-  const WorkDensity density = densityFor(area);
+  const WorkDensity& density = densityFor(area);
   const auto leaves = static_cast<std::uint32_t>(live_.size());
   const std::vector<TileRect> rects = regions_.split(area, leaves, density, options_.minTileSize);
   struct Region {
@@ -210,7 +214,7 @@ std::vector<TileRect> TilePlanner::regionSplit(const TileRect& area) {
   return tiles;
 }
 
-WorkDensity TilePlanner::densityFor(const TileRect& area) const {
+const WorkDensity& TilePlanner::densityFor(const TileRect& area) {
   // The grid spans the frame as far as this area and the last frame's tiles reach.
   std::uint32_t width = area.x() + area.width();
   std::uint32_t height = area.y() + area.height();
@@ -223,7 +227,8 @@ WorkDensity TilePlanner::densityFor(const TileRect& area) const {
   const double tiles = std::max(1.0, options_.tilesPerRender * static_cast<double>(live_.size()));
   const double meanSide = std::sqrt(static_cast<double>(area.width()) * area.height() / tiles);
   const auto side = static_cast<std::uint32_t>(std::clamp(meanSide / 32.0, 1.0, 64.0));
-  return WorkDensity(width, height, density_, 1u << 19, side);
+  densityGrid_.rebuild(width, height, density_, 1u << 19, side);
+  return densityGrid_;
 }
 
 }  // namespace pointillist::display

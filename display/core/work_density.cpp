@@ -14,8 +14,19 @@ std::uint32_t cellsAlong(std::uint32_t pixels, std::uint32_t side) {
 
 WorkDensity::WorkDensity(std::uint32_t width, std::uint32_t height,
                          std::span<const TileFeedback> tiles, std::size_t maxCells,
-                         std::uint32_t minCellSide)
-    : width_(width), height_(height), cell_(std::max(minCellSide, 1u)) {
+                         std::uint32_t minCellSide) {
+  rebuild(width, height, tiles, maxCells, minCellSide);
+}
+
+void WorkDensity::rebuild(std::uint32_t width, std::uint32_t height,
+                          std::span<const TileFeedback> tiles, std::size_t maxCells,
+                          std::uint32_t minCellSide) {
+  width_ = width;
+  height_ = height;
+  cell_ = std::max(minCellSide, 1u);
+  columns_ = 0;
+  rows_ = 0;
+  table_.clear();  // unmeasured until the table is filled
   if (width == 0 || height == 0) return;
   double measuredArea = 0.0;
   double measuredWork = 0.0;
@@ -33,8 +44,9 @@ WorkDensity::WorkDensity(std::uint32_t width, std::uint32_t height,
   }
   columns_ = cellsAlong(width, cell_);
   rows_ = cellsAlong(height, cell_);
-  std::vector<double> work(static_cast<std::size_t>(columns_) * rows_, 0.0);
-  std::vector<double> covered(work.size(), 0.0);
+  // Each cell's measured work and the area tiles measured in it; the buffers
+  // stay from one frame to the next (a fresh 4K grid is 3000 pages to fault in).
+  cells_.assign(static_cast<std::size_t>(columns_) * rows_, {0.0, 0.0});
   for (const TileFeedback& tile : tiles) {
     const std::uint32_t x0 = std::min(tile.rect.x(), width);
     const std::uint32_t y0 = std::min(tile.rect.y(), height);
@@ -50,8 +62,8 @@ WorkDensity::WorkDensity(std::uint32_t width, std::uint32_t height,
         const double w =
             static_cast<double>(std::min(x1, (column + 1) * cell_) - std::max(x0, column * cell_));
         const std::size_t index = static_cast<std::size_t>(row) * columns_ + column;
-        work[index] += density * w * h;
-        covered[index] += w * h;
+        cells_[index].work += density * w * h;
+        cells_[index].covered += w * h;
       }
     }
   }
@@ -64,7 +76,8 @@ WorkDensity::WorkDensity(std::uint32_t width, std::uint32_t height,
       const double w = static_cast<double>(std::min(width, (column + 1) * cell_) - column * cell_);
       const std::size_t index = static_cast<std::size_t>(row) * columns_ + column;
       const double area = w * h;
-      rowSum += work[index] + mean * (std::max(0.0, area - covered[index]) + 0.02 * area);
+      rowSum +=
+          cells_[index].work + mean * (std::max(0.0, area - cells_[index].covered) + 0.02 * area);
       table_[static_cast<std::size_t>(row + 1) * (columns_ + 1) + column + 1] =
           table_[static_cast<std::size_t>(row) * (columns_ + 1) + column + 1] + rowSum;
     }

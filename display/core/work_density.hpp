@@ -32,6 +32,10 @@ class WorkDensity {
   WorkDensity(std::uint32_t width, std::uint32_t height, std::span<const TileFeedback> tiles,
               std::size_t maxCells = 1u << 19, std::uint32_t minCellSide = 1);
 
+  // The same as constructing it anew, reusing this one's buffers.
+  void rebuild(std::uint32_t width, std::uint32_t height, std::span<const TileFeedback> tiles,
+               std::size_t maxCells = 1u << 19, std::uint32_t minCellSide = 1);
+
   bool measured() const { return !table_.empty(); }
   std::uint32_t cellSide() const { return cell_; }
   // Estimated splats in `rect` (exact sums of whole cells; uniform within a cell).
@@ -51,6 +55,11 @@ class WorkDensity {
   std::uint32_t columns_ = 0;
   std::uint32_t rows_ = 0;
   std::vector<double> table_;  // (rows_ + 1) x (columns_ + 1) summed-area table
+  struct Cell {
+    double work = 0.0;
+    double covered = 0.0;
+  };
+  std::vector<Cell> cells_;  // rebuild's scratch
 };
 
 }  // namespace pointillist::display

@@ -89,6 +89,34 @@ TEST(WorkDensity, EqualsThePixelEstimateOnItsGridAndStaysCloseBetween) {
   EXPECT_NEAR(floored.work(frame), bruteWork(frame, tiles), 1e-6 * bruteWork(frame, tiles));
 }
 
+// The planner rebuilds one grid every frame (its buffers stay): a grid
+// rebuilt from another size, measurement and cell side holds what a fresh
+// one holds, to the bit, and a rebuild with no measurement is area again.
+TEST(WorkDensity, ARebuiltGridEqualsAFreshOne) {
+  std::mt19937 random(9);
+  WorkDensity reused(1920, 1080, randomFeedback(random, 1920, 1080), 1u << 19, 2);
+  const struct {
+    std::uint32_t width, height;
+    std::size_t maxCells;
+    std::uint32_t side;
+  } grids[] = {{640, 360, 1u << 19, 1}, {1280, 720, 20'000, 1}, {320, 200, 1u << 19, 10}};
+  for (const auto& grid : grids) {
+    const auto tiles = randomFeedback(random, grid.width, grid.height);
+    reused.rebuild(grid.width, grid.height, tiles, grid.maxCells, grid.side);
+    const WorkDensity fresh(grid.width, grid.height, tiles, grid.maxCells, grid.side);
+    ASSERT_EQ(reused.cellSide(), fresh.cellSide());
+    for (int trial = 0; trial < 200; ++trial) {
+      const std::uint32_t x = below(random, grid.width), y = below(random, grid.height);
+      const TileRect rect =
+          makeTileRect(x, y, 1 + below(random, grid.width - x), 1 + below(random, grid.height - y));
+      EXPECT_EQ(reused.work(rect), fresh.work(rect)) << grid.width << "x" << grid.height;
+    }
+  }
+  reused.rebuild(640, 360, {});
+  EXPECT_FALSE(reused.measured());
+  EXPECT_EQ(reused.work(makeTileRect(3, 4, 10, 20)), 200.0);
+}
+
 TEST(WorkDensity, CutsAtTheShareOfTheWork) {
   // Left half 9 splats per pixel, right half 1: half the work lies left of x = 56.
   const std::vector<TileFeedback> tiles{{makeTileRect(0, 0, 100, 10), 0.0, 9000},

@@ -93,6 +93,54 @@ TEST(TilePlanner, ATileDivisorPlansFewerTilesThatStillCoverTheArea) {
   EXPECT_EQ(grid.plan(area, 4).size(), grid.plan(area, 1).size());
 }
 
+// The cost scheduler's cuts go to the heaviest tile first: a plan with fewer
+// tiles is made of whole tiles of a plan with more (the tile tuner's levels
+// differ by merges, not by new borders), each covering the box once. Where
+// the minimum side stops the split short of the target (512 renders ask a
+// 256x128 box for 1024 tiles; it holds at most 32 of 32x32), the plan is the
+// tiles it holds, and dividing a target still above them changes nothing.
+TEST(TilePlanner, FewerTilesAreTheFirstCutsOfMore) {
+  const TileRect area = makeTileRect(0, 0, 256, 128);
+  std::vector<TileFeedback> measured;
+  for (std::uint32_t x = 0; x < 256; x += 16) {
+    for (std::uint32_t y = 0; y < 128; y += 16) {
+      measured.push_back({.rect = makeTileRect(x, y, 16, 16),
+                          .seconds = 1e-6 * (1 + x + y),
+                          .splats = 100u * (1 + x + y)});
+    }
+  }
+  TilePlanner planner({.scheduler = SchedulerKind::Cost, .renders = 8, .tilesPerRender = 2.0});
+  planner.frameDone(measured);
+  std::vector<TileRect> finer = planner.plan(area, 1);
+  EXPECT_EQ(finer.size(), 16u);
+  expectExactCover(area, finer);
+  for (const std::uint64_t divisor : {2u, 4u, 8u, 16u}) {
+    const auto tiles = planner.plan(area, divisor);
+    expectExactCover(area, tiles);
+    EXPECT_EQ(tiles.size(), 16 / divisor) << "divisor " << divisor;
+    for (const TileRect& fine : finer) {
+      const auto holders = std::count_if(tiles.begin(), tiles.end(), [&](const TileRect& coarse) {
+        return fine.x() >= coarse.x() && fine.y() >= coarse.y() &&
+               fine.x() + fine.width() <= coarse.x() + coarse.width() &&
+               fine.y() + fine.height() <= coarse.y() + coarse.height();
+      });
+      EXPECT_EQ(holders, 1) << "divisor " << divisor;
+    }
+    finer = tiles;
+  }
+  TilePlanner many({.scheduler = SchedulerKind::Cost, .renders = 512, .tilesPerRender = 2.0});
+  many.frameDone(measured);
+  const auto held = many.plan(area, 1);
+  expectExactCover(area, held);
+  EXPECT_GE(held.size(), 8u);  // cuts at the work's middle leave some tiles under 64 wide
+  EXPECT_LE(held.size(), 32u);
+  const auto halved = many.plan(area, 2);
+  ASSERT_EQ(halved.size(), held.size());
+  for (std::size_t i = 0; i < held.size(); ++i) {
+    EXPECT_EQ(halved[i].SerializeAsString(), held[i].SerializeAsString()) << "tile " << i;
+  }
+}
+
 TEST(TilePlanner, CostTilesFollowTheMeasuredWork) {
   const TileRect area = makeTileRect(0, 0, 1280, 720);
   TilePlanner balanced({.scheduler = SchedulerKind::Cost, .renders = 4, .tilesPerRender = 2.0});
