@@ -766,13 +766,12 @@ class Simulation {
       record.bytesPrefetched = trace(record.frame).bytesPrefetched;
     }
     stats.recountFrames();
+    out.figures = stats.keyFigures();
     // The display's tile layout took wall time here, not simulated time: kept
     // out of the statistics, which are the same from run to run.
-    out.planMsPerFrame = stats.frameCount() > 0
-                             ? 1e3 * stats.planSeconds / static_cast<double>(stats.frameCount())
-                             : 0.0;
+    out.planMsPerFrame = out.figures.planMsPerFrame;
+    out.figures.planMsPerFrame = 0.0;
     stats.planSeconds = 0.0;
-    out.figures = stats.keyFigures();
     for (std::uint64_t frame : completionOrder_) out.frames.push_back(trace(frame));
 
     const std::size_t steadyFrom = out.figures.steadyFrom;

@@ -886,6 +886,10 @@ TEST(FrameAssembly, FramesArePlannedWithFewerTilesWhereThatMakesThemFaster) {
   EXPECT_GE(heldStats.requestWaitSeconds, 23 * 0.012 - 1e-9);
   EXPECT_LE(heldStats.requestWaitSeconds, 24 * 0.012 + 1e-9);
   EXPECT_EQ(stats.requestWaitSeconds, 0.0);
+  // The display times its own tile layout, and the summary says it.
+  EXPECT_GT(stats.planSeconds, 0.0);
+  EXPECT_GT(stats.keyFigures().planMsPerFrame, 0.0);
+  EXPECT_NE(stats.summary().find("tiles: laid out in "), std::string::npos);
   // Waiting a little (3 ms of 13) leaves the busiest render's cap in force:
   // at 7.2 ms of 13 no trial, where the mean (0.14) would allow one level.
   const auto shortWait = run(config(24), 4500, fourRenders, 3ms).first;
