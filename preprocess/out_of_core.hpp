@@ -45,9 +45,14 @@ namespace pointillist::preprocess {
 inline constexpr std::uint64_t kBuildBytesPerPoint = 128;
 
 // Points one chunk may hold under `memoryBytes` for a cloud of `pointCount`
-// points (what the whole run keeps besides a chunk is taken off first); 0 when
-// the cap is too small to work at all.
-std::uint64_t chunkCapacity(std::uint64_t memoryBytes, std::uint64_t pointCount);
+// points (what the whole run keeps besides a chunk is taken off first), whose
+// normals are estimated or not; 0 when the cap is too small to work at all.
+std::uint64_t chunkCapacity(std::uint64_t memoryBytes, std::uint64_t pointCount,
+                            bool estimateNormals = false);
+
+// Points in a block of the spill under `memoryBytes` (the reader's block; the
+// writer keeps two sorted ones besides).
+std::size_t spillBlockPoints(std::uint64_t memoryBytes);
 
 // Memory a whole cloud of `pointCount` points needs when built in memory.
 std::uint64_t inMemoryBytes(std::uint64_t pointCount);

@@ -232,6 +232,67 @@ TEST(Octree, PointsFollowTheScalarCodersMortonCurve) {
   }
 }
 
+// Runs that share the radix-sorted top levels and hold more than a leaf are
+// sorted by code, equal codes in input order: the order an in-memory build
+// gives, which an out-of-core chunk (whose points share their top levels, so
+// its runs are long) must repeat for the same dataset.
+TEST(Octree, LongRunsFollowTheCodeThenTheInputOrder) {
+  constexpr unsigned kMaxDepth = 21;
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> blob(0.0f, 1e-3f);
+  std::vector<Splat> input;
+  const auto add = [&](float x, float y, float z) {
+    Splat s{};
+    s.position[0] = x;
+    s.position[1] = y;
+    s.position[2] = z;
+    s.normal[2] = 1.0f;
+    s.radius = static_cast<float>(input.size() + 1);  // the input order, exactly
+    s.color[3] = 255;
+    input.push_back(s);
+  };
+  add(0.0f, 0.0f, 0.0f);
+  add(1.0f, 1.0f, 1.0f);
+  // A dense blob (one run under 8 levels), a third of it repeated positions.
+  for (int i = 0; i < 30000; ++i) {
+    if (i % 3 == 2) {
+      const Splat earlier = input[input.size() - 1 - static_cast<std::size_t>(rng() % 40)];
+      add(earlier.position[0], earlier.position[1], earlier.position[2]);
+    } else {
+      add(0.5f + blob(rng), 0.5f + blob(rng), 0.5f + blob(rng));
+    }
+  }
+  OctreeOptions options;
+  options.maxDepth = kMaxDepth;
+  options.leafPoints = 16;
+  options.threads = 2;
+  const Octree tree = buildOctree(input, options);
+  OctreeCube cube;
+  for (int a = 0; a < 3; ++a) cube.min[a] = tree.cubeMin[a];
+  cube.size = tree.cubeSize;
+  const unsigned lowBit = 3 * kMaxDepth - 24;
+  std::size_t runStart = 0, longest = 0, ties = 0;
+  for (std::size_t i = 1; i <= tree.points.size(); ++i) {
+    const auto code = [&](std::size_t j) {
+      return mortonCode(tree.points[j].position, cube, kMaxDepth);
+    };
+    if (i < tree.points.size() && code(i) >> lowBit == code(runStart) >> lowBit) continue;
+    if (i - runStart > options.leafPoints) {
+      longest = std::max(longest, i - runStart);
+      for (std::size_t j = runStart + 1; j < i; ++j) {
+        ASSERT_LE(code(j - 1), code(j)) << j;
+        if (code(j - 1) == code(j)) {
+          ++ties;
+          ASSERT_LT(tree.points[j - 1].radius, tree.points[j].radius) << j;
+        }
+      }
+    }
+    runStart = i;
+  }
+  EXPECT_GT(longest, 20000u);
+  EXPECT_GT(ties, 5000u);
+}
+
 TEST(Octree, NextSiblingAndLevelsFollowTheRules) {
   const Built b = build(5000, smallOptions());
   const Octree& t = b.tree;

@@ -73,9 +73,10 @@ std::string fileBytes(const fs::path& file) {
 }
 
 // A cap that gives chunks of about `chunkPoints` for a cloud of `points`.
-std::uint64_t capFor(std::uint64_t points, std::uint64_t chunkPoints) {
+std::uint64_t capFor(std::uint64_t points, std::uint64_t chunkPoints,
+                     bool estimateNormals = false) {
   std::uint64_t cap = std::uint64_t{1} << 20;
-  while (chunkCapacity(cap, points) < chunkPoints) cap += std::uint64_t{1} << 16;
+  while (chunkCapacity(cap, points, estimateNormals) < chunkPoints) cap += std::uint64_t{1} << 16;
   return cap;
 }
 
@@ -382,7 +383,7 @@ void expectChunksKeepTheInMemorySides(std::vector<Splat> splats, NormalMethod me
   for (const std::uint64_t chunkPoints : chunkSizes) {
     OutOfCoreOptions oc;
     oc.build = build;
-    oc.memoryBytes = capFor(splats.size(), chunkPoints);
+    oc.memoryBytes = capFor(splats.size(), chunkPoints, true);
     const fs::path out = dir.path() / ("chunked-" + std::to_string(chunkPoints));
     const OutOfCoreResult r = preprocessOutOfCore({input}, out, oc, {});
     EXPECT_GE(r.chunks, 3u);
