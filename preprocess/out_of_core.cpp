@@ -16,6 +16,7 @@
 #include <limits>
 #include <map>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <span>
 #include <system_error>
@@ -440,12 +441,28 @@ void readBucket(const Bucket& b, std::size_t block, Fn fn) {
   }
 }
 
-void appendBucket(const Bucket& b, std::vector<Splat>& into) {
-  const std::size_t at = into.size();
-  into.resize(at + b.count);
-  File f = openFile(b.file, "rb");
-  if (std::fread(into.data() + at, sizeof(Splat), b.count, f.get()) != b.count)
-    throw Error("cannot read temporary file " + b.file.string() + ": short read");
+// Reads `count` points from `offset` (points) of spill file `b` into `into`.
+void readBucketRange(const Bucket& b, std::uint64_t offset, std::uint64_t count, Splat* into) {
+  const int fd = ::open(b.file.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0)
+    throw Error("cannot open temporary file " + b.file.string() + ": " + std::strerror(errno));
+  auto* at = reinterpret_cast<char*>(into);
+  std::uint64_t bytes = count * sizeof(Splat);
+  auto where = static_cast<off_t>(offset * sizeof(Splat));
+  while (bytes > 0) {
+    const ssize_t got = ::pread(fd, at, bytes, where);
+    if (got < 0 && errno == EINTR) continue;
+    if (got <= 0) {
+      const int error = errno;
+      ::close(fd);
+      throw Error("cannot read temporary file " + b.file.string() + ": " +
+                  (got < 0 ? std::strerror(error) : "short read"));
+    }
+    at += got;
+    where += got;
+    bytes -= static_cast<std::uint64_t>(got);
+  }
+  ::close(fd);
 }
 
 // A node of the spill files' tree: a file, or a cell above files.
@@ -547,17 +564,47 @@ std::vector<std::pair<std::size_t, std::size_t>> groupChunks(const Layout& layou
 }
 
 std::vector<Splat> loadChunk(const Layout& layout, std::pair<std::size_t, std::size_t> chunk,
-                             const std::vector<Bucket>& buckets) {
+                             const std::vector<Bucket>& buckets, unsigned threads) {
+  // The chunk's files in pieces of at most kPiecePoints, each read to its
+  // place on all cores into pages mapped on all cores: read one after
+  // another into a fresh array on one thread, a chunk of 27 M points took
+  // 0.4-0.9 s (2.4 s for the first, whose pages the process had never
+  // touched) while the other core idled.
+  constexpr std::uint64_t kPiecePoints = std::uint64_t{1} << 19;  // 16 MiB
+  struct Piece {
+    const Bucket* bucket;
+    std::uint64_t offset, count, into;
+  };
+  std::vector<Piece> pieces;
   std::uint64_t count = 0;
-  for (std::size_t i = chunk.first; i < chunk.second; ++i)
-    if (!layout.items[i].upper) count += layout.items[i].count;
-  std::vector<Splat> points;
-  points.reserve(count);
   for (std::size_t i = chunk.first; i < chunk.second; ++i) {
     const Item& it = layout.items[i];
     if (it.upper) continue;
-    for (std::size_t b = it.bucketBegin; b < it.bucketEnd; ++b) appendBucket(buckets[b], points);
+    for (std::size_t b = it.bucketBegin; b < it.bucketEnd; ++b)
+      for (std::uint64_t at = 0; at < buckets[b].count; at += kPiecePoints) {
+        const std::uint64_t n = std::min(kPiecePoints, buckets[b].count - at);
+        pieces.push_back({&buckets[b], at, n, count});
+        count += n;
+      }
   }
+  std::vector<Splat> points;
+  resizePopulated(points, static_cast<std::size_t>(count), threads);
+  // A thread of parallelFor must not throw: the first error is kept for this one.
+  std::mutex errorMutex;
+  std::exception_ptr error;
+  parallelFor(
+      pieces.size(), threads,
+      [&](std::size_t p) {
+        try {
+          const Piece& piece = pieces[p];
+          readBucketRange(*piece.bucket, piece.offset, piece.count, points.data() + piece.into);
+        } catch (...) {
+          const std::lock_guard lock(errorMutex);
+          if (!error) error = std::current_exception();
+        }
+      },
+      1);
+  if (error) std::rethrow_exception(error);
   return points;
 }
 
@@ -944,7 +991,7 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
     std::uint64_t done = 0;
     for (const auto& chunk : groupChunks(layout, capacity)) {
       report("structure", done, count);
-      std::vector<Splat> points = loadChunk(layout, chunk, buckets);
+      std::vector<Splat> points = loadChunk(layout, chunk, buckets, options.build.threads);
       const std::uint64_t n = points.size();
       const Octree tree = buildOctree(std::move(points), octree, {}, &frame);
       std::size_t unit = chunk.first;
@@ -1020,7 +1067,7 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
   std::jthread remover;
   for (std::size_t chunkIndex = 0; chunkIndex < chunks.size(); ++chunkIndex) {
     const auto& chunk = chunks[chunkIndex];
-    std::vector<Splat> points = loadChunk(layout, chunk, buckets);
+    std::vector<Splat> points = loadChunk(layout, chunk, buckets, options.build.threads);
     if (remover.joinable()) remover.join();
     std::vector<fs::path> loaded;
     for (std::size_t i = chunk.first; i < chunk.second; ++i)
