@@ -16,7 +16,6 @@
 #include <limits>
 #include <map>
 #include <memory>
-#include <mutex>
 #include <optional>
 #include <span>
 #include <system_error>
@@ -589,22 +588,13 @@ std::vector<Splat> loadChunk(const Layout& layout, std::pair<std::size_t, std::s
   }
   std::vector<Splat> points;
   resizePopulated(points, static_cast<std::size_t>(count), threads);
-  // A thread of parallelFor must not throw: the first error is kept for this one.
-  std::mutex errorMutex;
-  std::exception_ptr error;
   parallelFor(
       pieces.size(), threads,
       [&](std::size_t p) {
-        try {
-          const Piece& piece = pieces[p];
-          readBucketRange(*piece.bucket, piece.offset, piece.count, points.data() + piece.into);
-        } catch (...) {
-          const std::lock_guard lock(errorMutex);
-          if (!error) error = std::current_exception();
-        }
+        const Piece& piece = pieces[p];
+        readBucketRange(*piece.bucket, piece.offset, piece.count, points.data() + piece.into);
       },
       1);
-  if (error) std::rethrow_exception(error);
   return points;
 }
 

@@ -5,6 +5,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <cstring>
+#include <exception>
 #include <thread>
 #include <vector>
 
@@ -13,20 +14,32 @@
 namespace pointillist::preprocess {
 
 // Calls fn(i) for every i in [0, n) on `threads` threads (0: all cores),
-// handing out chunks of `chunk` items so uneven items even out.
+// handing out chunks of `chunk` items so uneven items even out. Where fn
+// throws, no further chunk is handed out and the first exception is
+// rethrown here once every thread is joined (thrown on a thread of its own,
+// it ended the process; on this one, it left the others unjoined, which did
+// too).
 template <class Fn>
 void parallelFor(std::size_t n, unsigned threads, Fn fn, std::size_t chunk = 64) {
   if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
   std::atomic<std::size_t> next{0};
+  std::atomic<bool> failed{false};
+  std::exception_ptr error;  // the first one, set once `failed` is won
   auto run = [&] {
-    for (std::size_t b; (b = next.fetch_add(chunk)) < n;)
-      for (std::size_t i = b; i < std::min(n, b + chunk); ++i) fn(i);
+    try {
+      for (std::size_t b; (b = next.fetch_add(chunk)) < n;)
+        for (std::size_t i = b; i < std::min(n, b + chunk); ++i) fn(i);
+    } catch (...) {
+      if (!failed.exchange(true)) error = std::current_exception();
+      next.store(n);
+    }
   };
   std::vector<std::thread> pool;
   for (unsigned t = 1; t < threads && static_cast<std::size_t>(t) * chunk < n; ++t)
     pool.emplace_back(run);
   run();
   for (auto& t : pool) t.join();
+  if (error) std::rethrow_exception(error);
 }
 
 // Copies n trivially copyable values on `threads` threads (0: all cores).

@@ -3,8 +3,13 @@
 #include <sys/mman.h>
 #include <sys/resource.h>
 
+#include <atomic>
+#include <chrono>
 #include <cstddef>
 #include <cstdint>
+#include <stdexcept>
+#include <string>
+#include <thread>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -19,6 +24,35 @@ long minorFaults() {
   rusage usage{};
   getrusage(RUSAGE_SELF, &usage);
   return usage.ru_minflt;
+}
+
+// A body that throws, on any thread: the caller gets the exception once all
+// threads are joined, and no chunk is handed out after it.
+TEST(ParallelFor, AnExceptionFromAnyThreadReachesTheCaller) {
+  for (const std::size_t bad : {std::size_t{0}, std::size_t{3}, std::size_t{999}}) {
+    std::atomic<std::size_t> calls{0};
+    try {
+      parallelFor(
+          1000, 4,
+          [&](std::size_t i) {
+            ++calls;
+            if (i == bad) throw std::runtime_error("item " + std::to_string(i));
+            std::this_thread::sleep_for(std::chrono::microseconds(20));
+          },
+          1);
+      ADD_FAILURE() << "no exception for item " << bad;
+    } catch (const std::runtime_error& e) {
+      EXPECT_EQ(std::string(e.what()), "item " + std::to_string(bad));
+    }
+    // The other threads stop taking items: at most one more each.
+    if (bad == 3) {
+      EXPECT_LT(calls.load(), 40u);
+    }
+  }
+  // Several throw: one of theirs arrives, whole.
+  EXPECT_THROW(parallelFor(
+                   64, 4, [](std::size_t) { throw std::logic_error("every item"); }, 1),
+               std::logic_error);
 }
 
 TEST(PopulatePages, FreshMemoryIsMappedAheadAndReadsZero) {
