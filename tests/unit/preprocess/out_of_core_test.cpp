@@ -5,8 +5,10 @@
 // a shallow max depth, stacks of identical points. Streaming readers give the
 // points the whole-file readers give, and nothing temporary is left behind.
 #include <gtest/gtest.h>
+#include <sys/resource.h>
 #include <unistd.h>
 
+#include <csignal>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -256,6 +258,76 @@ TEST(OutOfCore, AFailureMidwayRemovesTheTemporaryFiles) {
   std::size_t entries = 0;
   for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir.path())) ++entries;
   EXPECT_EQ(entries, 1u);  // the input alone
+}
+
+// The spill's writing thread fails (files may not grow past 64 KiB here, a
+// full disk as the kernel reports it): the error reaches the caller, naming
+// the file, and nothing is left behind.
+TEST(OutOfCore, ASpillWriteThatFailsIsAnErrorAndLeavesNothing) {
+  TempDir dir;
+  const fs::path input = dir.path() / "in.ply";
+  const auto splats = city(30000);
+  writePly(input, splats, false);
+  OutOfCoreOptions oc;
+  oc.memoryBytes = capFor(splats.size(), 4000);
+  rlimit before{};
+  ASSERT_EQ(getrlimit(RLIMIT_FSIZE, &before), 0);
+  const auto oldHandler = std::signal(SIGXFSZ, SIG_IGN);  // write then fails with EFBIG
+  rlimit small = before;
+  small.rlim_cur = 64 << 10;
+  ASSERT_EQ(setrlimit(RLIMIT_FSIZE, &small), 0);
+  std::string message;
+  try {
+    preprocessOutOfCore({input}, dir.path() / "out", oc, {});
+  } catch (const pointillist::Error& e) {
+    message = e.what();
+  }
+  setrlimit(RLIMIT_FSIZE, &before);
+  std::signal(SIGXFSZ, oldHandler);
+  EXPECT_NE(message.find("cannot write temporary file"), std::string::npos) << message;
+  EXPECT_NE(message.find(".spill-"), std::string::npos) << message;
+  std::size_t entries = 0;
+  for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir.path())) ++entries;
+  EXPECT_EQ(entries, 1u);  // the input alone
+}
+
+// A spill file cut short under the run (read on all cores into the chunk):
+// the error reaches the caller from the reading thread, and nothing is left.
+TEST(OutOfCore, ASpillFileCutShortIsAnErrorAndLeavesNothing) {
+  TempDir dir;
+  const fs::path input = dir.path() / "in.ply";
+  const auto splats = city(30000);
+  writePly(input, splats, false);
+  OutOfCoreOptions oc;
+  oc.memoryBytes = capFor(splats.size(), 4000);
+  bool cut = false;
+  std::string message;
+  try {
+    preprocessOutOfCore({input}, dir.path() / "out", oc,
+                        [&](const char* stage, std::uint64_t, std::uint64_t) {
+                          if (cut || std::strcmp(stage, "building") != 0) return;
+                          // The first chunk is loaded (its files are being
+                          // removed): the later chunks' files lose their end.
+                          for (const auto& e : fs::directory_iterator(dir.path())) {
+                            if (e.path().filename().string().find(".spill-") == std::string::npos)
+                              continue;
+                            std::error_code gone;  // removed meanwhile
+                            for (const auto& f : fs::directory_iterator(e.path(), gone)) {
+                              const auto size = fs::file_size(f.path(), gone);
+                              if (!gone) fs::resize_file(f.path(), size / 2, gone);
+                            }
+                          }
+                          cut = true;
+                        });
+  } catch (const pointillist::Error& e) {
+    message = e.what();
+  }
+  EXPECT_TRUE(cut);
+  EXPECT_NE(message.find("cannot read temporary file"), std::string::npos) << message;
+  EXPECT_NE(message.find("short read"), std::string::npos) << message;
+  std::size_t entries = 0;
+  for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir.path())) ++entries;
+  EXPECT_EQ(entries, 1u);
 }
 
 // In memory, preprocess writes each packet as soon as its level-splats are
