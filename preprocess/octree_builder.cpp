@@ -64,10 +64,9 @@ void mortonSort(KeyedVector& items, unsigned totalBits, std::uint32_t leafPoints
         for (std::size_t i = 1; i < m; ++i) differ |= first[i].code ^ first[0].code;
         if (differ == 0) return;
         if (scratch.size() < m) scratch.resize(m);
-        auto key = code;
         const Keyed* sorted = detail::radixPasses<11>(
             first, scratch.data(), m, static_cast<unsigned>(std::countr_zero(differ)),
-            static_cast<unsigned>(std::bit_width(differ)), key);
+            static_cast<unsigned>(std::bit_width(differ)), code);
         if (sorted != first) std::copy(sorted, sorted + m, first);
       },
       16);

@@ -256,7 +256,9 @@ TEST(Octree, LongRunsFollowTheCodeThenTheInputOrder) {
   // A dense blob (one run under 8 levels), a third of it repeated positions.
   for (int i = 0; i < 30000; ++i) {
     if (i % 3 == 2) {
-      const Splat earlier = input[input.size() - 1 - static_cast<std::size_t>(rng() % 40)];
+      // One of the last 40 points (the two corners are not among them).
+      const std::size_t back = std::min<std::size_t>(40, input.size() - 2);
+      const Splat earlier = input[input.size() - 1 - static_cast<std::size_t>(rng() % back)];
       add(earlier.position[0], earlier.position[1], earlier.position[2]);
     } else {
       add(0.5f + blob(rng), 0.5f + blob(rng), 0.5f + blob(rng));

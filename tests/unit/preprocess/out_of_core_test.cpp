@@ -74,6 +74,13 @@ std::string fileBytes(const fs::path& file) {
   return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
 }
 
+// Files and directories directly in `dir`.
+std::size_t entriesIn(const fs::path& dir) {
+  std::size_t entries = 0;
+  for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir)) ++entries;
+  return entries;
+}
+
 // A cap that gives chunks of about `chunkPoints` for a cloud of `points`.
 std::uint64_t capFor(std::uint64_t points, std::uint64_t chunkPoints,
                      bool estimateNormals = false) {
@@ -123,9 +130,7 @@ OutOfCoreResult expectSameDataset(const Case& c) {
   // It opens and verifies as any dataset.
   EXPECT_NO_THROW(pointillist::Dataset::open(dir.path() / "chunked"));
   // Only the input and the two datasets are left.
-  std::size_t entries = 0;
-  for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir.path())) ++entries;
-  EXPECT_EQ(entries, 3u);
+  EXPECT_EQ(entriesIn(dir.path()), 3u);
   EXPECT_EQ(r.points, c.splats.size());
   return r;
 }
@@ -230,18 +235,45 @@ TEST(OutOfCore, TooSmallACapIsAUsageErrorAndLeavesNothing) {
   OutOfCoreOptions oc;
   oc.memoryBytes = std::uint64_t{8} << 20;
   EXPECT_THROW(preprocessOutOfCore({input}, dir.path() / "out", oc, {}), pointillist::UsageError);
-  std::size_t entries = 0;
-  for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir.path())) ++entries;
-  EXPECT_EQ(entries, 1u);
+  EXPECT_EQ(entriesIn(dir.path()), 1u);
 }
 
-TEST(OutOfCore, AFailureMidwayRemovesTheTemporaryFiles) {
-  TempDir dir;
-  const fs::path input = dir.path() / "in.ply";
+// A 30 k-point city written to `input`, and options that build it in chunks
+// of about 4000 points.
+OutOfCoreOptions cityInChunksOf4000(const fs::path& input) {
   const auto splats = city(30000);
   writePly(input, splats, false);
   OutOfCoreOptions oc;
   oc.memoryBytes = capFor(splats.size(), 4000);
+  return oc;
+}
+
+// Files may not grow past `bytes` while it lives (a write past it fails with
+// EFBIG, as on a full disk, instead of raising SIGXFSZ).
+class FileSizeLimit {
+ public:
+  explicit FileSizeLimit(rlim_t bytes) : oldHandler_(std::signal(SIGXFSZ, SIG_IGN)) {
+    EXPECT_EQ(getrlimit(RLIMIT_FSIZE, &before_), 0);
+    rlimit small = before_;
+    small.rlim_cur = bytes;
+    EXPECT_EQ(setrlimit(RLIMIT_FSIZE, &small), 0);
+  }
+  ~FileSizeLimit() {
+    setrlimit(RLIMIT_FSIZE, &before_);
+    std::signal(SIGXFSZ, oldHandler_);
+  }
+  FileSizeLimit(const FileSizeLimit&) = delete;
+  FileSizeLimit& operator=(const FileSizeLimit&) = delete;
+
+ private:
+  rlimit before_{};
+  void (*oldHandler_)(int);
+};
+
+TEST(OutOfCore, AFailureMidwayRemovesTheTemporaryFiles) {
+  TempDir dir;
+  const fs::path input = dir.path() / "in.ply";
+  const OutOfCoreOptions oc = cityInChunksOf4000(input);
   int building = 0;
   bool sawSpillFiles = false;
   EXPECT_THROW(
@@ -255,9 +287,7 @@ TEST(OutOfCore, AFailureMidwayRemovesTheTemporaryFiles) {
                           }),
       pointillist::Error);
   EXPECT_TRUE(sawSpillFiles);
-  std::size_t entries = 0;
-  for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir.path())) ++entries;
-  EXPECT_EQ(entries, 1u);  // the input alone
+  EXPECT_EQ(entriesIn(dir.path()), 1u);  // the input alone
 }
 
 // The spill's writing thread fails (files may not grow past 64 KiB here, a
@@ -266,29 +296,17 @@ TEST(OutOfCore, AFailureMidwayRemovesTheTemporaryFiles) {
 TEST(OutOfCore, ASpillWriteThatFailsIsAnErrorAndLeavesNothing) {
   TempDir dir;
   const fs::path input = dir.path() / "in.ply";
-  const auto splats = city(30000);
-  writePly(input, splats, false);
-  OutOfCoreOptions oc;
-  oc.memoryBytes = capFor(splats.size(), 4000);
-  rlimit before{};
-  ASSERT_EQ(getrlimit(RLIMIT_FSIZE, &before), 0);
-  const auto oldHandler = std::signal(SIGXFSZ, SIG_IGN);  // write then fails with EFBIG
-  rlimit small = before;
-  small.rlim_cur = 64 << 10;
-  ASSERT_EQ(setrlimit(RLIMIT_FSIZE, &small), 0);
+  const OutOfCoreOptions oc = cityInChunksOf4000(input);
   std::string message;
   try {
+    const FileSizeLimit limit(64 << 10);
     preprocessOutOfCore({input}, dir.path() / "out", oc, {});
   } catch (const pointillist::Error& e) {
     message = e.what();
   }
-  setrlimit(RLIMIT_FSIZE, &before);
-  std::signal(SIGXFSZ, oldHandler);
   EXPECT_NE(message.find("cannot write temporary file"), std::string::npos) << message;
   EXPECT_NE(message.find(".spill-"), std::string::npos) << message;
-  std::size_t entries = 0;
-  for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir.path())) ++entries;
-  EXPECT_EQ(entries, 1u);  // the input alone
+  EXPECT_EQ(entriesIn(dir.path()), 1u);  // the input alone
 }
 
 // A spill file cut short under the run (read on all cores into the chunk):
@@ -296,10 +314,7 @@ TEST(OutOfCore, ASpillWriteThatFailsIsAnErrorAndLeavesNothing) {
 TEST(OutOfCore, ASpillFileCutShortIsAnErrorAndLeavesNothing) {
   TempDir dir;
   const fs::path input = dir.path() / "in.ply";
-  const auto splats = city(30000);
-  writePly(input, splats, false);
-  OutOfCoreOptions oc;
-  oc.memoryBytes = capFor(splats.size(), 4000);
+  const OutOfCoreOptions oc = cityInChunksOf4000(input);
   bool cut = false;
   std::string message;
   try {
@@ -325,9 +340,7 @@ TEST(OutOfCore, ASpillFileCutShortIsAnErrorAndLeavesNothing) {
   EXPECT_TRUE(cut);
   EXPECT_NE(message.find("cannot read temporary file"), std::string::npos) << message;
   EXPECT_NE(message.find("short read"), std::string::npos) << message;
-  std::size_t entries = 0;
-  for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir.path())) ++entries;
-  EXPECT_EQ(entries, 1u);
+  EXPECT_EQ(entriesIn(dir.path()), 1u);
 }
 
 // In memory, preprocess writes each packet as soon as its level-splats are
@@ -376,9 +389,7 @@ TEST(StreamedPackets, WriteTheDatasetTheWholeContentWrites) {
     };
     EXPECT_THROW(buildDatasetContent(city(40000), failing), pointillist::Error);
   }
-  std::size_t entries = 0;
-  for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir.path())) ++entries;
-  EXPECT_EQ(entries, 2u);  // the two datasets alone
+  EXPECT_EQ(entriesIn(dir.path()), 2u);  // the two datasets alone
 
   // Instancing adds to packets afterwards: streaming is refused with it.
   PreprocessOptions instanced = o;
