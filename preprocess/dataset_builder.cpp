@@ -265,7 +265,7 @@ DatasetContent buildDatasetContent(std::vector<Splat> points, const PreprocessOp
     no.lattice = options.cubeLattice;
     if (no.method == NormalMethod::Moments && !(no.lattice.side > 0.0))
       no.lattice = chooseCubeLattice(std::span<const Splat>(cloud.splats.data(), own), tree.cubeMin,
-                                     tree.cubeSize);
+                                     tree.cubeSize, options.cubePoints);
     no.onlyWhereMissing = true;
     no.threads = options.threads;
     no.sideReference = options.sideReference;

@@ -43,6 +43,9 @@ struct PreprocessOptions {
   // NormalMethod::Moments: the cubes; side 0: chosen from the points, inside
   // the octree's cube (out of core, every chunk is given the whole cloud's).
   CubeLattice cubeLattice;
+  // The points an occupied cube holds on average, aimed at where the side
+  // is chosen (--cube-points): coarser cubes are faster and blur more.
+  double cubePoints = kMomentPointsPerCube;
   unsigned threads = 0;  // 0: all cores
   std::string source;    // recorded in the manifest
   // --instanced: every top-level cell's points also as vertex and

@@ -190,6 +190,7 @@ struct Options {
   bool knnRadii = false;
   std::string neighbourSearch = "grid";
   std::string normals = "auto";
+  double cubePoints = pp::kMomentPointsPerCube;
   bool dropNonFinite = false;
   std::uint64_t seed = 1;
   unsigned threads = 0;
@@ -437,6 +438,7 @@ int runOutOfCore(const Options& o, Progress& progress, Clock::time_point start) 
   oc.build.threads = o.threads;
   oc.build.neighbourSearch = neighbourSearchOf(o);
   oc.build.normalMethod = normalMethodOf(o);
+  oc.build.cubePoints = o.cubePoints;
   pp::InstancingStats instancingStats;
   if (o.instanced) {
     oc.build.instancing = o.instancing;
@@ -515,6 +517,10 @@ int run(const Options& o) {
   if (o.neighbours < 3) throw UsageError("--neighbours must be at least 3");
   neighbourSearchOf(o);  // refuses a bad name before any reading
   normalMethodOf(o);
+  // Past 64 a block of 27 cubes holds thousands of points: no longer a
+  // neighbourhood, and below 0.5 most blocks hold too few for a plane.
+  if (!(o.cubePoints >= 0.5 && o.cubePoints <= 64.0))
+    throw UsageError("--cube-points must be 0.5..64, not " + std::to_string(o.cubePoints));
   if (o.packetKiB == 0) throw UsageError("--packet-kib must be positive");
   if (o.maxDepth < 1 || o.maxDepth > 21) throw UsageError("--max-depth must be 1..21");
   if (o.leafPoints < 1) throw UsageError("--leaf-points must be positive");
@@ -578,6 +584,7 @@ int run(const Options& o) {
   po.estimateNormals = !cloud.hasNormals || (!cloud.hasRadii && !leafRadii);
   po.neighbourSearch = neighbourSearchOf(o);
   po.normalMethod = normalMethodOf(o);
+  po.cubePoints = o.cubePoints;
   po.radiusNeighbours = o.neighbours;
   po.threads = o.threads;
   po.source = cloud.source;
@@ -681,6 +688,12 @@ int main(int argc, char** argv) {
                  "each point's own, from per-cube sums: about twice as fast, a few degrees "
                  "farther from true normals on sparse samplings; a cube's points share one) or "
                  "auto (moments from 2 M points up, knn below)")
+      ->capture_default_str();
+  app.add_option("--cube-points", o.cubePoints,
+                 "Moments: the points an occupied cube holds on average, aimed at (0.5..64). "
+                 "Coarser cubes are faster and blur curves and creases: on the 10 M bunny scan "
+                 "2.4 takes the normals stage from 1.45 to 1.13 s, the mean error from 0.61 to "
+                 "0.72 degrees (README, \"Normals from cube moments\")")
       ->capture_default_str();
   app.add_flag("--drop-non-finite", o.dropNonFinite,
                "Drop NaN/Inf points with a warning instead of refusing");

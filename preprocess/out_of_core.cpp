@@ -952,7 +952,8 @@ OutOfCoreResult preprocessOutOfCore(const std::vector<fs::path>& inputs, const f
   PreprocessOptions build = options.build;
   build.normalMethod = normalMethod;  // the whole cloud's choice, not a chunk's
   if (momentNormals)
-    build.cubeLattice = chooseCubeLattice(latticeSample, latticeEvery, cube.min, cube.size);
+    build.cubeLattice =
+        chooseCubeLattice(latticeSample, latticeEvery, cube.min, cube.size, build.cubePoints);
   const double minReach =
       build.normalMethod == NormalMethod::Moments ? 2.0 * build.cubeLattice.side : 0.0;
   Layout layout = planUnits(nodes, buckets, octree,
