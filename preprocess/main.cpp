@@ -692,7 +692,7 @@ int main(int argc, char** argv) {
   app.add_option("--cube-points", o.cubePoints,
                  "Moments: the points an occupied cube holds on average, aimed at (0.5..64). "
                  "Coarser cubes are faster and blur curves and creases: on the 10 M bunny scan "
-                 "2.4 takes the normals stage from 1.45 to 1.13 s, the mean error from 0.61 to "
+                 "2.4 takes the normals stage from 1.38 to 1.10 s, the mean error from 0.61 to "
                  "0.72 degrees (README, \"Normals from cube moments\")")
       ->capture_default_str();
   app.add_flag("--drop-non-finite", o.dropNonFinite,
